@@ -1,0 +1,221 @@
+"""The solver backend plugin interface, discovery, and the one driver loop every backend runs under.
+
+A backend is a class registered under the entry-point group ``stw_tui.backends``. It never loops
+by itself: the driver (:func:`run_iterations`) calls ``init`` once and ``step`` once per
+iteration, checks for non-finite results, asks the caller's callback whether to go on, and stops
+on convergence — so pause, single-step and cancel work the same for every backend (the shape of
+optimistix's init/step/terminate). Everything crossing the interface is plain data: the
+:class:`~stw_tui.window.WindowProblem` (numpy arrays, scipy sparse matrices, compiled terms with
+their sympy expressions) and :class:`SolverState` / :class:`StepReport`.
+"""
+
+from __future__ import annotations
+
+import enum
+import time
+from abc import ABC, abstractmethod
+from dataclasses import dataclass, field, replace
+from importlib import metadata
+from typing import Any, Callable, ClassVar
+
+import numpy as np
+
+from .errors import SolveError, StwError
+
+INTERFACE_VERSION = 1
+ENTRY_POINT_GROUP = "stw_tui.backends"
+
+
+@dataclass(frozen=True)
+class BackendOption:
+    """One option a backend accepts, declared as data (CLI flags, `backend NAME k=v`, TUI panel)."""
+
+    name: str
+    type: type
+    default: Any
+    help: str
+    choices: tuple | None = None
+
+    def parse(self, raw: str | Any) -> Any:
+        """Convert a raw string to the option's type, with a clear error."""
+        try:
+            if self.type is bool and isinstance(raw, str):
+                if raw.lower() not in ("1", "0", "true", "false", "yes", "no", "on", "off"):
+                    raise ValueError(raw)
+                value = raw.lower() in ("1", "true", "yes", "on")
+            else:
+                value = self.type(raw)
+        except (TypeError, ValueError):
+            raise StwError(f"option {self.name}: '{raw}' is not a valid {self.type.__name__}") from None
+        if self.choices is not None and value not in self.choices:
+            raise StwError(f"option {self.name}: '{raw}' is not one of {', '.join(map(str, self.choices))}")
+        return value
+
+
+class Status(enum.Enum):
+    """Why a run of iterations ended; the value is the message shown to the user."""
+
+    RUNNING = "running"
+    CONVERGED = "converged"
+    MAX_ITERATIONS = "iteration limit reached"
+    STOPPED = "stopped by the user"
+    STALLED = "no further progress (line search failed)"
+    FAILED = "failed"
+
+
+@dataclass(frozen=True)
+class SolverState:
+    """Backend-neutral state carried between iterations and across `iterate` commands."""
+
+    s: np.ndarray                    # free control point values
+    lam_eq: np.ndarray               # multipliers of equality rows
+    lam_ge: np.ndarray               # multipliers of inequality rows (<= 0 when active)
+    working_set: np.ndarray          # bool, inequality rows treated as active
+    merit_weight: float = 1.0
+    regularization: float = 0.0
+
+    @classmethod
+    def start(cls, problem) -> "SolverState":
+        return cls(s=problem.initial(), lam_eq=np.zeros(problem.row_counts["eq"]),
+                   lam_ge=np.zeros(problem.row_counts["ge"]),
+                   working_set=np.zeros(problem.row_counts["ge"], bool))
+
+
+@dataclass(frozen=True)
+class StepReport:
+    """What one iteration did (one row of the iteration table)."""
+
+    iteration: int
+    objective: float
+    max_violation: float
+    kkt_residual: float
+    step_length: float
+    linear_iterations: int
+    active: int
+    ms: dict[str, float] = field(default_factory=dict)
+    converged: bool = False
+    stalled: bool = False
+    message: str = ""
+
+    @property
+    def total_ms(self) -> float:
+        return sum(self.ms.values())
+
+
+class Backend(ABC):
+    """Base class of solver backends.
+
+    Subclasses set ``name``, optionally ``options`` and ``capabilities``, and implement
+    :meth:`init` and :meth:`step`. They need know nothing of the UI.
+    """
+
+    name: ClassVar[str]
+    interface_version: ClassVar[int] = INTERFACE_VERSION
+    options: ClassVar[tuple[BackendOption, ...]] = ()
+    capabilities: ClassVar[frozenset[str]] = frozenset()
+
+    def __init__(self, **options: Any):
+        known = {o.name: o for o in self.options}
+        unknown = sorted(set(options) - set(known))
+        if unknown:
+            names = ", ".join(known) or "none"
+            raise StwError(f"backend {self.name} has no option {', '.join(unknown)} (options: {names})")
+        self.config = {name: opt.default for name, opt in known.items()}
+        self.config.update({k: known[k].parse(v) for k, v in options.items()})
+
+    @abstractmethod
+    def init(self, problem, state: SolverState, settings: dict[str, float]) -> Any:
+        """Prepare to iterate on ``problem`` from ``state``; returns the backend's own state."""
+
+    @abstractmethod
+    def step(self, problem, inner: Any, iteration: int) -> tuple[Any, StepReport]:
+        """Run one iteration; returns the new inner state and its report."""
+
+    @abstractmethod
+    def state(self, inner: Any) -> SolverState:
+        """The backend-neutral state of ``inner`` (control points and multipliers)."""
+
+
+# --- discovery -------------------------------------------------------------------------------
+def available_backends() -> dict[str, metadata.EntryPoint]:
+    """Installed backends by name, without importing any of them."""
+    return {ep.name: ep for ep in metadata.entry_points(group=ENTRY_POINT_GROUP)}
+
+
+def load_backend(name: str) -> type[Backend]:
+    """Import the backend called ``name``.
+
+    Raises:
+        StwError: unknown name (listing the installed ones), import failure, or an interface
+            version this stw does not speak.
+    """
+    found = available_backends()
+    if name not in found:
+        raise StwError(f"no backend named '{name}' (installed: {', '.join(sorted(found)) or 'none'})")
+    try:
+        cls = found[name].load()
+    except Exception as exc:  # a plugin's import error must not take stw down
+        raise StwError(f"backend '{name}' failed to load: {type(exc).__name__}: {exc}") from exc
+    if not (isinstance(cls, type) and issubclass(cls, Backend)):
+        raise StwError(f"backend '{name}' is not a stw_tui.backend.Backend subclass")
+    if cls.interface_version != INTERFACE_VERSION:
+        raise StwError(f"backend '{name}' speaks interface {cls.interface_version}, stw speaks "
+                       f"{INTERFACE_VERSION}")
+    return cls
+
+
+# --- the driver ------------------------------------------------------------------------------
+@dataclass
+class RunResult:
+    status: Status
+    state: SolverState
+    reports: list[StepReport]
+    seconds: float
+
+    @property
+    def converged(self) -> bool:
+        return self.status is Status.CONVERGED
+
+
+def run_iterations(backend: Backend, problem, start: SolverState, n: int, settings: dict[str, float],
+                   on_report: Callable[[StepReport], bool | None] | None = None) -> RunResult:
+    """Run up to ``n`` iterations of ``backend`` on ``problem``.
+
+    ``on_report`` is called after every iteration; returning False stops at that boundary.
+    Raises:
+        SolveError: the backend raised or produced non-finite values; nothing is returned, so the
+            caller's scene is untouched.
+    """
+    t0 = time.perf_counter()
+    reports: list[StepReport] = []
+    status = Status.MAX_ITERATIONS
+    try:
+        inner = backend.init(problem, start, settings)
+        state = start
+        for k in range(1, n + 1):
+            inner, report = backend.step(problem, inner, k)
+            state = backend.state(inner)
+            if not (np.all(np.isfinite(state.s)) and np.isfinite(report.objective)
+                    and np.isfinite(report.max_violation)):
+                raise SolveError(f"iteration {k} produced non-finite values (diverged); "
+                                 "the scene is unchanged — try damping, a smaller window or `shake`")
+            reports.append(report)
+            if report.converged:
+                status = Status.CONVERGED
+                break
+            if report.stalled:
+                status = Status.STALLED
+                break
+            if on_report is not None and on_report(report) is False:
+                status = Status.STOPPED
+                break
+        if reports and status in (Status.CONVERGED, Status.STALLED) and on_report is not None:
+            on_report(reports[-1])
+    except SolveError:
+        raise
+    except StwError as exc:
+        raise SolveError(f"backend {backend.name}: {exc}") from exc
+    except Exception as exc:  # any bug or numerical failure inside a plugin
+        raise SolveError(f"backend {backend.name} raised {type(exc).__name__}: {exc}; "
+                         "the scene is unchanged") from exc
+    return RunResult(status, replace(state), reports, time.perf_counter() - t0)

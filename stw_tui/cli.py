@@ -1,0 +1,141 @@
+"""The `stw` command: the TUI by default, plus headless `run`, `bench` and `backends`."""
+
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+import time
+from pathlib import Path
+
+from .backend import StepReport
+from .errors import SourceError, StwError
+
+SUBCOMMANDS = ("run", "bench", "backends")
+
+
+def _table_header() -> str:
+    return f"{'iter':>5} {'objective':>14} {'max viol':>10} {'KKT':>10} {'step':>8} {'lin it':>6} {'active':>6} {'ms':>8}"
+
+
+def format_report(r: StepReport) -> str:
+    """One row of the iteration table."""
+    return (f"{r.iteration:>5} {r.objective:>14.8g} {r.max_violation:>10.2e} {r.kkt_residual:>10.2e} "
+            f"{r.step_length:>8.3g} {r.linear_iterations:>6} {r.active:>6} {r.total_ms:>8.2f}")
+
+
+def _run(args: argparse.Namespace) -> int:
+    from .session import Session
+
+    session = Session(journal_path=args.journal)
+    started = time.perf_counter()
+
+    def on_line(number, line, outcome):
+        if args.json or not outcome.message:
+            return
+        if outcome.run is not None:
+            print(_table_header())
+            for report in outcome.run.reports:
+                print(format_report(report))
+        print(f"[{number}] {outcome.message}")
+
+    if args.backend:
+        session.execute(f"backend {args.backend}")
+    try:
+        session.run_file(args.session, on_line=on_line)
+    except SourceError as exc:
+        print(f"{args.session}: {exc}", file=sys.stderr)
+        if exc.caret():
+            print(exc.caret(), file=sys.stderr)
+        return 2
+    except StwError as exc:
+        print(f"{args.session}: {exc}", file=sys.stderr)
+        return 1
+    seconds = time.perf_counter() - started
+    if args.json:
+        print(json.dumps(summary(session, args.samples, seconds)))
+    return 0
+
+
+def summary(session, samples: int, seconds: float) -> dict:
+    """The JSON result of `stw run --json`."""
+    runs = session.runs
+    reports = [r for run in runs for r in run.reports]
+    last = reports[-1] if reports else None
+    return {
+        "backend": session.scene.backend,
+        "iterations": len(reports),
+        "converged": bool(runs and runs[-1].converged),
+        "objective": last.objective if last else None,
+        "max_violation": last.max_violation if last else None,
+        "seconds": seconds,
+        "dofs": session.sample(samples),
+        "prints": [{"expr": p.expr, "t": p.t, "value": p.value} for p in session.prints],
+    }
+
+
+def _backends(args: argparse.Namespace) -> int:
+    from .backend import available_backends, load_backend
+
+    for name, ep in sorted(available_backends().items()):
+        try:
+            cls = load_backend(name)
+        except StwError as exc:
+            print(f"{name:<10} unavailable: {exc}")
+            continue
+        dist = ep.dist.version if ep.dist is not None else "?"
+        print(f"{name:<10} {dist:<8} {cls.__doc__.strip().splitlines()[0] if cls.__doc__ else ''}")
+        for opt in cls.options:
+            choices = f" ({'|'.join(map(str, opt.choices))})" if opt.choices else ""
+            print(f"    {opt.name}={opt.default}{choices}  {opt.help}")
+    return 0
+
+
+def _bench(args: argparse.Namespace) -> int:
+    from .bench import run_bench
+
+    return run_bench(args)
+
+
+def build_parser() -> argparse.ArgumentParser:
+    parser = argparse.ArgumentParser(prog="stw", description="Spacetime Windows for the terminal.")
+    sub = parser.add_subparsers(dest="command")
+    run = sub.add_parser("run", help="replay a session headless and print the iterations")
+    run.add_argument("session", type=Path)
+    run.add_argument("--backend", help="backend to use (overridden by `backend` lines in the session)")
+    run.add_argument("--json", action="store_true", help="print one JSON object instead of the table")
+    run.add_argument("--samples", type=int, default=21, help="DOF samples in the JSON output")
+    run.add_argument("--journal", type=Path, help="append the journal of this run to a file")
+    run.set_defaults(func=_run)
+    bench = sub.add_parser("bench", help="time iterations of the bundled sessions per linear solver")
+    bench.add_argument("--sessions", nargs="*", type=Path, help="session files (default: sessions/*.stw)")
+    bench.add_argument("--repeat", type=int, default=3, help="repetitions per measurement")
+    bench.set_defaults(func=_bench)
+    backends = sub.add_parser("backends", help="list installed solver backends and their options")
+    backends.set_defaults(func=_backends)
+    return parser
+
+
+def main(argv: list[str] | None = None) -> int:
+    argv = list(sys.argv[1:] if argv is None else argv)
+    if not argv or (argv[0] not in SUBCOMMANDS and argv[0] not in ("-h", "--help")):
+        return _launch_tui(argv)
+    args = build_parser().parse_args(argv)
+    return args.func(args)
+
+
+def _launch_tui(argv: list[str]) -> int:
+    parser = argparse.ArgumentParser(prog="stw", description="Open the Spacetime Windows TUI.")
+    parser.add_argument("session", nargs="?", type=Path, help="a .stw session to open and replay")
+    parser.add_argument("--step", action="store_true", help="step through the session line by line")
+    args = parser.parse_args(argv)
+    try:
+        from .app import run_app
+    except ImportError as exc:  # the TUI is optional for the headless core
+        print(f"stw: the TUI is unavailable ({exc}); use `stw run SESSION`", file=sys.stderr)
+        return 1
+    return run_app(args.session, step=args.step)
+
+
+if __name__ == "__main__":
+    sys.exit(main())

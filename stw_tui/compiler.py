@@ -1,0 +1,179 @@
+"""Symbolic compiler: sympy expression -> vectorized numeric value, gradient and Hessian.
+
+"Symbolic once, numeric many": a term is differentiated with respect to the DOF symbols it uses
+(value, velocity, acceleration of each DOF), common subexpressions are shared, and the result is
+compiled once into a function evaluated over all instances at once. Differentiation and code
+generation use symengine (hundreds of times faster than sympy on equations of motion); the sympy
+expression is kept for backends that lower it themselves (torch).
+
+Constants stay symbols: their values are runtime parameters, so changing one never recompiles.
+Compiled terms are cached by (expression, parameter names).
+"""
+
+from __future__ import annotations
+
+import threading
+from dataclasses import dataclass, field
+from functools import cached_property
+
+import numpy as np
+import symengine as se
+import sympy as sp
+
+from .errors import StwError
+from .symbols import TIME, split_dof_symbol
+
+_CACHE: dict[tuple, "CompiledTerm"] = {}
+_CACHE_LOCK = threading.Lock()
+
+
+def _to_symengine(expr: sp.Basic):
+    """Convert our own sympy expression (never user text) to symengine."""
+    return se.S(expr)
+
+
+def _lambdify(args, outputs):
+    """Compile with LLVM when the symengine build has it, else the portable lambda backend."""
+    try:
+        return se.Lambdify(args, outputs, cse=True, backend="llvm")
+    except (RuntimeError, ValueError, TypeError):  # symengine built without LLVM
+        return se.Lambdify(args, outputs, cse=True, backend="lambda")
+
+
+@dataclass(frozen=True)
+class LocalVar:
+    """One DOF quantity a term depends on: DOF ``dof`` differentiated ``order`` times."""
+
+    dof: str
+    order: int
+
+    @property
+    def label(self) -> str:
+        return self.dof + "'" * self.order
+
+
+@dataclass(eq=False)
+class CompiledTerm:
+    """A scalar expression compiled for vectorized evaluation with its first and second derivatives.
+
+    Attributes:
+        expr: the fully substituted sympy expression (DOF symbols, ``t``, constants only).
+        variables: the DOF quantities it depends on, in a fixed order (the gradient's columns).
+        parameters: the names of the constants it uses, in the order values are passed.
+        hessian_pairs: (a, b) index pairs, a <= b, of structurally nonzero second derivatives.
+    """
+
+    expr: sp.Expr
+    variables: tuple[LocalVar, ...]
+    parameters: tuple[str, ...]
+    hessian_pairs: tuple[tuple[int, int], ...] = field(default=())
+    _value_fn: object = field(default=None, repr=False)
+    _full_fn: object = field(default=None, repr=False)
+
+    @property
+    def k(self) -> int:
+        return len(self.variables)
+
+    @cached_property
+    def dofs(self) -> frozenset[str]:
+        return frozenset(v.dof for v in self.variables)
+
+    def _inputs(self, values: np.ndarray, times: np.ndarray, params: np.ndarray) -> np.ndarray:
+        n = len(times)
+        columns = [np.asarray(values, dtype=float).reshape(n, self.k), np.asarray(times, float)[:, None]]
+        if len(params):
+            columns.append(np.broadcast_to(np.asarray(params, float), (n, len(params))))
+        return np.ascontiguousarray(np.hstack(columns))
+
+    def value(self, values: np.ndarray, times: np.ndarray, params: np.ndarray) -> np.ndarray:
+        """Term values at n instances.
+
+        Args:
+            values: (n, k) values of ``variables`` at each instance.
+            times: (n,) instance times.
+            params: values of ``parameters``.
+        Returns:
+            (n,) array.
+        """
+        n = len(times)
+        if n == 0:
+            return np.zeros(0)
+        out = np.asarray(self._value_fn(self._inputs(values, times, params)), dtype=float)
+        return out.reshape(n)
+
+    def full(self, values, times, params) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """Values (n,), gradient (n, k) and Hessian entries (n, len(hessian_pairs))."""
+        n = len(times)
+        nh = len(self.hessian_pairs)
+        if n == 0:
+            return np.zeros(0), np.zeros((0, self.k)), np.zeros((0, nh))
+        out = np.asarray(self._full_fn(self._inputs(values, times, params)), dtype=float)
+        out = out.reshape(n, 1 + self.k + nh)
+        return out[:, 0], out[:, 1:1 + self.k], out[:, 1 + self.k:]
+
+
+def compile_term(expr: sp.Expr, dof_names: frozenset[str] | set[str],
+                 constant_names: frozenset[str] | set[str]) -> CompiledTerm:
+    """Compile a fully substituted expression (cached by expression).
+
+    Args:
+        expr: sympy expression in DOF symbols, ``t`` and constant symbols only.
+        dof_names: names of all DOF (to tell a DOF value symbol from a constant).
+        constant_names: names of all constants.
+    Raises:
+        StwError: if the expression contains a symbol that is neither (a missing definition).
+    """
+    if isinstance(expr, (int, float)):
+        expr = sp.Float(expr)
+    symbols = expr.free_symbols
+    variables, parameters = [], []
+    for symbol in symbols:
+        if symbol == TIME:
+            continue
+        name, order = split_dof_symbol(symbol)
+        if name in dof_names:
+            variables.append(LocalVar(name, order))
+        elif order == 0 and name in constant_names:
+            parameters.append(name)
+        else:
+            raise StwError(f"'{symbol.name}' is not defined (deleted or renamed?)")
+    variables = tuple(sorted(variables, key=lambda v: (v.dof, v.order)))
+    parameters = tuple(sorted(parameters))
+    key = (expr, variables, parameters)
+    with _CACHE_LOCK:
+        cached = _CACHE.get(key)
+    if cached is not None:
+        return cached
+    term = _build(expr, variables, parameters)
+    with _CACHE_LOCK:
+        _CACHE[key] = term
+    return term
+
+
+def _symbol_of(var: LocalVar) -> se.Symbol:
+    return se.Symbol(var.label)
+
+
+def _build(expr: sp.Expr, variables: tuple[LocalVar, ...], parameters: tuple[str, ...]) -> CompiledTerm:
+    e = _to_symengine(expr)
+    var_syms = [_symbol_of(v) for v in variables]
+    args = var_syms + [se.Symbol(TIME.name)] + [se.Symbol(p) for p in parameters]
+    grad = [e.diff(v) for v in var_syms]
+    pairs, hess = [], []
+    for a, ga in enumerate(grad):
+        if ga.is_zero or ga.is_number:
+            continue
+        for b in range(a, len(var_syms)):
+            hab = ga.diff(var_syms[b])
+            if not hab.is_zero:
+                pairs.append((a, b))
+                hess.append(hab)
+    value_fn = _lambdify(args, [e])
+    full_fn = _lambdify(args, [e, *grad, *hess])
+    return CompiledTerm(expr=expr, variables=variables, parameters=parameters,
+                        hessian_pairs=tuple(pairs), _value_fn=value_fn, _full_fn=full_fn)
+
+
+def cache_size() -> int:
+    """Number of compiled terms held (for tests and the status line)."""
+    return len(_CACHE)

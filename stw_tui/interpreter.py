@@ -1,0 +1,411 @@
+"""Applying parsed commands to a scene. Each handler works on a scene copy owned by the caller.
+
+Handlers validate everything before they change anything they cannot undo, and raise StwError
+with a message naming what is wrong; :class:`~stw_tui.session.Session` discards the copy then.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import TYPE_CHECKING
+
+import numpy as np
+import sympy as sp
+
+from . import language as lang
+from .backend import Status, SolverState, load_backend, run_iterations
+from .compiler import compile_term
+from .errors import StwError
+from .scene import DEFAULT_SETTINGS, Constraint, Dof, Objective, Relation, Scene, Window
+from .spline import DofCurve
+from .symbols import dof_symbols
+from .window import WindowProblem
+
+if TYPE_CHECKING:
+    from .session import Outcome, Session
+
+_KINDS = {"dof": lang.NameKind.DOF, "const": lang.NameKind.CONST, "let": lang.NameKind.LET}
+
+
+class SceneScope:
+    """The parser's view of which names a scene defines."""
+
+    def __init__(self, scene: Scene):
+        self.scene = scene
+
+    def kind_of(self, name: str):
+        return _KINDS.get(self.scene.kind_of(name))
+
+    def names(self) -> list[str]:
+        s = self.scene
+        return [*s.dofs, *s.constants, *s.lets, *s.derived]
+
+
+@dataclass
+class WarmStart:
+    """Multipliers and working set of the last solve, reused when the next problem has the same rows."""
+
+    signature: tuple
+    state: SolverState
+
+
+def apply_line(session: "Session", scene: Scene, text: str, line: int | None, on_report) -> "Outcome":
+    from .session import Outcome
+
+    command = lang.parse_command(text, SceneScope(scene), line=line)
+    if command is None:
+        return Outcome()
+    handler = _HANDLERS[type(command)]
+    if isinstance(command, lang.IterateCmd):
+        return _iterate(session, scene, command, on_report)
+    message = handler(scene, command)
+    if isinstance(command, lang.PrintCmd):
+        return Outcome(message=message[0], prints=[message[1]])
+    return Outcome(message=message or "")
+
+
+def apply_linkage(session: "Session", scene: Scene, block) -> "Outcome":
+    from .session import Outcome
+
+    raise StwError("linkage blocks are not supported yet")  # pragma: no cover - issue 3
+
+
+# --- helpers ---------------------------------------------------------------------------------
+def _evaluate_curve_expr(scene: Scene, expr: sp.Expr):
+    """A function of t from an expression of t and constants (compiled, never eval'd)."""
+    expr = scene.expand(expr)
+    term = compile_term(expr, set(), set(scene.constants))
+    params = scene.constant_values(term.parameters)
+    return lambda times: term.value(np.zeros((len(times), 0)), np.asarray(times, float), params)
+
+
+def _time_in_span(scene: Scene, value: float, what: str) -> float:
+    if not scene.t0 - 1e-12 <= value <= scene.t1 + 1e-12:
+        raise StwError(f"{what} {value:g} is outside the animation span [{scene.t0:g}, {scene.t1:g}]")
+    return min(max(value, scene.t0), scene.t1)
+
+
+def _interval(scene: Scene, pair, what: str) -> tuple[float, float]:
+    a, b = (scene.numeric(v, f"{what} bound") for v in pair)
+    if not a < b:
+        raise StwError(f"{what} [{a:g}, {b:g}] is empty: the start must be before the end")
+    return _time_in_span(scene, a, f"{what} start"), _time_in_span(scene, b, f"{what} end")
+
+
+def _check_new_name(scene: Scene, name: str, allowed: tuple[str, ...]) -> None:
+    kind = scene.kind_of(name)
+    if kind is not None and kind not in allowed:
+        raise StwError(f"'{name}' is already a {kind}; choose another name")
+    if name in scene.derived:
+        raise StwError(f"'{name}' is derived from a linkage and cannot be redefined")
+    equations = {**scene.constraints, **scene.objectives}
+    if "equation" not in allowed and name in equations:
+        raise StwError(f"'{name}' is already a constraint or objective; choose another name")
+
+
+def _uses_dof(scene: Scene, expr: sp.Basic) -> bool:
+    dof_syms = {s for d in scene.dofs for s in dof_symbols(d)}
+    return bool(scene.expand(expr).free_symbols & dof_syms)
+
+
+# --- handlers --------------------------------------------------------------------------------
+def _time(scene: Scene, cmd) -> str:
+    t0, t1 = scene.numeric(cmd.start, "start time"), scene.numeric(cmd.end, "end time")
+    if not t0 < t1:
+        raise StwError(f"the animation span [{t0:g}, {t1:g}] is empty")
+    knots = cmd.knots if cmd.knots is not None else scene.knots
+    if knots < 1:
+        raise StwError("knots must be at least 1")
+    if cmd.samples is not None and cmd.samples < 1:
+        raise StwError("samples must be at least 1")
+    for dof in scene.dofs.values():
+        old = dof.curve
+        dof.curve = DofCurve.fit(t0, t1, knots, lambda t, c=old: c.evaluate(np.clip(t, c.t0, c.t1)))
+    scene.t0, scene.t1, scene.knots = t0, t1, knots
+    if cmd.samples is not None:
+        scene.samples = cmd.samples
+    return f"time [{t0:g}, {t1:g}], {knots} knot spans, {scene.sample_count} samples"
+
+
+def _const(scene: Scene, cmd) -> str:
+    for name, expr in cmd.items:
+        _check_new_name(scene, name, ("const",))
+        scene.constants[name] = scene.numeric(expr, f"constant {name}")
+    return ", ".join(f"{n} = {scene.constants[n]:g}" for n, _ in cmd.items)
+
+
+def _dof(scene: Scene, cmd) -> str:
+    f = _evaluate_curve_expr(scene, cmd.init) if cmd.init is not None else None
+    lo = scene.numeric(cmd.lo, "lo") if cmd.lo is not None else None
+    hi = scene.numeric(cmd.hi, "hi") if cmd.hi is not None else None
+    if lo is not None and hi is not None and not lo < hi:
+        raise StwError(f"bounds lo={lo:g} hi={hi:g} are empty")
+    if cmd.knots is not None and cmd.knots < 1:
+        raise StwError("knots must be at least 1")
+    for name in cmd.names:
+        _check_new_name(scene, name, ("dof",))
+        dof = scene.dofs.get(name)
+        spans = cmd.knots or (dof.curve.spans if dof else scene.knots)
+        if dof is None:
+            curve = DofCurve.fit(scene.t0, scene.t1, spans, f) if f else DofCurve.uniform(
+                scene.t0, scene.t1, spans)
+            dof = scene.dofs[name] = Dof(name, curve)
+        elif f is not None or cmd.knots is not None:
+            old = dof.curve
+            source = f or (lambda t, c=old: c.evaluate(t))
+            dof.curve = DofCurve.fit(scene.t0, scene.t1, spans, source)
+        if cmd.lo is not None:
+            dof.lo = lo
+        if cmd.hi is not None:
+            dof.hi = hi
+    return f"dof {', '.join(cmd.names)}"
+
+
+def _let(scene: Scene, cmd) -> str:
+    _check_new_name(scene, cmd.name, ("let",))
+    previous = scene.lets.get(cmd.name)
+    scene.lets[cmd.name] = cmd.expr
+    try:
+        expanded = scene.expand(sp.Symbol(cmd.name, real=True))
+    except StwError:
+        raise StwError(f"'{cmd.name}' would be defined in terms of itself") from None
+    if sp.Symbol(cmd.name, real=True) in expanded.free_symbols:
+        raise StwError(f"'{cmd.name}' would be defined in terms of itself")
+    return f"let {cmd.name}" + (" (redefined)" if previous is not None else "")
+
+
+def _weight_value(scene: Scene, expr, allow_zero: bool) -> float:
+    if expr is None:
+        return 1.0
+    w = scene.numeric(expr, "weight")
+    if w < 0 or (w == 0 and not allow_zero):
+        raise StwError(f"weight must be {'>= 0' if allow_zero else '> 0'}, not {w:g}")
+    return w
+
+
+def _constraint(scene: Scene, cmd) -> str:
+    _check_new_name(scene, cmd.name, ("equation",))
+    if cmd.name in scene.objectives:
+        raise StwError(f"'{cmd.name}' is already an objective; choose another name")
+    relations = []
+    for rel in cmd.relations:
+        if not _uses_dof(scene, rel.expr):
+            raise StwError(f"a relation of '{cmd.name}' does not depend on any DOF")
+        expr = -rel.expr if rel.kind == "le" else rel.expr
+        relations.append(Relation(expr, "eq" if rel.kind == "eq" else "ge"))
+        compile_term(scene.expand(expr), set(scene.dofs), set(scene.constants))
+    at = _time_in_span(scene, scene.numeric(cmd.at, "time"), "time") if cmd.at is not None else None
+    interval = _interval(scene, cmd.interval, "interval") if cmd.interval is not None else None
+    scene.constraints[cmd.name] = Constraint(cmd.name, tuple(relations), at, interval, cmd.when,
+                                             _weight_value(scene, cmd.weight, False), cmd.text)
+    return f"constraint {cmd.name}: {len(relations)} relation(s) {scene.constraints[cmd.name].scope_text}"
+
+
+def _objective(scene: Scene, cmd) -> str:
+    _check_new_name(scene, cmd.name, ("equation",))
+    if cmd.name in scene.constraints:
+        raise StwError(f"'{cmd.name}' is already a constraint; choose another name")
+    for expr in cmd.exprs:
+        if not _uses_dof(scene, expr):
+            raise StwError(f"a term of objective '{cmd.name}' does not depend on any DOF")
+        compile_term(scene.expand(expr), set(scene.dofs), set(scene.constants))
+    interval = _interval(scene, cmd.interval, "interval") if cmd.interval is not None else None
+    scene.objectives[cmd.name] = Objective(cmd.name, tuple(cmd.exprs), interval,
+                                           _weight_value(scene, cmd.weight, True), cmd.text)
+    return f"objective {cmd.name}: {len(cmd.exprs)} term(s)"
+
+
+def _key(scene: Scene, cmd) -> str:
+    t = _time_in_span(scene, scene.numeric(cmd.time, "key time"), "key time")
+    for name, expr in cmd.assignments:
+        value = scene.numeric(expr, f"key value of {name}")
+        dof = scene.dofs[name]
+        dof.keys = [k for k in dof.keys if abs(k[0] - t) > 1e-12] + [(t, value)]
+        dof.keys.sort()
+        dof.curve = dof.curve.sketched([(t, value)])
+    return f"key at t={t:g}: " + ", ".join(n for n, _ in cmd.assignments)
+
+
+def _window(scene: Scene, cmd) -> str:
+    if cmd.name == "all":
+        raise StwError("'all' is the built-in window of everything; choose another name")
+    _check_new_name(scene, cmd.name, ())
+    interval = _interval(scene, cmd.interval, "window") if cmd.interval is not None else None
+    scene.windows[cmd.name] = Window(cmd.name, tuple(cmd.dofs) if cmd.dofs else None, interval)
+    scene.active_window = cmd.name
+    return f"window {cmd.name} is now in use"
+
+
+def _use(scene: Scene, cmd) -> str:
+    if cmd.name not in scene.windows:
+        raise StwError(f"no window named '{cmd.name}' (windows: {', '.join(scene.windows)})")
+    scene.active_window = cmd.name
+    return f"using window {cmd.name}"
+
+
+def _weight(scene: Scene, cmd) -> str:
+    if cmd.name in scene.constraints:
+        scene.constraints[cmd.name].weight = _weight_value(scene, cmd.weight, False)
+    elif cmd.name in scene.objectives:
+        scene.objectives[cmd.name].weight = _weight_value(scene, cmd.weight, True)
+    else:
+        raise StwError(f"no constraint or objective named '{cmd.name}'")
+    return f"weight {cmd.name} = {scene.numeric(cmd.weight):g}"
+
+
+def _damp(scene: Scene, cmd) -> str:
+    amount = scene.numeric(cmd.amount, "damping")
+    if amount < 0:
+        raise StwError(f"damping must be >= 0, not {amount:g}")
+    scene.dofs[cmd.dof].damp = amount
+    return f"damp {cmd.dof} = {amount:g}"
+
+
+def _filter(scene: Scene, cmd) -> str:
+    if cmd.passes < 1:
+        raise StwError("filter passes must be at least 1")
+    dof = scene.dofs[cmd.dof]
+    dof.curve = dof.curve.filtered(cmd.passes)
+    return f"filtered {cmd.dof} ({cmd.passes} pass{'es' if cmd.passes > 1 else ''})"
+
+
+def _shake(scene: Scene, cmd) -> str:
+    amplitude = scene.numeric(cmd.amplitude, "amplitude")
+    if amplitude <= 0:
+        raise StwError("amplitude must be > 0")
+    names = list(cmd.dofs) or list(scene.window.dofs or scene.dofs)
+    seed = cmd.seed if cmd.seed is not None else scene.shake_count
+    rng = np.random.default_rng(seed)
+    for name in names:
+        dof = scene.dofs[name]
+        dof.curve = dof.curve.shaken(amplitude, rng)
+    scene.shake_count += 1
+    return f"shook {', '.join(names)} (amplitude {amplitude:g}, seed {seed})"
+
+
+def _refine(scene: Scene, cmd) -> str:
+    if cmd.interval is not None:
+        a, b = _interval(scene, cmd.interval, "refinement interval")
+    else:
+        a, b = scene.window.interval or (scene.t0, scene.t1)
+    dof = scene.dofs[cmd.dof]
+    before = dof.curve.n_coef
+    dof.curve = dof.curve.refined(a, b)
+    return f"refined {cmd.dof} on [{a:g}, {b:g}]: {before} -> {dof.curve.n_coef} control points"
+
+
+def _backend(scene: Scene, cmd) -> str:
+    cls = load_backend(cmd.name)
+    options = dict(cmd.options)
+    if cmd.name == scene.backend:
+        options = {**scene.backend_options, **options}
+    cls(**options)  # validates names and values
+    scene.backend, scene.backend_options = cmd.name, options
+    shown = " ".join(f"{k}={v}" for k, v in options.items())
+    return f"backend {cmd.name} {shown}".rstrip()
+
+
+def _set(scene: Scene, cmd) -> str:
+    if cmd.option == "samples":
+        try:
+            value = int(cmd.value)
+        except ValueError:
+            raise StwError(f"samples must be a whole number, not '{cmd.value}'") from None
+        if value < 1:
+            raise StwError("samples must be at least 1")
+        scene.samples = value
+        return f"samples = {value}"
+    if cmd.option not in DEFAULT_SETTINGS:
+        raise StwError(f"unknown setting '{cmd.option}' (settings: samples, {', '.join(DEFAULT_SETTINGS)})")
+    try:
+        value = float(cmd.value)
+    except ValueError:
+        raise StwError(f"setting {cmd.option} needs a number, not '{cmd.value}'") from None
+    if not np.isfinite(value) or value < 0:
+        raise StwError(f"setting {cmd.option} must be a finite number >= 0")
+    if cmd.option == "quadrature" and not 1 <= value <= 10:
+        raise StwError("quadrature must be between 1 and 10 points per span")
+    scene.settings[cmd.option] = value
+    return f"{cmd.option} = {value:g}"
+
+
+def _delete(scene: Scene, cmd) -> str:
+    name = cmd.name
+    if name == "all":
+        raise StwError("the window 'all' cannot be deleted")
+    users = scene.names_used_by(name) if name in scene.dofs or name in scene.constants or name in scene.lets else []
+    users = [u for u in users if u != name]
+    if users:
+        raise StwError(f"'{name}' is used by {', '.join(users)}; delete or change those first")
+    for table in (scene.constraints, scene.objectives, scene.lets, scene.dofs, scene.constants, scene.windows):
+        if name in table:
+            del table[name]
+            if scene.active_window not in scene.windows:
+                scene.active_window = "all"
+            return f"deleted {name}"
+    raise StwError(f"nothing named '{name}' to delete")
+
+
+def _print(scene: Scene, cmd):
+    from .session import PrintResult
+
+    expr = scene.expand(cmd.expr)
+    term = compile_term(expr, set(scene.dofs), set(scene.constants))
+    params = scene.constant_values(term.parameters)
+    if cmd.at is not None:
+        times = np.array([_time_in_span(scene, scene.numeric(cmd.at, "time"), "time")])
+    else:
+        times = np.linspace(scene.t0, scene.t1, 201)
+    values = np.column_stack([scene.dofs[v.dof].curve.evaluate(times, v.order) for v in term.variables]) \
+        if term.variables else np.zeros((len(times), 0))
+    result = term.value(values, times, params)
+    if cmd.at is not None:
+        value = float(result[0])
+        return f"{cmd.expr_text} @ {times[0]:g} = {value:.10g}", PrintResult(cmd.expr_text, float(times[0]), value)
+    summary = {"min": float(result.min()), "max": float(result.max()), "mean": float(result.mean()),
+               "start": float(result[0]), "end": float(result[-1])}
+    text = (f"{cmd.expr_text} on [{scene.t0:g}, {scene.t1:g}]: min {summary['min']:.6g}, "
+            f"max {summary['max']:.6g}, mean {summary['mean']:.6g}, "
+            f"start {summary['start']:.6g}, end {summary['end']:.6g}")
+    return text, PrintResult(cmd.expr_text, None, summary)
+
+
+def _help(scene: Scene, cmd) -> str:
+    return lang.help_text(cmd.topic)
+
+
+def _iterate(session: "Session", scene: Scene, cmd, on_report) -> "Outcome":
+    from .session import Outcome
+
+    if cmd.n < 1:
+        raise StwError("iterate needs a positive number of iterations")
+    problem = WindowProblem(scene)
+    backend = load_backend(scene.backend)(**scene.backend_options)
+    signature = (scene.active_window, tuple(problem.free), tuple(g.label for g in problem.groups),
+                 tuple(g.n for g in problem.groups))
+    start = SolverState.start(problem)
+    if session.warm is not None and session.warm.signature == signature:
+        start = SolverState(s=start.s, lam_eq=session.warm.state.lam_eq, lam_ge=session.warm.state.lam_ge,
+                            working_set=session.warm.state.working_set,
+                            merit_weight=session.warm.state.merit_weight)
+    result = run_iterations(backend, problem, start, cmd.n, scene.settings, on_report)
+    scene.with_coefficients(problem.scatter(result.state.s))
+    session.warm = WarmStart(signature, result.state)
+    last = result.reports[-1] if result.reports else None
+    text = f"{problem.summary()}\n{len(result.reports)} iteration(s) with {backend.name}: {result.status.value}"
+    if last is not None:
+        text += (f"; objective {last.objective:.6g}, max violation {last.max_violation:.2e}, "
+                 f"KKT {last.kkt_residual:.2e}")
+    if result.status is Status.STALLED:
+        text += " — try `shake`, a keyframe, damping, or a smaller window"
+    return Outcome(message=text, run=result)
+
+
+_HANDLERS = {
+    lang.TimeCmd: _time, lang.ConstCmd: _const, lang.DofCmd: _dof, lang.LetCmd: _let,
+    lang.ConstraintCmd: _constraint, lang.ObjectiveCmd: _objective, lang.KeyCmd: _key,
+    lang.WindowCmd: _window, lang.UseCmd: _use, lang.WeightCmd: _weight, lang.DampCmd: _damp,
+    lang.FilterCmd: _filter, lang.ShakeCmd: _shake, lang.RefineCmd: _refine, lang.BackendCmd: _backend,
+    lang.SetCmd: _set, lang.IterateCmd: _iterate, lang.DeleteCmd: _delete, lang.PrintCmd: _print,
+    lang.HelpCmd: _help,
+}

@@ -1,0 +1,513 @@
+"""Commands of the session language: one frozen dataclass per command, and the line parser.
+
+Numeric arguments written as expressions (times, values, weights) are kept as sympy expressions;
+the interpreter evaluates them with the constants' values. Counts (knots, samples, passes, N,
+seed) are ints.
+"""
+
+from __future__ import annotations
+
+import difflib
+from dataclasses import dataclass
+
+import sympy as sp
+
+from ..errors import SourceError
+from .expressions import FUNCTIONS, ExpressionParser, NameKind, Scope
+from .tokens import END, NAME, NUMBER, Token, strip_comment, tokenize
+
+Interval = tuple[sp.Expr, sp.Expr]
+
+
+@dataclass(frozen=True)
+class TimeCmd:
+    start: sp.Expr
+    end: sp.Expr
+    knots: int | None
+    samples: int | None
+    text: str = ""
+
+
+@dataclass(frozen=True)
+class ConstCmd:
+    items: tuple[tuple[str, sp.Expr], ...]
+    text: str = ""
+
+
+@dataclass(frozen=True)
+class DofCmd:
+    names: tuple[str, ...]
+    init: sp.Expr | None
+    knots: int | None
+    lo: sp.Expr | None
+    hi: sp.Expr | None
+    text: str = ""
+
+
+@dataclass(frozen=True)
+class LetCmd:
+    name: str
+    expr: sp.Expr
+    text: str = ""
+
+
+@dataclass(frozen=True)
+class Relation:
+    expr: sp.Expr        # lhs - rhs
+    kind: str            # "eq", "ge" or "le"
+    column: int
+
+
+@dataclass(frozen=True)
+class ConstraintCmd:
+    name: str
+    relations: tuple[Relation, ...]
+    at: sp.Expr | None
+    interval: Interval | None
+    when: sp.Basic | None
+    weight: sp.Expr | None
+    text: str = ""
+
+
+@dataclass(frozen=True)
+class ObjectiveCmd:
+    name: str
+    exprs: tuple[sp.Expr, ...]
+    interval: Interval | None
+    weight: sp.Expr | None
+    text: str = ""
+
+
+@dataclass(frozen=True)
+class KeyCmd:
+    time: sp.Expr
+    assignments: tuple[tuple[str, sp.Expr], ...]
+    text: str = ""
+
+
+@dataclass(frozen=True)
+class WindowCmd:
+    name: str
+    dofs: tuple[str, ...] | None
+    interval: Interval | None
+    text: str = ""
+
+
+@dataclass(frozen=True)
+class UseCmd:
+    name: str
+    text: str = ""
+
+
+@dataclass(frozen=True)
+class WeightCmd:
+    name: str
+    weight: sp.Expr
+    text: str = ""
+
+
+@dataclass(frozen=True)
+class DampCmd:
+    dof: str
+    amount: sp.Expr
+    text: str = ""
+
+
+@dataclass(frozen=True)
+class FilterCmd:
+    dof: str
+    passes: int = 1
+    text: str = ""
+
+
+@dataclass(frozen=True)
+class ShakeCmd:
+    dofs: tuple[str, ...]
+    amplitude: sp.Expr
+    seed: int | None
+    text: str = ""
+
+
+@dataclass(frozen=True)
+class RefineCmd:
+    dof: str
+    interval: Interval | None
+    text: str = ""
+
+
+@dataclass(frozen=True)
+class BackendCmd:
+    name: str
+    options: tuple[tuple[str, str], ...]
+    text: str = ""
+
+
+@dataclass(frozen=True)
+class SetCmd:
+    option: str
+    value: str
+    text: str = ""
+
+
+@dataclass(frozen=True)
+class IterateCmd:
+    n: int = 1
+    text: str = ""
+
+
+@dataclass(frozen=True)
+class DeleteCmd:
+    name: str
+    text: str = ""
+
+
+@dataclass(frozen=True)
+class PrintCmd:
+    expr: sp.Expr
+    at: sp.Expr | None
+    expr_text: str
+    text: str = ""
+
+
+@dataclass(frozen=True)
+class HelpCmd:
+    topic: str | None
+    text: str = ""
+
+
+Command = (TimeCmd | ConstCmd | DofCmd | LetCmd | ConstraintCmd | ObjectiveCmd | KeyCmd | WindowCmd
+           | UseCmd | WeightCmd | DampCmd | FilterCmd | ShakeCmd | RefineCmd | BackendCmd | SetCmd
+           | IterateCmd | DeleteCmd | PrintCmd | HelpCmd)
+
+COMMAND_NAMES = ("time", "const", "dof", "let", "constraint", "objective", "key", "window", "use",
+                 "weight", "damp", "filter", "shake", "refine", "backend", "set", "iterate", "delete",
+                 "print", "help", "linkage")
+RESERVED = set(COMMAND_NAMES) | set(FUNCTIONS) | {"t", "pi", "all", "on", "when", "and", "or", "not"}
+
+
+class _ConstantsOnly:
+    """Scope for expressions that must be numbers: constants only."""
+
+    def __init__(self, scope: Scope):
+        self.scope = scope
+
+    def kind_of(self, name: str):
+        kind = self.scope.kind_of(name)
+        return kind if kind is NameKind.CONST else None
+
+    def names(self):
+        return [n for n in getattr(self.scope, "names", lambda: [])() if self.kind_of(n)]
+
+
+class CommandParser(ExpressionParser):
+    """Parses one command line into a command dataclass."""
+
+    def __init__(self, text: str, scope: Scope, line: int | None):
+        super().__init__(tokenize(text, line=line), scope, line=line, source=text)
+        self.text = strip_comment(text).strip()
+        self.constants = _ConstantsOnly(scope)
+
+    # --- small pieces ------------------------------------------------------------------------
+    def name(self, what: str = "a name") -> Token:
+        if self.token.kind != NAME:
+            raise self.unexpected(what)
+        return self.advance()
+
+    def new_name(self, what: str) -> str:
+        token = self.name(what)
+        if token.text in RESERVED or "." in token.text:
+            raise self.error(f"'{token.text}' cannot be used as a name", token, expected=what)
+        return token.text
+
+    def dof_name(self) -> str:
+        token = self.name("a DOF name")
+        if self.scope.kind_of(token.text) is not NameKind.DOF:
+            raise self.error(f"'{token.text}' is not a DOF", token, expected="a DOF name")
+        return token.text
+
+    def integer(self, what: str) -> int:
+        token = self.token
+        if token.kind != NUMBER or not token.text.isdigit():
+            raise self.unexpected(what)
+        self.advance()
+        return int(token.text)
+
+    def number_expr(self) -> sp.Expr:
+        """An expression of numbers and constants (a time, a value, a weight)."""
+        saved, self.scope = self.scope, self.constants
+        saved_time, self.time_allowed = self.time_allowed, False
+        try:
+            return self.expression()
+        finally:
+            self.scope, self.time_allowed = saved, saved_time
+
+    def keyword_value(self, key: str) -> Token:
+        """After `key`, expect `=` (the key token was consumed)."""
+        self.expect_op("=", f"'=' after {key}")
+        return self.token
+
+    def interval(self) -> Interval:
+        self.expect_op("[", "'['")
+        a = self.number_expr()
+        self.expect_op(",", "',' between the interval's ends")
+        b = self.number_expr()
+        self.expect_op("]", "']'")
+        return a, b
+
+    def finish(self) -> None:
+        if self.token.kind != END:
+            raise self.unexpected("end of line")
+
+    def options(self, allowed: dict[str, str]) -> dict[str, object]:
+        """`key=value` options in any order; ``allowed`` maps key to "int" or "expr"."""
+        found: dict[str, object] = {}
+        while self.token.kind == NAME and self.token.text in allowed:
+            key = self.advance()
+            if key.text in found:
+                raise self.error(f"'{key.text}' given twice", key)
+            self.keyword_value(key.text)
+            found[key.text] = self.integer(f"a whole number for {key.text}") if allowed[key.text] == "int" \
+                else self.number_expr()
+        return found
+
+    # --- commands ----------------------------------------------------------------------------
+    def parse(self):
+        if self.token.kind == END:
+            return None
+        word = self.token
+        if word.kind != NAME or word.text not in _PARSERS:
+            close = difflib.get_close_matches(word.text, COMMAND_NAMES, n=2)
+            hint = f" (did you mean {' or '.join(close)}?)" if close else ""
+            raise self.error(f"unknown command '{word.text}'{hint}", word,
+                             expected="a command; `help` lists them")
+        self.advance()
+        command = _PARSERS[word.text](self)
+        self.finish()
+        return command
+
+    def p_time(self):
+        start = self.number_expr()
+        end = self.number_expr()
+        opts = self.options({"knots": "int", "samples": "int"})
+        return TimeCmd(start, end, opts.get("knots"), opts.get("samples"), self.text)
+
+    def p_const(self):
+        items = []
+        while True:
+            token = self.name("a constant name")
+            if token.text in RESERVED or "." in token.text:
+                raise self.error(f"'{token.text}' cannot be used as a name", token)
+            if self.scope.kind_of(token.text) not in (None, NameKind.CONST):
+                raise self.error(f"'{token.text}' is already a {self.scope.kind_of(token.text).value}", token)
+            self.expect_op("=", f"'=' after {token.text}")
+            items.append((token.text, self.number_expr()))
+            if not self.token.is_op(","):
+                break
+            self.advance()
+        return ConstCmd(tuple(items), self.text)
+
+    def p_dof(self):
+        names = [self.new_name("a DOF name")]
+        while self.token.is_op(","):
+            self.advance()
+            names.append(self.new_name("a DOF name"))
+        init = None
+        if self.token.is_op("="):
+            self.advance()
+            saved, self.scope = self.scope, self.constants
+            try:
+                init = self.expression()
+            except SourceError as exc:
+                if "unknown name" in exc.message:
+                    raise SourceError(exc.message + "; an initial curve may use only t and constants",
+                                      line=exc.line, column=exc.column, source=exc.source) from None
+                raise
+            finally:
+                self.scope = saved
+        opts = self.options({"knots": "int", "lo": "expr", "hi": "expr"})
+        return DofCmd(tuple(names), init, opts.get("knots"), opts.get("lo"), opts.get("hi"), self.text)
+
+    def p_let(self):
+        name = self.new_name("a subexpression name")
+        self.expect_op("=", "'='")
+        return LetCmd(name, self.expression(), self.text)
+
+    def _scope_clause(self):
+        at = interval = None
+        if self.token.is_op("@"):
+            self.advance()
+            at = self.number_expr()
+        elif self.token.is_word("on"):
+            self.advance()
+            interval = self.interval()
+        return at, interval
+
+    def p_constraint(self):
+        name = self.new_name("a constraint name")
+        self.expect_op(":", "':' after the constraint name")
+        relations = [self._relation()]
+        while self.token.is_op(","):
+            self.advance()
+            relations.append(self._relation())
+        at, interval = self._scope_clause()
+        if at is None and interval is None:
+            raise self.unexpected("'@ TIME' or 'on [A, B]'")
+        when = None
+        if self.token.is_word("when"):
+            self.advance()
+            when = self.condition()
+        weight = self.options({"weight": "expr"}).get("weight")
+        return ConstraintCmd(name, tuple(relations), at, interval, when, weight, self.text)
+
+    def _relation(self) -> Relation:
+        column = self.token.column
+        left = self.expression()
+        kinds = {"=": "eq", ">=": "ge", "<=": "le"}
+        if not self.token.is_op(*kinds):
+            raise self.unexpected("'=', '>=' or '<='")
+        kind = kinds[self.advance().text]
+        right = self.expression()
+        return Relation(left - right, kind, column)
+
+    def p_objective(self):
+        name = self.new_name("an objective name")
+        self.expect_op(":", "':' after the objective name")
+        exprs = [self.expression()]
+        while self.token.is_op(","):
+            self.advance()
+            exprs.append(self.expression())
+        interval = None
+        if self.token.is_word("on"):
+            self.advance()
+            interval = self.interval()
+        weight = self.options({"weight": "expr"}).get("weight")
+        return ObjectiveCmd(name, tuple(exprs), interval, weight, self.text)
+
+    def p_key(self):
+        time = self.number_expr()
+        assignments = []
+        while self.token.kind == NAME:
+            dof = self.dof_name()
+            self.expect_op("=", f"'=' after {dof}")
+            assignments.append((dof, self.number_expr()))
+            if self.token.is_op(","):
+                self.advance()
+        if not assignments:
+            raise self.unexpected("DOF=VALUE")
+        return KeyCmd(time, tuple(assignments), self.text)
+
+    def p_window(self):
+        name = self.new_name("a window name") if not self.token.is_word("all") else self.advance().text
+        dofs: tuple[str, ...] | None = None
+        if self.token.is_word("dofs"):
+            self.advance()
+            self.expect_op("=", "'=' after dofs")
+            if self.token.is_word("all"):
+                self.advance()
+            else:
+                names = [self.dof_name()]
+                while self.token.is_op(","):
+                    self.advance()
+                    names.append(self.dof_name())
+                dofs = tuple(names)
+        interval = self.interval() if self.token.is_op("[") else None
+        return WindowCmd(name, dofs, interval, self.text)
+
+    def p_use(self):
+        return UseCmd(self.name("a window name").text, self.text)
+
+    def p_weight(self):
+        return WeightCmd(self.name("a constraint or objective name").text, self.number_expr(), self.text)
+
+    def p_damp(self):
+        return DampCmd(self.dof_name(), self.number_expr(), self.text)
+
+    def p_filter(self):
+        dof = self.dof_name()
+        passes = self.integer("a number of passes") if self.token.kind == NUMBER else 1
+        return FilterCmd(dof, passes, self.text)
+
+    def p_shake(self):
+        names = []
+        while self.token.kind == NAME and self.token.text not in ("amplitude", "seed"):
+            names.append(self.dof_name())
+            if self.token.is_op(","):
+                self.advance()
+        opts = self.options({"amplitude": "expr", "seed": "int"})
+        if "amplitude" not in opts:
+            raise self.unexpected("amplitude=A")
+        return ShakeCmd(tuple(names), opts["amplitude"], opts.get("seed"), self.text)
+
+    def p_refine(self):
+        dof = self.dof_name()
+        interval = self.interval() if self.token.is_op("[") else None
+        return RefineCmd(dof, interval, self.text)
+
+    def p_backend(self):
+        name = self.name("a backend name").text
+        options = []
+        while self.token.kind == NAME:
+            key = self.advance()
+            self.expect_op("=", f"'=' after {key.text}")
+            value = self.token
+            if value.kind == END:
+                raise self.unexpected(f"a value for {key.text}")
+            sign = ""
+            if value.is_op("-"):
+                sign = self.advance().text
+                value = self.token
+            if value.kind not in (NAME, NUMBER):
+                raise self.unexpected(f"a value for {key.text}")
+            options.append((key.text, sign + self.advance().text))
+        return BackendCmd(name, tuple(options), self.text)
+
+    def p_set(self):
+        option = self.name("a setting name").text
+        token = self.token
+        sign = ""
+        if token.is_op("-"):
+            sign = self.advance().text
+            token = self.token
+        if token.kind not in (NAME, NUMBER):
+            raise self.unexpected("a value")
+        return SetCmd(option, sign + self.advance().text, self.text)
+
+    def p_iterate(self):
+        n = self.integer("a number of iterations") if self.token.kind == NUMBER else 1
+        return IterateCmd(n, self.text)
+
+    def p_delete(self):
+        return DeleteCmd(self.name("the name of something to delete").text, self.text)
+
+    def p_print(self):
+        start = self.token.column
+        expr = self.expression()
+        end = self.token.column
+        expr_text = self.source[start - 1:end - 1].strip()
+        at = None
+        if self.token.is_op("@"):
+            self.advance()
+            at = self.number_expr()
+        return PrintCmd(expr, at, expr_text, self.text)
+
+    def p_help(self):
+        topic = self.advance().text if self.token.kind == NAME else None
+        return HelpCmd(topic, self.text)
+
+    def p_linkage(self):
+        raise self.error("a `linkage` block spans several lines; it is read by the session, "
+                         "not as a single command")
+
+
+_PARSERS = {name: getattr(CommandParser, f"p_{name}") for name in COMMAND_NAMES}
+
+
+def parse_command(text: str, scope: Scope, *, line: int | None = None):
+    """Parse one line of the session language.
+
+    Returns:
+        A command dataclass, or None for a blank or comment-only line.
+    Raises:
+        SourceError: with line, column and what was expected.
+    """
+    return CommandParser(text, scope, line).parse()

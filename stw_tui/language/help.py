@@ -1,0 +1,106 @@
+"""Help text for every command of the session language (`help`, `help COMMAND`)."""
+
+from __future__ import annotations
+
+import difflib
+from dataclasses import dataclass
+
+from ..errors import StwError
+from .expressions import FUNCTIONS
+
+
+@dataclass(frozen=True)
+class CommandHelp:
+    synopsis: str
+    summary: str
+    example: str
+
+
+COMMAND_HELP: dict[str, CommandHelp] = {
+    "time": CommandHelp("time START END [knots=N] [samples=K]",
+                        "Set the animation span, the default knot spans of new DOF, and K, the constraint "
+                        "instances per animation span for `on [A, B]` constraints (default 2*knots).",
+                        "time 0 1.5 knots=24 samples=48"),
+    "const": CommandHelp("const NAME = VALUE[, NAME = VALUE…]",
+                         "Declare constants, or change their values. Constants are runtime parameters: "
+                         "changing one never recompiles.", "const m = 1, g = 9.81"),
+    "dof": CommandHelp("dof NAME[, NAME…] [= EXPR] [knots=N] [lo=A] [hi=B]",
+                       "Declare DOF as cubic B-spline curves (constant 0, or fitted to EXPR of t and "
+                       "constants). On an existing DOF, `= EXPR` refits the curve and knots=N re-knots it; "
+                       "lo/hi bound its values.", "dof x, y = 0.5*t^2 knots=10 lo=0"),
+    "let": CommandHelp("let NAME = EXPR",
+                       "Define a subexpression, substituted wherever it is named.", "let f = m*x'' + m*g"),
+    "constraint": CommandHelp("constraint NAME: REL[, REL…] (@ T | on [A, B]) [when COND] [weight=W]",
+                              "A constraint: REL is E = E, E >= E or E <= E; at an instant or at sample "
+                              "instances over an interval; optionally only where COND holds (comparisons "
+                              "with and/or/not).",
+                              "constraint floor: y >= 0 on [0, 1.5] when x > 1"),
+    "objective": CommandHelp("objective NAME: EXPR[, EXPR…] [on [A, B]] [weight=W]",
+                             "Minimize the weighted integral of each expression squared.",
+                             "objective fuel: f"),
+    "key": CommandHelp("key T DOF=V[, DOF=V…]",
+                       "Sketch a keyframe: bend the DOF curves smoothly through V at time T (starting "
+                       "values for the optimizer, not constraints).", "key 0.75 SHOULDER=2.5 ELBOW=0.5"),
+    "window": CommandHelp("window NAME [dofs=a,b|all] [[A, B]]",
+                          "Define a spacetime window (a subset of DOF over a time interval) and use it: "
+                          "iterations change only its control points.",
+                          "window release dofs=BX,BY [0.4, 0.8]"),
+    "use": CommandHelp("use NAME", "Iterate on a defined window (`use all` for everything).", "use all"),
+    "weight": CommandHelp("weight NAME W", "Set the weight of a constraint or objective.", "weight goal 10"),
+    "damp": CommandHelp("damp DOF D",
+                        "Damp the change of a DOF's control points per iteration (adds D·|ΔS|² to each "
+                        "step's model).", "damp WRIST 0.2"),
+    "filter": CommandHelp("filter DOF [PASSES]", "Smooth a DOF curve's control points (1-2-1 filter).",
+                          "filter x 2"),
+    "shake": CommandHelp("shake [DOF…] amplitude=A [seed=S]",
+                         "Perturb control points with seeded random noise (default: the window's DOF) to "
+                         "leave a local minimum.", "shake x y amplitude=0.05 seed=3"),
+    "refine": CommandHelp("refine DOF [[A, B]]",
+                          "Insert knots halving every span of the DOF over [A, B] (default: the window); "
+                          "the curve is unchanged.", "refine BX [0.4, 0.8]"),
+    "backend": CommandHelp("backend NAME [OPTION=VALUE…]",
+                           "Choose the solver backend and its options (`stw backends` lists them).",
+                           "backend scipy solver=minres"),
+    "set": CommandHelp("set OPTION VALUE",
+                       "Settings: tol_violation, tol_kkt, tol_step, quadrature (points per span), merit "
+                       "(least violation weight), frame (player time), samples.", "set tol_kkt 1e-8"),
+    "iterate": CommandHelp("iterate [N]",
+                           "Run up to N SQP iterations on the current window (stops early on convergence).",
+                           "iterate 20"),
+    "delete": CommandHelp("delete NAME",
+                          "Delete a constraint, objective, subexpression, window, constant or DOF (refused "
+                          "while something else uses it).", "delete catch"),
+    "print": CommandHelp("print EXPR [@ T]",
+                         "Print an expression's value at T, or a summary (min, max, mean, ends) over the span.",
+                         "print x'' @ 0.5"),
+    "help": CommandHelp("help [COMMAND]", "List the commands, or document one.", "help constraint"),
+    "linkage": CommandHelp("linkage NAME [base=fixed|AXIS:DOF,…] [gravity=-y] … end",
+                           "A block: one row per joint (`JOINT revolute|prismatic a= alpha= d= theta= "
+                           "mass= com=x:y:z inertia=Ixx:Iyy:Izz`), closed by `end`. Joint variables "
+                           "become DOF; positions (NAME.JOINT.x, NAME.tip.y, NAME.com.z) and generalized "
+                           "forces tau_DOF become subexpressions.",
+                           "linkage arm base=fixed\n  SHOULDER revolute a=0.35 mass=2\nend"),
+}
+
+OPERATORS = "+ - * / ^ (or **), unary -, parentheses; x' and x'' are a DOF's velocity and acceleration; t is time"
+
+
+def help_text(topic: str | None = None) -> str:
+    """All commands with one-line summaries, or one command in full.
+
+    Raises:
+        StwError: unknown topic (with close matches).
+    """
+    if topic is None:
+        width = max(len(name) for name in COMMAND_HELP)
+        lines = ["Commands (help COMMAND for details):"]
+        lines += [f"  {name:<{width}}  {h.summary.split('. ')[0].rstrip('.')}" for name, h in COMMAND_HELP.items()]
+        lines.append("Functions: " + ", ".join(FUNCTIONS) + "; constant pi")
+        lines.append("Operators: " + OPERATORS)
+        return "\n".join(lines)
+    if topic not in COMMAND_HELP:
+        close = difflib.get_close_matches(topic, list(COMMAND_HELP), n=2)
+        hint = f" (did you mean {' or '.join(close)}?)" if close else ""
+        raise StwError(f"no help for '{topic}'{hint}")
+    h = COMMAND_HELP[topic]
+    return f"{h.synopsis}\n  {h.summary}\n  example: {h.example}"

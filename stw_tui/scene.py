@@ -1,0 +1,182 @@
+"""The scene: everything a session has defined, as plain data.
+
+A scene is changed only by the interpreter, one command at a time, on a copy that replaces the
+original when the command succeeds — so a failed command leaves the scene exactly as it was.
+"""
+
+from __future__ import annotations
+
+import copy
+from dataclasses import dataclass, field
+
+import numpy as np
+import sympy as sp
+
+from .errors import StwError
+from .spline import DofCurve
+from .symbols import named_symbol
+
+DEFAULT_SETTINGS: dict[str, float] = {
+    "tol_violation": 1e-8,   # max |constraint| accepted as satisfied
+    "tol_kkt": 1e-6,         # max |gradient of the Lagrangian|, relative to max(1, |grad R|)
+    "tol_step": 1e-10,       # relative step length counted as "no progress"
+    "quadrature": 4,         # Gauss-Legendre points per knot span for objective integrals
+    "merit": 1.0,            # least weight of constraint violation in the line-search merit
+    "frame": 0.0,            # frame time shown by the player
+}
+
+
+@dataclass
+class Dof:
+    """A degree of freedom: a cubic B-spline curve with optional bounds, damping and keys."""
+
+    name: str
+    curve: DofCurve
+    lo: float | None = None
+    hi: float | None = None
+    damp: float = 0.0
+    keys: list[tuple[float, float]] = field(default_factory=list)
+
+
+@dataclass(frozen=True)
+class Relation:
+    """One relation of a constraint, normalized to ``expr = 0`` or ``expr >= 0``."""
+
+    expr: sp.Expr
+    kind: str  # "eq" or "ge"
+
+
+@dataclass
+class Constraint:
+    name: str
+    relations: tuple[Relation, ...]
+    at: float | None = None
+    interval: tuple[float, float] | None = None
+    when: sp.Basic | None = None
+    weight: float = 1.0
+    text: str = ""
+
+    @property
+    def scope_text(self) -> str:
+        return f"@ {self.at:g}" if self.at is not None else f"on [{self.interval[0]:g}, {self.interval[1]:g}]"
+
+
+@dataclass
+class Objective:
+    name: str
+    exprs: tuple[sp.Expr, ...]
+    interval: tuple[float, float] | None = None
+    weight: float = 1.0
+    text: str = ""
+
+
+@dataclass
+class Window:
+    """A spacetime window: a subset of DOF (None: all) over a time interval (None: the span)."""
+
+    name: str
+    dofs: tuple[str, ...] | None = None
+    interval: tuple[float, float] | None = None
+
+
+@dataclass
+class Scene:
+    t0: float = 0.0
+    t1: float = 1.0
+    knots: int = 12
+    samples: int | None = None   # constraint instances per animation span; default 2 * knots
+    constants: dict[str, float] = field(default_factory=dict)
+    dofs: dict[str, Dof] = field(default_factory=dict)
+    lets: dict[str, sp.Expr] = field(default_factory=dict)
+    derived: dict[str, sp.Expr] = field(default_factory=dict)   # from linkages, read-only names
+    linkages: dict[str, object] = field(default_factory=dict)
+    constraints: dict[str, Constraint] = field(default_factory=dict)
+    objectives: dict[str, Objective] = field(default_factory=dict)
+    windows: dict[str, Window] = field(default_factory=lambda: {"all": Window("all")})
+    active_window: str = "all"
+    backend: str = "scipy"
+    backend_options: dict[str, str] = field(default_factory=dict)
+    settings: dict[str, float] = field(default_factory=lambda: dict(DEFAULT_SETTINGS))
+    shake_count: int = 0
+
+    def copy(self) -> "Scene":
+        return copy.deepcopy(self)
+
+    # --- names -------------------------------------------------------------------------------
+    def kind_of(self, name: str) -> str | None:
+        """'dof', 'const', 'let' (subexpressions and derived names) or None."""
+        if name in self.dofs:
+            return "dof"
+        if name in self.constants:
+            return "const"
+        if name in self.lets or name in self.derived:
+            return "let"
+        return None
+
+    @property
+    def sample_count(self) -> int:
+        return self.samples if self.samples is not None else 2 * self.knots
+
+    @property
+    def window(self) -> Window:
+        return self.windows[self.active_window]
+
+    # --- expressions -------------------------------------------------------------------------
+    def expand(self, expr: sp.Basic) -> sp.Basic:
+        """Substitute subexpressions (lets and derived quantities) until only DOF, t and constants remain."""
+        definitions = {named_symbol(n): e for n, e in {**self.derived, **self.lets}.items()}
+        for _ in range(100):
+            inside = expr.free_symbols & definitions.keys()
+            if not inside:
+                return expr
+            expr = expr.xreplace({s: definitions[s] for s in inside})
+        raise StwError("subexpressions refer to each other in a circle")
+
+    def constant_values(self, names) -> np.ndarray:
+        return np.array([self.constants[n] for n in names], dtype=float)
+
+    def numeric(self, expr: sp.Basic, what: str = "value") -> float:
+        """Evaluate a constant expression (numbers and constants only) to a float."""
+        expr = self.expand(expr)
+        subs = {named_symbol(n): v for n, v in self.constants.items()}
+        value = expr.xreplace(subs)
+        if value.free_symbols:
+            names = ", ".join(sorted(s.name for s in value.free_symbols))
+            raise StwError(f"{what} must be a number or constant expression, but it uses {names}")
+        result = float(value.evalf())
+        if not np.isfinite(result):
+            raise StwError(f"{what} is not a finite number ({result})")
+        return result
+
+    def names_used_by(self, name: str) -> list[str]:
+        """Definitions that refer to ``name`` (to refuse deleting something in use)."""
+        symbol = named_symbol(name)
+        from .symbols import dof_symbols
+        targets = {symbol} | (set(dof_symbols(name)) if name in self.dofs else set())
+        users = []
+        for n, e in self.lets.items():
+            if n != name and e.free_symbols & targets:
+                users.append(n)
+        for c in self.constraints.values():
+            if any(r.expr.free_symbols & targets for r in c.relations) or (
+                    c.when is not None and c.when.free_symbols & targets):
+                users.append(c.name)
+        for o in self.objectives.values():
+            if any(e.free_symbols & targets for e in o.exprs):
+                users.append(o.name)
+        for w in self.windows.values():
+            if w.dofs and name in w.dofs:
+                users.append(w.name)
+        return users
+
+    # --- curves ------------------------------------------------------------------------------
+    def coefficient_vector(self) -> np.ndarray:
+        return np.concatenate([d.curve.coef for d in self.dofs.values()]) if self.dofs else np.zeros(0)
+
+    def with_coefficients(self, vector: np.ndarray) -> None:
+        """Replace all DOF control points from one concatenated vector (in DOF order)."""
+        offset = 0
+        for dof in self.dofs.values():
+            n = dof.curve.n_coef
+            dof.curve = dof.curve.with_coef(np.array(vector[offset:offset + n], dtype=float))
+            offset += n

@@ -1,0 +1,187 @@
+"""A session: the scene, its journal, and the interpreter that applies one command line at a time.
+
+Every change goes through :meth:`Session.execute`: the line is appended to the journal, parsed
+against the current names, and applied to a *copy* of the scene that replaces the scene only if
+the whole command succeeds. A typo, a bad value or a diverging solve therefore leaves the scene
+exactly as it was. Replaying the journal's successful lines rebuilds the same scene and numbers.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Callable
+
+import numpy as np
+
+from . import interpreter
+from .backend import RunResult, StepReport
+from .errors import SourceError, StwError
+from .scene import Scene
+
+
+@dataclass
+class JournalEntry:
+    """One command as typed or read, and what became of it."""
+
+    text: str
+    line: int | None = None
+    ok: bool | None = None      # None while it is being applied
+    error: str = ""
+
+
+@dataclass
+class Journal:
+    """Append-only record of commands. Failed commands are kept but never replayed."""
+
+    entries: list[JournalEntry] = field(default_factory=list)
+    path: Path | None = None
+
+    def append(self, text: str, line: int | None) -> JournalEntry:
+        entry = JournalEntry(text, line)
+        self.entries.append(entry)
+        return entry
+
+    def settle(self, entry: JournalEntry, ok: bool, error: str = "") -> None:
+        entry.ok, entry.error = ok, error
+        if self.path is not None:
+            with self.path.open("a", encoding="utf-8") as out:
+                out.write(self._render(entry) + "\n")
+
+    @staticmethod
+    def _render(entry: JournalEntry) -> str:
+        if entry.ok:
+            return entry.text
+        first = entry.error.splitlines()[0] if entry.error else "failed"
+        return "\n".join(f"# failed: {t}" for t in entry.text.splitlines()) + f"\n#   {first}"
+
+    def replayable(self) -> list[str]:
+        """The lines that succeeded, in order: running them again rebuilds the scene."""
+        return [e.text for e in self.entries if e.ok]
+
+    def text(self) -> str:
+        return "\n".join(self._render(e) for e in self.entries if e.ok is not None) + "\n"
+
+
+@dataclass
+class PrintResult:
+    expr: str
+    t: float | None
+    value: float | dict
+
+
+@dataclass
+class Outcome:
+    """What a command did: a message for the console, and any printed values or solver run."""
+
+    message: str = ""
+    prints: list[PrintResult] = field(default_factory=list)
+    run: RunResult | None = None
+
+
+ReportCallback = Callable[[StepReport], "bool | None"]
+
+
+class Session:
+    """The headless core that both the TUI and the CLI drive."""
+
+    def __init__(self, journal_path: str | Path | None = None):
+        self.scene = Scene()
+        self.journal = Journal(path=Path(journal_path) if journal_path else None)
+        self.prints: list[PrintResult] = []
+        self.runs: list[RunResult] = []
+        self.warm: interpreter.WarmStart | None = None
+        self._block: list[tuple[int | None, str]] | None = None   # lines of an open `linkage` block
+
+    # --- commands ----------------------------------------------------------------------------
+    @property
+    def in_block(self) -> bool:
+        """True while a multi-line block (`linkage … end`) is being typed."""
+        return self._block is not None
+
+    def execute(self, text: str, *, line: int | None = None,
+                on_report: ReportCallback | None = None) -> Outcome:
+        """Apply one command line.
+
+        Args:
+            text: the command, as typed (comments and blank lines are accepted and ignored).
+            line: its line number in a session file, for error messages.
+            on_report: called after each solver iteration; returning False stops the solve.
+        Raises:
+            SourceError: bad input, with line and column; the scene is unchanged.
+            SolveError: a solve diverged or its backend raised; the scene is unchanged.
+        """
+        stripped = text.split("#", 1)[0].strip()
+        if self._block is not None:
+            return self._continue_block(text, stripped, line)
+        if not stripped:
+            return Outcome()
+        if stripped.split()[0] == "linkage":
+            self._block = [(line, text)]
+            return Outcome(message="linkage block: enter joint rows, then `end`")
+        return self._apply(text.rstrip(), line, on_report)
+
+    def _continue_block(self, text: str, stripped: str, line: int | None) -> Outcome:
+        if stripped == "end":
+            block, self._block = self._block, None
+            joined = "\n".join(t.rstrip() for _, t in block) + "\n" + text.rstrip()
+            return self._apply(joined, block[0][0], None, block=block)
+        if stripped:
+            self._block.append((line, text))
+        return Outcome()
+
+    def cancel_block(self) -> None:
+        self._block = None
+
+    def _apply(self, text: str, line: int | None, on_report, block=None) -> Outcome:
+        entry = self.journal.append(text, line)
+        scene = self.scene.copy()
+        try:
+            if block is not None:
+                outcome = interpreter.apply_linkage(self, scene, block)
+            else:
+                outcome = interpreter.apply_line(self, scene, text, line, on_report)
+        except SourceError as exc:
+            error = exc if exc.line is not None or line is None else exc.at_line(line)
+            self.journal.settle(entry, False, str(error))
+            raise error from None
+        except StwError as exc:
+            self.journal.settle(entry, False, str(exc))
+            if isinstance(exc, SourceError):
+                raise
+            raise type(exc)(f"line {line}: {exc}" if line is not None else str(exc)) from exc
+        self.scene = scene
+        self.journal.settle(entry, True)
+        self.prints.extend(outcome.prints)
+        if outcome.run is not None:
+            self.runs.append(outcome.run)
+        return outcome
+
+    def run_text(self, text: str, on_report: ReportCallback | None = None,
+                 on_line: Callable[[int, str, Outcome], None] | None = None) -> None:
+        """Execute a whole session text, stopping at the first error (which is raised)."""
+        for number, line in enumerate(text.splitlines(), start=1):
+            outcome = self.execute(line, line=number, on_report=on_report)
+            if on_line is not None:
+                on_line(number, line, outcome)
+        if self._block is not None:
+            start = self._block[0][0]
+            self._block = None
+            raise SourceError("`linkage` block is not closed", line=start, expected="a line `end`")
+
+    def run_file(self, path: str | Path, **kwargs) -> None:
+        try:
+            text = Path(path).read_text(encoding="utf-8")
+        except (OSError, UnicodeDecodeError) as exc:
+            raise StwError(f"cannot read session {path}: {exc}") from exc
+        self.run_text(text, **kwargs)
+
+    # --- queries -----------------------------------------------------------------------------
+    def sample(self, n: int = 21) -> dict[str, dict[str, list[float]]]:
+        """Values, velocities and accelerations of every DOF at n uniform times over the span."""
+        times = np.linspace(self.scene.t0, self.scene.t1, n)
+        return {name: {"t": times.tolist(),
+                       "value": dof.curve.evaluate(times, 0).tolist(),
+                       "velocity": dof.curve.evaluate(times, 1).tolist(),
+                       "acceleration": dof.curve.evaluate(times, 2).tolist()}
+                for name, dof in self.scene.dofs.items()}

@@ -1,0 +1,433 @@
+"""The window problem: a spacetime window of a scene as a sparse nonlinear program.
+
+Free variables are the control points of the window's DOF whose support meets the window's time
+interval; every other control point is fixed (paper 4.2). Constraint instances are taken on the
+window extended by one knot span on each side; objective integrals are taken by Gauss–Legendre
+quadrature over the part of the animation that the free control points can change, so the window
+problem minimizes exactly the scene's objective with everything outside held fixed.
+
+Evaluation is vectorized: DOF quantities at all instances are one sparse product ``P @ coef``
+(``P`` stacks the B-spline basis rows of every term variable at every instance); Jacobians and
+Hessians follow by the chain rule as sparse products ``G @ Pf`` and ``Pfᵀ D Pf`` where ``G`` and
+``D`` hold the compiled local derivatives on fixed sparsity patterns. No Python loop runs over
+instances or control points; one runs over term groups (constraints and objective terms).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+import scipy.sparse as sps
+import sympy as sp
+
+from .compiler import CompiledTerm, compile_term
+from .errors import StwError
+from .scene import Scene
+from .spline import gauss_legendre_nodes
+from .symbols import dof_symbol
+
+EQ, GE, OBJ = "eq", "ge", "obj"
+_RELATIONS = {
+    sp.StrictGreaterThan: np.greater, sp.GreaterThan: np.greater_equal,
+    sp.StrictLessThan: np.less, sp.LessThan: np.less_equal,
+    sp.Equality: np.equal, sp.Unequality: np.not_equal,
+}
+
+
+@dataclass(eq=False)
+class Condition:
+    """A compiled ``when`` condition: a boolean tree whose leaves are (lhs - rhs) terms."""
+
+    tree: sp.Basic
+    leaves: list[tuple[sp.Basic, CompiledTerm, int]] = field(default_factory=list)  # (node, term, slot offset)
+
+    def evaluate(self, slot_values: np.ndarray, times: np.ndarray, scene_params) -> np.ndarray:
+        n = len(times)
+        leaf_values = {}
+        for node, term, offset in self.leaves:
+            x = slot_values[offset:offset + term.k * n].reshape(term.k, n).T
+            leaf_values[node] = term.value(x, times, scene_params(term))
+        return self._eval(self.tree, leaf_values, n)
+
+    def _eval(self, node, leaf_values, n):
+        if node is sp.true:
+            return np.ones(n, bool)
+        if node is sp.false:
+            return np.zeros(n, bool)
+        if isinstance(node, sp.And):
+            return np.logical_and.reduce([self._eval(a, leaf_values, n) for a in node.args])
+        if isinstance(node, sp.Or):
+            return np.logical_or.reduce([self._eval(a, leaf_values, n) for a in node.args])
+        if isinstance(node, sp.Not):
+            return ~self._eval(node.args[0], leaf_values, n)
+        return _RELATIONS[type(node)](leaf_values[node], 0.0)
+
+
+@dataclass(eq=False)
+class TermGroup:
+    """One compiled expression evaluated at a set of instance times.
+
+    ``kind`` is "eq" (= 0), "ge" (>= 0) or "obj" (squared and integrated). Slot ``(a, i)`` — the
+    value of variable ``a`` at instance ``i`` — lives at ``slot_offset + a * n + i`` of the slot
+    vector; the group's rows are ``row_offset .. row_offset + n`` among the rows of its kind.
+    """
+
+    label: str
+    source: str
+    kind: str
+    term: CompiledTerm
+    times: np.ndarray
+    weights: np.ndarray
+    params: np.ndarray
+    slot_offset: int = 0
+    row_offset: int = 0
+    condition: Condition | None = None
+
+    @property
+    def n(self) -> int:
+        return len(self.times)
+
+
+@dataclass(eq=False)
+class Evaluation:
+    """Everything one SQP iteration needs at the current free values ``s``."""
+
+    s: np.ndarray
+    objective: float
+    gradient: np.ndarray
+    c_eq: np.ndarray
+    J_eq: sps.csr_array
+    c_ge: np.ndarray
+    J_ge: sps.csr_array
+    active_eq: np.ndarray      # bool: equality rows whose `when` holds
+    active_ge: np.ndarray      # bool: inequality rows whose `when` holds
+    _problem: "WindowProblem" = field(repr=False, default=None)
+    _hess_data: dict = field(repr=False, default_factory=dict)
+    _residual: np.ndarray = field(repr=False, default=None)
+    _J_obj: sps.csr_array = field(repr=False, default=None)
+
+    def max_violation(self) -> float:
+        eq = np.abs(self.c_eq[self.active_eq]) if self.c_eq.size else np.zeros(0)
+        ge = np.maximum(0.0, -self.c_ge[self.active_ge]) if self.c_ge.size else np.zeros(0)
+        return float(max(eq.max(initial=0.0), ge.max(initial=0.0)))
+
+    def lagrangian_hessian(self, lam_eq: np.ndarray, lam_ge: np.ndarray) -> sps.csr_array:
+        """∇²R + Σ λ ∇²C over the free variables (sparse, symmetric)."""
+        return self._problem._hessian(self, lam_eq, lam_ge)
+
+
+@dataclass(frozen=True)
+class MeritValues:
+    objective: float
+    c_eq: np.ndarray
+    c_ge: np.ndarray
+    active_eq: np.ndarray
+    active_ge: np.ndarray
+
+
+class WindowProblem:
+    """The NLP of one spacetime window. Build once per `iterate`; evaluate many times."""
+
+    def __init__(self, scene: Scene, window_name: str | None = None):
+        window = scene.windows[window_name or scene.active_window]
+        self.scene = scene
+        self.window = window
+        self.dof_names = tuple(scene.dofs)
+        if not self.dof_names:
+            raise StwError("there are no DOF: declare one with `dof NAME`")
+        self.offsets = {}
+        offset = 0
+        for name, dof in scene.dofs.items():
+            self.offsets[name] = offset
+            offset += dof.curve.n_coef
+        self.n_total = offset
+        self.coef0 = scene.coefficient_vector()
+        self.interval = window.interval or (scene.t0, scene.t1)
+        self.window_dofs = tuple(window.dofs) if window.dofs else self.dof_names
+        missing = [d for d in self.window_dofs if d not in scene.dofs]
+        if missing:
+            raise StwError(f"window '{window.name}' names unknown DOF {', '.join(missing)}")
+        self._select_free()
+        self._build_groups()
+        self._assemble_patterns()
+
+    # --- building ----------------------------------------------------------------------------
+    def _select_free(self) -> None:
+        a, b = self.interval
+        full = a <= self.scene.t0 and b >= self.scene.t1
+        free, lo, hi, margin = [], np.inf, -np.inf, 0.0
+        for name in self.window_dofs:
+            curve = self.scene.dofs[name].curve
+            support = curve.support()
+            mask = np.ones(curve.n_coef, bool) if full else (support[:, 0] < b) & (support[:, 1] > a)
+            idx = np.flatnonzero(mask)
+            if idx.size:
+                lo, hi = min(lo, support[idx, 0].min()), max(hi, support[idx, 1].max())
+            free.append(self.offsets[name] + idx)
+            margin = max(margin, curve.span_width())
+        self.free = np.concatenate(free).astype(np.int64) if free else np.zeros(0, np.int64)
+        if self.free.size == 0:
+            raise StwError(f"window '{self.window.name}' has no free control points")
+        # Constraint instances: window plus one knot span each side (paper 4.2).
+        self.instance_range = (max(self.scene.t0, a - margin), min(self.scene.t1, b + margin))
+        # Objective: where the free control points can change the curves.
+        self.objective_range = (max(self.scene.t0, lo), min(self.scene.t1, hi))
+        self.free_dofs = frozenset(self.window_dofs)
+        self.dof_of_free = np.empty(self.free.size, dtype=object)
+        pos = 0
+        for name, idx in zip(self.window_dofs, free):
+            self.dof_of_free[pos:pos + idx.size] = name
+            pos += idx.size
+
+    def _compile(self, expr: sp.Basic) -> CompiledTerm:
+        return compile_term(self.scene.expand(expr), set(self.scene.dofs), set(self.scene.constants))
+
+    def _params(self, term: CompiledTerm) -> np.ndarray:
+        return self.scene.constant_values(term.parameters)
+
+    def _interval_times(self, a: float, b: float) -> np.ndarray:
+        span = self.scene.t1 - self.scene.t0
+        n = max(1, int(np.ceil(self.scene.sample_count * (b - a) / span - 1e-9)))
+        return np.linspace(a, b, n + 1)
+
+    def _build_groups(self) -> None:
+        scene, (ia, ib) = self.scene, self.instance_range
+        self.groups: list[TermGroup] = []
+        for c in scene.constraints.values():
+            times = np.array([c.at]) if c.at is not None else self._interval_times(*c.interval)
+            times = times[(times >= ia - 1e-12) & (times <= ib + 1e-12)]
+            for r_index, rel in enumerate(c.relations):
+                label = c.name if len(c.relations) == 1 else f"{c.name}[{r_index + 1}]"
+                self._add_group(label, c.name, rel.kind, rel.expr, times, c.weight, c.when)
+        for name in self.window_dofs:
+            dof = scene.dofs[name]
+            times = self._interval_times(ia, ib) if ia < ib else np.array([ia])
+            x = dof_symbol(name)
+            if dof.lo is not None:
+                self._add_group(f"{name}.lo", name, GE, x - dof.lo, times, 1.0, None)
+            if dof.hi is not None:
+                self._add_group(f"{name}.hi", name, GE, dof.hi - x, times, 1.0, None)
+        quad = int(scene.settings["quadrature"])
+        for o in scene.objectives.values():
+            a, b = self.objective_range
+            if o.interval is not None:
+                a, b = max(a, o.interval[0]), min(b, o.interval[1])
+            if b <= a:
+                continue
+            for e_index, expr in enumerate(o.exprs):
+                term = self._compile(expr)
+                if not term.dofs & self.free_dofs:
+                    continue  # constant over this window
+                breaks = np.unique(np.concatenate([scene.dofs[d].curve.breakpoints for d in term.dofs]))
+                times, weights = gauss_legendre_nodes(breaks, quad, a, b)
+                label = o.name if len(o.exprs) == 1 else f"{o.name}[{e_index + 1}]"
+                self._add_group(label, o.name, OBJ, expr, times, o.weight, None, term=term,
+                                weights=weights * o.weight)
+
+    def _basis_rows(self, term: CompiledTerm, times: np.ndarray) -> list[sps.csr_array]:
+        """Per variable of ``term``: the (n, n_total) matrix mapping all coefficients to its values."""
+        blocks = []
+        for var in term.variables:
+            curve = self.scene.dofs[var.dof].curve
+            local = sps.coo_array(curve.basis(times, var.order))
+            blocks.append(sps.csr_array((local.data, (local.row, local.col + self.offsets[var.dof])),
+                                        shape=(len(times), self.n_total)))
+        return blocks
+
+    def _add_group(self, label, source, kind, expr, times, weight, when, *, term=None, weights=None):
+        term = term or self._compile(expr)
+        if kind != OBJ:
+            times = self._touching_free(term, times)
+        if times.size == 0 or not term.dofs & self.free_dofs:
+            return
+        weights = weights if weights is not None else np.full(times.size, float(weight))
+        condition = None
+        if when is not None and when is not sp.true:
+            if when is sp.false:
+                return
+            condition = Condition(when)
+        self.groups.append(TermGroup(label, source, kind, term, times, weights, self._params(term),
+                                     condition=condition))
+
+    def _touching_free(self, term: CompiledTerm, times: np.ndarray) -> np.ndarray:
+        """Drop instances that no free control point can influence (their Jacobian rows are zero)."""
+        if times.size == 0:
+            return times
+        free_mask = np.zeros(self.n_total, bool)
+        free_mask[self.free] = True
+        keep = np.zeros(times.size, bool)
+        for block in self._basis_rows(term, times):
+            coo = block.tocoo()
+            hit = free_mask[coo.col] & (coo.data != 0)
+            keep[coo.row[hit]] = True
+        return times[keep]
+
+    def _assemble_patterns(self) -> None:
+        """Stack basis rows of every group into P and precompute the sparsity of G and D."""
+        rows, slot = [], 0
+        counts = {EQ: 0, GE: 0, OBJ: 0}
+        g_idx = {EQ: ([], []), GE: ([], []), OBJ: ([], [])}
+        d_rows, d_cols = [], []
+        for group in self.groups:
+            n, k = group.n, group.term.k
+            group.slot_offset, group.row_offset = slot, counts[group.kind]
+            rows.extend(self._basis_rows(group.term, group.times))
+            inst = np.arange(n)
+            r, c = g_idx[group.kind]
+            for a in range(k):
+                r.append(group.row_offset + inst)
+                c.append(slot + a * n + inst)
+            for a, b in group.term.hessian_pairs:
+                d_rows.append(slot + a * n + inst)
+                d_cols.append(slot + b * n + inst)
+                if a != b:
+                    d_rows.append(slot + b * n + inst)
+                    d_cols.append(slot + a * n + inst)
+            slot += k * n
+            counts[group.kind] += n
+            if group.condition is not None:
+                slot = self._add_condition_slots(group, rows, slot)
+        self.n_slots = slot
+        self.row_counts = counts
+        self.P = sps.vstack(rows, format="csr") if rows else sps.csr_array((0, self.n_total))
+        self.Pf = self.P[:, self.free].tocsr()
+        self._g_pattern = {kind: (np.concatenate(r) if r else np.zeros(0, int),
+                                  np.concatenate(c) if c else np.zeros(0, int))
+                           for kind, (r, c) in g_idx.items()}
+        self._d_pattern = (np.concatenate(d_rows) if d_rows else np.zeros(0, int),
+                           np.concatenate(d_cols) if d_cols else np.zeros(0, int))
+        self.PfT = self.Pf.T.tocsr()
+        self.row_group = {kind: np.repeat(np.arange(len(self.groups)),
+                                          [g.n if g.kind == kind else 0 for g in self.groups])
+                          for kind in (EQ, GE, OBJ)}
+
+    def _add_condition_slots(self, group: TermGroup, rows: list, slot: int) -> int:
+        for node in sp.preorder_traversal(group.condition.tree):
+            if isinstance(node, tuple(_RELATIONS)):
+                term = self._compile(node.lhs - node.rhs)
+                group.condition.leaves.append((node, term, slot))
+                rows.extend(self._basis_rows(term, group.times))
+                slot += term.k * group.n
+        return slot
+
+    # --- evaluation --------------------------------------------------------------------------
+    @property
+    def n_free(self) -> int:
+        return self.free.size
+
+    def initial(self) -> np.ndarray:
+        """Current values of the free control points."""
+        return self.coef0[self.free].copy()
+
+    def scatter(self, s: np.ndarray) -> np.ndarray:
+        """The full coefficient vector with the free values ``s`` put in place."""
+        full = self.coef0.copy()
+        full[self.free] = s
+        return full
+
+    def _slot_values(self, s: np.ndarray) -> np.ndarray:
+        return self.P @ self.scatter(s)
+
+    def _group_inputs(self, group: TermGroup, v: np.ndarray) -> np.ndarray:
+        n, k = group.n, group.term.k
+        return v[group.slot_offset:group.slot_offset + k * n].reshape(k, n).T
+
+    def _conditions(self, v: np.ndarray) -> dict[str, np.ndarray]:
+        masks = {EQ: np.ones(self.row_counts[EQ], bool), GE: np.ones(self.row_counts[GE], bool)}
+        for group in self.groups:
+            if group.condition is not None:
+                masks[group.kind][group.row_offset:group.row_offset + group.n] = group.condition.evaluate(
+                    v, group.times, self._params)
+        return masks
+
+    def merit_values(self, s: np.ndarray) -> MeritValues:
+        """Objective and constraint values only (cheap: no derivatives), for line searches."""
+        v = self._slot_values(s)
+        out = {EQ: np.empty(self.row_counts[EQ]), GE: np.empty(self.row_counts[GE])}
+        objective = 0.0
+        for group in self.groups:
+            f = group.term.value(self._group_inputs(group, v), group.times, group.params)
+            if group.kind == OBJ:
+                objective += float(np.dot(group.weights, f * f))
+            else:
+                out[group.kind][group.row_offset:group.row_offset + group.n] = group.weights * f
+        masks = self._conditions(v)
+        return MeritValues(objective, out[EQ], out[GE], masks[EQ], masks[GE])
+
+    def evaluate(self, s: np.ndarray) -> Evaluation:
+        """Values, gradients and (lazily) Hessians at free values ``s``."""
+        v = self._slot_values(s)
+        values = {kind: np.empty(self.row_counts[kind]) for kind in (EQ, GE, OBJ)}
+        grads = {kind: [] for kind in (EQ, GE, OBJ)}
+        hess = []
+        for group in self.groups:
+            f, grad, h = group.term.full(self._group_inputs(group, v), group.times, group.params)
+            values[group.kind][group.row_offset:group.row_offset + group.n] = f
+            scale = group.weights if group.kind != OBJ else np.ones(group.n)
+            grads[group.kind].append((grad * scale[:, None]).T.ravel())
+            hess.append((group, h))
+        J = {kind: self._jacobian(kind, grads[kind]) for kind in (EQ, GE, OBJ)}
+        w_obj = np.concatenate([g.weights for g in self.groups if g.kind == OBJ] or [np.zeros(0)])
+        residual = values[OBJ]
+        objective = float(np.dot(w_obj, residual * residual))
+        gradient = J[OBJ].T @ (2.0 * w_obj * residual) if residual.size else np.zeros(self.n_free)
+        c = {kind: np.concatenate([g.weights for g in self.groups if g.kind == kind] or [np.zeros(0)])
+             * values[kind] for kind in (EQ, GE)}
+        masks = self._conditions(v)
+        return Evaluation(s=s.copy(), objective=objective, gradient=np.asarray(gradient),
+                          c_eq=c[EQ], J_eq=J[EQ], c_ge=c[GE], J_ge=J[GE],
+                          active_eq=masks[EQ], active_ge=masks[GE], _problem=self,
+                          _hess_data={"groups": hess, "w_obj": w_obj}, _residual=residual, _J_obj=J[OBJ])
+
+    def _jacobian(self, kind: str, grad_parts: list[np.ndarray]) -> sps.csr_array:
+        rows, cols = self._g_pattern[kind]
+        data = np.concatenate(grad_parts) if grad_parts else np.zeros(0)
+        G = sps.csr_array((data, (rows, cols)), shape=(self.row_counts[kind], self.n_slots))
+        return (G @ self.Pf).tocsr()
+
+    def _hessian(self, ev: Evaluation, lam_eq: np.ndarray, lam_ge: np.ndarray) -> sps.csr_array:
+        multipliers = {EQ: lam_eq, GE: lam_ge}
+        data = []
+        w_obj_all, residual = ev._hess_data["w_obj"], ev._residual
+        for group, h in ev._hess_data["groups"]:
+            if not group.term.hessian_pairs:
+                continue
+            rows = slice(group.row_offset, group.row_offset + group.n)
+            if group.kind == OBJ:
+                scale = 2.0 * w_obj_all[rows] * residual[rows]
+            else:
+                scale = multipliers[group.kind][rows] * group.weights
+            for p, (a, b) in enumerate(group.term.hessian_pairs):
+                entry = h[:, p] * scale
+                data.append(entry)
+                if a != b:
+                    data.append(entry)
+        d_rows, d_cols = self._d_pattern
+        D = sps.csr_array((np.concatenate(data) if data else np.zeros(0), (d_rows, d_cols)),
+                          shape=(self.n_slots, self.n_slots))
+        H = self.PfT @ D @ self.Pf
+        if residual.size:
+            Jo = ev._J_obj
+            H = H + Jo.T @ (sps.diags_array(2.0 * w_obj_all) @ Jo)
+        return sps.csr_array(H)
+
+    # --- reporting ---------------------------------------------------------------------------
+    def violation_by_source(self, ev: Evaluation | MeritValues) -> dict[str, float]:
+        """Max violation per constraint name (for the equations panel and `print`)."""
+        out: dict[str, float] = {}
+        for group in self.groups:
+            if group.kind == OBJ:
+                continue
+            rows = slice(group.row_offset, group.row_offset + group.n)
+            if group.kind == EQ:
+                v = np.abs(ev.c_eq[rows])[ev.active_eq[rows]]
+            else:
+                v = np.maximum(0, -ev.c_ge[rows])[ev.active_ge[rows]]
+            out[group.source] = max(out.get(group.source, 0.0), float(v.max(initial=0.0)))
+        return out
+
+    def summary(self) -> str:
+        return (f"window '{self.window.name}': {self.n_free} free control points, "
+                f"{self.row_counts[EQ]} equality + {self.row_counts[GE]} inequality instances, "
+                f"{self.row_counts[OBJ]} quadrature points")

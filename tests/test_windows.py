@@ -1,0 +1,107 @@
+"""Window locality, refinement invariance, determinism, and the scene's transactional commands."""
+
+import numpy as np
+import pytest
+
+from conftest import SESSIONS, run_lines
+from stw_tui.errors import SolveError, SourceError, StwError
+from stw_tui.session import Session
+
+TWO_D = """
+time 0 2 knots=16 samples=32
+const m = 1, g = 9.81
+dof x, y = 0.5
+let fy = m*y'' + m*g
+constraint start: x = 0, y = 0.5, x' = 1, y' = -3 @ 0
+constraint goal:  x = 2, y = 0.5, x' = 0, y' = 0 @ 2
+objective thrust: x'', fy
+"""
+
+
+def test_window_leaves_everything_outside_bit_for_bit():
+    s = run_lines(Session(), TWO_D + "iterate 1\nconstraint mid: y = 1 @ 1\n")
+    before = {n: d.curve.coef.copy() for n, d in s.scene.dofs.items()}
+    s.execute("window middle dofs=y [0.8, 1.2]")
+    from stw_tui.window import WindowProblem
+    free = WindowProblem(s.scene).free - s.scene.dofs["x"].curve.n_coef
+    s.execute("iterate 5")
+    after = {n: d.curve.coef for n, d in s.scene.dofs.items()}
+    assert np.array_equal(before["x"], after["x"])            # DOF outside the window
+    fixed = np.setdiff1d(np.arange(before["y"].size), free)
+    assert fixed.size > 0 and np.array_equal(before["y"][fixed], after["y"][fixed])
+    assert not np.array_equal(before["y"][free], after["y"][free])   # the window did move
+    assert abs(s.scene.dofs["y"].curve.evaluate(np.array([1.0]))[0] - 1) < 1e-8
+
+
+def test_refinement_leaves_the_motion_unchanged():
+    s = run_lines(Session(), TWO_D + "iterate 3\n")
+    t = np.linspace(0, 2, 333)
+    before = [s.scene.dofs["y"].curve.evaluate(t, k) for k in range(3)]
+    n_before = s.scene.dofs["y"].curve.n_coef
+    s.execute("refine y [0.4, 0.8]")
+    assert s.scene.dofs["y"].curve.n_coef > n_before
+    for k in range(3):
+        assert np.max(np.abs(s.scene.dofs["y"].curve.evaluate(t, k) - before[k])) < 1e-10
+    s.execute("iterate 5")   # and the refined problem still solves
+    assert s.runs[-1].reports[-1].max_violation < 1e-8
+
+
+@pytest.mark.parametrize("name", ["particle_jet", "point_mass_2d", "cat_mouse"])
+def test_replay_is_deterministic(name):
+    a, b = Session(), Session()
+    a.run_file(SESSIONS / f"{name}.stw")
+    b.run_file(SESSIONS / f"{name}.stw")
+    assert np.array_equal(a.scene.coefficient_vector(), b.scene.coefficient_vector())
+    assert [r.objective for run in a.runs for r in run.reports] == \
+        [r.objective for run in b.runs for r in run.reports]
+
+
+def test_journal_replay_rebuilds_the_same_scene():
+    a = Session()
+    a.run_file(SESSIONS / "point_mass_2d.stw")
+    with pytest.raises(SourceError):
+        a.execute("constraint oops: q = 1 @ 0")      # fails, kept out of the replay
+    a.execute("shake y amplitude=0.01")
+    a.execute("iterate 3")
+    b = run_lines(Session(), "\n".join(a.journal.replayable()))
+    assert np.array_equal(a.scene.coefficient_vector(), b.scene.coefficient_vector())
+
+
+BAD = [
+    "constraint c: zz = 1 @ 0",          # unknown name
+    "dof x knots=0",                     # invalid knots
+    "key 5 x=1",                         # outside the span
+    "weight nothing 2",                  # unknown equation
+    "window w dofs=x [0.5, 0.2]",        # empty interval
+    "delete x",                          # in use
+    "set tol_kkt banana",                # not a number
+    "backend nosuch",                    # not installed
+    "const x = 2",                       # name clash with a DOF
+    "let f = f + 1",                     # circular
+    "print x @ 9",                       # outside the span
+]
+
+
+@pytest.mark.parametrize("line", BAD)
+def test_bad_commands_leave_the_scene_unchanged(line):
+    s = run_lines(Session(), TWO_D + "let f = x + 1\niterate 2\n")
+    coef = s.scene.coefficient_vector().copy()
+    names = (dict(s.scene.dofs), dict(s.scene.constraints), dict(s.scene.lets), dict(s.scene.constants))
+    with pytest.raises(StwError):
+        s.execute(line)
+    assert np.array_equal(coef, s.scene.coefficient_vector())
+    assert (dict(s.scene.dofs), dict(s.scene.constraints), dict(s.scene.lets), dict(s.scene.constants)) == names
+    assert s.journal.entries[-1].ok is False
+
+
+def test_a_diverging_backend_leaves_the_scene_unchanged(monkeypatch):
+    s = run_lines(Session(), TWO_D)
+    coef = s.scene.coefficient_vector().copy()
+    from stw_scipy import sqp
+
+    def explode(*args, **kwargs):
+        raise FloatingPointError("boom")
+    monkeypatch.setattr(sqp.ScipyBackend, "step", explode)
+    with pytest.raises(SolveError, match="boom"):
+        s.execute("iterate 3")
+    assert np.array_equal(coef, s.scene.coefficient_vector())
