@@ -65,9 +65,32 @@ def apply_line(session: "Session", scene: Scene, text: str, line: int | None, on
 
 
 def apply_linkage(session: "Session", scene: Scene, block) -> "Outcome":
+    """Add a linkage: its joint (and base) variables become DOF, its kinematics and generalized
+    forces become derived subexpressions."""
+    from .linkage import derive, dof_names, parse_linkage
     from .session import Outcome
 
-    raise StwError("linkage blocks are not supported yet")  # pragma: no cover - issue 3
+    (header_line, header), rows = block[0], block[1:]
+    spec = parse_linkage(header, [(ln, text) for ln, text in rows], header_line=header_line)
+    if spec.name in scene.linkages or scene.kind_of(spec.name) is not None:
+        raise StwError(f"'{spec.name}' is already defined; choose another linkage name")
+    if spec.gravity_axis is not None and "g" not in scene.constants:
+        raise StwError("the linkage feels gravity g: declare it first, e.g. `const g = 9.81`")
+    names = dof_names(spec)
+    taken = [n for n in names if scene.kind_of(n) is not None]
+    if taken:
+        raise StwError(f"linkage DOF {', '.join(taken)} already exist; rename the joints")
+    derived = derive(spec)
+    clash = [n for n in derived if scene.kind_of(n) is not None]
+    if clash:
+        raise StwError(f"linkage quantities {', '.join(clash[:4])} clash with existing names")
+    for name in names:
+        scene.dofs[name] = Dof(name, DofCurve.uniform(scene.t0, scene.t1, scene.knots))
+    scene.derived.update(derived)
+    scene.linkages[spec.name] = spec
+    forces = ", ".join(f"tau_{n}" for n in names)
+    return Outcome(message=f"linkage {spec.name}: DOF {', '.join(names)}; forces {forces}; "
+                           f"positions {spec.name}.JOINT.x|y|z, {spec.name}.tip.*, {spec.name}.com.*")
 
 
 # --- helpers ---------------------------------------------------------------------------------

@@ -116,6 +116,14 @@ class Evaluation:
         """∇²R + Σ λ ∇²C over the free variables (sparse, symmetric)."""
         return self._problem._hessian(self, lam_eq, lam_ge)
 
+    def gauss_newton(self) -> sps.csr_array:
+        """2 Jᵀ W J of the objective residuals: positive semidefinite, no second derivatives."""
+        Jo, w = self._J_obj, self._hess_data["w_obj"]
+        n = self.s.size
+        if Jo is None or Jo.shape[0] == 0:
+            return sps.csr_array((n, n))
+        return sps.csr_array(Jo.T @ (sps.diags_array(2.0 * w) @ Jo))
+
 
 @dataclass(frozen=True)
 class MeritValues:
@@ -407,10 +415,7 @@ class WindowProblem:
         D = sps.csr_array((np.concatenate(data) if data else np.zeros(0), (d_rows, d_cols)),
                           shape=(self.n_slots, self.n_slots))
         H = self.PfT @ D @ self.Pf
-        if residual.size:
-            Jo = ev._J_obj
-            H = H + Jo.T @ (sps.diags_array(2.0 * w_obj_all) @ Jo)
-        return sps.csr_array(H)
+        return sps.csr_array(H + ev.gauss_newton())
 
     # --- reporting ---------------------------------------------------------------------------
     def violation_by_source(self, ev: Evaluation | MeritValues) -> dict[str, float]:

@@ -73,3 +73,17 @@ def test_point_mass_floor_is_active_and_respected():
     samples = np.linspace(0, 2, 65)
     assert y.evaluate(samples).min() >= -1e-8
     assert y.evaluate(samples).min() <= 1e-6      # the floor binds
+
+
+def test_cat_chases_in_windows_but_runs_straight_with_full_knowledge():
+    s = Session()
+    s.run_file(SESSIONS / "cat_mouse.stw")
+    prints = {(p.expr, p.t): p.value for p in s.prints}
+    # Full spacetime, minimum ∫|c''|² with rest start and a catch at (3, 1): by symmetry of the
+    # Euler-Lagrange solution each coordinate is the same cubic profile scaled, so the path is
+    # the straight line y = x / 3.
+    assert prints[("cy", 1.0)] == pytest.approx(prints[("cx", 1.0)] / 3, abs=1e-9)
+    # Windowed: heading for the mouse's present position, the cat climbs far more steeply.
+    assert prints[("cy", 0.5)] / prints[("cx", 0.5)] > 0.5
+    assert abs(prints[("cx - mx", 2.0)]) < 0.5
+    assert all(run.converged for run in s.runs)

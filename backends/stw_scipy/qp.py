@@ -19,7 +19,7 @@ import scipy.sparse as sps
 from .linear import kkt_matrix, solve_kkt
 
 STEP_TO_BOUNDARY = 0.995   # fraction of the way to w = 0 or z = 0 an IPM step may go
-KKT_EPS = 1e-12            # tiny negative (2,2) block: tolerates duplicated constraint rows
+KKT_EPS = 1e-8            # small negative (2,2) block: redundant (densely sampled) constraint rows get bounded multipliers
 
 
 @dataclass
@@ -32,14 +32,22 @@ class QPResult:
 
 
 def solve_qp(H, g, Ae, ce, Ai, ci, method: str, rtol: float, maxiter: int,
-             tol: float = 1e-11, max_ipm: int = 100) -> QPResult:
-    """Solve the QP; ``method`` names the linear solver (see linear.SOLVERS)."""
+             y0: np.ndarray | None = None, tol: float = 1e-11, max_ipm: int = 100) -> QPResult:
+    """Solve the QP; ``method`` names the linear solver (see linear.SOLVERS).
+
+    The equality rows are stabilized around the previous multipliers ``y0`` (a proximal method
+    of multipliers): A_e d + c_e = ε (y - y0). Redundant rows — a constraint sampled more densely
+    than its spline can vary — then get bounded multipliers, and the constraints are still met
+    exactly once the multipliers settle.
+    """
     n, me, mi = H.shape[0], Ae.shape[0], Ai.shape[0]
+    y0 = np.zeros(me) if y0 is None else y0
     if mi == 0:
-        sol = solve_kkt(kkt_matrix(H, Ae, KKT_EPS), np.concatenate([-g, -ce]), method, rtol, maxiter)
+        sol = solve_kkt(kkt_matrix(H, Ae, KKT_EPS), np.concatenate([-g, -ce - KKT_EPS * y0]), method,
+                        rtol, maxiter)
         return QPResult(sol.x[:n], sol.x[n:], np.zeros(0), sol.iterations, 0)
 
-    d, y = np.zeros(n), np.zeros(me)
+    d, y = np.zeros(n), y0.copy()
     w = np.maximum(ci, 1.0)
     z = np.ones(mi)
     AiT = Ai.T.tocsr()
@@ -48,7 +56,7 @@ def solve_qp(H, g, Ae, ce, Ai, ci, method: str, rtol: float, maxiter: int,
     linear_its = 0
     for k in range(1, max_ipm + 1):
         r_d = H @ d + g + (Ae.T @ y if me else 0.0) - AiT @ z
-        r_e = Ae @ d + ce if me else np.zeros(0)
+        r_e = Ae @ d + ce - KKT_EPS * (y - y0) if me else np.zeros(0)
         r_i = Ai @ d + ci - w
         mu = float(w @ z) / mi
         if (np.abs(r_d).max() <= tol * scale_d and np.abs(r_i).max() <= tol * scale_c

@@ -25,6 +25,7 @@ from stw_tui.backend import Backend, BackendOption, SolverState, StepReport
 from .linear import SOLVERS, kkt_matrix, solve_kkt
 from .qp import KKT_EPS, solve_qp
 
+PROX_MIN, PROX_MAX = 1e-10, 1e8   # range of the adaptive proximal (Levenberg-Marquardt) term
 ARMIJO = 1e-4            # sufficient-decrease fraction of the merit's directional derivative
 MIN_STEP = 1e-8          # smallest line-search step before declaring a stall
 ACTIVE_FRACTION = 1e-6   # an inequality whose multiplier exceeds this share of the largest binds
@@ -45,6 +46,14 @@ class ScipyBackend(Backend):
         BackendOption("solver", str, "direct", "linear solver for the KKT system", SOLVERS),
         BackendOption("lin_tol", float, 1e-12, "relative tolerance of the iterative solvers"),
         BackendOption("lin_maxiter", int, 20000, "iteration limit of the iterative solvers"),
+        BackendOption("max_step", float, 0.0, "largest change of any control point in one "
+                      "iteration (0: no cap)"),
+        BackendOption("hessian", str, "auto", "Hessian of the Lagrangian: exact (Newton), "
+                      "gauss_newton (objective residuals only: positive semidefinite), or auto "
+                      "(Gauss-Newton until nearly feasible, then exact)", ("auto", "exact", "gauss_newton")),
+        BackendOption("prox", float, 1e-6, "initial proximal (Levenberg-Marquardt) weight; it adapts"),
+        BackendOption("newton_switch", float, 1e-2, "max violation below which `auto` uses the "
+                      "exact Hessian"),
     )
     capabilities = frozenset({"inequalities", "conditional", "damping", "weights"})
 
@@ -56,23 +65,33 @@ class ScipyBackend(Backend):
 
     # --- one iteration -----------------------------------------------------------------------
     def step(self, problem, inner: _Inner, iteration: int) -> tuple[_Inner, StepReport]:
-        ms: dict[str, float] = {}
-        clock = time.perf_counter()
+        ms: dict[str, float] = {"assemble": 0.0, "solve": 0.0, "line_search": 0.0}
         st, ev, settings = inner.state, inner.ev, inner.settings
-        lam_eq = st.lam_eq * ev.active_eq
-        H = ev.lagrangian_hessian(lam_eq, st.lam_ge * ev.active_ge)
-        H = H + self._damping(problem, settings)
-        ms["assemble"] = _lap(clock)
+        modes = self._hessian_modes(ev, settings)
+        # Adaptive proximal term (Levenberg-Marquardt): directions no term curves (a ball DOF
+        # between constraint samples) would otherwise take huge steps the line search must cut.
+        prox = st.regularization if st.regularization > 0 else self.config["prox"]
+        for mode in modes:  # an exact step the line search refuses is retried as Gauss-Newton
+            clock = time.perf_counter()
+            H = ev.gauss_newton() if mode == "gauss_newton" else \
+                ev.lagrangian_hessian(st.lam_eq * ev.active_eq, st.lam_ge * ev.active_ge)
+            H = H + self._damping(problem, settings, prox)
+            ms["assemble"] += _lap(clock)
 
-        clock = time.perf_counter()
-        d, lam_eq_new, lam_ge_new, working, lin_its, resolve, A_rows = self._solve_qp(H, ev, st)
-        ms["solve"] = _lap(clock)
+            clock = time.perf_counter()
+            d, lam_eq_new, lam_ge_new, working, lin_its, resolve, A_rows = self._solve_qp(H, ev, st)
+            ms["solve"] += _lap(clock)
 
-        clock = time.perf_counter()
-        rho = max(st.merit_weight, float(settings.get("merit", 1.0)),
-                  1.5 * float(np.abs(np.concatenate([lam_eq_new, lam_ge_new])).max(initial=0.0)))
-        alpha, d = self._line_search(problem, ev, d, rho, resolve, A_rows)
-        ms["line_search"] = _lap(clock)
+            clock = time.perf_counter()
+            rho = max(float(settings.get("merit", 1.0)),
+                      1.5 * float(np.abs(np.concatenate([lam_eq_new, lam_ge_new])).max(initial=0.0)))
+            biggest = float(np.abs(d).max(initial=0.0))
+            if biggest > self.config["max_step"] > 0:  # a step-length cap: a crude trust region
+                d = d * (self.config["max_step"] / biggest)
+            alpha, d = self._line_search(problem, ev, d, rho, resolve, A_rows)
+            ms["line_search"] += _lap(clock)
+            if alpha > 0:
+                break
 
         clock = time.perf_counter()
         stalled = alpha == 0.0
@@ -90,17 +109,29 @@ class ScipyBackend(Backend):
         converged = ok_violation and (kkt <= settings["tol_kkt"] or tiny_step)
         if stalled and ok_violation and kkt <= 1e3 * settings["tol_kkt"]:
             converged, stalled = True, False  # merit noise at machine precision near the optimum
+        # Full steps: trust the model more; cut steps: less (bounded both ways).
+        prox = max(PROX_MIN, prox / 10) if alpha == 1.0 else min(PROX_MAX, prox * 10)
         new_state = replace(st, s=s_new, lam_eq=lam_eq, lam_ge=lam_ge, working_set=working,
-                            merit_weight=rho)
+                            merit_weight=rho, regularization=prox)
         report = StepReport(iteration=iteration, objective=new_ev.objective, max_violation=violation,
                             kkt_residual=kkt, step_length=alpha, linear_iterations=lin_its,
                             active=int(working.sum()), ms=ms, converged=converged, stalled=stalled)
         return _Inner(new_state, new_ev, settings), report
 
-    def _damping(self, problem, settings) -> sps.csr_array:
-        """Diagonal of the user's damping (paper 4.3) plus a tiny regularization of null directions."""
+    def _hessian_modes(self, ev, settings) -> tuple[str, ...]:
+        """Which Hessians to try this step. "auto": Gauss-Newton while far from feasible (the
+        multipliers, and so the constraint curvature, mean little there), exact Newton near it."""
+        choice = self.config["hessian"]
+        if choice != "auto":
+            return (choice,)
+        if ev.max_violation() > self.config["newton_switch"]:
+            return ("gauss_newton",)
+        return ("exact", "gauss_newton")
+
+    def _damping(self, problem, settings, prox: float) -> sps.csr_array:
+        """Diagonal of the user's damping (paper 4.3) plus the proximal term."""
         damp = np.array([problem.scene.dofs[name].damp for name in problem.dof_of_free], dtype=float)
-        return sps.diags_array(2.0 * damp + 1e-10, format="csr")
+        return sps.diags_array(2.0 * damp + prox, format="csr")
 
     def _solve_qp(self, H, ev, st: SolverState):
         """The step's QP over equality rows whose `when` holds and all live inequality rows."""
@@ -113,12 +144,12 @@ class ScipyBackend(Backend):
             Hr = H + reg * sps.eye_array(n) if reg else H
             try:
                 qp = solve_qp(Hr, ev.gradient, Ae, ce, Ai, ci, self.config["solver"],
-                              self.config["lin_tol"], self.config["lin_maxiter"])
+                              self.config["lin_tol"], self.config["lin_maxiter"], y0=st.lam_eq[eq_rows])
             except RuntimeError:  # exactly singular factor
                 reg = max(10 * reg, 1e-8)
                 continue
             total_its += qp.linear_iterations
-            curvature = float(qp.d @ (H @ qp.d))
+            curvature = float(qp.d @ (Hr @ qp.d))
             if curvature >= -1e-12 * float(qp.d @ qp.d) or not np.any(qp.d):
                 break
             reg = max(10 * reg, 1e-6 * max(1.0, float(np.abs(H.diagonal()).max())))
