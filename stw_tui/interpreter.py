@@ -245,7 +245,7 @@ def _key(scene: Scene, cmd) -> str:
         dof = scene.dofs[name]
         dof.keys = [k for k in dof.keys if abs(k[0] - t) > 1e-12] + [(t, value)]
         dof.keys.sort()
-        dof.curve = dof.curve.sketched([(t, value)])
+        dof.curve = dof.curve.sketched(dof.keys)   # all keys: each new one keeps the earlier ones
     return f"key at t={t:g}: " + ", ".join(n for n, _ in cmd.assignments)
 
 

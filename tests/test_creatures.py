@@ -1,0 +1,56 @@
+"""Linkage blocks in sessions, and the paper's arm throw (5.1)."""
+
+import numpy as np
+import pytest
+
+from conftest import SESSIONS
+from stw_tui.errors import SourceError, StwError
+from stw_tui.figure import scene_figure
+from stw_tui.session import Session
+
+ARM = """time 0 1 knots=8
+const g = 9.81
+linkage arm base=fixed
+  SHOULDER revolute a=0.35 mass=2.0
+  ELBOW    revolute a=0.30 mass=1.5
+end
+"""
+
+
+def test_linkage_block_defines_dof_and_subexpressions():
+    s = Session()
+    s.run_text(ARM + "print arm.tip.x @ 0\nprint tau_SHOULDER @ 0\n")
+    assert list(s.scene.dofs) == ["SHOULDER", "ELBOW"]
+    # All angles 0: the arm lies along x; tip at 0.65; static shoulder torque = moment of gravity
+    # of two uniform rods: 2*g*0.175 + 1.5*g*(0.35 + 0.15).
+    assert s.prints[0].value == pytest.approx(0.65, abs=1e-12)
+    assert s.prints[1].value == pytest.approx(9.81 * (2 * 0.175 + 1.5 * 0.5), rel=1e-12)
+    figure = scene_figure(s.scene, 0.5)
+    assert figure.segments[-1][1] == pytest.approx((0.65, 0.0), abs=1e-12)
+
+
+def test_bad_linkage_block_leaves_the_scene_unchanged():
+    s = Session()
+    s.run_text("time 0 1 knots=8\nconst g = 9.81\ndof x\n")
+    before = (dict(s.scene.dofs), dict(s.scene.derived))
+    s.execute("linkage arm base=fixed", line=4)
+    s.execute("  SHOULDER revolute a=oops", line=5)
+    with pytest.raises(SourceError) as err:
+        s.execute("end", line=6)
+    assert err.value.line == 5
+    assert (dict(s.scene.dofs), dict(s.scene.derived)) == before
+    with pytest.raises(StwError, match="already"):
+        s.run_text("linkage x\n  J revolute a=1\nend\n")
+
+
+def test_arm_throw_converges_to_an_underhand_toss():
+    s = Session()
+    s.run_file(SESSIONS / "arm_throw.stw")
+    assert all(run.converged for run in s.runs)
+    assert s.runs[-1].reports[-1].max_violation <= 1e-6
+    prints = [(p.expr, p.t, p.value) for p in s.prints]
+    shoulder = prints[0][2]
+    assert -np.pi / 2 < shoulder < 0          # hand below the shoulder at release: underhand
+    assert prints[1][2] > 0                   # ball rising as it leaves the hand
+    assert abs(prints[4][2]) < abs(prints[2][2]) / 5   # the release window held it tighter
+    assert prints[3][2] == pytest.approx(1.5, abs=1e-6)
