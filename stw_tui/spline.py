@@ -13,20 +13,32 @@ from typing import Callable, Sequence
 
 import numpy as np
 import scipy.sparse as sps
-from scipy.interpolate import BSpline, insert
+import scipy.sparse.linalg as spla
+from scipy.interpolate import BSpline, insert, make_lsq_spline
 
 DEGREE = 3
+# Times this far outside [t0, t1] are rounding noise (e.g. t0 + k*dt sums) and get clamped.
+_TIME_SLACK = 1e-12
 
 
 def clamped_uniform_knots(t0: float, t1: float, spans: int) -> np.ndarray:
-    inner = np.linspace(t0, t1, spans + 1)
-    return np.concatenate([[t0] * DEGREE, inner, [t1] * DEGREE])
+    """Clamped knot vector with ``spans`` equal intervals on [t0, t1] (end knots repeated 4 times).
+
+    Raises:
+        ValueError: spans < 1 or t1 <= t0.
+    """
+    if int(spans) < 1 or not t1 > t0:
+        raise ValueError(f"need spans >= 1 and t1 > t0, got spans={spans}, [{t0}, {t1}]")
+    inner = np.linspace(t0, t1, int(spans) + 1)
+    return np.concatenate([[t0] * DEGREE, inner, [t1] * DEGREE]).astype(float)
 
 
 def _difference_matrix(knots: np.ndarray, degree: int) -> sps.csr_array:
     """D with (D @ c) = coefficients of the derivative spline (degree-1, knots[1:-1])."""
     n = len(knots) - degree - 1
-    scale = degree / (knots[degree + 1:degree + n] - knots[1:n])
+    width = knots[degree + 1:degree + n] - knots[1:n]
+    # A zero-width support belongs to an identically zero basis function (repeated knots): drop it.
+    scale = np.divide(degree, width, out=np.zeros_like(width), where=width > 0)
     rows = np.arange(n - 1)
     data = np.concatenate([-scale, scale])
     return sps.csr_array((data, (np.concatenate([rows, rows]), np.concatenate([rows, rows + 1]))),
@@ -35,12 +47,24 @@ def _difference_matrix(knots: np.ndarray, degree: int) -> sps.csr_array:
 
 def gauss_legendre_nodes(breakpoints: np.ndarray, points_per_span: int, a: float, b: float
                          ) -> tuple[np.ndarray, np.ndarray]:
-    """Composite Gauss–Legendre rule on [a, b], split at the breakpoints inside it.
+    """Composite Gauss–Legendre rule on [a, b], split at the breakpoints inside (a, b).
 
     Piecewise polynomials of degree <= 2*points_per_span - 1 on those pieces integrate exactly.
+
+    Args:
+        breakpoints: where the integrand's polynomial pieces change (e.g. unique knots).
+        points_per_span: Gauss points in each piece.
+        a, b: the interval; a == b gives an empty rule.
     Returns:
-        (times, weights), both 1-D.
+        (times, weights), both 1-D and sorted by time; ``weights @ f(times)`` ≈ ∫_a^b f.
+    Raises:
+        ValueError: points_per_span < 1 or b < a.
     """
+    if int(points_per_span) < 1 or b < a:
+        raise ValueError(f"need points_per_span >= 1 and a <= b, got {points_per_span}, [{a}, {b}]")
+    if a == b:
+        return np.zeros(0), np.zeros(0)
+    breakpoints = np.asarray(breakpoints, dtype=float)
     cuts = np.unique(np.concatenate([[a, b], breakpoints[(breakpoints > a) & (breakpoints < b)]]))
     x, w = np.polynomial.legendre.leggauss(int(points_per_span))
     lo, hi = cuts[:-1, None], cuts[1:, None]
@@ -50,40 +74,83 @@ def gauss_legendre_nodes(breakpoints: np.ndarray, points_per_span: int, a: float
     return times.ravel(), weights.ravel()
 
 
+def _readonly(a: np.ndarray) -> np.ndarray:
+    a = np.array(a, dtype=float)  # a private copy: callers' arrays can't alias the curve
+    a.flags.writeable = False
+    return a
+
+
 @dataclass(frozen=True, eq=False)
 class DofCurve:
-    """A cubic B-spline DOF curve. Immutable: every modifier returns a new curve."""
+    """A cubic B-spline DOF curve. Immutable (read-only arrays): every modifier returns a new curve.
+
+    Attributes:
+        knots: full clamped knot vector, first and last knot repeated 4 times.
+        coef: control points, ``len(knots) - 4`` of them.
+    """
 
     knots: np.ndarray
     coef: np.ndarray
 
+    def __post_init__(self) -> None:
+        knots, coef = _readonly(self.knots), _readonly(self.coef)
+        if knots.ndim != 1 or knots.size < 2 * (DEGREE + 1) or np.any(np.diff(knots) < 0):
+            raise ValueError("knots must be a nondecreasing 1-D array of at least 8 entries")
+        if np.any(knots[:DEGREE + 1] != knots[0]) or np.any(knots[-DEGREE - 1:] != knots[-1]):
+            raise ValueError("knots must be clamped (first and last knot repeated 4 times)")
+        if not knots[-1] > knots[0]:
+            raise ValueError("knots must span a nonempty time interval")
+        if coef.shape != (knots.size - DEGREE - 1,):
+            raise ValueError(f"expected {knots.size - DEGREE - 1} control points, got shape {coef.shape}")
+        object.__setattr__(self, "knots", knots)
+        object.__setattr__(self, "coef", coef)
+
     # --- construction ------------------------------------------------------------------------
     @classmethod
     def uniform(cls, t0: float, t1: float, spans: int, value: float = 0.0) -> "DofCurve":
-        """A constant curve on clamped uniform knots (``spans`` knot intervals)."""
+        """A constant curve on clamped uniform knots.
+
+        Args:
+            t0, t1: time interval.
+            spans: number of knot intervals (>= 1).
+            value: the constant.
+        Raises:
+            ValueError: spans < 1 or t1 <= t0.
+        """
         knots = clamped_uniform_knots(t0, t1, spans)
         return cls(knots, np.full(len(knots) - DEGREE - 1, float(value)))
 
     @classmethod
     def fit(cls, t0: float, t1: float, spans: int, f: Callable[[np.ndarray], np.ndarray]) -> "DofCurve":
-        """Least-squares fit of ``f`` on clamped uniform knots (exact for cubics)."""
+        """Least-squares fit of ``f`` on clamped uniform knots (exact for cubics); see ``refit``."""
         return cls.uniform(t0, t1, spans).refit(f)
 
     def refit(self, f: Callable[[np.ndarray], np.ndarray]) -> "DofCurve":
-        """Same knots, least-squares fit to ``f`` sampled at Gauss points of every span."""
+        """Same knots, least-squares fit to ``f``.
+
+        Samples at 6 Gauss points a span weighted by the Gauss weights approximate the L2
+        projection (exact for f in the spline space, e.g. any cubic); the two end points join
+        with a small weight so the fitted end values track f(t0), f(t1).
+
+        Args:
+            f: vectorized function of a 1-D time array (a scalar result is broadcast).
+        Returns:
+            The fitted curve.
+        """
         times, weights = gauss_legendre_nodes(self.breakpoints, 6, self.t0, self.t1)
-        times = np.concatenate([times, [self.t0, self.t1]])
-        weights = np.concatenate([weights, [1e-3, 1e-3]])
+        times = np.concatenate([[self.t0], times, [self.t1]])
+        weights = np.concatenate([[1e-3], weights, [1e-3]])
         values = np.broadcast_to(np.asarray(f(times), dtype=float), times.shape)
-        B = self.basis(times).toarray()
-        sw = np.sqrt(weights)
-        coef, *_ = np.linalg.lstsq(B * sw[:, None], values * sw, rcond=None)
-        return self.with_coef(coef)
+        # make_lsq_spline minimizes Σ (w_j (y_j - s(x_j)))², banded solve.
+        spl = make_lsq_spline(times, values, self.knots, DEGREE, w=np.sqrt(weights))
+        return self.with_coef(spl.c)
 
     def with_coef(self, coef: np.ndarray) -> "DofCurve":
-        coef = np.asarray(coef, dtype=float)
-        if coef.shape != self.coef.shape:
-            raise ValueError(f"expected {self.coef.size} control points, got {coef.size}")
+        """The same knots with other control points.
+
+        Raises:
+            ValueError: wrong number of control points.
+        """
         return DofCurve(self.knots, coef)
 
     # --- properties --------------------------------------------------------------------------
@@ -105,87 +172,144 @@ class DofCurve:
 
     @property
     def breakpoints(self) -> np.ndarray:
+        """The unique knots, sorted."""
         return np.unique(self.knots)
 
     @property
     def spans(self) -> int:
+        """Number of nonzero knot intervals."""
         return self.breakpoints.size - 1
 
     def support(self) -> np.ndarray:
-        """(n_coef, 2) time interval where each control point's basis function is nonzero."""
+        """(n_coef, 2) array: [knots[l], knots[l+4]], where control point l's basis is nonzero."""
         n = self.n_coef
         return np.column_stack([self.knots[:n], self.knots[DEGREE + 1:DEGREE + 1 + n]])
 
     def span_width(self) -> float:
+        """The largest knot interval (a safe one-span window margin on non-uniform knots)."""
         return float(np.diff(self.breakpoints).max())
 
     # --- evaluation --------------------------------------------------------------------------
-    def basis(self, times: np.ndarray, order: int = 0) -> sps.csr_array:
-        """Sparse (len(times), n_coef) matrix M with M @ coef = the order-th derivative at times.
-
-        Raises:
-            ValueError: a time outside [t0, t1] or an order other than 0, 1, 2.
-        """
+    def _checked_times(self, times) -> np.ndarray:
         times = np.atleast_1d(np.asarray(times, dtype=float))
+        if times.ndim != 1:
+            raise ValueError("times must be a scalar or a 1-D array")
+        if times.size and not (times.min() >= self.t0 - _TIME_SLACK and times.max() <= self.t1 + _TIME_SLACK):
+            raise ValueError(f"times must lie in [{self.t0:g}, {self.t1:g}]")
+        return np.clip(times, self.t0, self.t1)
+
+    def basis(self, times: np.ndarray, order: int = 0) -> sps.csr_array:
+        """Sparse matrix M with M @ coef = the order-th time derivative at ``times``.
+
+        Args:
+            times: 1-D times in [t0, t1] (both ends closed).
+            order: 0 (value), 1 (velocity) or 2 (acceleration).
+        Returns:
+            csr_array of shape (len(times), n_coef), at most 4 nonzeros a row.
+        Raises:
+            ValueError: a time outside [t0, t1] (NaN included) or another order.
+        """
         if order not in (0, 1, 2):
             raise ValueError(f"derivative order must be 0, 1 or 2, not {order}")
-        if times.size and (times.min() < self.t0 - 1e-12 or times.max() > self.t1 + 1e-12):
-            raise ValueError(f"times must lie in [{self.t0:g}, {self.t1:g}]")
-        times = np.clip(times, self.t0, self.t1)
+        times = self._checked_times(times)
+        if times.size == 0:  # design_matrix rejects empty input
+            return sps.csr_array((0, self.n_coef))
         knots, degree = self.knots, DEGREE
         chain = None
-        for _ in range(order):
+        for _ in range(order):  # at most two sparse factors, not a loop over points
             D = _difference_matrix(knots, degree)
             chain = D if chain is None else D @ chain
             knots, degree = knots[1:-1], degree - 1
-        M = BSpline.design_matrix(times, knots, degree)
-        return sps.csr_array(M if chain is None else M @ chain)
+        M = sps.csr_array(BSpline.design_matrix(times, knots, degree))
+        return M if chain is None else sps.csr_array(M @ chain)
 
     def evaluate(self, times, order: int = 0) -> np.ndarray:
-        return BSpline(self.knots, self.coef, DEGREE, extrapolate=False)(
-            np.clip(np.asarray(times, dtype=float), self.t0, self.t1), nu=order)
+        """Values (order 0) or derivatives (1, 2) at ``times``.
+
+        Returns:
+            1-D array, one entry per time.
+        Raises:
+            ValueError: as ``basis``.
+        """
+        if order not in (0, 1, 2):
+            raise ValueError(f"derivative order must be 0, 1 or 2, not {order}")
+        return BSpline(self.knots, self.coef, DEGREE)(self._checked_times(times), nu=order)
 
     # --- user tools (paper 4.1, 4.2, 4.3) ----------------------------------------------------
     def refined(self, a: float, b: float, factor: int = 2) -> "DofCurve":
-        """Insert knots splitting every span that overlaps (a, b) into ``factor`` parts (Boehm).
+        """Split every knot span overlapping (a, b) into ``factor`` equal parts (Boehm insertion).
 
-        The curve is unchanged; the knot vector becomes non-uniform.
+        The curve is unchanged (up to rounding); the knot vector becomes non-uniform.
+
+        Args:
+            a, b: the interval; a span [u, v] is split when u < b and v > a.
+            factor: parts per split span (2 inserts the midpoints).
+        Raises:
+            ValueError: factor < 2 or b < a.
         """
+        if int(factor) < 2 or b < a:
+            raise ValueError(f"need factor >= 2 and a <= b, got factor={factor}, [{a}, {b}]")
         bp = self.breakpoints
         lo, hi = bp[:-1], bp[1:]
         hit = (lo < b) & (hi > a)
-        new = np.concatenate([lo[hit] + (hi[hit] - lo[hit]) * j / factor for j in range(1, factor)])
-        tck = (self.knots, np.concatenate([self.coef, np.zeros(DEGREE + 1)]), DEGREE)
-        for knot in np.sort(new):
-            tck = insert(knot, tck)
-        knots = np.asarray(tck[0])
-        return DofCurve(knots, np.asarray(tck[1])[:len(knots) - DEGREE - 1])
+        fractions = np.arange(1, int(factor)) / int(factor)
+        new = np.sort((lo[hit, None] + (hi - lo)[hit, None] * fractions[None, :]).ravel())
+        spline = BSpline(self.knots, self.coef, DEGREE)
+        for knot in new:  # one call per new knot; a user tool, not a hot path
+            spline = insert(knot, spline)
+        # FITPACK pads c to len(t); the trailing entries are not control points.
+        return DofCurve(spline.t, spline.c[:len(spline.t) - DEGREE - 1])
 
-    def sketched(self, keys: Sequence[tuple[float, float]], smoothness: float = 1e-3) -> "DofCurve":
-        """Bend the curve smoothly through keyframes ("sketching", paper 4.1).
+    def sketched(self, keys: Sequence[tuple[float, float]], smoothness: float = 1e-3,
+                 anchor: float = 1e-9) -> "DofCurve":
+        """Bend the curve smoothly through keyframes ("keyframe sketch", paper 4.1).
 
-        The displacement D = X_new - X minimizes Σ (D(t_k) - (v_k - X(t_k)))² + smoothness ∫D''²
-        + 1e-9 ∫D², so keys are met closely and the change fades smoothly away from them.
+        Returns X + D where the displacement D minimizes
+        Σ_k (D(t_k) - (v_k - X(t_k)))² + smoothness ∫D''² + anchor ∫D².
+        With the default tiny ``anchor`` D is, to within the key residual, the minimal-curvature
+        interpolant of the key offsets: a single key shifts the whole curve by a (near) constant,
+        and beyond the outermost keys D continues linearly. A larger anchor makes the change
+        local, decaying over a length of about (smoothness / anchor) ** 0.25.
+
+        Args:
+            keys: (time, value) pairs, times in [t0, t1].
+            smoothness: weight of the bending energy (smaller: keys met more closely).
+            anchor: weight pulling D toward 0 (> 0 keeps the system nonsingular).
+        Returns:
+            The sketched curve; ``self`` when there are no keys.
+        Raises:
+            ValueError: a key time outside [t0, t1], or smoothness < 0 or anchor <= 0.
         """
-        if not keys:
+        if not len(keys):
             return self
-        t_keys = np.array([k[0] for k in keys], dtype=float)
-        target = np.array([k[1] for k in keys], dtype=float) - self.evaluate(t_keys)
+        if smoothness < 0 or anchor <= 0:
+            raise ValueError("need smoothness >= 0 and anchor > 0")
+        keys = np.asarray(keys, dtype=float).reshape(-1, 2)
+        target = keys[:, 1] - self.evaluate(keys[:, 0])
+        K = self.basis(keys[:, 0])
+        # 4 Gauss points a span integrate D''² and D² (degree <= 6 pieces) exactly.
         times, weights = gauss_legendre_nodes(self.breakpoints, 4, self.t0, self.t1)
-        B2 = self.basis(times, 2).toarray()
-        B0 = self.basis(times, 0).toarray()
-        K = self.basis(t_keys, 0).toarray()
-        system = K.T @ K + smoothness * (B2.T * weights) @ B2 + 1e-9 * (B0.T * weights) @ B0
-        delta = np.linalg.solve(system, K.T @ target)
+        W = sps.diags_array(weights)
+        B2, B0 = self.basis(times, 2), self.basis(times, 0)
+        system = K.T @ K + smoothness * (B2.T @ W @ B2) + anchor * (B0.T @ W @ B0)
+        delta = spla.spsolve(sps.csc_array(system), K.T @ target)
         return self.with_coef(self.coef + delta)
 
     def filtered(self, passes: int = 1) -> "DofCurve":
-        """Smooth the control points with a (1, 2, 1)/4 filter; the end control points stay."""
+        """Smooth the control points with a (1, 2, 1)/4 filter, ``passes`` times.
+
+        The first and last control points stay, so the end values X(t0), X(t1) are preserved.
+
+        Raises:
+            ValueError: passes < 0.
+        """
+        if passes < 0:
+            raise ValueError(f"passes must be >= 0, not {passes}")
         c = self.coef.copy()
-        for _ in range(passes):
+        for _ in range(int(passes)):  # each pass is one vectorized stencil
             c[1:-1] = (c[:-2] + 2 * c[1:-1] + c[2:]) / 4
         return self.with_coef(c)
 
     def shaken(self, amplitude: float, rng: np.random.Generator) -> "DofCurve":
-        """Add seeded Gaussian noise of the given amplitude to every control point."""
+        """Add ``amplitude * rng.standard_normal(n_coef)`` to the control points (seeded rng)."""
         return self.with_coef(self.coef + amplitude * rng.standard_normal(self.n_coef))
