@@ -19,7 +19,7 @@ import scipy.sparse as sps
 from .linear import kkt_matrix, solve_kkt
 
 STEP_TO_BOUNDARY = 0.995   # fraction of the way to w = 0 or z = 0 an IPM step may go
-KKT_EPS = 1e-8            # small negative (2,2) block: redundant (densely sampled) constraint rows get bounded multipliers
+KKT_EPS = 1e-10            # small negative (2,2) block: redundant (densely sampled) constraint rows get bounded multipliers
 
 
 @dataclass

@@ -71,15 +71,26 @@ class ScipyBackend(Backend):
         # Adaptive proximal term (Levenberg-Marquardt): directions no term curves (a ball DOF
         # between constraint samples) would otherwise take huge steps the line search must cut.
         prox = st.regularization if st.regularization > 0 else self.config["prox"]
-        for mode in modes:  # an exact step the line search refuses is retried as Gauss-Newton
+        # A refused exact step is retried as Gauss-Newton, then with a heavier proximal term
+        # (shorter, more gradient-like steps) before the iteration is declared stalled.
+        # Last resort: a restoration step, the least change that fixes the linearized
+        # constraints (degenerate, densely sampled constraints can make the others useless).
+        attempts = [(mode, prox) for mode in modes] + \
+            [(modes[-1], min(PROX_MAX, prox * 100.0 ** k)) for k in range(1, 3)] + [("restore", prox)]
+        for mode, prox in attempts:
             clock = time.perf_counter()
-            H = ev.gauss_newton() if mode == "gauss_newton" else \
-                ev.lagrangian_hessian(st.lam_eq * ev.active_eq, st.lam_ge * ev.active_ge)
-            H = H + self._damping(problem, settings, prox)
+            if mode == "restore":
+                H = sps.eye_array(ev.s.size, format="csr")
+            elif mode == "gauss_newton":
+                H = ev.gauss_newton() + self._damping(problem, settings, prox)
+            else:
+                H = ev.lagrangian_hessian(st.lam_eq * ev.active_eq, st.lam_ge * ev.active_ge) + \
+                    self._damping(problem, settings, prox)
             ms["assemble"] += _lap(clock)
 
             clock = time.perf_counter()
-            d, lam_eq_new, lam_ge_new, working, lin_its, resolve, A_rows = self._solve_qp(H, ev, st)
+            d, lam_eq_new, lam_ge_new, working, lin_its, resolve, A_rows = self._solve_qp(
+                H, ev, st, restore=mode == "restore")
             ms["solve"] += _lap(clock)
 
             clock = time.perf_counter()
@@ -96,6 +107,8 @@ class ScipyBackend(Backend):
         clock = time.perf_counter()
         stalled = alpha == 0.0
         s_new = ev.s + alpha * d
+        if mode == "restore":  # its multipliers belong to a different problem: keep the old ones
+            lam_eq_new, lam_ge_new = st.lam_eq, st.lam_ge
         lam_eq = st.lam_eq + (alpha or 1.0) * (lam_eq_new - st.lam_eq)
         lam_ge = st.lam_ge + (alpha or 1.0) * (lam_ge_new - st.lam_ge)
         new_ev = problem.evaluate(s_new) if not stalled else ev
@@ -133,7 +146,7 @@ class ScipyBackend(Backend):
         damp = np.array([problem.scene.dofs[name].damp for name in problem.dof_of_free], dtype=float)
         return sps.diags_array(2.0 * damp + prox, format="csr")
 
-    def _solve_qp(self, H, ev, st: SolverState):
+    def _solve_qp(self, H, ev, st: SolverState, restore: bool = False):
         """The step's QP over equality rows whose `when` holds and all live inequality rows."""
         eq_rows, ge_rows = np.flatnonzero(ev.active_eq), np.flatnonzero(ev.active_ge)
         Ae, ce = ev.J_eq[eq_rows], ev.c_eq[eq_rows]
@@ -143,8 +156,9 @@ class ScipyBackend(Backend):
         for _attempt in range(8):  # raise the regularization until the step is a descent step
             Hr = H + reg * sps.eye_array(n) if reg else H
             try:
-                qp = solve_qp(Hr, ev.gradient, Ae, ce, Ai, ci, self.config["solver"],
-                              self.config["lin_tol"], self.config["lin_maxiter"], y0=st.lam_eq[eq_rows])
+                qp = solve_qp(Hr, np.zeros(n) if restore else ev.gradient, Ae, ce, Ai, ci,
+                              self.config["solver"], self.config["lin_tol"], self.config["lin_maxiter"],
+                              y0=None if restore else st.lam_eq[eq_rows])
             except RuntimeError:  # exactly singular factor
                 reg = max(10 * reg, 1e-8)
                 continue
