@@ -320,7 +320,8 @@ class CommandParser(ExpressionParser):
             except SourceError as exc:
                 if "unknown name" in exc.message:
                     raise SourceError(exc.message + "; an initial curve may use only t and constants",
-                                      line=exc.line, column=exc.column, source=exc.source) from None
+                                      line=exc.line, column=exc.column, source=exc.source,
+                                      expected="t, a constant or a number") from None
                 raise
             finally:
                 self.scope = saved
