@@ -7,7 +7,7 @@ original when the command succeeds — so a failed command leaves the scene exac
 from __future__ import annotations
 
 import copy
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 
 import numpy as np
 import sympy as sp
@@ -100,7 +100,18 @@ class Scene:
     shake_count: int = 0
 
     def copy(self) -> "Scene":
-        return copy.deepcopy(self)
+        """A copy that commands may change freely. Sympy expressions, curves and linkage specs
+        are immutable and shared; only the mutable records are copied (deepcopy of the derived
+        equations of motion cost more than the commands themselves)."""
+        new = copy.copy(self)
+        new.constants = dict(self.constants)
+        new.dofs = {k: replace(v, keys=list(v.keys)) for k, v in self.dofs.items()}
+        new.lets, new.derived, new.linkages = dict(self.lets), dict(self.derived), dict(self.linkages)
+        new.constraints = {k: replace(v) for k, v in self.constraints.items()}
+        new.objectives = {k: replace(v) for k, v in self.objectives.items()}
+        new.windows = {k: replace(v) for k, v in self.windows.items()}
+        new.backend_options, new.settings = dict(self.backend_options), dict(self.settings)
+        return new
 
     # --- names -------------------------------------------------------------------------------
     def kind_of(self, name: str) -> str | None:
