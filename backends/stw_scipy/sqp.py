@@ -71,13 +71,14 @@ class ScipyBackend(Backend):
         # Adaptive proximal term (Levenberg-Marquardt): directions no term curves (a ball DOF
         # between constraint samples) would otherwise take huge steps the line search must cut.
         prox = st.regularization if st.regularization > 0 else self.config["prox"]
-        # A refused exact step is retried as Gauss-Newton, then with a heavier proximal term
-        # (shorter, more gradient-like steps) before the iteration is declared stalled.
-        # Last resort: a restoration step, the least change that fixes the linearized
-        # constraints (degenerate, densely sampled constraints can make the others useless).
-        attempts = [(mode, prox) for mode in modes] + \
-            [(modes[-1], min(PROX_MAX, prox * 100.0 ** k)) for k in range(1, 3)] + [("restore", prox)]
-        for mode, prox in attempts:
+        # Trust-region-like: a refused full step is retried with a heavier proximal term
+        # (shorter, better-modelled steps) before any backtracking; an exact step also as
+        # Gauss-Newton. Last resort: backtracking, then a restoration step, the least change
+        # that fixes the linearized constraints.
+        attempts = [(mode, prox, True) for mode in modes] + \
+            [(modes[-1], min(PROX_MAX, prox * 10.0 ** k), True) for k in range(1, 5)] + \
+            [(modes[-1], prox, False), ("restore", prox, False)]
+        for mode, prox, full_only in attempts:
             clock = time.perf_counter()
             if mode == "restore":
                 H = sps.eye_array(ev.s.size, format="csr")
@@ -99,7 +100,7 @@ class ScipyBackend(Backend):
             biggest = float(np.abs(d).max(initial=0.0))
             if biggest > self.config["max_step"] > 0:  # a step-length cap: a crude trust region
                 d = d * (self.config["max_step"] / biggest)
-            alpha, d = self._line_search(problem, ev, d, rho, resolve, A_rows)
+            alpha, d = self._line_search(problem, ev, d, rho, resolve, A_rows, full_only)
             ms["line_search"] += _lap(clock)
             if alpha > 0:
                 break
@@ -123,7 +124,7 @@ class ScipyBackend(Backend):
         if stalled and ok_violation and kkt <= 1e3 * settings["tol_kkt"]:
             converged, stalled = True, False  # merit noise at machine precision near the optimum
         # Full steps: trust the model more; cut steps: less (bounded both ways).
-        prox = max(PROX_MIN, prox / 10) if alpha == 1.0 else min(PROX_MAX, prox * 10)
+        prox = max(PROX_MIN, prox / 3) if alpha == 1.0 else min(PROX_MAX, prox * 10)
         new_state = replace(st, s=s_new, lam_eq=lam_eq, lam_ge=lam_ge, working_set=working,
                             merit_weight=rho, regularization=prox)
         report = StepReport(iteration=iteration, objective=new_ev.objective, max_violation=violation,
@@ -187,8 +188,9 @@ class ScipyBackend(Backend):
 
         return qp.d, lam_eq, lam_ge, working, total_its, resolve, A_rows
 
-    def _line_search(self, problem, ev, d, rho, resolve, A_rows):
-        """Backtracking on φ = R + ρ·‖violation‖₁ with one second-order correction."""
+    def _line_search(self, problem, ev, d, rho, resolve, A_rows, full_only=False):
+        """Backtracking on φ = R + ρ·‖violation‖₁ with one second-order correction
+        (``full_only``: try the full and corrected steps only)."""
         def merit(mv) -> float:
             eq = np.abs(mv.c_eq[mv.active_eq]).sum()
             ge = np.maximum(0.0, -mv.c_ge[mv.active_ge]).sum()
@@ -214,6 +216,8 @@ class ScipyBackend(Backend):
                     trial2 = problem.merit_values(ev.s + corrected)
                     if merit(trial2) <= phi0 + ARMIJO * slope:
                         return 1.0, corrected
+                if full_only:
+                    return 0.0, d
             alpha *= 0.5
         return 0.0, d
 
