@@ -54,3 +54,14 @@ def test_arm_throw_converges_to_an_underhand_toss():
     assert prints[1][2] > 0                   # ball rising as it leaves the hand
     assert abs(prints[4][2]) < abs(prints[2][2]) / 5   # the release window held it tighter
     assert prints[3][2] == pytest.approx(1.5, abs=1e-6)
+
+
+def test_acrobat_flips_with_physically_valid_flight():
+    s = Session()
+    s.run_file(SESSIONS / "acrobat.stw")
+    assert s.runs[-1].converged and s.runs[-1].reports[-1].max_violation <= 1e-6
+    values = [p.value for p in s.prints]
+    assert values[0] == pytest.approx(np.pi / 2 + 2 * np.pi, abs=1e-9)
+    assert values[1] > 0.5                      # airborne
+    assert abs(values[2]) < 1e-8                # no vertical force at a flight instance
+    assert abs(values[3]) < 0.1 * 2 * 9.81      # and little between instances (< 10% of weight)
