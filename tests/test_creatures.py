@@ -65,3 +65,9 @@ def test_acrobat_flips_with_physically_valid_flight():
     assert values[1] > 0.5                      # airborne
     assert abs(values[2]) < 1e-8                # no vertical force at a flight instance
     assert abs(values[3]) < 0.1 * 2 * 9.81      # and little between instances (< 10% of weight)
+    assert values[4] == pytest.approx(1.8, abs=1e-9)
+    # Two plain jumps before the flip: the foot leaves the ground and FOOT makes no full turn.
+    foot = s.scene.dofs["FOOT"].curve
+    assert abs(foot.evaluate(np.array([1.5]))[0] - np.pi / 2) < np.pi / 2
+    y = s.scene.dofs["Y"].curve.evaluate(np.array([0.75, 1.75]))
+    assert np.all(y > 0.05)
