@@ -27,9 +27,39 @@ _CACHE: dict[tuple, "CompiledTerm"] = {}
 _CACHE_LOCK = threading.Lock()
 
 
+_KINKS = (sp.Abs, sp.sign, sp.Max, sp.Min)
+
+
 def _to_symengine(expr: sp.Basic):
-    """Convert our own sympy expression (never user text) to symengine."""
-    return se.S(expr)
+    """Convert our own sympy expression (never user text) to symengine.
+
+    symengine cannot differentiate abs, sign, min and max but can differentiate Piecewise, so
+    those become Piecewise — built in symengine, because sympy folds nested Piecewise
+    conditions into ITE objects symengine cannot read.
+    """
+    if not expr.has(*_KINKS):
+        return se.S(expr)
+    args = [_to_symengine(a) for a in expr.args]
+    if isinstance(expr, sp.Abs):
+        return se.Piecewise((args[0], args[0] >= 0), (-args[0], True))
+    if isinstance(expr, sp.sign):
+        return se.Piecewise((1, args[0] > 0), (-1, args[0] < 0), (0, True))
+    if isinstance(expr, (sp.Max, sp.Min)):
+        result = args[0]
+        for arg in args[1:]:
+            keep = result >= arg if isinstance(expr, sp.Max) else result <= arg
+            result = se.Piecewise((result, keep), (arg, True))
+        return result
+    if isinstance(expr, sp.Add):
+        return sum(args[1:], args[0])
+    if isinstance(expr, sp.Mul):
+        out = args[0]
+        for a in args[1:]:
+            out = out * a
+        return out
+    if isinstance(expr, sp.Pow):
+        return args[0] ** args[1]
+    return getattr(se, expr.func.__name__)(*args)  # sin, cos, atan2, exp, log, …
 
 
 def _lambdify(args, outputs):

@@ -219,8 +219,11 @@ def _constraint(scene: Scene, cmd) -> str:
         compile_term(scene.expand(expr), set(scene.dofs), set(scene.constants))
     at = _time_in_span(scene, scene.numeric(cmd.at, "time"), "time") if cmd.at is not None else None
     interval = _interval(scene, cmd.interval, "interval") if cmd.interval is not None else None
+    if cmd.samples is not None and cmd.samples < 1:
+        raise StwError("samples must be at least 1")
     scene.constraints[cmd.name] = Constraint(cmd.name, tuple(relations), at, interval, cmd.when,
-                                             _weight_value(scene, cmd.weight, False), cmd.text)
+                                             _weight_value(scene, cmd.weight, False), cmd.text,
+                                             cmd.samples)
     return f"constraint {cmd.name}: {len(relations)} relation(s) {scene.constraints[cmd.name].scope_text}"
 
 

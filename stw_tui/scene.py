@@ -55,6 +55,7 @@ class Constraint:
     when: sp.Basic | None = None
     weight: float = 1.0
     text: str = ""
+    samples: int | None = None   # instances per animation span (None: the scene's)
 
     @property
     def scope_text(self) -> str:

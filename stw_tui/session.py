@@ -147,9 +147,11 @@ class Session:
             raise error from None
         except StwError as exc:
             self.journal.settle(entry, False, str(exc))
-            if isinstance(exc, SourceError):
-                raise
             raise type(exc)(f"line {line}: {exc}" if line is not None else str(exc)) from exc
+        except Exception as exc:  # a bug must not lose the scene or the session: report it
+            message = f"internal error ({type(exc).__name__}: {exc}); the scene is unchanged"
+            self.journal.settle(entry, False, message)
+            raise StwError(f"line {line}: {message}" if line is not None else message) from exc
         self.scene = scene
         self.journal.settle(entry, True)
         self.prints.extend(outcome.prints)

@@ -194,16 +194,16 @@ class WindowProblem:
     def _params(self, term: CompiledTerm) -> np.ndarray:
         return self.scene.constant_values(term.parameters)
 
-    def _interval_times(self, a: float, b: float) -> np.ndarray:
+    def _interval_times(self, a: float, b: float, samples: int | None = None) -> np.ndarray:
         span = self.scene.t1 - self.scene.t0
-        n = max(1, int(np.ceil(self.scene.sample_count * (b - a) / span - 1e-9)))
+        n = max(1, int(np.ceil((samples or self.scene.sample_count) * (b - a) / span - 1e-9)))
         return np.linspace(a, b, n + 1)
 
     def _build_groups(self) -> None:
         scene, (ia, ib) = self.scene, self.instance_range
         self.groups: list[TermGroup] = []
         for c in scene.constraints.values():
-            times = np.array([c.at]) if c.at is not None else self._interval_times(*c.interval)
+            times = np.array([c.at]) if c.at is not None else self._interval_times(*c.interval, c.samples)
             times = times[(times >= ia - 1e-12) & (times <= ib + 1e-12)]
             for r_index, rel in enumerate(c.relations):
                 label = c.name if len(c.relations) == 1 else f"{c.name}[{r_index + 1}]"

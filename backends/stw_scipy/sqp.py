@@ -110,8 +110,9 @@ class ScipyBackend(Backend):
         s_new = ev.s + alpha * d
         if mode == "restore":  # its multipliers belong to a different problem: keep the old ones
             lam_eq_new, lam_ge_new = st.lam_eq, st.lam_ge
-        lam_eq = st.lam_eq + (alpha or 1.0) * (lam_eq_new - st.lam_eq)
-        lam_ge = st.lam_ge + (alpha or 1.0) * (lam_ge_new - st.lam_ge)
+        # The QP's multipliers are the estimate at this point whatever the step length (a damped
+        # update would freeze them, and the Hessian with them, while steps are short).
+        lam_eq, lam_ge = lam_eq_new, lam_ge_new
         new_ev = problem.evaluate(s_new) if not stalled else ev
         ms["evaluate"] = _lap(clock)
 
@@ -120,7 +121,9 @@ class ScipyBackend(Backend):
         step_norm = alpha * float(np.abs(d).max(initial=0.0))
         tiny_step = step_norm <= settings["tol_step"] * (1.0 + float(np.abs(s_new).max(initial=0.0)))
         ok_violation = violation <= settings["tol_violation"]
-        converged = ok_violation and (kkt <= settings["tol_kkt"] or tiny_step)
+        # A tiny step alone is no proof (a heavy proximal term makes steps tiny): it counts only
+        # when the KKT residual is near its tolerance too (then rounding is what is left).
+        converged = ok_violation and (kkt <= settings["tol_kkt"] or (tiny_step and kkt <= 1e2 * settings["tol_kkt"]))
         if stalled and ok_violation and kkt <= 1e3 * settings["tol_kkt"]:
             converged, stalled = True, False  # merit noise at machine precision near the optimum
         # Full steps: trust the model more; cut steps: less (bounded both ways).

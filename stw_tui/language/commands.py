@@ -67,6 +67,7 @@ class ConstraintCmd:
     when: sp.Basic | None
     weight: sp.Expr | None
     text: str = ""
+    samples: int | None = None      # instances per animation span, overriding `time … samples=`
 
 
 @dataclass(frozen=True)
@@ -357,8 +358,9 @@ class CommandParser(ExpressionParser):
         if self.token.is_word("when"):
             self.advance()
             when = self.condition()
-        weight = self.options({"weight": "expr"}).get("weight")
-        return ConstraintCmd(name, tuple(relations), at, interval, when, weight, self.text)
+        opts = self.options({"weight": "expr", "samples": "int"})
+        return ConstraintCmd(name, tuple(relations), at, interval, when, opts.get("weight"), self.text,
+                             opts.get("samples"))
 
     def _relation(self) -> Relation:
         column = self.token.column

@@ -30,10 +30,10 @@ COMMAND_HELP: dict[str, CommandHelp] = {
                        "lo/hi bound its values.", "dof x, y = 0.5*t^2 knots=10 lo=0"),
     "let": CommandHelp("let NAME = EXPR",
                        "Define a subexpression, substituted wherever it is named.", "let f = m*x'' + m*g"),
-    "constraint": CommandHelp("constraint NAME: REL[, REL…] (@ T | on [A, B]) [when COND] [weight=W]",
+    "constraint": CommandHelp("constraint NAME: REL[, REL…] (@ T | on [A, B]) [when COND] [weight=W] [samples=K]",
                               "A constraint: REL is E = E, E >= E or E <= E; at an instant or at sample "
-                              "instances over an interval; optionally only where COND holds (comparisons "
-                              "with and/or/not).",
+                              "instances over an interval (K per animation span; default the time's "
+                              "samples); optionally only where COND holds (comparisons with and/or/not).",
                               "constraint floor: y >= 0 on [0, 1.5] when x > 1"),
     "objective": CommandHelp("objective NAME: EXPR[, EXPR…] [on [A, B]] [weight=W]",
                              "Minimize the weighted integral of each expression squared.",
