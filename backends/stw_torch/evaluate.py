@@ -1,0 +1,480 @@
+"""The window problem on torch: values by lowered terms, derivatives by autograd.
+
+Everything fixed during an `iterate` is built once, as tensors on the chosen device: the slot
+matrix ``Pf`` (sparse CSR) and the slot values of the fixed control points, instance times,
+weights and parameters of every term group, and the sparsity patterns of the Jacobians and of the
+Hessian of the Lagrangian. Per evaluation:
+
+- slot values are one sparse product ``v = v_fixed + Pf @ s``;
+- each group's values come from its lowered torch function on its (k, n) block of ``v``; since an
+  instance depends on its own slots only, one backward pass of ``f.sum()`` gives all local
+  gradients (k, n), and one batched backward pass of those (``is_grads_batched``, one one-hot
+  seed per variable) gives all local second derivatives;
+- Jacobians ``G @ Pf`` and the Hessian ``Pfᵀ D Pf + Jₒᵀ W Jₒ`` are assembled on fixed patterns
+  by gathering products of ``Pf`` entries with local derivatives and summing a fixed, padded
+  list of contributions per nonzero: vectorized, and deterministic on every device (no atomics).
+
+A Python loop runs over term groups only, never over instances or control points.
+"""
+
+from __future__ import annotations
+
+import warnings
+from dataclasses import dataclass, field
+
+import numpy as np
+import scipy.sparse as sps
+import sympy as sp
+import torch
+
+from stw_tui.errors import StwError
+from stw_tui.window import EQ, GE, OBJ, MeritValues
+
+from .lower import LoweredTerm, lower
+
+_TORCH_RELATIONS = {
+    sp.StrictGreaterThan: torch.gt, sp.GreaterThan: torch.ge, sp.StrictLessThan: torch.lt,
+    sp.LessThan: torch.le, sp.Equality: torch.eq, sp.Unequality: torch.ne,
+}
+
+
+def _csr_tensor(crow, col, values, shape) -> torch.Tensor:
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", UserWarning)  # "sparse CSR support is in beta state"
+        return torch.sparse_csr_tensor(crow, col, values, size=shape, check_invariants=False)
+
+
+def _row_entries(indptr: np.ndarray, rows: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """For each requested CSR row, its stored entries: (owner index into ``rows``, position)."""
+    counts = indptr[rows + 1] - indptr[rows]
+    owner = np.repeat(np.arange(rows.size), counts)
+    first = np.repeat(indptr[rows] - (np.cumsum(counts) - counts), counts)
+    return owner, first + np.arange(counts.sum())
+
+
+@dataclass
+class Pattern:
+    """A fixed CSR pattern whose values are sums of gathered products.
+
+    ``values = (coef_pad * source[src_pad]).sum(1)``: row u of the padded (nnz, m) arrays lists
+    the contributions to nonzero u; padding has coefficient 0 and points past the source's end.
+    """
+
+    shape: tuple[int, int]
+    crow: torch.Tensor
+    col: torch.Tensor
+    coef_pad: torch.Tensor
+    src_pad: torch.Tensor
+    n_src: int
+    crow_np: np.ndarray
+    col_np: np.ndarray
+
+    @classmethod
+    def build(cls, rows, cols, coef, src, n_src, shape, device) -> "Pattern":
+        rows, cols = np.asarray(rows, np.int64), np.asarray(cols, np.int64)
+        keys = rows * shape[1] + cols
+        order = np.argsort(keys, kind="stable")
+        uniq, start, counts = np.unique(keys[order], return_index=True, return_counts=True)
+        m = int(counts.max(initial=1))
+        coef_pad = np.zeros((uniq.size, m))
+        src_pad = np.full((uniq.size, m), n_src, np.int64)
+        owner = np.repeat(np.arange(uniq.size), counts)
+        slot = np.arange(order.size) - np.repeat(start, counts)
+        coef_pad[owner, slot] = np.asarray(coef, float)[order]
+        src_pad[owner, slot] = np.asarray(src, np.int64)[order]
+        r, c = uniq // shape[1], uniq % shape[1]
+        crow = np.concatenate([[0], np.cumsum(np.bincount(r, minlength=shape[0]))]).astype(np.int64)
+        as_t = lambda a: torch.as_tensor(a, device=device)  # noqa: E731
+        return cls(shape, as_t(crow), as_t(c), as_t(coef_pad), as_t(src_pad), n_src, crow, c)
+
+    def values(self, source: torch.Tensor) -> torch.Tensor:
+        ext = torch.cat([source, source.new_zeros(1)])
+        return (self.coef_pad * ext[self.src_pad]).sum(1)
+
+    def scipy(self, values: torch.Tensor) -> sps.csr_array:
+        return sps.csr_array((values.detach().cpu().numpy(), self.col_np, self.crow_np), shape=self.shape)
+
+    def dense(self, values: torch.Tensor) -> torch.Tensor:
+        out = values.new_zeros(self.shape)
+        rows = torch.repeat_interleave(torch.arange(self.shape[0], device=values.device),
+                                       self.crow[1:] - self.crow[:-1])
+        out[rows, self.col] = values
+        return out
+
+
+@dataclass(eq=False)
+class _Group:
+    """A term group lowered to torch."""
+
+    label: str
+    kind: str
+    term: LoweredTerm
+    n: int
+    slot: int          # slot offset
+    row: int           # row offset among rows of its kind
+    inst: int          # offset among all groups' instances
+    pairs: tuple
+    times: torch.Tensor
+    weights: torch.Tensor
+    params: list
+    condition: object = None
+    leaves: list = field(default_factory=list)   # (relation node, LoweredTerm, slot offset, params)
+    seeds: torch.Tensor | None = None   # (m, k, n) one-hot rows of the variables a in pairs (a, b)
+    pair_a: torch.Tensor | None = None  # per pair: index into seeds
+    pair_b: torch.Tensor | None = None  # per pair: b
+
+
+@dataclass(eq=False)
+class TorchEvaluation:
+    """What one SQP iteration needs at ``s``: torch tensors plus the numpy views the SQP reads."""
+
+    tp: "TorchProblem"
+    s: np.ndarray
+    objective: float
+    gradient: np.ndarray
+    c_eq: np.ndarray
+    c_ge: np.ndarray
+    active_eq: np.ndarray
+    active_ge: np.ndarray
+    t_s: torch.Tensor
+    t_gradient: torch.Tensor
+    t_c: dict
+    t_active: dict
+    t_J: dict                      # kind -> values on tp.jac[kind]
+    t_local: dict                  # f_all, g_slot, h_flat for the Hessian
+    _scipy_J: dict = field(default_factory=dict)
+
+    @property
+    def J_eq(self) -> sps.csr_array:
+        return self._jacobian(EQ)
+
+    @property
+    def J_ge(self) -> sps.csr_array:
+        return self._jacobian(GE)
+
+    def _jacobian(self, kind: str) -> sps.csr_array:
+        if kind not in self._scipy_J:
+            self._scipy_J[kind] = self.tp.jac[kind].scipy(self.t_J[kind])
+        return self._scipy_J[kind]
+
+    def dense_jacobian(self, kind: str) -> torch.Tensor:
+        return self.tp.jac[kind].dense(self.t_J[kind])
+
+    def max_violation(self) -> float:
+        eq = np.abs(self.c_eq[self.active_eq])
+        ge = np.maximum(0.0, -self.c_ge[self.active_ge])
+        return float(max(eq.max(initial=0.0), ge.max(initial=0.0)))
+
+    def lagrangian_hessian(self, lam_eq: np.ndarray, lam_ge: np.ndarray):
+        """∇²R + Σλ∇²C: scipy CSR (linear=scipy) or a dense tensor on the device (linear=torch)."""
+        return self._matrix(self.tp.hessian_values(self, lam_eq, lam_ge))
+
+    def gauss_newton(self):
+        """2 Jₒᵀ W Jₒ of the objective residuals only (positive semidefinite), on the same pattern."""
+        return self._matrix(self.tp.hessian_values(self, None, None))
+
+    def _matrix(self, values: torch.Tensor):
+        return self.tp.hess.scipy(values) if self.tp.host_linear else self.tp.hess.dense(values)
+
+
+class TorchProblem:
+    """A WindowProblem lowered to torch; evaluated many times during one run of iterations."""
+
+    def __init__(self, problem, device: torch.device, host_linear: bool):
+        self.problem = problem
+        self.scene = problem.scene
+        self.dof_of_free = problem.dof_of_free
+        self.device = device
+        self.host_linear = host_linear
+        self.n_free = problem.n_free
+        self.row_counts = dict(problem.row_counts)
+        dev = dict(dtype=torch.float64, device=device)
+        self._dev = dev
+
+        Pf = sps.csr_array(problem.Pf, copy=True)
+        Pf.eliminate_zeros()
+        Pf.sort_indices()
+        self.Pf = _csr_tensor(torch.as_tensor(Pf.indptr.astype(np.int64), device=device),
+                              torch.as_tensor(Pf.indices.astype(np.int64), device=device),
+                              torch.as_tensor(Pf.data, **dev), Pf.shape)
+        PfT = sps.csr_array(Pf.T)
+        PfT.sort_indices()
+        self.PfT = _csr_tensor(torch.as_tensor(PfT.indptr.astype(np.int64), device=device),
+                               torch.as_tensor(PfT.indices.astype(np.int64), device=device),
+                               torch.as_tensor(PfT.data, **dev), PfT.shape)
+        fixed = problem.coef0.copy()
+        fixed[problem.free] = 0.0
+        P = problem.P.tocsr()
+        P_t = _csr_tensor(torch.as_tensor(P.indptr.astype(np.int64), device=device),
+                          torch.as_tensor(P.indices.astype(np.int64), device=device),
+                          torch.as_tensor(P.data, **dev), P.shape)
+        self.v_fixed = P_t @ torch.as_tensor(fixed, **dev)   # slot values of the fixed coefficients
+        self.n_slots = P.shape[0]
+
+        self.groups: list[_Group] = []
+        inst = 0
+        for g in problem.groups:
+            params = [torch.as_tensor(float(p), **dev) for p in g.params]
+            lowered = _Group(g.label, g.kind, lower(g.term), g.n, g.slot_offset, g.row_offset, inst,
+                             tuple(g.term.hessian_pairs), torch.as_tensor(g.times, **dev),
+                             torch.as_tensor(g.weights, **dev), params, g.condition)
+            if g.term.hessian_pairs:
+                firsts = sorted({a for a, _ in g.term.hessian_pairs})
+                seeds = torch.zeros(len(firsts), g.term.k, g.n, **dev)
+                for i, a in enumerate(firsts):
+                    seeds[i, a] = 1.0
+                lowered.seeds = seeds
+                lowered.pair_a = torch.as_tensor([firsts.index(a) for a, _ in g.term.hessian_pairs],
+                                                 device=device)
+                lowered.pair_b = torch.as_tensor([b for _, b in g.term.hessian_pairs], device=device)
+            if g.condition is not None:
+                lowered.leaves = [(node, lower(term), offset,
+                                   [torch.as_tensor(float(c), **dev)
+                                    for c in problem.scene.constant_values(term.parameters)])
+                                  for node, term, offset in g.condition.leaves]
+            self.groups.append(lowered)
+            inst += g.n
+        self.n_inst = inst
+        self._batched = True
+        self._build_patterns(Pf)
+
+    # --- fixed patterns ----------------------------------------------------------------------
+    def _build_patterns(self, Pf: sps.csr_array) -> None:
+        indptr, indices, data = Pf.indptr.astype(np.int64), Pf.indices.astype(np.int64), Pf.data
+        dev = self._dev
+        # Per-slot weight (constraint rows are weight * f) and per-instance data.
+        w_slot = np.zeros(self.n_slots)
+        w_inst = np.zeros(self.n_inst)
+        is_obj = np.zeros(self.n_inst, bool)
+        lam_index = np.full(self.n_inst, self.row_counts[EQ] + self.row_counts[GE], np.int64)
+        jac = {kind: ([], []) for kind in (EQ, GE)}
+        d_p, d_q = [], []                 # second-derivative entries of D: slot pairs
+        gn_p, gn_q, gn_i = [], [], []     # Gauss-Newton entries of objective groups
+        h_offset = 0
+        h_src, h_scale = [], []
+        for g in self.groups:
+            inst = np.arange(g.n)
+            weights = g.weights.cpu().numpy()
+            w_inst[g.inst:g.inst + g.n] = weights
+            if g.kind == OBJ:
+                is_obj[g.inst:g.inst + g.n] = True
+            else:
+                w_slot[g.slot:g.slot + g.term.k * g.n] = np.tile(weights, g.term.k)
+                lam_index[g.inst:g.inst + g.n] = g.row + inst + (self.row_counts[EQ] if g.kind == GE else 0)
+                rows, slots = jac[g.kind]
+                for a in range(g.term.k):
+                    rows.append(g.row + inst)
+                    slots.append(g.slot + a * g.n + inst)
+            for p, (a, b) in enumerate(g.pairs):
+                for x, y in ((a, b), (b, a)) if a != b else ((a, b),):
+                    d_p.append(g.slot + x * g.n + inst)
+                    d_q.append(g.slot + y * g.n + inst)
+                    h_src.append(h_offset + p * g.n + inst)
+                    h_scale.append(g.inst + inst)
+            h_offset += len(g.pairs) * g.n
+            if g.kind == OBJ:
+                for a in range(g.term.k):
+                    for b in range(g.term.k):
+                        gn_p.append(g.slot + a * g.n + inst)
+                        gn_q.append(g.slot + b * g.n + inst)
+                        gn_i.append(g.inst + inst)
+        cat = lambda parts: np.concatenate(parts) if parts else np.zeros(0, np.int64)  # noqa: E731
+        self.w_slot = torch.as_tensor(w_slot, **dev)
+        self.w_inst = torch.as_tensor(w_inst, **dev)
+        self.is_obj = torch.as_tensor(is_obj, device=self.device)
+        self.lam_index = torch.as_tensor(lam_index, device=self.device)
+
+        # Jacobians: J[r, j] = Σ_p G[r, p] Pf[p, j] over the group's slots p of row r.
+        self.jac = {}
+        for kind, (rows, slots) in jac.items():
+            rows, slots = cat(rows), cat(slots)
+            owner, pos = _row_entries(indptr, slots)
+            self.jac[kind] = Pattern.build(rows[owner], indices[pos], data[pos], slots[owner], self.n_slots,
+                                           (self.row_counts[kind], self.n_free), self.device)
+
+        # Hessian: H[i, j] = Σ_e D_e Pf[p_e, i] Pf[q_e, j] over entries e = (p_e, q_e) of the local
+        # second derivatives, the Gauss-Newton products of objective groups, and nothing else.
+        self.h_src = torch.as_tensor(cat(h_src), device=self.device)
+        self.h_scale = torch.as_tensor(cat(h_scale), device=self.device)
+        self.gn_p = torch.as_tensor(cat(gn_p), device=self.device)
+        self.gn_q = torch.as_tensor(cat(gn_q), device=self.device)
+        self.gn_i = torch.as_tensor(cat(gn_i), device=self.device)
+        p, q = np.concatenate([cat(d_p), cat(gn_p)]), np.concatenate([cat(d_q), cat(gn_q)])
+        left_owner, left_pos = _row_entries(indptr, p)
+        right_owner, right_pos = _row_entries(indptr, q[left_owner])
+        entry = left_owner[right_owner]
+        self.hess = Pattern.build(indices[left_pos][right_owner], indices[right_pos],
+                                  data[left_pos][right_owner] * data[right_pos], entry, p.size,
+                                  (self.n_free, self.n_free), self.device)
+        # Slot -> owning instance (condition slots own the padding instance n_inst).
+        owner = np.full(self.n_slots, self.n_inst, np.int64)
+        for g in self.groups:
+            owner[g.slot:g.slot + g.term.k * g.n] = g.inst + np.tile(np.arange(g.n), g.term.k)
+        self.slot_owner = torch.as_tensor(owner, device=self.device)
+
+    # --- evaluation --------------------------------------------------------------------------
+    def slot_values(self, s: torch.Tensor) -> torch.Tensor:
+        return self.v_fixed + self.Pf @ s
+
+    def _block(self, v: torch.Tensor, g: _Group, k: int, offset: int) -> torch.Tensor:
+        return v[offset:offset + k * g.n].view(k, g.n)
+
+    def _conditions(self, v: torch.Tensor) -> dict[str, torch.Tensor]:
+        masks = {kind: torch.ones(self.row_counts[kind], dtype=torch.bool, device=self.device)
+                 for kind in (EQ, GE)}
+        for g in self.groups:
+            if g.condition is None:
+                continue
+            leaf = {node: term(self._block(v, g, term.k, offset), g.times, params)
+                    for node, term, offset, params in g.leaves}
+            masks[g.kind][g.row:g.row + g.n] = self._truth(g.condition.tree, leaf, g.n)
+        return masks
+
+    def _truth(self, node, leaf, n) -> torch.Tensor:
+        if node is sp.true:
+            return torch.ones(n, dtype=torch.bool, device=self.device)
+        if node is sp.false:
+            return torch.zeros(n, dtype=torch.bool, device=self.device)
+        if isinstance(node, (sp.And, sp.Or)):
+            parts = [self._truth(a, leaf, n) for a in node.args]
+            out = parts[0]
+            for part in parts[1:]:
+                out = out & part if isinstance(node, sp.And) else out | part
+            return out
+        if isinstance(node, sp.Not):
+            return ~self._truth(node.args[0], leaf, n)
+        return _TORCH_RELATIONS[type(node)](leaf[node], 0.0)
+
+    def merit_values(self, s: np.ndarray) -> MeritValues:
+        """Objective and weighted constraint values only (no derivatives), for the line search."""
+        with torch.no_grad():
+            v = self.slot_values(torch.as_tensor(s, **self._dev))
+            c = {kind: torch.empty(self.row_counts[kind], **self._dev) for kind in (EQ, GE)}
+            objective = v.new_zeros(())
+            for g in self.groups:
+                f = g.term(self._block(v, g, g.term.k, g.slot), g.times, g.params)
+                if g.kind == OBJ:
+                    objective = objective + torch.dot(g.weights, f * f)
+                else:
+                    c[g.kind][g.row:g.row + g.n] = g.weights * f
+            masks = self._conditions(v)
+        return MeritValues(float(objective), c[EQ].cpu().numpy(), c[GE].cpu().numpy(),
+                           masks[EQ].cpu().numpy(), masks[GE].cpu().numpy())
+
+    def evaluate(self, s: np.ndarray) -> TorchEvaluation:
+        """Values, gradients (autograd) and local second derivatives (autograd) at ``s``."""
+        t_s = torch.as_tensor(np.asarray(s, float), **self._dev)
+        with torch.no_grad():
+            v = self.slot_values(t_s)
+        f_all, g_slot, h_flat = self._local_derivatives(v)
+
+        obj = self.is_obj
+        w_f = self.w_inst * f_all
+        objective = torch.dot(w_f[obj], f_all[obj])
+        # ∇R = Pfᵀ u with u[slot] = 2 w f ∂f/∂slot on objective slots
+        u = g_slot * torch.cat([torch.where(obj, 2.0 * w_f, 0.0), v.new_zeros(1)])[self.slot_owner]
+        gradient = self.PfT @ u
+        gw = g_slot * self.w_slot
+        c, J = {}, {}
+        for kind in (EQ, GE):
+            c[kind] = torch.cat([g.weights * f_all[g.inst:g.inst + g.n] for g in self.groups if g.kind == kind]
+                                or [v.new_zeros(0)])
+            J[kind] = self.jac[kind].values(gw)
+        masks = self._conditions(v.detach())
+        objective_f = float(objective)
+        return TorchEvaluation(
+            tp=self, s=np.asarray(s, float).copy(), objective=objective_f,
+            gradient=gradient.cpu().numpy(), c_eq=c[EQ].cpu().numpy(), c_ge=c[GE].cpu().numpy(),
+            active_eq=masks[EQ].cpu().numpy(), active_ge=masks[GE].cpu().numpy(),
+            t_s=t_s, t_gradient=gradient, t_c=c, t_active=masks, t_J=J,
+            t_local={"f": f_all, "g": g_slot, "h": h_flat})
+
+    def _local_derivatives(self, v: torch.Tensor):
+        """Per instance: values, gradients and second derivatives w.r.t. the group's own slots.
+
+        An instance's value depends on its own slots only, so the gradient of ``f.sum()`` holds
+        every instance's gradient, and one batched backward pass of the gradient (one seed per
+        variable ``a``: the rows ``∂²f/∂x_a∂x_b``) holds every instance's Hessian. Groups without
+        second derivatives share one backward pass; the others share another.
+        """
+        f_all = v.new_empty(self.n_inst)
+        g_slot = v.new_zeros(self.n_slots)
+        inputs, values = [], []
+        with torch.enable_grad():
+            for g in self.groups:
+                X = self._block(v, g, g.term.k, g.slot).detach().requires_grad_(True)
+                f = g.term(X, g.times, g.params)
+                f_all[g.inst:g.inst + g.n] = f.detach()
+                inputs.append(X)
+                values.append(f)
+            grads = [None] * len(self.groups)
+            for curved in (False, True):
+                chosen = [i for i, g in enumerate(self.groups)
+                          if bool(g.pairs) == curved and values[i].requires_grad]
+                if not chosen:
+                    continue
+                total = torch.stack([values[i].sum() for i in chosen]).sum()
+                parts = torch.autograd.grad(total, [inputs[i] for i in chosen], create_graph=curved,
+                                            allow_unused=True, materialize_grads=True)
+                for i, part in zip(chosen, parts):
+                    grads[i] = part
+            h_parts = []
+            for i, g in enumerate(self.groups):
+                grad = grads[i]
+                if grad is None:
+                    continue
+                g_slot[g.slot:g.slot + grad.numel()] = grad.detach().reshape(-1)
+                if not g.pairs:
+                    continue
+                if grad.requires_grad:
+                    rows = self._hessian_rows(inputs[i], grad, g)
+                else:  # every first derivative is constant
+                    rows = grad.new_zeros(g.seeds.shape)
+                h_parts.append(rows[g.pair_a, g.pair_b].reshape(-1))
+        h_flat = torch.cat(h_parts) if h_parts else v.new_zeros(0)
+        return f_all, g_slot, h_flat
+
+    def _hessian_rows(self, X: torch.Tensor, grad: torch.Tensor, g: _Group) -> torch.Tensor:
+        """(m, k, n): for each seeded variable a, ∂(∂f/∂x_a)/∂x_b at every instance."""
+        if self._batched:
+            try:
+                (rows,) = torch.autograd.grad(grad, X, grad_outputs=g.seeds, is_grads_batched=True,
+                                              retain_graph=True, allow_unused=True, materialize_grads=True)
+                return rows.detach()
+            except RuntimeError:  # an op vmap cannot batch: one backward pass per variable
+                self._batched = False
+        rows = []
+        for seed in g.seeds:
+            (row,) = torch.autograd.grad(grad, X, grad_outputs=seed, retain_graph=True,
+                                         allow_unused=True, materialize_grads=True)
+            rows.append(row.detach())
+        return torch.stack(rows)
+
+    def hessian_values(self, ev: TorchEvaluation, lam_eq: np.ndarray, lam_ge: np.ndarray) -> torch.Tensor:
+        """Values of ∇²R + Σλ∇²C on the fixed pattern ``self.hess``; without multipliers (None),
+        of the Gauss-Newton part 2 Jₒᵀ W Jₒ alone."""
+        f, g, h = ev.t_local["f"], ev.t_local["g"], ev.t_local["h"]
+        gn = 2.0 * self.w_inst[self.gn_i] * g[self.gn_p] * g[self.gn_q]
+        if lam_eq is None:
+            second = h.new_zeros(self.h_src.shape[0])
+        else:
+            lam = torch.cat([torch.as_tensor(lam_eq, **self._dev), torch.as_tensor(lam_ge, **self._dev),
+                             torch.zeros(1, **self._dev)])
+            scale = self.w_inst * torch.where(self.is_obj, 2.0 * f, lam[self.lam_index])
+            second = h[self.h_src] * scale[self.h_scale]
+        d_values = torch.cat([second, gn])
+        return self.hess.values(d_values)
+
+
+def check_finite(ev: TorchEvaluation, problem) -> None:
+    """Raise with the name of the first term group whose values are not finite."""
+    if np.isfinite(ev.objective) and np.all(np.isfinite(ev.gradient)) \
+            and np.all(np.isfinite(ev.c_eq)) and np.all(np.isfinite(ev.c_ge)) \
+            and all(bool(torch.isfinite(values).all()) for values in ev.t_J.values()):
+        return
+    f = ev.t_local["f"].cpu().numpy()
+    for g in ev.tp.groups:
+        if not np.all(np.isfinite(f[g.inst:g.inst + g.n])):
+            raise StwError(f"'{g.label}' is not finite at the starting point (e.g. sqrt or log of a "
+                           "negative value); the scene is unchanged")
+    raise StwError("the starting point gives non-finite derivatives; the scene is unchanged")

@@ -1,0 +1,210 @@
+"""The torch backend takes the SciPy backend's steps, with every number from torch autograd."""
+
+import subprocess
+import sys
+from importlib import metadata
+
+import numpy as np
+import pytest
+
+torch = pytest.importorskip("torch")
+
+from conftest import ROOT, SESSIONS  # noqa: E402
+import stw_tui.backend as backend_module  # noqa: E402
+from stw_tui.backend import SolverState, run_iterations  # noqa: E402
+from stw_tui.errors import SolveError  # noqa: E402
+from stw_tui.session import Session  # noqa: E402
+from stw_tui.window import WindowProblem  # noqa: E402
+from stw_scipy import ScipyBackend  # noqa: E402
+
+try:
+    import stw_torch  # noqa: F401  (installed: the distribution ships it)
+except ModuleNotFoundError:  # a checkout installed before stw_torch existed
+    sys.path.insert(0, str(ROOT / "backends"))
+from stw_torch import TorchBackend  # noqa: E402
+from stw_torch.evaluate import TorchProblem  # noqa: E402
+
+SESSION_NAMES = ["particle_jet", "point_mass_2d", "cat_mouse"]
+
+
+@pytest.fixture
+def registered(monkeypatch):
+    """Make `backend torch` work whether or not the entry point is installed yet."""
+    real = backend_module.available_backends
+
+    def with_torch():
+        found = dict(real())
+        found.setdefault("torch", metadata.EntryPoint("torch", "stw_torch:TorchBackend",
+                                                      backend_module.ENTRY_POINT_GROUP))
+        return found
+
+    monkeypatch.setattr(backend_module, "available_backends", with_torch)
+
+
+def _up_to_first_iterate(name: str) -> Session:
+    lines = (SESSIONS / f"{name}.stw").read_text().splitlines()
+    cut = next(i for i, line in enumerate(lines) if line.startswith("iterate"))
+    session = Session()
+    session.run_text("\n".join(lines[:cut]))
+    return session
+
+
+@pytest.mark.parametrize("linear", ["scipy", "torch"])
+@pytest.mark.parametrize("name", SESSION_NAMES)
+def test_first_step_equals_scipy(name, linear):
+    session = _up_to_first_iterate(name)
+    problem = WindowProblem(session.scene)
+    start = SolverState.start(problem)
+    ref = run_iterations(ScipyBackend(), problem, start, 1, session.scene.settings)
+    got = run_iterations(TorchBackend(device="cpu", linear=linear), problem, start, 1, session.scene.settings)
+    d_ref, d_got = ref.state.s - start.s, got.state.s - start.s
+    assert np.abs(d_ref).max() > 1e-3                      # a real step was taken
+    assert np.abs(d_got - d_ref).max() <= 1e-8
+    a, b = ref.reports[0], got.reports[0]
+    assert b.step_length == a.step_length
+    assert b.objective == pytest.approx(a.objective, rel=1e-10, abs=1e-10)
+    assert b.max_violation == pytest.approx(a.max_violation, rel=1e-6, abs=1e-10)
+    assert b.active == a.active and b.converged == a.converged
+    assert set(b.ms) == set(a.ms) and all(v >= 0 for v in b.ms.values())
+    assert np.allclose(got.state.lam_eq, ref.state.lam_eq, rtol=1e-7, atol=1e-7)
+
+
+@pytest.mark.parametrize("linear", ["scipy", "torch"])
+@pytest.mark.parametrize("name", SESSION_NAMES)
+def test_session_converges_to_the_same_motion(registered, name, linear):
+    text = (SESSIONS / f"{name}.stw").read_text()
+    ref, got = Session(), Session()
+    ref.run_text(text)
+    got.run_text(f"backend torch device=cpu linear={linear}\n" + text)
+    assert [r.status for r in got.runs] == [r.status for r in ref.runs]
+    assert all(r.converged for r in got.runs)
+    assert np.abs(got.scene.coefficient_vector() - ref.scene.coefficient_vector()).max() <= 1e-6
+    for a, b in zip(ref.prints, got.prints):
+        if isinstance(a.value, float):
+            assert b.value == pytest.approx(a.value, abs=1e-6)
+
+
+EXTRAS = """
+time 0 1 knots=10 samples=20
+const m = 1, g = 9.81, k = 2
+dof x, y = 0.3
+dof z lo=-1 hi=1
+let f = m*y'' + m*g
+constraint start: x = 0, y = 0.3, x' = 1, y' = 0 @ 0
+constraint end:   x = 1, y = 0.3 @ 1
+constraint floor: y - 0.1*sin(2)*x >= 0 on [0, 1] when x > k/8 and not x' < -5
+constraint link:  z - cos(x) * y = 0 on [0, 1] weight=3
+objective thrust: f, x'' - k*tanh(x'), sqrt(1 + x'*x') * y'' + pi
+objective shape:  exp(0.1*z) * atan2(y, 1 + x*x) weight=0.5
+damp x 0.1
+"""
+
+
+def test_derivatives_match_the_symbolic_compiler():
+    """Values, gradient, Jacobians, Hessians and `when` masks of the torch lowering agree with
+    the core's symengine path at a random point (functions, min/max with numbers, constants,
+    weights, bounds, conditions)."""
+    session = Session()
+    session.run_text(EXTRAS)
+    problem = WindowProblem(session.scene)
+    torch.set_num_threads(1)
+    tp = TorchProblem(problem, torch.device("cpu"), host_linear=True)
+    rng = np.random.default_rng(7)
+    s = problem.initial() + 0.2 * rng.standard_normal(problem.n_free)
+    ref, got = problem.evaluate(s), tp.evaluate(s)
+    lam_eq, lam_ge = rng.standard_normal(ref.c_eq.size), rng.standard_normal(ref.c_ge.size)
+
+    def close(a, b):
+        a, b = np.asarray(a), np.asarray(b)
+        assert a.shape == b.shape
+        assert np.abs(a - b).max(initial=0.0) <= 1e-11 * max(1.0, np.abs(a).max(initial=0.0))
+
+    assert got.objective == pytest.approx(ref.objective, rel=1e-12)
+    close(ref.gradient, got.gradient)
+    close(ref.c_eq, got.c_eq)
+    close(ref.c_ge, got.c_ge)
+    close(ref.J_eq.toarray(), got.J_eq.toarray())
+    close(ref.J_ge.toarray(), got.J_ge.toarray())
+    close(ref.lagrangian_hessian(lam_eq, lam_ge).toarray(), got.lagrangian_hessian(lam_eq, lam_ge).toarray())
+    close(ref.gauss_newton().toarray(), got.gauss_newton().toarray())
+    assert np.array_equal(ref.active_ge, got.active_ge) and not ref.active_ge.all() and ref.active_ge.any()
+    mv_ref, mv_got = problem.merit_values(s), tp.merit_values(s)
+    assert mv_got.objective == pytest.approx(mv_ref.objective, rel=1e-12)
+    close(mv_ref.c_ge, mv_got.c_ge)
+    assert np.array_equal(mv_ref.active_ge, mv_got.active_ge)
+
+
+def test_lowering_handles_numbers_in_min_max_and_numeric_calls():
+    from stw_tui.compiler import CompiledTerm, LocalVar
+    from stw_torch.lower import lower
+    import sympy as sp
+
+    x, xd = sp.Symbol("x", real=True), sp.Symbol("x'", real=True)
+    expr = sp.Max(x, 0, xd - 1) + sp.Min(2, x) * sp.sin(2) + sp.sqrt(3) * xd
+    term = lower(CompiledTerm(expr=expr, variables=(LocalVar("x", 0), LocalVar("x", 1)), parameters=()))
+    X = torch.tensor([[-1.0, 0.5, 3.0], [0.0, 4.0, 1.0]], dtype=torch.float64)
+    got = term(X, torch.zeros(3, dtype=torch.float64), []).numpy()
+    xs, xds = X.numpy()
+    want = np.maximum.reduce([xs, np.zeros(3), xds - 1]) + np.minimum(2, xs) * np.sin(2) + np.sqrt(3) * xds
+    assert np.allclose(got, want, rtol=1e-15)
+    constant = lower(CompiledTerm(expr=sp.Float(2.5), variables=(LocalVar("x", 0),), parameters=()))
+    assert constant(X[:1], torch.zeros(3, dtype=torch.float64), []).tolist() == [2.5] * 3
+
+
+def test_extras_session_runs_like_scipy(registered):
+    ref, got = Session(), Session()
+    ref.run_text(EXTRAS + "iterate 40\n")
+    got.run_text("backend torch device=cpu\n" + EXTRAS + "iterate 40\n")
+    assert got.runs[-1].status == ref.runs[-1].status
+    assert len(got.runs[-1].reports) == len(ref.runs[-1].reports)
+    assert np.abs(got.scene.coefficient_vector() - ref.scene.coefficient_vector()).max() <= 1e-6
+
+
+@pytest.mark.parametrize("bad", [
+    "objective o: sqrt(x - 5)",                 # NaN values at the start
+    "constraint c: sqrt(x) = 1 @ 0.5",          # infinite derivative at x = 0
+])
+def test_non_finite_raises_and_leaves_the_scene_unchanged(registered, bad):
+    session = Session()
+    session.run_text(f"backend torch device=cpu\ntime 0 1 knots=6\ndof x\nconstraint a: x = 0 @ 0\n"
+                     f"objective e: x''\n{bad}\n")
+    before = session.scene.coefficient_vector().copy()
+    runs = len(session.runs)
+    with pytest.raises(SolveError, match="scene is unchanged"):
+        session.execute("iterate 5")
+    assert np.array_equal(session.scene.coefficient_vector(), before)
+    assert len(session.runs) == runs
+
+
+@pytest.mark.skipif(torch.cuda.is_available(), reason="checks the message on a machine without CUDA")
+def test_cuda_without_a_device_is_a_clear_error(registered):
+    session = Session()
+    session.run_text("backend torch device=cuda\ndof x\nconstraint a: x = 1 @ 0\nobjective e: x''\n")
+    with pytest.raises(SolveError, match="no CUDA device"):
+        session.execute("iterate 1")
+
+
+@pytest.mark.skipif(not torch.cuda.is_available(), reason="needs a CUDA device")
+@pytest.mark.parametrize("linear", ["scipy", "torch"])
+def test_cuda_matches_cpu(registered, linear):
+    text = (SESSIONS / "point_mass_2d.stw").read_text()
+    ref, got = Session(), Session()
+    ref.run_text(text)
+    got.run_text(f"backend torch device=cuda linear={linear}\n" + text)
+    assert np.abs(got.scene.coefficient_vector() - ref.scene.coefficient_vector()).max() <= 1e-6
+
+
+def test_options_are_declared_and_validated():
+    names = [o.name for o in TorchBackend.options]
+    assert names[:2] == ["device", "linear"] and "solver" in names
+    from stw_tui.errors import StwError
+    with pytest.raises(StwError, match="device"):
+        TorchBackend(device="tpu")
+
+
+def test_loading_the_backend_does_not_import_torch():
+    code = ("import sys; sys.path.insert(0, %r)\n"
+            "import stw_torch\n"
+            "print('torch' in sys.modules)\n") % str(ROOT / "backends")
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True)
+    assert out.stdout.strip() == "False"
