@@ -381,7 +381,8 @@ def _print(scene: Scene, cmd):
     if cmd.at is not None:
         times = np.array([_time_in_span(scene, scene.numeric(cmd.at, "time"), "time")])
     else:
-        times = np.linspace(scene.t0, scene.t1, 201)
+        a, b = _interval(scene, cmd.interval, "interval") if cmd.interval else (scene.t0, scene.t1)
+        times = np.linspace(a, b, 201)
     values = np.column_stack([scene.dofs[v.dof].curve.evaluate(times, v.order) for v in term.variables]) \
         if term.variables else np.zeros((len(times), 0))
     result = term.value(values, times, params)
@@ -390,7 +391,7 @@ def _print(scene: Scene, cmd):
         return f"{cmd.expr_text} @ {times[0]:g} = {value:.10g}", PrintResult(cmd.expr_text, float(times[0]), value)
     summary = {"min": float(result.min()), "max": float(result.max()), "mean": float(result.mean()),
                "start": float(result[0]), "end": float(result[-1])}
-    text = (f"{cmd.expr_text} on [{scene.t0:g}, {scene.t1:g}]: min {summary['min']:.6g}, "
+    text = (f"{cmd.expr_text} on [{times[0]:g}, {times[-1]:g}]: min {summary['min']:.6g}, "
             f"max {summary['max']:.6g}, mean {summary['mean']:.6g}, "
             f"start {summary['start']:.6g}, end {summary['end']:.6g}")
     return text, PrintResult(cmd.expr_text, None, summary)

@@ -168,6 +168,7 @@ class PrintCmd:
     at: sp.Expr | None
     expr_text: str
     text: str = ""
+    interval: Interval | None = None   # summary over [A, B] instead of the whole span
 
 
 @dataclass(frozen=True)
@@ -487,11 +488,14 @@ class CommandParser(ExpressionParser):
         expr = self.expression()
         end = self.token.column
         expr_text = self.source[start - 1:end - 1].strip()
-        at = None
+        at = interval = None
         if self.token.is_op("@"):
             self.advance()
             at = self.number_expr()
-        return PrintCmd(expr, at, expr_text, self.text)
+        elif self.token.is_word("on"):
+            self.advance()
+            interval = self.interval()
+        return PrintCmd(expr, at, expr_text, self.text, interval)
 
     def p_help(self):
         topic = self.advance().text if self.token.kind == NAME else None

@@ -70,8 +70,9 @@ COMMAND_HELP: dict[str, CommandHelp] = {
     "delete": CommandHelp("delete NAME",
                           "Delete a constraint, objective, subexpression, window, constant or DOF (refused "
                           "while something else uses it).", "delete catch"),
-    "print": CommandHelp("print EXPR [@ T]",
-                         "Print an expression's value at T, or a summary (min, max, mean, ends) over the span.",
+    "print": CommandHelp("print EXPR [@ T | on [A, B]]",
+                         "Print an expression's value at T, or a summary (min, max, mean, ends) over [A, B] "
+                         "(default: the span).",
                          "print x'' @ 0.5"),
     "help": CommandHelp("help [COMMAND]", "List the commands, or document one.", "help constraint"),
     "linkage": CommandHelp("linkage NAME [base=fixed|AXIS:DOF,…] [gravity=-y] … end",
