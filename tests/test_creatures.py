@@ -82,3 +82,14 @@ def test_keyframes_turn_the_toss_overhand():
     tip_y, ball_vx, goal_x = (p.value for p in s.prints)
     assert tip_y > 0 and ball_vx > 0            # released above the shoulder, moving forward
     assert goal_x == pytest.approx(1.5, abs=1e-6)
+
+
+def test_basketball_player_catches_its_own_throw_and_scores():
+    s = Session()
+    s.run_file(SESSIONS / "basketball.stw")
+    assert s.runs[-1].converged and s.runs[-1].reports[-1].max_violation <= 1e-6
+    px, pz, turn, gap, bx = (p.value for p in s.prints)
+    assert np.hypot(px, pz) > 0.5 and abs(turn) > 0.1   # it moved and turned to catch
+    assert abs(gap) < 1e-6 and bx == pytest.approx(2.0, abs=1e-6)
+    figure = scene_figure(s.scene, 1.7)
+    assert len(figure.segments) == 3                   # the arm is drawn (a side view)
