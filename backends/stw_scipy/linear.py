@@ -17,6 +17,7 @@ import scipy.sparse as sps
 import scipy.sparse.linalg as spla
 
 SOLVERS = ("direct", "minres", "cg")
+FALLBACK_RESIDUAL = 1e-6   # relative KKT residual above which an iterative solve is not trusted
 
 
 @dataclass
@@ -26,6 +27,7 @@ class LinearSolve:
     x: np.ndarray
     iterations: int
     resolve: callable
+    fallback: bool = False     # the iterative solver failed and a factorization was used
 
 
 def kkt_matrix(H: sps.csr_array, A: sps.csr_array, eps: float) -> sps.csc_array:
@@ -55,5 +57,21 @@ def solve_kkt(K: sps.csc_array, rhs: np.ndarray, method: str, rtol: float, maxit
             x, _ = spla.cg(normal, K @ b, rtol=rtol, maxiter=maxiter, M=precond, callback=tick)
         return x, count[0]
 
-    x, its = iterative(rhs)
-    return LinearSolve(x, its, lambda b: iterative(b)[0])
+    with np.errstate(all="ignore"):   # a diverging Krylov run is detected below, not warned about
+        x, its = iterative(rhs)
+    if _acceptable(K, x, rhs):
+        def resolve(b):
+            with np.errstate(all="ignore"):
+                y = iterative(b)[0]
+            return y if _acceptable(K, y, b) else spla.splu(K, permc_spec="COLAMD").solve(b)
+        return LinearSolve(x, its, resolve, fallback=False)
+    # Barrier-scaled interior-point systems can defeat unpreconditioned Krylov methods: rather
+    # than take a wrong step, factorize (and say so in the iteration report).
+    direct = solve_kkt(K, rhs, "direct", rtol, maxiter)
+    return LinearSolve(direct.x, its, direct.resolve, fallback=True)
+
+
+def _acceptable(K, x, b) -> bool:
+    if not np.all(np.isfinite(x)):
+        return False
+    return float(np.linalg.norm(K @ x - b)) <= FALLBACK_RESIDUAL * max(1.0, float(np.linalg.norm(b)))

@@ -29,6 +29,7 @@ class QPResult:
     z: np.ndarray           # inequality multipliers, >= 0 (L = R - zᵀc_i)
     linear_iterations: int
     ipm_iterations: int
+    fallbacks: int = 0      # iterative solves that had to be replaced by a factorization
 
 
 def solve_qp(H, g, Ae, ce, Ai, ci, method: str, rtol: float, maxiter: int,
@@ -45,7 +46,7 @@ def solve_qp(H, g, Ae, ce, Ai, ci, method: str, rtol: float, maxiter: int,
     if mi == 0:
         sol = solve_kkt(kkt_matrix(H, Ae, KKT_EPS), np.concatenate([-g, -ce - KKT_EPS * y0]), method,
                         rtol, maxiter)
-        return QPResult(sol.x[:n], sol.x[n:], np.zeros(0), sol.iterations, 0)
+        return QPResult(sol.x[:n], sol.x[n:], np.zeros(0), sol.iterations, 0, int(sol.fallback))
 
     d, y = np.zeros(n), y0.copy()
     w = np.maximum(ci, 1.0)
@@ -53,7 +54,7 @@ def solve_qp(H, g, Ae, ce, Ai, ci, method: str, rtol: float, maxiter: int,
     AiT = Ai.T.tocsr()
     scale_d = 1.0 + np.abs(g).max(initial=0.0)
     scale_c = 1.0 + max(np.abs(ce).max(initial=0.0), np.abs(ci).max(initial=0.0))
-    linear_its = 0
+    linear_its = fallbacks = 0
     for k in range(1, max_ipm + 1):
         r_d = H @ d + g + (Ae.T @ y if me else 0.0) - AiT @ z
         r_e = Ae @ d + ce - KKT_EPS * (y - y0) if me else np.zeros(0)
@@ -67,12 +68,13 @@ def solve_qp(H, g, Ae, ce, Ai, ci, method: str, rtol: float, maxiter: int,
         first = None
 
         def newton(rc):
-            nonlocal first, linear_its
+            nonlocal first, linear_its, fallbacks
             rhs = np.concatenate([-r_d - AiT @ ((rc + z * r_i) / w), -r_e])
             if first is None:
                 first = solve_kkt(K, rhs, method, rtol, maxiter)
                 x = first.x
                 linear_its += first.iterations
+                fallbacks += int(first.fallback)
             else:
                 x = first.resolve(rhs)
             dd, dy = x[:n], x[n:]
@@ -92,7 +94,7 @@ def solve_qp(H, g, Ae, ce, Ai, ci, method: str, rtol: float, maxiter: int,
         w += ap * dw
         y += ad * dy
         z += ad * dz
-    return QPResult(d, y, z, linear_its, k)
+    return QPResult(d, y, z, linear_its, k, fallbacks)
 
 
 def _max_step(v: np.ndarray, dv: np.ndarray, cap: float = 1.0) -> float:

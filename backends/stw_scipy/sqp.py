@@ -21,6 +21,7 @@ import numpy as np
 import scipy.sparse as sps
 
 from stw_tui.backend import Backend, BackendOption, SolverState, StepReport
+from stw_tui.errors import StwError
 
 from .linear import SOLVERS, kkt_matrix, solve_kkt
 from .qp import KKT_EPS, solve_qp
@@ -44,8 +45,8 @@ class ScipyBackend(Backend):
     name = "scipy"
     options = (
         BackendOption("solver", str, "direct", "linear solver for the KKT system", SOLVERS),
-        BackendOption("lin_tol", float, 1e-12, "relative tolerance of the iterative solvers"),
-        BackendOption("lin_maxiter", int, 20000, "iteration limit of the iterative solvers"),
+        BackendOption("lin_tol", float, 1e-10, "relative tolerance of the iterative solvers"),
+        BackendOption("lin_maxiter", int, 1000, "iteration limit of the iterative solvers"),
         BackendOption("max_step", float, 0.0, "largest change of any control point in one "
                       "iteration (0: no cap)"),
         BackendOption("hessian", str, "auto", "Hessian of the Lagrangian: exact (Newton), "
@@ -66,6 +67,7 @@ class ScipyBackend(Backend):
     # --- one iteration -----------------------------------------------------------------------
     def step(self, problem, inner: _Inner, iteration: int) -> tuple[_Inner, StepReport]:
         ms: dict[str, float] = {"assemble": 0.0, "solve": 0.0, "line_search": 0.0}
+        self._fallbacks = 0
         st, ev, settings = inner.state, inner.ev, inner.settings
         modes = self._hessian_modes(ev, settings)
         # Adaptive proximal term (Levenberg-Marquardt): directions no term curves (a ball DOF
@@ -132,7 +134,9 @@ class ScipyBackend(Backend):
                             merit_weight=rho, regularization=prox)
         report = StepReport(iteration=iteration, objective=new_ev.objective, max_violation=violation,
                             kkt_residual=kkt, step_length=alpha, linear_iterations=lin_its,
-                            active=int(working.sum()), ms=ms, converged=converged, stalled=stalled)
+                            active=int(working.sum()), ms=ms, converged=converged, stalled=stalled,
+                            message=f"{self._fallbacks} iterative solve(s) fell back to a factorization"
+                            if self._fallbacks else "")
         return _Inner(new_state, new_ev, settings), report
 
     def _hessian_modes(self, ev, settings) -> tuple[str, ...]:
@@ -157,6 +161,7 @@ class ScipyBackend(Backend):
         Ai, ci = ev.J_ge[ge_rows], ev.c_ge[ge_rows]
         n = H.shape[0]
         reg, total_its = 0.0, 0
+        qp = None
         for _attempt in range(8):  # raise the regularization until the step is a descent step
             Hr = H + reg * sps.eye_array(n) if reg else H
             try:
@@ -167,10 +172,14 @@ class ScipyBackend(Backend):
                 reg = max(10 * reg, 1e-8)
                 continue
             total_its += qp.linear_iterations
+            self._fallbacks += qp.fallbacks
             curvature = float(qp.d @ (Hr @ qp.d))
             if curvature >= -1e-12 * float(qp.d @ qp.d) or not np.any(qp.d):
                 break
             reg = max(10 * reg, 1e-6 * max(1.0, float(np.abs(H.diagonal()).max())))
+        if qp is None:
+            raise StwError("the KKT system stayed singular under regularization: are two "
+                           "constraints contradicting each other?")
         lam_eq = np.zeros(ev.c_eq.size)
         lam_eq[eq_rows] = qp.y
         lam_ge = np.zeros(ev.c_ge.size)
