@@ -87,6 +87,38 @@ def test_basis_right_end_and_range_checks():
     assert c.basis(np.zeros(0), 1).shape == (0, c.n_coef)
 
 
+@pytest.mark.parametrize("order", [0, 1, 2])
+def test_basis_rejects_any_time_outside_interval(order):
+    c = random_curve(seed=1).refined(0.0, 1.0)
+    good = np.linspace(c.t0, c.t1, 11)
+    for bad in (c.t0 - 1e-9, c.t1 + 1e-9, c.t1 + 10.0, -np.inf, np.nan):
+        with pytest.raises(ValueError):
+            c.basis(np.append(good, bad), order)  # one bad entry among good ones is enough
+    # Rounding noise (1e-13 past an end) is accepted and clamped to the end.
+    edge = c.basis([c.t0 - 1e-13, c.t1 + 1e-13], order).toarray()
+    np.testing.assert_array_equal(edge, c.basis([c.t0, c.t1], order).toarray())
+
+
+@pytest.mark.parametrize("refine", [False, True])
+def test_support_matches_nonzero_basis(refine):
+    c = random_curve(seed=2, spans=6, t0=0.0, t1=6.0)
+    if refine:
+        c = c.refined(1.2, 2.1, factor=3).refined(4.0, 4.4)
+    sup = c.support()
+    assert sup.shape == (c.n_coef, 2) and np.all(sup[:, 1] > sup[:, 0])
+    t = np.concatenate([np.random.default_rng(3).uniform(c.t0, c.t1, 2000), c.breakpoints])
+    B = c.basis(t).toarray()
+    lo, hi = sup[:, 0][None, :], sup[:, 1][None, :]
+    inside = (t[:, None] > lo) & (t[:, None] < hi)
+    outside = (t[:, None] < lo) | (t[:, None] > hi)
+    assert np.all(B[inside] > 0)  # B-splines are positive on the open support ...
+    assert np.all(B[outside] == 0)  # ... and exactly zero off the closed one
+    np.testing.assert_allclose(B.sum(axis=1), 1.0, rtol=0, atol=1e-14)  # partition of unity
+    # Every nonzero sits in its column's closed support.
+    rows, cols = np.nonzero(B)
+    assert np.all((t[rows] >= sup[cols, 0]) & (t[rows] <= sup[cols, 1]))
+
+
 # --- fitting -------------------------------------------------------------------------------
 def test_fit_reproduces_cubic():
     p = np.polynomial.Polynomial([0.3, -1.0, 2.0, 0.7])
@@ -126,10 +158,66 @@ def test_refined_keeps_curve_and_splits_only_overlapping_spans():
         c.refined(1.0, 2.0, factor=1)
 
 
+@pytest.mark.parametrize("a, b, factor", [
+    (2.5, 4.2, 2),  # ends inside spans: 3 spans overlap
+    (3.0, 5.0, 2),  # ends on breakpoints: (a, b) is open, so just [3,4], [4,5]
+    (0.1, 0.2, 4),  # inside one span
+    (-1.0, 0.5, 3),  # a before t0
+    (7.9, 9.0, 2),  # b after t1
+    (4.0, 4.0, 2),  # empty interval on a breakpoint: nothing overlaps
+])
+def test_refined_growth_and_untouched_knots(a, b, factor):
+    c = random_curve(seed=4, spans=8, t0=0.0, t1=8.0)
+    bp = c.breakpoints
+    hit = (bp[:-1] < b) & (bp[1:] > a)
+    n_hit = int(hit.sum())
+    r = c.refined(a, b, factor)
+    assert r.n_coef == c.n_coef + (factor - 1) * n_hit
+    assert r.spans == c.spans + (factor - 1) * n_hit
+    # Every old knot (with multiplicity) is still there; new ones lie only in the split spans.
+    old, counts = np.unique(c.knots, return_counts=True)
+    new_vals, new_counts = np.unique(r.knots, return_counts=True)
+    pos = np.searchsorted(new_vals, old)
+    np.testing.assert_array_equal(new_vals[pos], old)
+    np.testing.assert_array_equal(new_counts[pos], counts)
+    added = np.setdiff1d(r.knots, c.knots)
+    assert added.size == (factor - 1) * n_hit
+    if n_hit:
+        lo, hi = bp[:-1][hit].min(), bp[1:][hit].max()
+        assert np.all((added > lo) & (added < hi))
+        # Knots left of the first split span and right of the last one are untouched.
+        np.testing.assert_array_equal(r.knots[r.knots <= lo], c.knots[c.knots <= lo])
+        np.testing.assert_array_equal(r.knots[r.knots >= hi], c.knots[c.knots >= hi])
+    else:
+        np.testing.assert_array_equal(r.knots, c.knots)
+    t = np.random.default_rng(6).uniform(0.0, 8.0, 500)
+    for order in range(3):
+        np.testing.assert_allclose(r.evaluate(t, order), c.evaluate(t, order), rtol=0, atol=1e-12)
+        np.testing.assert_allclose(r.basis(t, order) @ r.coef, c.evaluate(t, order), rtol=0, atol=1e-12)
+
+
 # --- sketching -----------------------------------------------------------------------------
 def test_sketch_no_keys_is_identity():
     c = random_curve()
     assert c.sketched([]) is c
+    s = c.sketched(np.zeros((0, 2)))
+    assert np.array_equal(s.knots, c.knots) and np.array_equal(s.coef, c.coef)
+
+
+def test_sketch_single_key_is_local_with_anchor():
+    """With an anchor (decay length (1e-3/1e-1)^0.25 ≈ 0.3) a key near one end leaves the other alone.
+
+    With the default tiny anchor the change is a near-constant shift by design (see the docstring
+    and the test below), so "far away changes little" only holds for a real anchor.
+    """
+    c = DofCurve.fit(0.0, 10.0, 40, np.sin)
+    for key_t in (5.0, 1.5):
+        s = c.sketched([(key_t, 2.0)], smoothness=1e-3, anchor=1e-1)
+        at_key = abs(s.evaluate(key_t)[0] - c.evaluate(key_t)[0])
+        assert at_key > 0.5  # the key pulled the curve a real distance (offset ~1.0-2.0)
+        far = np.linspace(9.0, 10.0, 51)  # near the other end
+        change_far = np.abs(s.evaluate(far) - c.evaluate(far)).max()
+        assert change_far < 1e-3 * at_key
 
 
 def test_sketch_meets_keys_and_is_smooth():
@@ -183,6 +271,10 @@ def test_filter_smooths_and_keeps_ends():
     assert bending(f1) < 0.5 * bending(noisy) and bending(f5) < bending(f1)
     tv = lambda c: np.abs(np.diff(c.coef)).sum()
     assert tv(f1) < tv(noisy)
+    rough = lambda c: float(np.sum(np.diff(c.coef, 2) ** 2))
+    assert rough(f1) < 0.5 * rough(noisy) and rough(f5) < rough(f1)
+    for f in (f1, f5):  # end control points kept exactly
+        assert f.coef[0] == noisy.coef[0] and f.coef[-1] == noisy.coef[-1]
     for f in (f1, f5):
         np.testing.assert_allclose(f.evaluate([0.0, 3.0]), noisy.evaluate([0.0, 3.0]), rtol=0, atol=1e-14)
     # The interior stencil, explicitly.
@@ -207,6 +299,15 @@ def test_shake_seeded():
     assert c.shaken(0.0, np.random.default_rng(1)).coef.tolist() == c.coef.tolist()
 
 
+@pytest.mark.parametrize("amplitude", [1e-3, 0.5, 20.0])
+def test_shake_amplitude_sets_std(amplitude):
+    c = DofCurve.uniform(0.0, 1.0, 997, value=3.0)  # 1000 control points
+    delta = c.shaken(amplitude, np.random.default_rng(11)).coef - c.coef
+    # Sample std of 1000 N(0, a²) draws: relative error ~ 1/sqrt(2000) ≈ 2%; allow 10%.
+    assert 0.9 * amplitude < delta.std() < 1.1 * amplitude
+    assert abs(delta.mean()) < 0.15 * amplitude  # mean ~ a/sqrt(1000) ≈ 0.03 a
+
+
 # --- quadrature ----------------------------------------------------------------------------
 def test_gauss_legendre_piecewise_degree7_exact():
     bps = clamped_uniform_knots(0.0, 3.0, 3)  # breakpoints 0, 1, 2, 3 (with repeats)
@@ -226,3 +327,23 @@ def test_gauss_legendre_piecewise_degree7_exact():
     t3, w3 = gauss_legendre_nodes(bps, 3, a, b)
     assert abs(w3 @ f(t3) - exact) > 1e-9
     assert gauss_legendre_nodes(bps, 4, 1.0, 1.0)[0].size == 0
+
+
+@pytest.mark.parametrize("a, b", [(0.0, 3.0), (0.4, 2.7), (1.0, 2.0), (0.25, 0.75), (-1.3, 4.9), (2.2, 2.2001)])
+@pytest.mark.parametrize("n", [1, 2, 4, 6])
+def test_gauss_legendre_weights_sum_and_nodes(a, b, n):
+    bps = np.array([0.0, 0.0, 1.0, 1.0, 2.0, 3.0, 3.0])  # unsorted repeats are fine
+    t, w = gauss_legendre_nodes(bps, n, a, b)
+    pieces = np.unique(np.concatenate([[a, b], bps[(bps > a) & (bps < b)]]))
+    assert t.shape == w.shape == ((pieces.size - 1) * n,)
+    assert abs(w.sum() - (b - a)) < 1e-13 * max(1.0, b - a)
+    assert np.all(w > 0) and np.all(np.diff(t) > 0) and t.min() > a and t.max() < b
+    # No node straddles a breakpoint: each piece holds exactly n nodes.
+    np.testing.assert_array_equal(np.histogram(t, bins=pieces)[0], n)
+
+
+def test_gauss_legendre_validation():
+    with pytest.raises(ValueError):
+        gauss_legendre_nodes([0.0, 1.0], 0, 0.0, 1.0)
+    with pytest.raises(ValueError):
+        gauss_legendre_nodes([0.0, 1.0], 2, 1.0, 0.0)

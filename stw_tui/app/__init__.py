@@ -1,0 +1,37 @@
+"""The Textual front end of stw. The core never imports this package.
+
+``create_app`` builds a configured app (tests import it); ``run_app`` is what `stw [SESSION]` runs.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+from typing import TYPE_CHECKING
+
+from .app import StwApp
+
+if TYPE_CHECKING:
+    from ..session import Session
+
+__all__ = ["StwApp", "create_app", "run_app"]
+
+
+def create_app(session_path: str | Path | None = None, step: bool = False, session: "Session | None" = None,
+               *, show_timing: bool = True, blink: bool = True) -> StwApp:
+    """A ready-to-run app.
+
+    Args:
+        session_path: a .stw session to open and replay (or step through).
+        step: step through the session line by line (F6) instead of replaying it to the end.
+        session: drive this session instead of a new empty one.
+        show_timing: show ms per iteration in the status line (False: deterministic snapshots).
+        blink: blink the text cursor (False: deterministic snapshots).
+    """
+    return StwApp(session=session, session_path=session_path, step=step, show_timing=show_timing, blink=blink)
+
+
+def run_app(session_path: str | Path | None = None, step: bool = False) -> int:
+    """Run the TUI until the user quits; returns the process exit code."""
+    app = create_app(session_path, step=step)
+    app.run()
+    return app.return_code or 0

@@ -1,0 +1,343 @@
+"""The stw application: layout, keys, and the glue between widgets and the session worker.
+
+Widgets post messages; the app turns each requested command into a :class:`Job` for the
+:class:`Runner` and, when the worker reports back, refreshes the panels, plots and status line.
+"""
+
+from __future__ import annotations
+
+import time
+from pathlib import Path
+from typing import TYPE_CHECKING
+
+from textual import work
+from textual.app import App, ComposeResult
+from textual.binding import Binding
+from textual.containers import Horizontal
+from textual.widget import Widget
+from textual.widgets import Footer, TabbedContent, TabPane
+from textual.worker import Worker, WorkerState
+
+from .console import Console
+from .messages import CommandFinished, CommandRequested, CommandStarted, IterationReported, ItemChosen
+from .panels import ConstantsPanel, DofPanel, EquationsPanel, OptimizationPanel, TimePanel, WindowsPanel
+from .plots import ConvergencePlot, DofPlot, ExpressionPlot, FigurePlot, ScenePlot
+from .runner import Job, Runner, Script
+from .status import StatusLine
+from .values import SceneInfo
+
+if TYPE_CHECKING:
+    from ..scene import Scene
+    from ..session import Session
+
+PANELS = (("DOF", DofPanel), ("Eqns", EquationsPanel), ("Const", ConstantsPanel), ("Win", WindowsPanel),
+          ("Time", TimePanel), ("Opt", OptimizationPanel))
+VIEW_INTERVAL = 0.1   # seconds between refreshes of the panels and plots
+
+PLOTS = (("Curves", DofPlot), ("Expr", ExpressionPlot), ("Figure", FigurePlot), ("Conv", ConvergencePlot))
+
+
+class StwApp(App[int]):
+    """Spacetime Windows in the terminal.
+
+    The core (sympy, scipy) is imported by the worker's first job, not here, so the screen
+    paints before it has loaded; commands typed meanwhile wait in the queue.
+
+    Args:
+        session: the session to drive (a new empty one by default).
+        session_path: a .stw file to open and replay.
+        step: step through that file line by line (F6) instead of replaying it to the end.
+        show_timing: show ms per iteration (False for deterministic snapshots).
+        blink: blink text cursors (False for deterministic snapshots).
+    """
+
+    CSS_PATH = "app.tcss"
+    TITLE = "stw"
+    ENABLE_COMMAND_PALETTE = False
+    BINDINGS = [
+        Binding("f1", "help", "Help"),
+        Binding("f2", "panels", "Panels"),
+        Binding("f3", "plots", "Plots"),
+        Binding("f5", "iterate", "Iterate"),
+        Binding("f6", "step", "Step"),
+        Binding("f7", "run_rest", "Run rest"),
+        Binding("f8", "play", "Play"),
+        Binding("escape", "escape", "Stop/back"),
+        # Esc can lag in tmux (escape-time); F4 only stops, at once.
+        Binding("f4", "stop", "Stop", show=False),
+        Binding("ctrl+q", "quit", "Quit"),
+    ]
+
+    def __init__(self, session: "Session | None" = None, session_path: str | Path | None = None,
+                 step: bool = False, show_timing: bool = True, blink: bool = True):
+        super().__init__()
+        self.runner = Runner(self, session)
+        self.session_path = Path(session_path) if session_path else None
+        self.stepping = step
+        self.show_timing = show_timing
+        self.blink = blink
+        self.script: Script | None = None
+        self._info = SceneInfo()
+        self._views_shown = 0.0
+        self._views_timer = None
+        self._stale: set[str] = set()     # ids of views in hidden tabs that missed a refresh
+
+    def compose(self) -> ComposeResult:
+        with Horizontal(id="main"):
+            with TabbedContent(id="panels"):
+                for title, cls in PANELS:
+                    with TabPane(title, id=f"tab-{title.lower()}"):
+                        yield cls(id=f"{title.lower()}-panel", classes="scene-view")
+            with TabbedContent(id="plots"):
+                for title, cls in PLOTS:
+                    with TabPane(title, id=f"tab-{title.lower()}"):
+                        yield cls(id=f"{title.lower()}-plot", classes="scene-view")
+        yield Console(lambda: self.scene, self._backend_names, blink=self.blink, id="console")
+        yield StatusLine(show_timing=self.show_timing, id="status")
+        yield Footer(compact=True, show_command_palette=False)
+
+    @property
+    def session(self) -> "Session | None":
+        """The session (None for a moment at startup, until the worker has loaded the core)."""
+        return self.runner.session
+
+    @property
+    def scene(self) -> "Scene | None":
+        return self.runner.session.scene if self.runner.session is not None else None
+
+    @property
+    def repl(self) -> Console:
+        return self.query_one(Console)
+
+    @property
+    def status_line(self) -> StatusLine:
+        return self.query_one(StatusLine)
+
+    def _backend_names(self) -> list[str]:
+        from ..backend import available_backends
+
+        return sorted(available_backends())
+
+    def on_mount(self) -> None:
+        self.repl.input.focus()
+        self.repl.write_note("stw — Spacetime Windows. Type a command (`help` lists them); "
+                             "F2 panels, F3 plots, F5 iterate, Esc or F4 stops, Ctrl+Q quits.")
+        self.status_line.show(state="loading")
+        self.runner.submit(Job("", origin="startup"))   # loads the core and measures the scene, off the UI thread
+        if self.session_path is not None:
+            self._open(self.session_path)
+
+    def _open(self, path: Path) -> None:
+        try:
+            text = path.read_text(encoding="utf-8")
+        except (OSError, UnicodeDecodeError) as exc:
+            from ..errors import StwError
+
+            self.repl.write_error(StwError(f"cannot read session {path}: {exc}"))
+            return
+        self.script = Script(path, text, stepping=self.stepping)
+        how = "stepping: F6 runs the next line, F7 the rest" if self.stepping else "replaying"
+        self.repl.write_note(f"opened {path} ({how})")
+        self.refresh_bindings()
+        self._feed_script()
+
+    # --- running commands --------------------------------------------------------------------
+    def submit(self, line: str, origin: str = "console", number: int | None = None) -> None:
+        """Run one command line through the session, after any running or queued ones."""
+        if self.runner.submit(Job(line, number=number, origin=origin)) and origin != "file":
+            self.repl.write_note(f"queued until the running command ends: {line}")
+
+    @work(thread=True, exclusive=True, exit_on_error=False, group="session")
+    def start_job(self, job: Job) -> None:
+        """The worker: executes one job on the session (see Runner.run)."""
+        self.runner.run(job)
+
+    def _feed_script(self) -> None:
+        """Send the next line of a replaying script when nothing else is running."""
+        script = self.script
+        if script is None or not script.running or self.runner.busy:
+            return
+        self._send_next_line()
+
+    def _send_next_line(self) -> None:
+        comments, job = self.script.advance()
+        for comment in comments:
+            self.repl.write_note(comment)
+        if job is None:
+            self.script.running = False
+            self.repl.write_note(f"end of {self.script.path.name}")
+            self.refresh_bindings()
+            self._show_state()
+            return
+        self.runner.submit(job)
+
+    def _show_state(self) -> None:
+        if self.runner.busy:
+            state = "solving" if self.runner.solving else "running"
+            if self.runner.stop_requested.is_set():
+                state = "stopping"
+        elif self.script is not None and not self.script.done:
+            nxt = self.script.upcoming()
+            state = f"step: line {nxt[0]} next" if nxt else "idle"
+        else:
+            state = "idle"
+        self.status_line.show(state=state)
+
+    def on_command_requested(self, event: CommandRequested) -> None:
+        event.stop()
+        self.submit(event.line, origin=event.origin)
+
+    def on_command_started(self, event: CommandStarted) -> None:
+        job = event.job
+        if job.origin != "startup" and job.line.strip():
+            self.repl.write_command(job.line, job.number, job.origin, job.continuation)
+        if job.is_solve:
+            self.query_one(ConvergencePlot).set_reports([])
+        self._show_state()
+
+    def on_iteration_reported(self, event: IterationReported) -> None:
+        self.status_line.show(report=event.report)
+        self.query_one(ConvergencePlot).set_reports(self.runner.reports)
+
+    def on_command_finished(self, event: CommandFinished) -> None:
+        job, outcome, error = event.job, event.outcome, event.error
+        if error is not None:
+            self.repl.write_error(error)
+            if job.origin == "file" and self.script is not None:
+                self.script.running = False   # pause the replay; F6/F7 go on after the fix
+                self.repl.write_note("replay paused: fix it at the console, then F6/F7 to go on")
+        elif outcome is not None:
+            self.repl.write_result(outcome.message)
+            if outcome.run is not None and outcome.run.reports:
+                self.status_line.show(report=outcome.run.reports[-1])
+                self.query_one(ConvergencePlot).set_reports(outcome.run.reports)
+        self.repl.set_prompt(self.session.in_block)
+        self._refresh_views(event.info)
+        self.runner.finished()
+        self._feed_script()
+        self._show_state()
+
+    def on_worker_state_changed(self, event: Worker.StateChanged) -> None:
+        # Runner.run catches everything, so this is the last line of defence.
+        if event.worker.group == "session" and event.state is WorkerState.ERROR:
+            self.repl.write_error(event.worker.error)
+            self.runner.finished()
+
+    @property
+    def settled(self) -> bool:
+        """Nothing running, queued, replaying or waiting to be redrawn (tests wait for this)."""
+        replaying = self.script is not None and self.script.running
+        if self.runner.busy or self.runner.queue or replaying or self._views_timer is not None:
+            return False
+        return not any(plot.redraw_pending for plot in self.query(ScenePlot))
+
+    def _refresh_views(self, info=None) -> None:
+        """Show the scene in the panels and plots, at most ~10 times a second (a replay is fast)."""
+        if info is not None:
+            self._info = info
+        wait = VIEW_INTERVAL - (time.monotonic() - self._views_shown)
+        if wait > 0:
+            if self._views_timer is None:
+                self._views_timer = self.set_timer(wait, self._show_views)
+            return
+        self._show_views()
+
+    def _show_views(self) -> None:
+        self._views_timer = None
+        self._views_shown = time.monotonic()
+        scene = self.session.scene
+        for tabs in self.query(TabbedContent):
+            for pane in tabs.query(TabPane):
+                # Hidden tabs are brought up to date when shown: rebuilding them all costs layout.
+                for widget in pane.query(".scene-view"):
+                    if pane.id == tabs.active:
+                        self._stale.discard(widget.id)
+                        widget.set_scene(scene, self._info)
+                    else:
+                        self._stale.add(widget.id)
+        self.status_line.show(backend=scene.backend, window=scene.active_window)
+
+    def on_tabbed_content_tab_activated(self, event: TabbedContent.TabActivated) -> None:
+        for widget in event.pane.query(".scene-view"):
+            if widget.id in self._stale and self.session is not None:
+                self._stale.discard(widget.id)
+                widget.set_scene(self.session.scene, self._info)
+
+    def on_item_chosen(self, event: ItemChosen) -> None:
+        if event.kind == "dof":
+            plot, tab = self.query_one(DofPlot), "tab-curves"
+            plot.dof = event.name
+        else:
+            plot, tab = self.query_one(ExpressionPlot), "tab-expr"
+            plot.name_shown = event.name
+        self.query_one("#plots", TabbedContent).active = tab
+        plot.request_draw()
+
+    # --- keys --------------------------------------------------------------------------------
+    def check_action(self, action: str, parameters: tuple) -> bool | None:
+        if action in ("step", "run_rest"):
+            return self.script is not None and not self.script.done
+        return True
+
+    def _cycle_tabs(self, tabs_id: str, kind: type[Widget]) -> None:
+        """Focus the tab group's active view; when it already has the focus, go to the next tab."""
+        tabs = self.query_one(f"#{tabs_id}", TabbedContent)
+        if self.focused is not None and tabs in self.focused.ancestors:
+            ids = [pane.id for pane in tabs.query(TabPane)]
+            tabs.active = ids[(ids.index(tabs.active) + 1) % len(ids)]
+        # set_focus now, not focus() (deferred): a second key press may arrive before a redraw.
+        self.screen.set_focus(tabs.get_pane(tabs.active).query_one(kind))
+
+    def action_panels(self) -> None:
+        from .panel_base import ScenePanel
+
+        self._cycle_tabs("panels", ScenePanel)
+
+    def action_plots(self) -> None:
+        self._cycle_tabs("plots", ScenePlot)
+
+    def action_help(self) -> None:
+        self.submit("help", origin="key")
+
+    def action_iterate(self) -> None:
+        self.submit(f"iterate {self.query_one(OptimizationPanel).iterations}", origin="key")
+
+    def action_step(self) -> None:
+        if self.script is not None and not self.script.done:
+            self.script.running = False
+            if self.runner.busy:
+                self.repl.write_note("busy: the next line runs when the current command ends")
+            self._send_next_line()
+
+    def action_run_rest(self) -> None:
+        if self.script is not None and not self.script.done:
+            self.script.running = True
+            self._feed_script()
+
+    def action_play(self) -> None:
+        self.query_one("#plots", TabbedContent).active = "tab-figure"
+        self.query_one(FigurePlot).action_play()
+
+    def action_stop(self) -> None:
+        """Stop a solve at the next iteration boundary, and pause a replay."""
+        if self.runner.stop():
+            self.repl.write_note("stopping at the next iteration boundary…")
+        if self.script is not None and self.script.running:
+            self.script.running = False
+            self.repl.write_note("replay paused: F6 next line, F7 the rest")
+        self._show_state()
+
+    def action_escape(self) -> None:
+        """Stop a solve; else pause a replay; else return to the console; else drop an open block."""
+        if self.runner.stop():
+            self.repl.write_note("stopping at the next iteration boundary…")
+        elif self.script is not None and self.script.running:
+            self.script.running = False
+            self.repl.write_note("replay paused: F6 next line, F7 the rest")
+        elif self.focused is not self.repl.input:
+            self.repl.input.focus()
+        elif self.session is not None and self.session.in_block and not self.runner.busy:
+            self.session.cancel_block()
+            self.repl.set_prompt(False)
+            self.repl.write_note("linkage block dropped")
+        self._show_state()

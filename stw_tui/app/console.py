@@ -1,0 +1,115 @@
+"""The console: a log of commands and results, and a prompt with history and Tab completion."""
+
+from __future__ import annotations
+
+from typing import TYPE_CHECKING, Callable
+
+from rich.text import Text
+from textual.app import ComposeResult
+from textual.binding import Binding
+from textual.containers import Horizontal, Vertical
+from textual.widgets import Input, Label, RichLog
+
+from ..errors import SourceError
+from .completion import History, complete
+from .messages import CommandRequested
+
+if TYPE_CHECKING:
+    from ..scene import Scene
+
+PROMPT, CONTINUATION = "stw> ", "...> "
+
+
+class CommandInput(Input):
+    """The prompt line: up/down browse history, Tab completes commands and names."""
+
+    BINDINGS = [
+        Binding("up", "history(-1)", "Previous command", show=False),
+        Binding("down", "history(1)", "Next command", show=False),
+        # Bound here so Tab completes instead of moving the focus (the focused widget wins).
+        Binding("tab", "complete", "Complete", show=False),
+    ]
+
+    def __init__(self, scene_of: Callable[[], "Scene"], backends: Callable[[], list[str]], **kwargs):
+        super().__init__(**kwargs)
+        self.history = History()
+        self._scene_of = scene_of
+        self._backends = backends
+
+    def action_history(self, direction: int) -> None:
+        self.value = self.history.previous(self.value) if direction < 0 else self.history.next()
+        self.cursor_position = len(self.value)
+
+    def action_complete(self) -> None:
+        head = self.value[:self.cursor_position]
+        new_head, choices = complete(head, self._scene_of(), self._backends())
+        self.value = new_head + self.value[self.cursor_position:]
+        self.cursor_position = len(new_head)
+        if choices:
+            self.screen.query_one(Console).write_note("  ".join(choices))
+
+
+class Console(Vertical):
+    """Log plus prompt. Submitting a line posts :class:`CommandRequested`; the app runs it."""
+
+    def __init__(self, scene_of: Callable[[], "Scene"], backends: Callable[[], list[str]],
+                 blink: bool = True, **kwargs):
+        super().__init__(**kwargs)
+        self._scene_of = scene_of
+        self._backends = backends
+        self._blink = blink
+
+    def compose(self) -> ComposeResult:
+        yield RichLog(id="console-log", wrap=True, markup=False, max_lines=2000)
+        with Horizontal(id="prompt-row"):
+            yield Label(PROMPT, id="prompt")
+            command_input = CommandInput(self._scene_of, self._backends, id="command-input",
+                                         placeholder="a command, `help`, Tab completes",
+                                         select_on_focus=False)
+            command_input.cursor_blink = self._blink
+            yield command_input
+
+    @property
+    def input(self) -> CommandInput:
+        return self.query_one(CommandInput)
+
+    @property
+    def log_widget(self) -> RichLog:
+        return self.query_one(RichLog)
+
+    def on_input_submitted(self, event: Input.Submitted) -> None:
+        event.stop()
+        line = event.value
+        self.input.history.add(line)
+        self.input.value = ""
+        self.post_message(CommandRequested(line, origin="console"))
+
+    def set_prompt(self, continuation: bool) -> None:
+        self.query_one("#prompt", Label).update(CONTINUATION if continuation else PROMPT)
+
+    # --- writing (Text objects, never markup: user text contains [brackets]) -----------------
+    def write_command(self, line: str, number: int | None = None, origin: str = "console",
+                      continuation: bool = False) -> None:
+        if number is not None:
+            prefix = f"{number:>3}| "
+        elif continuation:
+            prefix = CONTINUATION
+        else:
+            prefix = PROMPT if origin == "console" else f"{origin}> "
+        self.log_widget.write(Text.assemble((prefix, "dim"), (line, "bold")))
+
+    def write_result(self, text: str) -> None:
+        if text:
+            self.log_widget.write(Text(text))
+
+    def write_note(self, text: str) -> None:
+        self.log_widget.write(Text(text, style="dim italic"))
+
+    def write_error(self, error: BaseException) -> None:
+        """An error in red, with the offending line and a caret under the column when known."""
+        message = str(error) if str(error) else type(error).__name__
+        if not isinstance(error, Exception) or type(error).__module__.split(".")[0] != "stw_tui":
+            message = f"internal error {type(error).__name__}: {message}"
+        self.log_widget.write(Text(message, style="bold red"))
+        if isinstance(error, SourceError) and error.caret():
+            self.log_widget.write(Text(error.caret(), style="red"))

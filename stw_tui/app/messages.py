@@ -1,0 +1,57 @@
+"""Messages between the session worker, the widgets and the app (past tense: things that happened)."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import TYPE_CHECKING, Any
+
+from textual.message import Message
+
+if TYPE_CHECKING:
+    from ..backend import StepReport
+    from .runner import Job
+    from .values import SceneInfo
+
+
+@dataclass
+class CommandRequested(Message):
+    """A widget asks for one command line to be run through the session (and shown in the console)."""
+
+    line: str
+    origin: str = "panel"    # console | panel | key
+
+
+@dataclass
+class IterationReported(Message):
+    """The solver finished one iteration; later reports replace unhandled earlier ones."""
+
+    report: "StepReport"
+
+    def can_replace(self, message: Message) -> bool:
+        # The worker keeps every report; the UI only needs the newest to redraw.
+        return isinstance(message, IterationReported)
+
+
+@dataclass
+class CommandStarted(Message):
+    """The worker began a command."""
+
+    job: "Job"
+
+
+@dataclass
+class CommandFinished(Message):
+    """The worker finished a command, successfully (outcome) or not (error); info describes the scene."""
+
+    job: "Job"
+    outcome: Any
+    error: BaseException | None
+    info: "SceneInfo"
+
+
+@dataclass
+class ItemChosen(Message):
+    """A panel chose the DOF or equation the plots follow."""
+
+    kind: str     # "dof" or "equation"
+    name: str

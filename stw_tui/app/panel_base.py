@@ -1,0 +1,139 @@
+"""Base classes of the scene panels: a table that shows state and *emits command lines* to change it.
+
+A panel never touches the scene. Every edit becomes one command line posted as
+:class:`CommandRequested`; the app runs it through the session like a typed command, so it shows
+in the console and lands in the journal.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import TYPE_CHECKING, Callable, Iterable
+
+from textual.widgets import DataTable
+
+from .dialogs import EditDialog
+from .messages import CommandRequested
+from .values import SceneInfo
+
+if TYPE_CHECKING:
+    from ..scene import Scene
+
+
+def num(value: float | None) -> str:
+    """A number as typed in a command (enough digits to round-trip what the user sees)."""
+    return "" if value is None else f"{value:.10g}"
+
+
+def show(value: float | None) -> str:
+    """A number for a table cell."""
+    return "—" if value is None else f"{value:.6g}"
+
+
+MAX_WIDTH = 48   # longest cell shown in full
+
+
+class ScenePanel(DataTable):
+    """A row-per-item table of one aspect of the scene. Subclasses define COLUMNS and rows()."""
+
+    COLUMNS: tuple[str, ...] = ()
+
+    def __init__(self, **kwargs):
+        super().__init__(cursor_type="row", zebra_stripes=True, **kwargs)
+        self.scene: "Scene | None" = None
+        self.info = SceneInfo()
+
+    def on_mount(self) -> None:
+        self._widths: list[int] = []
+        self._set_columns([len(label) for label in self.COLUMNS])
+
+    def _set_columns(self, widths: list[int]) -> None:
+        # Explicit widths: DataTable's own auto widths are measured on idle, and a table refilled
+        # just as its tab is shown sometimes kept the header widths (flaky snapshots, cut names).
+        self.clear(columns=True)
+        for label, width in zip(self.COLUMNS, widths):
+            self.add_column(label, width=width, key=label or "_")
+        self._widths = widths
+
+    def set_scene(self, scene: "Scene", info: SceneInfo | None = None) -> None:
+        """Show ``scene``; the cursor stays on the same row."""
+        self.scene = scene
+        if info is not None:
+            self.info = info
+        row = self.cursor_row
+        rows = list(self.table_rows(scene, self.info))
+        widths = [min(MAX_WIDTH, max([len(label)] + [len(str(cells[i])) for _, cells in rows]))
+                  for i, label in enumerate(self.COLUMNS)]
+        if widths != self._widths:
+            self._set_columns(widths)
+        else:
+            self.clear()
+        for key, cells in rows:
+            self.add_row(*cells, key=key)
+        if self.row_count:
+            self.move_cursor(row=min(row, self.row_count - 1))
+
+    def table_rows(self, scene: "Scene", info: SceneInfo) -> Iterable[tuple[str, tuple]]:
+        raise NotImplementedError
+
+    @property
+    def selected(self) -> str | None:
+        """The key of the row under the cursor."""
+        if not self.row_count:
+            return None
+        return self.coordinate_to_cell_key(self.cursor_coordinate).row_key.value
+
+    def emit(self, line: str) -> None:
+        self.post_message(CommandRequested(line))
+
+    def ask(self, title: str, value: str, build: Callable[[str], str | None]) -> None:
+        """Ask for a value; when given, run the command line ``build(value)``."""
+
+        def done(answer: str | None) -> None:
+            if answer is not None and answer.strip():
+                line = build(answer.strip())
+                if line:
+                    self.emit(line)
+
+        blink = getattr(self.app, "blink", True)
+        self.app.push_screen(EditDialog(title, value, f"runs: {build('…')}", blink=blink), done)
+
+    def on_data_table_row_selected(self, event: DataTable.RowSelected) -> None:
+        event.stop()
+        if self.selected is not None:
+            self.activate(self.selected)
+
+    def activate(self, key: str) -> None:
+        """Enter on a row (edit its value, choose it for a plot…)."""
+
+
+@dataclass
+class SettingRow:
+    """One editable row: what it shows and the command line an edit runs."""
+
+    key: str
+    label: str
+    value: str
+    build: Callable[[str], str] | None = None     # None: read-only
+    help: str = ""
+
+
+class SettingsPanel(ScenePanel):
+    """A two-column table of settings; Enter edits the one under the cursor."""
+
+    COLUMNS = ("setting", "value", "")
+
+    def settings(self, scene: "Scene", info: SceneInfo) -> list[SettingRow]:
+        raise NotImplementedError
+
+    def table_rows(self, scene, info):
+        self._settings_by_key = {row.key: row for row in self.settings(scene, info)}
+        return [(row.key, (row.label, row.value, row.help)) for row in self._settings_by_key.values()]
+
+    def activate(self, key: str) -> None:
+        row = self._settings_by_key[key]
+        if row.build is None:
+            self.app.notify(f"{row.label} is read-only here", severity="warning")
+            return
+        value = row.value if row.value != "—" else ""
+        self.ask(f"{row.label}{' — ' + row.help if row.help else ''}", value, row.build)

@@ -1,0 +1,228 @@
+"""The panels of the paper's interface (Cohen 1992, section 4), each emitting command lines.
+
+DOF · Equations · Constants · Windows · Time · Optimization. Keys act on the row under the
+cursor; the Footer lists them while a panel has the focus.
+"""
+
+from __future__ import annotations
+
+from typing import TYPE_CHECKING
+
+from textual.binding import Binding
+
+from .messages import ItemChosen
+from .panel_base import ScenePanel, SettingRow, SettingsPanel, num, show
+from .values import SceneInfo
+
+if TYPE_CHECKING:
+    from ..scene import Scene
+
+
+class DofPanel(ScenePanel):
+    """Degrees of freedom: in the window or not, bounds, knots, damping, keyframes."""
+
+    COLUMNS = ("DOF", "win", "lo", "hi", "spans", "ctrl", "damp", "keys")
+    BINDINGS = [
+        Binding("i", "include", "In/out of window"),
+        Binding("b", "bounds", "Bounds"),
+        Binding("k", "knots", "Knots"),
+        Binding("d", "damp", "Damp"),
+        Binding("f", "filter", "Filter"),
+        Binding("r", "refine", "Refine"),
+        Binding("s", "shake", "Shake"),
+    ]
+
+    def table_rows(self, scene: "Scene", info: SceneInfo):
+        window = scene.window
+        for name, dof in scene.dofs.items():
+            inside = window.dofs is None or name in window.dofs
+            yield name, (name, "✓" if inside else "·", show(dof.lo), show(dof.hi), str(dof.curve.spans),
+                         str(dof.curve.n_coef), show(dof.damp), str(len(dof.keys)))
+
+    def activate(self, key: str) -> None:
+        self.post_message(ItemChosen("dof", key))
+
+    def action_include(self) -> None:
+        """Put the DOF in or out of the active window (a new window when the active one is `all`)."""
+        name, scene = self.selected, self.scene
+        if name is None:
+            return
+        window = scene.window
+        current = list(window.dofs) if window.dofs else list(scene.dofs)
+        wanted = {d for d in current if d != name} if name in current else {*current, name}
+        if not wanted:
+            self.app.notify("a window needs at least one DOF", severity="warning")
+            return
+        dofs = "all" if wanted == set(scene.dofs) else ",".join(d for d in scene.dofs if d in wanted)
+        target = window.name
+        if target == "all":   # `all` is built in; make a named window instead
+            k = 1
+            while f"w{k}" in scene.windows:
+                k += 1
+            target = f"w{k}"
+        interval = f" [{num(window.interval[0])}, {num(window.interval[1])}]" if window.interval else ""
+        self.emit(f"window {target} dofs={dofs}{interval}")
+
+    def action_bounds(self) -> None:
+        name = self.selected
+        if name is not None:
+            dof = self.scene.dofs[name]
+            current = " ".join(f"{k}={num(v)}" for k, v in (("lo", dof.lo), ("hi", dof.hi)) if v is not None)
+            self.ask(f"Bounds of {name} (lo=A hi=B)", current or "lo=-1 hi=1", lambda v: f"dof {name} {v}")
+
+    def action_knots(self) -> None:
+        name = self.selected
+        if name is not None:
+            spans = str(self.scene.dofs[name].curve.spans)
+            self.ask(f"Knot spans of {name} (refits the curve)", spans, lambda v: f"dof {name} knots={v}")
+
+    def action_damp(self) -> None:
+        name = self.selected
+        if name is not None:
+            self.ask(f"Damping of {name}", num(self.scene.dofs[name].damp), lambda v: f"damp {name} {v}")
+
+    def action_filter(self) -> None:
+        if self.selected is not None:
+            self.emit(f"filter {self.selected}")
+
+    def action_refine(self) -> None:
+        if self.selected is not None:
+            self.emit(f"refine {self.selected}")
+
+    def action_shake(self) -> None:
+        name = self.selected
+        if name is not None:
+            self.ask(f"Shake {name}: amplitude", "0.05", lambda v: f"shake {name} amplitude={v}")
+
+
+class EquationsPanel(ScenePanel):
+    """Constraints, objectives and subexpressions with weight, time scope and current violation."""
+
+    COLUMNS = ("name", "kind", "weight", "scope", "max viol", "definition")
+    BINDINGS = [
+        Binding("w", "weight", "Weight"),
+        Binding("x", "delete", "Delete"),
+    ]
+
+    def table_rows(self, scene: "Scene", info: SceneInfo):
+        for c in scene.constraints.values():
+            scope = c.scope_text + (" when…" if c.when is not None else "")
+            viol = info.violations.get(c.name)
+            yield c.name, (c.name, "constraint", show(c.weight), scope,
+                           "?" if viol is None else f"{viol:.2e}", c.text.split(":", 1)[-1].strip())
+        for o in scene.objectives.values():
+            scope = f"on [{o.interval[0]:g}, {o.interval[1]:g}]" if o.interval else "span"
+            yield o.name, (o.name, "objective", show(o.weight), scope, "", o.text.split(":", 1)[-1].strip())
+        for name, expr in scene.lets.items():
+            yield name, (name, "let", "", "", "", str(expr))
+
+    def activate(self, key: str) -> None:
+        self.post_message(ItemChosen("equation", key))
+
+    def action_weight(self) -> None:
+        name, scene = self.selected, self.scene
+        if name is None:
+            return
+        item = scene.constraints.get(name) or scene.objectives.get(name)
+        if item is None:
+            self.app.notify("subexpressions have no weight", severity="warning")
+            return
+        self.ask(f"Weight of {name}", num(item.weight), lambda v: f"weight {name} {v}")
+
+    def action_delete(self) -> None:
+        name = self.selected
+        if name is not None:
+            self.ask(f"Delete {name}? (Enter runs the command)", f"delete {name}",
+                     lambda v: v if v.startswith("delete ") else f"delete {name}")
+
+
+class ConstantsPanel(SettingsPanel):
+    """Constants; Enter edits a value (`const NAME = VALUE`), n declares a new one."""
+
+    BINDINGS = [Binding("n", "new", "New constant")]
+
+    def settings(self, scene: "Scene", info: SceneInfo) -> list[SettingRow]:
+        return [SettingRow(name, name, num(value), lambda v, n=name: f"const {n} = {v}")
+                for name, value in scene.constants.items()]
+
+    def action_new(self) -> None:
+        self.ask("New constant (NAME = VALUE)", "c = 1", lambda v: f"const {v}")
+
+
+class WindowsPanel(ScenePanel):
+    """Spacetime windows; Enter uses one, n defines a new one."""
+
+    COLUMNS = ("", "window", "DOF", "interval")
+    BINDINGS = [Binding("n", "new", "New window")]
+
+    def table_rows(self, scene: "Scene", info: SceneInfo):
+        for w in scene.windows.values():
+            interval = f"[{w.interval[0]:g}, {w.interval[1]:g}]" if w.interval else "span"
+            yield w.name, ("▶" if w.name == scene.active_window else "", w.name,
+                           ",".join(w.dofs) if w.dofs else "all", interval)
+
+    def activate(self, key: str) -> None:
+        self.emit(f"use {key}")
+
+    def action_new(self) -> None:
+        scene = self.scene
+        k = 1
+        while f"w{k}" in scene.windows:
+            k += 1
+        template = f"w{k} dofs=all [{num(scene.t0)}, {num(scene.t1)}]"
+        self.ask("New window: NAME [dofs=a,b|all] [[A, B]]", template, lambda v: f"window {v}")
+
+
+class TimePanel(SettingsPanel):
+    """Span, knot spans, constraint samples, frame time, quadrature."""
+
+    def settings(self, scene: "Scene", info: SceneInfo) -> list[SettingRow]:
+        span = f"{num(scene.t0)} {num(scene.t1)}"
+        return [
+            SettingRow("span", "span", span, lambda v: f"time {v}", "start end"),
+            SettingRow("knots", "knot spans", str(scene.knots), lambda v: f"time {span} knots={v}",
+                       "of new DOF; refits all"),
+            SettingRow("samples", "samples", str(scene.sample_count), lambda v: f"set samples {v}",
+                       "constraint instances"),
+            SettingRow("frame", "frame time", num(scene.settings["frame"]), lambda v: f"set frame {v}"),
+            SettingRow("quadrature", "quadrature", num(scene.settings["quadrature"]),
+                       lambda v: f"set quadrature {v}", "points per span"),
+        ]
+
+
+class OptimizationPanel(SettingsPanel):
+    """Backend and its options, iterations per run, merit weight and tolerances."""
+
+    BINDINGS = [
+        Binding("i", "iterate", "Iterate"),
+        Binding("s", "shake", "Shake window"),
+    ]
+
+    def __init__(self, **kwargs):
+        super().__init__(**kwargs)
+        self.iterations = 10    # what F5 / i runs
+
+    def settings(self, scene: "Scene", info: SceneInfo) -> list[SettingRow]:
+        rows = [SettingRow("backend", "backend", scene.backend, lambda v: f"backend {v}", "name")]
+        for opt in info.backend_options:
+            value = scene.backend_options.get(opt.name, opt.default)
+            choices = "|".join(map(str, opt.choices)) if opt.choices else opt.type.__name__
+            rows.append(SettingRow(f"opt:{opt.name}", f"  {opt.name}", str(value),
+                                   lambda v, o=opt.name: f"backend {scene.backend} {o}={v}", choices))
+        if info.backend_error:
+            rows.append(SettingRow("error", "  error", info.backend_error))
+        rows.append(SettingRow("iterate", "iterate N", str(self.iterations), self._iterate_line, "runs now"))
+        for key in ("merit", "tol_violation", "tol_kkt", "tol_step"):
+            rows.append(SettingRow(key, key, num(scene.settings[key]), lambda v, k=key: f"set {k} {v}"))
+        return rows
+
+    def _iterate_line(self, value: str) -> str:
+        if value.isdigit() and int(value) > 0:
+            self.iterations = int(value)
+        return f"iterate {value}"
+
+    def action_iterate(self) -> None:
+        self.emit(f"iterate {self.iterations}")
+
+    def action_shake(self) -> None:
+        self.ask("Shake the window's DOF: amplitude", "0.05", lambda v: f"shake amplitude={v}")

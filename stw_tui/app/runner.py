@@ -1,0 +1,156 @@
+"""Running command lines one at a time off the UI thread, and feeding an opened session file.
+
+All commands — typed, from a panel or key, or read from a file — go through one queue and one
+thread worker, in order. A solve therefore never blocks the keyboard, and a command typed while a
+solve runs waits its turn instead of racing it on the scene. The worker talks to the UI only with
+messages (``post_message`` is thread-safe and does not make the solver wait for a redraw).
+"""
+
+from __future__ import annotations
+
+import threading
+from collections import deque
+from dataclasses import dataclass
+from pathlib import Path
+from typing import TYPE_CHECKING
+
+from ..errors import StwError
+from .messages import CommandFinished, CommandStarted, IterationReported
+from .values import SceneInfo, scene_info
+
+if TYPE_CHECKING:
+    from textual.app import App
+
+    from ..backend import StepReport
+    from ..session import Session
+
+
+@dataclass
+class Job:
+    """One command line to run, and where it came from."""
+
+    line: str
+    number: int | None = None     # its line in the opened session file
+    origin: str = "console"       # console | panel | key | file | startup
+    continuation: bool = False    # a row inside an open `linkage` block (set by the worker)
+
+    @property
+    def is_solve(self) -> bool:
+        return self.line.split("#", 1)[0].split()[:1] == ["iterate"]
+
+
+class Script:
+    """The lines of an opened session file, replayed to the end or stepped through."""
+
+    def __init__(self, path: Path, text: str, stepping: bool):
+        self.path = path
+        self.lines = text.splitlines()
+        self.position = 0             # index of the next line to run
+        self.running = not stepping   # False: wait for a step key
+
+    @property
+    def done(self) -> bool:
+        return self.position >= len(self.lines)
+
+    def _is_command(self, index: int) -> bool:
+        return bool(self.lines[index].split("#", 1)[0].strip())
+
+    def upcoming(self) -> tuple[int, str] | None:
+        """The next command line (number, text), skipping comments and blank lines."""
+        for index in range(self.position, len(self.lines)):
+            if self._is_command(index):
+                return index + 1, self.lines[index]
+        return None
+
+    def advance(self) -> tuple[list[str], Job | None]:
+        """Move past the next command line.
+
+        Returns:
+            The comment lines passed on the way (to show them) and the job (None at the end).
+        """
+        comments = []
+        while not self.done:
+            index = self.position
+            self.position += 1
+            if self._is_command(index):
+                return comments, Job(self.lines[index], number=index + 1, origin="file")
+            if self.lines[index].strip():
+                comments.append(self.lines[index])
+        return comments, None
+
+
+class Runner:
+    """The queue of jobs and the state of the one running in the worker."""
+
+    def __init__(self, app: "App", session: "Session | None" = None):
+        self.app = app
+        self.session = session
+        self.queue: deque[Job] = deque()
+        self.current: Job | None = None
+        self.stop_requested = threading.Event()
+        self.reports: list["StepReport"] = []     # of the running (or last) solve
+
+    @property
+    def busy(self) -> bool:
+        return self.current is not None
+
+    @property
+    def solving(self) -> bool:
+        return self.current is not None and self.current.is_solve
+
+    def submit(self, job: Job) -> bool:
+        """Queue a job; returns True when it has to wait behind a running one."""
+        waiting = self.busy
+        self.queue.append(job)
+        self.pump()
+        return waiting
+
+    def pump(self) -> None:
+        """Start the next queued job if none runs (called on the UI thread)."""
+        if self.current is not None or not self.queue:
+            return
+        self.current = self.queue.popleft()
+        self.stop_requested.clear()
+        if self.current.is_solve:
+            self.reports = []
+        self.app.start_job(self.current)
+
+    def stop(self) -> bool:
+        """Ask a running solve to stop at the next iteration boundary; True if one was running."""
+        if not self.solving:
+            return False
+        self.stop_requested.set()
+        return True
+
+    def finished(self) -> None:
+        """The worker's job is done (its message was handled): start the next one."""
+        self.current = None
+        self.pump()
+
+    # --- in the worker thread ----------------------------------------------------------------
+    def run(self, job: Job) -> None:
+        """Execute ``job`` on the session and post what happened. Never raises."""
+        if self.session is None:   # the first job loads the core here, off the UI thread
+            from ..session import Session
+
+            self.session = Session()
+        job.continuation = self.session.in_block   # read here: the UI thread would race the worker
+        self.app.post_message(CommandStarted(job))
+
+        def on_report(report: "StepReport") -> bool:
+            self.reports.append(report)
+            self.app.post_message(IterationReported(report))
+            return not self.stop_requested.is_set()
+
+        outcome, error = None, None
+        try:
+            outcome = self.session.execute(job.line, line=job.number, on_report=on_report)
+        except StwError as exc:
+            error = exc
+        except Exception as exc:  # a core bug must reach the console, not kill the worker
+            error = exc
+        try:
+            info = scene_info(self.session.scene)
+        except Exception:  # measuring is best effort
+            info = SceneInfo()
+        self.app.post_message(CommandFinished(job, outcome, error, info))

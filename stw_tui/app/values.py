@@ -1,0 +1,126 @@
+"""Numbers the TUI shows, computed from a scene without Textual (testable, and safe in a worker).
+
+Everything here only *reads* a scene; nothing changes one. The functions are called either on the
+UI thread for cheap things (a DOF curve) or in the session worker after each command for the
+ones that compile or build a window problem (violations, figure bounds).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+from typing import TYPE_CHECKING
+
+import numpy as np
+
+if TYPE_CHECKING:
+    from ..scene import Scene
+
+QUANTITIES = ("value", "velocity", "acceleration")
+
+
+@dataclass
+class Series:
+    """One curve over time, with a label for the legend."""
+
+    label: str
+    times: list[float]
+    values: list[float]
+
+
+@dataclass
+class SceneInfo:
+    """What the worker measured about a scene after a command (shown by panels and plots)."""
+
+    violations: dict[str, float] = field(default_factory=dict)
+    backend_options: tuple = ()          # BackendOption records of the scene's backend
+    backend_error: str = ""
+    figure_bounds: tuple[float, float, float, float] | None = None
+
+
+def dof_series(scene: "Scene", name: str, order: int, n: int = 161) -> Series:
+    """Value (order 0), velocity (1) or acceleration (2) of a DOF over the span."""
+    times = np.linspace(scene.t0, scene.t1, n)
+    values = scene.dofs[name].curve.evaluate(times, order)
+    return Series(f"{name}{chr(39) * order}", times.tolist(), values.tolist())
+
+
+def _evaluate(scene: "Scene", expr, times: np.ndarray) -> np.ndarray:
+    from ..compiler import compile_term
+
+    term = compile_term(scene.expand(expr), set(scene.dofs), set(scene.constants))
+    if term.variables:
+        values = np.column_stack([scene.dofs[v.dof].curve.evaluate(times, v.order) for v in term.variables])
+    else:
+        values = np.zeros((len(times), 0))
+    return term.value(values, times, scene.constant_values(term.parameters))
+
+
+def equation_names(scene: "Scene") -> list[str]:
+    """Names whose values can be plotted over time: constraints, objectives, subexpressions."""
+    return [*scene.constraints, *scene.objectives, *scene.lets]
+
+
+def equation_series(scene: "Scene", name: str, n: int = 161) -> tuple[list[Series], tuple[float, float] | None]:
+    """Values over the span of each relation or term of a constraint, objective or subexpression.
+
+    Returns:
+        The curves and the time scope to mark (an instant is returned as (t, t); None: the span).
+    Raises:
+        StwError: an expression that no longer compiles (e.g. a deleted name).
+    """
+    from ..symbols import named_symbol
+
+    times = np.linspace(scene.t0, scene.t1, n)
+    if name in scene.constraints:
+        c = scene.constraints[name]
+        scope = (c.at, c.at) if c.at is not None else c.interval
+        out = []
+        for i, rel in enumerate(c.relations, start=1):
+            label = f"{name}[{i}] {'= 0' if rel.kind == 'eq' else '>= 0'}"
+            out.append(Series(label, times.tolist(), _evaluate(scene, rel.expr, times).tolist()))
+        return out, scope
+    if name in scene.objectives:
+        o = scene.objectives[name]
+        return [Series(f"{name}[{i}]", times.tolist(), _evaluate(scene, e, times).tolist())
+                for i, e in enumerate(o.exprs, start=1)], o.interval
+    return [Series(name, times.tolist(), _evaluate(scene, named_symbol(name), times).tolist())], None
+
+
+def equation_violations(scene: "Scene") -> dict[str, float]:
+    """Max violation of every constraint on the current curves ({} when no problem can be built)."""
+    if not scene.constraints or not scene.dofs:
+        return {}
+    try:
+        from ..window import WindowProblem
+
+        problem = WindowProblem(scene)
+        return problem.violation_by_source(problem.merit_values(problem.initial()))
+    except Exception:  # a half-built scene (e.g. a window on deleted DOF) has no problem yet
+        return {}
+
+
+def figure_bounds(scene: "Scene", frames: int = 11) -> tuple[float, float, float, float] | None:
+    """Bounds of the stick figure over the whole span, so playback does not rescale the axes."""
+    from ..figure import scene_figure
+
+    try:
+        boxes = [scene_figure(scene, t).bounds() for t in np.linspace(scene.t0, scene.t1, frames)]
+    except Exception:  # drawing is best effort; a broken figure must not break the session
+        return None
+    x0, x1 = min(b[0] for b in boxes), max(b[1] for b in boxes)
+    y0, y1 = min(b[2] for b in boxes), max(b[3] for b in boxes)
+    pad_x, pad_y = 0.1 * max(x1 - x0, 0.2), 0.1 * max(y1 - y0, 0.2)
+    return (x0 - pad_x, x1 + pad_x, y0 - pad_y, y1 + pad_y)
+
+
+def scene_info(scene: "Scene") -> SceneInfo:
+    """Everything slow the panels need, measured once per command (called in the worker)."""
+    info = SceneInfo(violations=equation_violations(scene), figure_bounds=figure_bounds(scene))
+    try:
+        from ..backend import load_backend
+
+        info.backend_options = tuple(load_backend(scene.backend).options)
+    except Exception as exc:  # a broken plugin is shown in the panel, not raised
+        info.backend_error = str(exc)
+    return info

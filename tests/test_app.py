@@ -1,0 +1,231 @@
+"""Pilot tests of the TUI: the console, the worker, cancel, panels that emit commands, stepping.
+
+There is no async test plugin here, so each test runs its scenario with ``asyncio.run``.
+"""
+
+from __future__ import annotations
+
+import asyncio
+
+import test_app_support as support
+from stw_tui.app import create_app
+from stw_tui.backend import Status
+from stw_tui.session import Session
+
+JET = support.SESSIONS / "particle_jet.stw"
+SIZE = (120, 40)
+
+
+def run(scenario, app, size=SIZE):
+    """Run ``scenario(pilot)`` inside ``app`` at a fixed size."""
+
+    async def main():
+        async with app.run_test(size=size) as pilot:
+            await support.settle(pilot)
+            await scenario(pilot)
+
+    asyncio.run(main())
+
+
+def jet_without_iterate() -> Session:
+    """The particle-jet scene, set up but not solved."""
+    session = Session()
+    text = JET.read_text().split("iterate")[0]
+    session.run_text(text)
+    return session
+
+
+def test_typed_commands_go_through_the_session_and_journal():
+    app = create_app()
+
+    async def scenario(pilot):
+        await pilot.press(*"dof x", "enter")          # typed key by key
+        await support.settle(pilot)
+        await support.submit(pilot, "const g = 9.81")
+        await support.settle(pilot)
+        assert list(app.session.scene.dofs) == ["x"]
+        assert app.session.journal.replayable() == ["dof x", "const g = 9.81"]
+        text = support.log_text(app)
+        assert "stw> dof x" in text and "g = 9.81" in text
+        assert app.query_one("#dof-panel").row_count == 1      # the panel shows it live
+
+    run(scenario, app)
+
+
+def test_error_is_shown_with_a_caret_and_the_scene_is_unchanged():
+    app = create_app()
+
+    async def scenario(pilot):
+        await support.submit(pilot, "dof x")
+        await support.submit(pilot, "constraint c: x = @ 0")
+        await support.settle(pilot)
+        lines = support.log_text(app).splitlines()
+        caret = [i for i, line in enumerate(lines) if line.strip() == "^"]
+        assert caret, lines
+        assert "constraint c: x = @ 0" in lines[caret[0] - 1]
+        assert "column" in lines[caret[0] - 2]
+        assert app.session.scene.constraints == {}
+        assert app.session.journal.replayable() == ["dof x"]
+
+    run(scenario, app)
+
+
+def test_history_and_tab_completion():
+    app = create_app()
+
+    async def scenario(pilot):
+        field = app.repl.input
+        await support.submit(pilot, "const gravity = 9.81")
+        await support.settle(pilot)
+        await pilot.press("up")
+        assert field.value == "const gravity = 9.81"
+        await pilot.press("down")
+        assert field.value == ""
+        field.value, field.cursor_position = "pri", 3
+        await pilot.press("tab")
+        assert field.value == "print "
+        await pilot.press(*"gra", "tab")
+        assert field.value == "print gravity "
+        field.value, field.cursor_position = "d", 1      # several commands: listed in the log
+        await pilot.press("tab")
+        assert field.value == "d"
+        assert "damp  delete  dof" in support.log_text(app)
+
+    run(scenario, app)
+
+
+def test_linkage_block_shows_a_continuation_prompt():
+    app = create_app()
+
+    async def scenario(pilot):
+        prompt = app.query_one("#prompt")
+        await support.submit(pilot, "const g = 9.81")
+        await support.submit(pilot, "linkage arm base=fixed")
+        await support.settle(pilot)
+        assert str(prompt.render()).startswith("...")
+        await support.submit(pilot, "  J1 revolute a=1 mass=1")
+        await support.submit(pilot, "end")
+        await support.settle(pilot)
+        assert "arm" in app.session.scene.linkages, support.log_text(app)
+        assert "...>   J1 revolute" in support.log_text(app)
+        assert "J1" in app.session.scene.dofs
+        assert str(prompt.render()).startswith("stw")
+
+    run(scenario, app)
+
+
+def test_iterate_runs_in_the_worker_and_updates_status_and_plots():
+    app = create_app(session=jet_without_iterate(), show_timing=False)
+
+    async def scenario(pilot):
+        await pilot.press("f5")                     # `iterate 10` from the key
+        await support.settle(pilot)
+        assert app.session.journal.replayable()[-1] == "iterate 10"
+        assert app.session.runs[-1].status is Status.CONVERGED
+        status = str(app.status_line.render_text())
+        assert "iter " in status and "ms/it" not in status
+        assert len(app.query_one("#conv-plot").reports) >= 1
+        assert abs(app.session.scene.dofs["x"].curve.evaluate([0.5])[0] - 0.5) < 1e-6
+
+    run(scenario, app)
+
+
+def test_escape_stops_a_solve_at_an_iteration_boundary_and_queues_commands():
+    session = jet_without_iterate()
+    for line in ("set tol_violation 0", "set tol_kkt 0", "set tol_step 0"):   # never converges
+        session.execute(line)
+    app = create_app(session=session)
+
+    async def scenario(pilot):
+        await support.submit(pilot, "iterate 100000")
+        for _ in range(500):
+            await pilot.pause(0.02)
+            if app.runner.reports:
+                break
+        assert app.runner.solving
+        await support.submit(pilot, "const k = 2")           # waits for the solve
+        assert "queued" in support.log_text(app)
+        await pilot.press("escape")
+        await support.settle(pilot)
+        run_result = app.session.runs[-1]
+        assert run_result.status is Status.STOPPED
+        assert 0 < len(run_result.reports) < 100000
+        assert app.session.scene.constants["k"] == 2           # the queued command ran after
+        assert app.session.journal.replayable()[-2:] == ["iterate 100000", "const k = 2"]
+
+    run(scenario, app)
+
+
+def test_editing_a_constant_in_the_panel_emits_the_command_line():
+    app = create_app(JET)
+
+    async def scenario(pilot):
+        for _ in range(3):
+            await pilot.press("f2")                  # DOF, Eqns, Const
+        panel = app.query_one("#const-panel")
+        assert app.focused is panel
+        await pilot.press("down", "enter")           # row g
+        await pilot.press(*"3.7", "enter")
+        await support.settle(pilot)
+        assert app.session.journal.replayable()[-1] == "const g = 3.7"
+        assert app.session.scene.constants["g"] == 3.7
+        assert "panel> const g = 3.7" in support.log_text(app)
+        await pilot.press("escape")                  # back to the console
+        assert app.focused is app.repl.input
+
+    run(scenario, app)
+
+
+def test_dof_and_equation_panels_emit_window_and_weight_commands():
+    app = create_app(support.SESSIONS / "point_mass_2d.stw")
+
+    async def scenario(pilot):
+        await pilot.press("f2", "i")                 # take x out of the window `all`
+        await support.settle(pilot)
+        assert app.session.journal.replayable()[-1] == "window w1 dofs=y"
+        await pilot.press("f2", "down", "down", "w", *"5", "enter")   # floor's weight
+        await support.settle(pilot)
+        assert app.session.journal.replayable()[-1] == "weight floor 5"
+        await pilot.press("enter")                   # plot floor over time
+        assert app.query_one("#expr-plot").name_shown == "floor"
+        assert app.query_one("#plots").active == "tab-expr"
+
+    run(scenario, app)
+
+
+def test_step_mode_runs_one_line_per_key_then_the_rest():
+    app = create_app(JET, step=True)
+
+    async def scenario(pilot):
+        assert app.session.journal.replayable() == []
+        await pilot.press("f6")
+        await support.settle(pilot)
+        assert app.session.journal.replayable() == ["time 0 1 knots=12"]
+        assert "step: line 7 next" in str(app.status_line.render_text())
+        await pilot.press("f7")
+        await support.settle(pilot)
+        expected = Session()
+        expected.run_file(JET)
+        assert app.session.journal.replayable() == expected.journal.replayable()
+
+    run(scenario, app)
+
+
+def test_figure_scrubs_and_plays():
+    app = create_app(support.SESSIONS / "cat_mouse.stw")
+
+    async def scenario(pilot):
+        for _ in range(3):
+            await pilot.press("f3")                  # Curves, Expr, Figure
+        figure = app.query_one("#figure-plot")
+        assert app.focused is figure
+        await pilot.press("right", "right")
+        assert abs(figure.t - 2 * 2.0 / figure.FRAMES) < 1e-9
+        await pilot.press("space")
+        assert figure.playing
+        await pilot.pause(0.35)
+        assert figure.t > 4 * 2.0 / figure.FRAMES
+        await pilot.press("space")
+        assert not figure.playing
+
+    run(scenario, app)

@@ -1,0 +1,82 @@
+"""The TUI's plain logic, without a screen: completion, history, the session script, plot data."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import pytest
+
+from stw_tui.app.completion import History, candidates, complete
+from stw_tui.app.runner import Job, Script
+from stw_tui.app.values import dof_series, equation_series, equation_violations, figure_bounds, scene_info
+from stw_tui.session import Session
+
+SESSIONS = Path(__file__).resolve().parent.parent / "sessions"
+
+
+@pytest.fixture(scope="module")
+def jet() -> Session:
+    session = Session()
+    session.run_file(SESSIONS / "particle_jet.stw")
+    return session
+
+
+def test_completion_of_commands_names_settings_and_backends(jet):
+    scene = jet.scene
+    assert complete("ite", scene) == ("iterate ", [])
+    assert complete("print f", scene) == ("print f", ["f", "fuel"])
+    assert complete("weight st", scene) == ("weight start ", [])
+    assert complete("set tol_k", scene) == ("set tol_kkt ", [])
+    assert complete("backend sc", scene, ["scipy", "torch"]) == ("backend scipy ", [])
+    assert complete("help lin", scene) == ("help linkage ", [])
+    assert complete("print x +", scene) == ("print x +", [])       # nothing to complete after +
+    assert candidates("use ", scene)[1] == sorted(["all", "end", "f", "fuel", "g", "m", "pi", "start", "t", "x"])
+    assert complete("d", None)[1] == ["damp", "delete", "dof"]      # before the core has loaded
+
+
+def test_history_browses_back_and_keeps_the_draft():
+    history = History()
+    for line in ("dof x", "dof x", "iterate 5"):
+        history.add(line)
+    assert history.lines == ["dof x", "iterate 5"]
+    assert history.previous("typing") == "iterate 5"
+    assert history.previous("iterate 5") == "dof x"
+    assert history.previous("dof x") == "dof x"          # stays at the oldest
+    assert history.next() == "iterate 5"
+    assert history.next() == "typing"                      # back to the draft
+
+
+def test_script_skips_comments_and_numbers_lines():
+    script = Script(Path("s.stw"), "# a comment\n\ndof x   # inline\n  # more\niterate 2\n", stepping=True)
+    assert not script.running and script.upcoming() == (3, "dof x   # inline")
+    comments, job = script.advance()
+    assert comments == ["# a comment"] and job == Job("dof x   # inline", number=3, origin="file")
+    comments, job = script.advance()
+    assert comments == ["  # more"] and job.number == 5 and job.is_solve
+    assert script.advance() == ([], None) and script.done
+
+
+def test_plot_data_and_scene_info(jet):
+    scene = jet.scene
+    series = dof_series(scene, "x", 2, n=5)
+    assert series.label == "x''" and len(series.values) == 5
+    curves, scope = equation_series(scene, "end")
+    assert scope == (1.0, 1.0) and [c.label for c in curves] == ["end[1] = 0", "end[2] = 0"]
+    assert abs(curves[0].values[-1]) < 1e-6                     # x = 1 at t = 1
+    force, _ = equation_series(scene, "f", n=3)
+    assert force[0].values == pytest.approx([6 + 9.81, 9.81, -6 + 9.81], abs=1e-5)
+    assert set(equation_violations(scene)) == {"start", "end"}
+    assert figure_bounds(Session().scene) is not None          # empty scene: a default box
+    info = scene_info(scene)
+    assert "solver" in [o.name for o in info.backend_options] and not info.backend_error
+
+
+def test_importing_the_app_loads_neither_the_solver_stack_nor_torch():
+    """The screen paints before sympy/scipy load (the worker loads them); torch is never needed."""
+    import subprocess
+    import sys
+
+    code = ("import sys, stw_tui.app\n"
+            "print(','.join(m for m in ('torch', 'sympy', 'scipy', 'stw_tui.session') if m in sys.modules))")
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True)
+    assert out.stdout.strip() == ""

@@ -1,0 +1,56 @@
+"""SVG snapshots of the TUI at 80x24 and 120x40 (pytest-textual-snapshot).
+
+Deterministic by construction: fixed sizes, no cursor blink, no ms/iteration in the status line,
+and every snapshot waits until the worker, the replay and the throttled redraws are done.
+Update after an intended change with ``pytest tests/test_app_snapshots.py --snapshot-update``.
+"""
+
+from __future__ import annotations
+
+import test_app_support as support
+from stw_tui.app import create_app
+
+JET = support.SESSIONS / "particle_jet.stw"
+
+
+def quiet_app(*args, **kwargs):
+    return create_app(*args, show_timing=False, blink=False, **kwargs)
+
+
+def test_empty_session_80x24(snap_compare):
+    async def run_before(pilot):
+        await support.settle(pilot)
+
+    assert snap_compare(quiet_app(), terminal_size=(80, 24), run_before=run_before)
+
+
+def test_particle_jet_replayed_120x40(snap_compare):
+    async def run_before(pilot):
+        await support.settle(pilot)
+
+    assert snap_compare(quiet_app(JET), terminal_size=(120, 40), run_before=run_before)
+
+
+def test_particle_jet_stepped_equations_80x24(snap_compare):
+    """Stepped up to the line before `iterate` (no solver digits), Equations panel in front."""
+
+    async def run_before(pilot):
+        await support.settle(pilot)
+        for _ in range(7):
+            await pilot.press("f6")
+            await support.settle(pilot)
+        await pilot.press("f2", "f2")
+        await support.settle(pilot)
+
+    assert snap_compare(quiet_app(JET, step=True), terminal_size=(80, 24), run_before=run_before)
+
+
+def test_cat_mouse_figure_120x40(snap_compare):
+    async def run_before(pilot):
+        await support.settle(pilot)
+        await pilot.press("f3", "f3", "f3")            # Curves, Expr, Figure
+        await pilot.press(*["right"] * 20)              # t = 1 of [0, 2]
+        await support.settle(pilot)
+
+    app = quiet_app(support.SESSIONS / "cat_mouse.stw")
+    assert snap_compare(app, terminal_size=(120, 40), run_before=run_before)
