@@ -96,6 +96,8 @@ class StepReport:
     converged: bool = False
     stalled: bool = False
     message: str = ""
+    coefficients: np.ndarray | None = field(default=None, repr=False)  # all DOF control points after
+    # this iteration (set by the driver, so front ends can redraw curves while a solve runs)
 
     @property
     def total_ms(self) -> float:
@@ -199,6 +201,7 @@ def run_iterations(backend: Backend, problem, start: SolverState, n: int, settin
                     and np.isfinite(report.max_violation)):
                 raise SolveError(f"iteration {k} produced non-finite values (diverged); "
                                  "the scene is unchanged — try damping, a smaller window or `shake`")
+            report = replace(report, coefficients=problem.scatter(state.s))
             reports.append(report)
             if report.converged:
                 status = Status.CONVERGED

@@ -40,6 +40,7 @@ class Measurement:
     seconds: float
     objective: float
     violation: float
+    motion: np.ndarray | None = None   # every DOF's value at 201 times over the span, concatenated
 
 
 def configurations() -> list[tuple[str, str]]:
@@ -51,7 +52,7 @@ def configurations() -> list[tuple[str, str]]:
     return configs
 
 
-def _split_at_first_iterate(text: str) -> tuple[str, int] | None:
+def split_at_first_iterate(text: str) -> tuple[str, int] | None:
     lines = text.splitlines()
     for i, line in enumerate(lines):
         words = line.split("#", 1)[0].split()
@@ -73,9 +74,10 @@ def measure(name: str, setup: Session, n: int, backend: str, options: str, repea
         session.execute(f"backend {backend} {options}".strip())
         started = time.perf_counter()
         session.execute(f"iterate {n}")
-        runs.append((time.perf_counter() - started, session.runs[-1]))
+        runs.append((time.perf_counter() - started, session.runs[-1], session))
     seconds = statistics.median(r[0] for r in runs)
-    run = runs[0][1]
+    run, final = runs[0][1], runs[0][2]
+    motion = np.concatenate([np.asarray(v["value"]) for v in final.sample(201).values()])
     problem = WindowProblem(setup.scene)
     reports = run.reports
     phases = {k: statistics.median(r.ms.get(k, 0.0) for r in reports) for k in reports[0].ms} if reports else {}
@@ -83,7 +85,7 @@ def measure(name: str, setup: Session, n: int, backend: str, options: str, repea
                        problem.row_counts["eq"] + problem.row_counts["ge"], len(reports), run.converged,
                        statistics.median(r.total_ms for r in reports) if reports else 0.0, phases,
                        seconds, reports[-1].objective if reports else float("nan"),
-                       reports[-1].max_violation if reports else float("nan"))
+                       reports[-1].max_violation if reports else float("nan"), motion)
 
 
 def synthetic_session(dofs: int, knots: int) -> str:
@@ -122,7 +124,7 @@ def run_bench(args) -> int:
     sources += [("synthetic-5x24", synthetic_session(5, 24)), ("synthetic-50x60", synthetic_session(50, 60))]
     print(HEADER, flush=True)
     for name, text in sources:
-        split = _split_at_first_iterate(text)
+        split = split_at_first_iterate(text)
         if split is None:
             continue
         prefix, n = split

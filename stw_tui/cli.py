@@ -11,7 +11,7 @@ from pathlib import Path
 from .backend import StepReport
 from .errors import SourceError, StwError
 
-SUBCOMMANDS = ("run", "bench", "backends")
+SUBCOMMANDS = ("run", "bench", "backends", "compare")
 
 
 def _table_header() -> str:
@@ -91,6 +91,16 @@ def _backends(args: argparse.Namespace) -> int:
     return 0
 
 
+def _compare(args: argparse.Namespace) -> int:
+    from .compare import run_compare
+
+    try:
+        return run_compare(args)
+    except StwError as exc:
+        print(f"stw compare: {exc}", file=sys.stderr)
+        return 1
+
+
 def _bench(args: argparse.Namespace) -> int:
     from .bench import run_bench
 
@@ -111,6 +121,13 @@ def build_parser() -> argparse.ArgumentParser:
     bench.add_argument("--sessions", nargs="*", type=Path, help="session files (default: sessions/*.stw)")
     bench.add_argument("--repeat", type=int, default=3, help="repetitions per measurement")
     bench.set_defaults(func=_bench)
+    comp = sub.add_parser("compare", help="solve a session's first problem with several backends")
+    comp.add_argument("session", type=Path)
+    comp.add_argument("--backends", default="scipy,torch",
+                      help="comma list of NAME or NAME:opt=value:… (default scipy,torch)")
+    comp.add_argument("--repeat", type=int, default=1, help="timed repetitions per backend")
+    comp.add_argument("--json", action="store_true", help="print one JSON object")
+    comp.set_defaults(func=_compare)
     backends = sub.add_parser("backends", help="list installed solver backends and their options")
     backends.set_defaults(func=_backends)
     return parser
@@ -128,13 +145,17 @@ def _launch_tui(argv: list[str]) -> int:
     parser = argparse.ArgumentParser(prog="stw", description="Open the Spacetime Windows TUI.")
     parser.add_argument("session", nargs="?", type=Path, help="a .stw session to open and replay")
     parser.add_argument("--step", action="store_true", help="step through the session line by line")
+    parser.add_argument("--journal", type=Path, help="append the journal of this session to a file")
     args = parser.parse_args(argv)
     try:
         from .app import run_app
     except ImportError as exc:  # the TUI is optional for the headless core
         print(f"stw: the TUI is unavailable ({exc}); use `stw run SESSION`", file=sys.stderr)
         return 1
-    return run_app(args.session, step=args.step)
+    if args.session is not None and not args.session.is_file():
+        print(f"stw: no session file {args.session}", file=sys.stderr)
+        return 2
+    return run_app(args.session, step=args.step, journal=args.journal)
 
 
 if __name__ == "__main__":

@@ -425,7 +425,9 @@ def _iterate(session: "Session", scene: Scene, cmd, on_report) -> "Outcome":
                  f"KKT {last.kkt_residual:.2e}")
     if result.status is Status.STALLED:
         text += " — try `shake`, a keyframe, damping, or a smaller window"
-    return Outcome(message=text, run=result)
+    # A stopped solve is journalled as the iterations it ran, so a replay reaches the same scene.
+    journal_text = f"iterate {len(result.reports)}" if result.status is Status.STOPPED else None
+    return Outcome(message=text, run=result, journal_text=journal_text)
 
 
 _HANDLERS = {

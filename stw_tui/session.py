@@ -77,6 +77,7 @@ class Outcome:
     message: str = ""
     prints: list[PrintResult] = field(default_factory=list)
     run: RunResult | None = None
+    journal_text: str | None = None   # what replays this command, when that differs from the text
 
 
 ReportCallback = Callable[[StepReport], "bool | None"]
@@ -153,6 +154,8 @@ class Session:
             self.journal.settle(entry, False, message)
             raise StwError(f"line {line}: {message}" if line is not None else message) from exc
         self.scene = scene
+        if outcome.journal_text is not None:
+            entry.text = outcome.journal_text
         self.journal.settle(entry, True)
         self.prints.extend(outcome.prints)
         if outcome.run is not None:

@@ -105,3 +105,17 @@ def test_a_diverging_backend_leaves_the_scene_unchanged(monkeypatch):
     with pytest.raises(SolveError, match="boom"):
         s.execute("iterate 3")
     assert np.array_equal(coef, s.scene.coefficient_vector())
+
+
+def test_a_stopped_solve_is_journalled_as_the_iterations_it_ran():
+    s = run_lines(Session(), TWO_D + "set tol_kkt 0\nset tol_violation 0\n")
+    seen = []
+
+    def stop_after_two(report):
+        seen.append(report)
+        assert report.coefficients is not None and report.coefficients.size == s.scene.coefficient_vector().size
+        return len(seen) < 2
+    s.execute("iterate 50", on_report=stop_after_two)
+    assert s.journal.replayable()[-1] == "iterate 2"
+    replay = run_lines(Session(), "\n".join(s.journal.replayable()))
+    assert np.array_equal(replay.scene.coefficient_vector(), s.scene.coefficient_vector())

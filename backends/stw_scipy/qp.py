@@ -48,6 +48,9 @@ def solve_qp(H, g, Ae, ce, Ai, ci, method: str, rtol: float, maxiter: int,
                         rtol, maxiter)
         return QPResult(sol.x[:n], sol.x[n:], np.zeros(0), sol.iterations, 0, int(sol.fallback))
 
+    # Barrier scaling makes these systems too ill-conditioned for unpreconditioned Krylov methods
+    # (inexact steps drove w or z to zero and the iteration broke down): factorize them.
+    method = "direct"
     d, y = np.zeros(n), y0.copy()
     w = np.maximum(ci, 1.0)
     z = np.ones(mi)

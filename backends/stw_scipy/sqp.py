@@ -44,8 +44,9 @@ class ScipyBackend(Backend):
 
     name = "scipy"
     options = (
-        BackendOption("solver", str, "direct", "linear solver for the KKT system", SOLVERS),
-        BackendOption("lin_tol", float, 1e-10, "relative tolerance of the iterative solvers"),
+        BackendOption("solver", str, "direct", "linear solver for the KKT system (with inequality "
+                      "instances, the interior-point systems are always factorized)", SOLVERS),
+        BackendOption("lin_tol", float, 1e-12, "relative tolerance of the iterative solvers"),
         BackendOption("lin_maxiter", int, 1000, "iteration limit of the iterative solvers"),
         BackendOption("max_step", float, 0.0, "largest change of any control point in one "
                       "iteration (0: no cap)"),

@@ -30,8 +30,17 @@ def create_app(session_path: str | Path | None = None, step: bool = False, sessi
     return StwApp(session=session, session_path=session_path, step=step, show_timing=show_timing, blink=blink)
 
 
-def run_app(session_path: str | Path | None = None, step: bool = False) -> int:
-    """Run the TUI until the user quits; returns the process exit code."""
-    app = create_app(session_path, step=step)
+def run_app(session_path: str | Path | None = None, step: bool = False,
+            journal: str | Path | None = None) -> int:
+    """Run the TUI until the user quits; returns the process exit code.
+
+    ``journal``: a file the session's journal is appended to as commands are applied.
+    """
+    session = None
+    if journal is not None:
+        from ..session import Session
+
+        session = Session(journal_path=journal)
+    app = create_app(session_path, step=step, session=session)
     app.run()
     return app.return_code or 0

@@ -1,0 +1,34 @@
+"""`stw compare`: the same problem, several backends, the same motion."""
+
+import json
+import subprocess
+import sys
+
+import pytest
+
+from conftest import SESSIONS
+from stw_tui.compare import compare
+from stw_tui.errors import StwError
+
+
+@pytest.mark.parametrize("session", ["particle_jet", "point_mass_2d", "cat_mouse"])
+def test_linear_solvers_reach_the_same_motion(session):
+    rows = compare(SESSIONS / f"{session}.stw", ["scipy", "scipy:solver=minres", "scipy:solver=cg"])
+    assert [r["backend"] for r in rows] == ["scipy", "scipy solver=minres", "scipy solver=cg"]
+    assert rows[0]["max_motion_difference"] == 0.0
+    for r in rows:
+        assert r["converged"] and r["max_violation"] <= 1e-8
+        assert r["max_motion_difference"] < 1e-6
+        assert r["objective"] == pytest.approx(rows[0]["objective"], rel=1e-8)
+
+
+def test_compare_cli_json_and_errors():
+    out = subprocess.run([sys.executable, "-m", "stw_tui.cli", "compare", str(SESSIONS / "particle_jet.stw"),
+                          "--backends", "scipy", "--json"], capture_output=True, text=True, check=True)
+    data = json.loads(out.stdout)
+    assert data["backends"][0]["objective"] == pytest.approx(12 + 9.81**2, rel=1e-8)
+    bad = subprocess.run([sys.executable, "-m", "stw_tui.cli", "compare", str(SESSIONS / "particle_jet.stw"),
+                          "--backends", "nosuch"], capture_output=True, text=True)
+    assert bad.returncode == 1 and "no backend named 'nosuch'" in bad.stderr
+    with pytest.raises(StwError, match="cannot read session"):
+        compare(SESSIONS / "missing.stw", ["scipy"])
