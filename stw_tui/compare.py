@@ -31,10 +31,17 @@ def compare(path: Path, backends: list[str], repeat: int = 1) -> list[dict]:
     prefix, n = split
     setup = Session()
     setup.run_text(prefix)
+    return compare_scene(setup.scene, n, backends, repeat, Path(path).stem)
+
+
+def compare_scene(scene, n: int, backends: list[str], repeat: int = 1, label: str = "scene") -> list[dict]:
+    """Solve copies of ``scene`` with each backend (up to ``n`` iterations); rows as :func:`compare`."""
+    setup = Session()
+    setup.scene = scene.copy()
     rows, first = [], None
     for spec in backends:
         name, *opts = spec.split(":")
-        m = measure(Path(path).stem, setup, n, name, " ".join(opts), repeat)
+        m = measure(label, setup, n, name, " ".join(opts), repeat)
         first = m.motion if first is None else first
         rows.append({"backend": m.config, "iterations": m.iterations, "converged": m.converged,
                      "median_ms_per_iteration": m.ms_per_iteration, "seconds_to_converge": m.seconds,
