@@ -12,9 +12,13 @@ Compiled terms are cached by (expression, parameter names).
 
 from __future__ import annotations
 
+import hashlib
+import os
+import pickle
 import threading
 from dataclasses import dataclass, field
 from functools import cached_property
+from pathlib import Path
 
 import numpy as np
 import symengine as se
@@ -184,7 +188,42 @@ def _symbol_of(var: LocalVar) -> se.Symbol:
     return se.Symbol(var.label)
 
 
+def _disk_cache_path(expr, variables, parameters) -> Path | None:
+    """Where the compiled functions of a term are kept across runs (None: caching is off).
+
+    ``STW_CACHE_DIR`` overrides the place (``off`` disables it); the key is the expression's
+    text with its argument order and the symengine version, so a changed linkage or term
+    compiles afresh. The files are pickles this program wrote itself, in the user's own cache.
+    """
+    root = os.environ.get("STW_CACHE_DIR") or str(Path.home() / ".cache" / "stw" / "terms")
+    if root == "off":
+        return None
+    key = f"{se.__version__}|{_to_symengine(expr)}|{variables}|{parameters}"  # C++ printing: fast
+    return Path(root) / (hashlib.sha256(key.encode()).hexdigest() + ".pkl")
+
+
 def _build(expr: sp.Expr, variables: tuple[LocalVar, ...], parameters: tuple[str, ...]) -> CompiledTerm:
+    path = _disk_cache_path(expr, variables, parameters)
+    if path is not None and path.is_file():
+        try:
+            pairs, value_fn, full_fn = pickle.loads(path.read_bytes())
+            return CompiledTerm(expr=expr, variables=variables, parameters=parameters,
+                                hessian_pairs=tuple(pairs), _value_fn=value_fn, _full_fn=full_fn)
+        except Exception:  # a stale or damaged cache entry: compile again
+            pass
+    term = _compile(expr, variables, parameters)
+    if path is not None:
+        try:
+            path.parent.mkdir(parents=True, exist_ok=True)
+            tmp = path.with_suffix(f".{os.getpid()}.tmp")
+            tmp.write_bytes(pickle.dumps((term.hessian_pairs, term._value_fn, term._full_fn)))
+            tmp.replace(path)   # atomic: concurrent runs never read half a file
+        except (OSError, pickle.PicklingError, TypeError):
+            pass  # caching is an optimization only
+    return term
+
+
+def _compile(expr: sp.Expr, variables: tuple[LocalVar, ...], parameters: tuple[str, ...]) -> CompiledTerm:
     e = _to_symengine(expr)
     var_syms = [_symbol_of(v) for v in variables]
     args = var_syms + [se.Symbol(TIME.name)] + [se.Symbol(p) for p in parameters]

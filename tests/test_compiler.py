@@ -54,3 +54,27 @@ def test_an_undefined_symbol_is_a_clear_error():
 
     with pytest.raises(StwError, match="'q' is not defined"):
         compile_term(named_symbol("q") * x, {"x"}, set())
+
+
+def test_compiled_terms_are_kept_on_disk_across_runs(tmp_path, monkeypatch):
+    from stw_tui import compiler
+
+    monkeypatch.setenv("STW_CACHE_DIR", str(tmp_path))
+    expr = sp.cos(x) * xd**2 + g * y
+    monkeypatch.setattr(compiler, "_CACHE", {})
+    first = compile_term(expr, {"x", "y"}, {"g"})
+    assert len(list(tmp_path.glob("*.pkl"))) == 1
+    real_compile = compiler._compile
+    monkeypatch.setattr(compiler, "_CACHE", {})            # a new run: nothing in memory
+    monkeypatch.setattr(compiler, "_compile", lambda *a: pytest.fail("compiled again"))
+    second = compile_term(expr, {"x", "y"}, {"g"})
+    values, times = np.array([[0.3, 1.2, 2.0]]), np.array([0.5])
+    for a, b in zip(first.full(values, times, np.array([9.81])), second.full(values, times, np.array([9.81]))):
+        assert np.array_equal(a, b)
+    # A damaged entry is compiled afresh (and rewritten), not trusted.
+    next(tmp_path.glob("*.pkl")).write_bytes(b"garbage")
+    monkeypatch.setattr(compiler, "_CACHE", {})
+    monkeypatch.setattr(compiler, "_compile", real_compile)
+    third = compile_term(expr, {"x", "y"}, {"g"})
+    assert np.array_equal(third.value(values, times, np.array([9.81])), first.value(values, times, np.array([9.81])))
+    assert next(tmp_path.glob("*.pkl")).read_bytes() != b"garbage"
