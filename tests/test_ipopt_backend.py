@@ -1,0 +1,127 @@
+"""The ipopt backend (IPOPT through CasADi) reaches the SciPy backend's optima."""
+
+import sys
+from importlib import metadata
+
+import numpy as np
+import pytest
+
+casadi = pytest.importorskip("casadi")
+
+from conftest import ROOT, SESSIONS  # noqa: E402
+import stw_tui.backend as backend_module  # noqa: E402
+from stw_tui.backend import SolverState, load_backend, run_iterations  # noqa: E402
+from stw_tui.session import Session  # noqa: E402
+from stw_tui.window import WindowProblem  # noqa: E402
+
+try:
+    import stw_ipopt  # noqa: F401  (installed: the distribution ships it)
+except ModuleNotFoundError:  # a checkout installed before stw_ipopt existed
+    sys.path.insert(0, str(ROOT / "backends"))
+from stw_ipopt import IpoptBackend  # noqa: E402
+
+
+@pytest.fixture
+def registered(monkeypatch):
+    """Make `backend ipopt` work whether or not the entry point is installed yet."""
+    real = backend_module.available_backends
+
+    def with_ipopt():
+        found = dict(real())
+        found.setdefault("ipopt", metadata.EntryPoint("ipopt", "stw_ipopt:IpoptBackend",
+                                                      backend_module.ENTRY_POINT_GROUP))
+        return found
+
+    monkeypatch.setattr(backend_module, "available_backends", with_ipopt)
+
+
+def _coefficients(session):
+    return session.scene.coefficient_vector()
+
+
+@pytest.mark.parametrize("name", ["particle_jet", "point_mass_2d"])
+def test_session_reaches_the_scipy_motion(registered, name):
+    text = (SESSIONS / f"{name}.stw").read_text()
+    ref, got = Session(), Session()
+    ref.run_text(text)
+    got.run_text("backend ipopt\n" + text)
+    assert all(r.converged for r in ref.runs) and all(r.converged for r in got.runs)
+    assert np.abs(_coefficients(got) - _coefficients(ref)).max() <= 1e-6
+
+
+PARTICLE = """
+time 0 1 knots=12
+const m = 1, g = 9.81
+dof x
+let f = m*x'' + m*g
+constraint start: x = 0, x' = 0 @ 0
+constraint end:   x = 1, x' = 0 @ 1
+objective fuel: f
+backend ipopt
+iterate 20
+"""
+
+
+def test_particle_optimum_is_the_cubic(registered):
+    s = Session()
+    s.run_text(PARTICLE)
+    assert s.runs[-1].converged
+    t = np.linspace(0, 1, 101)
+    x = s.scene.dofs["x"].curve.evaluate(t)
+    assert np.max(np.abs(x - (3 * t**2 - 2 * t**3))) < 1e-7
+    assert s.runs[-1].reports[-1].objective == pytest.approx(12 + 9.81**2, rel=1e-7)
+
+
+DOUBLE_INTEGRATOR = """
+time 0 1 knots=10 samples=240
+dof x
+constraint start: x = 0, x' = 1 @ 0
+constraint end:   x = 0, x' = -1 @ 1
+constraint bound: x <= 1/9 on [0, 1]
+objective effort: x'' weight=0.5
+{backend}iterate 100
+"""
+
+
+def test_double_integrator_matches_scipy(registered):
+    ref, got = Session(), Session()
+    ref.run_text(DOUBLE_INTEGRATOR.format(backend=""))
+    got.run_text(DOUBLE_INTEGRATOR.format(backend="backend ipopt\n"))
+    assert ref.runs[-1].converged and got.runs[-1].converged, got.runs[-1].status
+    assert np.abs(_coefficients(got) - _coefficients(ref)).max() <= 1e-6
+    x = got.scene.dofs["x"].curve.evaluate(np.linspace(0, 1, 241))
+    assert x.max() <= 1 / 9 + 1e-8
+    report = got.runs[-1].reports[-1]
+    assert report.active > 0 and report.objective == pytest.approx(ref.runs[-1].reports[-1].objective,
+                                                                   rel=1e-6)
+
+
+def test_driver_reports_every_ipopt_iteration_and_multipliers(registered):
+    lines = (SESSIONS / "point_mass_2d.stw").read_text().splitlines()
+    cut = next(i for i, line in enumerate(lines) if line.startswith("iterate"))
+    session = Session()
+    session.run_text("\n".join(lines[:cut]))
+    problem = WindowProblem(session.scene)
+    start = SolverState.start(problem)
+    result = run_iterations(load_backend("ipopt")(), problem, start, 500, session.scene.settings)
+    assert result.converged and len(result.reports) >= 2
+    assert [r.iteration for r in result.reports] == list(range(1, len(result.reports) + 1))
+    assert "ipopt" in result.reports[0].ms and all(not r.converged for r in result.reports[:-1])
+    # Intermediate iterates move: the first report's curve is not the final one.
+    assert np.abs(result.reports[0].coefficients - result.reports[-1].coefficients).max() > 1e-6
+    # Multipliers in stw's sign convention: binding inequalities have λ <= 0, none positive.
+    assert result.state.lam_ge.max(initial=0.0) <= 1e-8 and result.state.lam_ge.min(initial=0.0) < 0
+    ev = problem.evaluate(result.state.s)
+    r = ev.gradient + ev.J_eq.T @ result.state.lam_eq + ev.J_ge.T @ result.state.lam_ge
+    assert np.abs(r).max() <= 1e-5 * max(1.0, np.abs(ev.gradient).max())
+
+
+def test_options_and_limited_memory(registered):
+    with pytest.raises(Exception):
+        IpoptBackend(hessian="newton")
+    session = Session()
+    session.run_text(PARTICLE.replace("backend ipopt", "backend ipopt hessian=limited_memory max_iter=200")
+                     .replace("iterate 20", "iterate 300"))
+    assert session.runs[-1].converged, session.runs[-1].status
+    t = np.linspace(0, 1, 11)
+    assert np.max(np.abs(session.scene.dofs["x"].curve.evaluate(t) - (3 * t**2 - 2 * t**3))) < 1e-4
