@@ -1,0 +1,67 @@
+"""Third-party backends: discovered through entry points without touching stw."""
+
+import os
+import subprocess
+import sys
+import textwrap
+
+PLUGIN = textwrap.dedent('''
+    """A tiny out-of-tree backend: steepest descent on the objective, no constraints."""
+    import numpy as np
+    from stw_tui.backend import Backend, BackendOption, SolverState, StepReport
+
+    class Descent(Backend):
+        """Gradient descent (a third party's toy)."""
+        name = "descent"
+        options = (BackendOption("rate", float, 0.1, "step size"),)
+
+        def init(self, problem, state, settings):
+            return state
+
+        def step(self, problem, state, iteration):
+            ev = problem.evaluate(state.s)
+            s = state.s - self.config["rate"] * ev.gradient
+            new = SolverState(s, state.lam_eq, state.lam_ge, state.working_set)
+            return new, StepReport(iteration, ev.objective, ev.max_violation(), 0.0, 1.0, 0, 0)
+
+        def state(self, inner):
+            return inner
+''')
+
+BROKEN = "raise ImportError('this plugin needs a library that is not installed')\n"
+
+
+def _install(tmp_path):
+    """A real distribution on the path: a module plus its .dist-info with entry points."""
+    (tmp_path / "stw_descent.py").write_text(PLUGIN)
+    (tmp_path / "stw_broken.py").write_text(BROKEN)
+    info = tmp_path / "stw_descent-0.3.dist-info"
+    info.mkdir()
+    (info / "METADATA").write_text("Metadata-Version: 2.1\nName: stw-descent\nVersion: 0.3\n")
+    (info / "entry_points.txt").write_text(
+        "[stw_tui.backends]\ndescent = stw_descent:Descent\nbroken = stw_broken:Nothing\n")
+    env = dict(os.environ, PYTHONPATH=str(tmp_path) + os.pathsep + os.environ.get("PYTHONPATH", ""))
+    return env
+
+
+def test_an_installed_third_party_backend_is_listed_and_used(tmp_path):
+    env = _install(tmp_path)
+    listing = subprocess.run([sys.executable, "-m", "stw_tui.cli", "backends"], env=env,
+                             capture_output=True, text=True, check=True).stdout
+    assert "descent" in listing and "0.3" in listing and "rate=0.1" in listing
+    assert "broken" in listing and "unavailable" in listing and "not installed" in listing  # reported, skipped
+    code = ("from stw_tui.session import Session\n"
+            "s = Session()\n"
+            "s.run_text('dof x\\nobjective o: x - 1\\nbackend descent rate=4\\niterate 200')\n"
+            "print(s.scene.dofs['x'].curve.evaluate([0.5])[0])\n")
+    out = subprocess.run([sys.executable, "-c", code], env=env, capture_output=True, text=True, check=True)
+    assert abs(float(out.stdout) - 1.0) < 1e-3     # descent on ∫(x-1)² approaches x = 1 (from 0)
+
+
+def test_listing_backends_imports_none_of_them(tmp_path):
+    env = _install(tmp_path)
+    code = ("import sys\nfrom stw_tui.backend import available_backends\n"
+            "names = sorted(available_backends())\n"
+            "print(names, [m for m in ('stw_descent', 'stw_broken', 'stw_torch', 'torch') if m in sys.modules])\n")
+    out = subprocess.run([sys.executable, "-c", code], env=env, capture_output=True, text=True, check=True)
+    assert "'descent'" in out.stdout and out.stdout.strip().endswith("[]")
