@@ -231,3 +231,70 @@ def test_figure_scrubs_and_plays():
         assert not figure.playing
 
     run(scenario, app)
+
+
+def test_curves_are_redrawn_from_each_iteration_while_a_solve_runs():
+    import numpy as np
+
+    session = jet_without_iterate()
+    for line in ("set tol_violation 0", "set tol_kkt 0", "set tol_step 0"):   # runs all 30 iterations
+        session.execute(line)
+    before = session.scene.dofs["x"].curve
+    app = create_app(session=session)
+    calls = []
+    show = app.show_iteration
+
+    def spy(coefficients):
+        calls.append((coefficients, app.runner.busy))
+        show(coefficients)
+        calls[-1] += (app.query_one("#curves-plot").scene,)
+
+    app.show_iteration = spy
+
+    async def scenario(pilot):
+        await support.submit(pilot, "iterate 30")
+        await support.settle(pilot)
+        assert calls, "no live redraw while solving"
+        reported = [r.coefficients for r in app.session.runs[-1].reports]
+        coefficients, busy, plotted = calls[0]
+        assert busy                                      # before the command finished
+        assert any(c is coefficients for c in reported)
+        assert plotted is not app.session.scene          # a copy, with the report's coefficients
+        assert np.array_equal(plotted.dofs["x"].curve.coef, coefficients)
+        assert session.scene is not plotted and before is not plotted.dofs["x"].curve
+        # After the solve the plot shows the session's scene again.
+        assert app.query_one("#curves-plot").scene is app.session.scene
+
+    run(scenario, app)
+
+
+def test_compare_key_in_the_opt_panel_shows_a_row_per_installed_backend():
+    from stw_tui.app.dialogs import CompareScreen
+    from stw_tui.backend import available_backends
+
+    app = create_app(session=jet_without_iterate(), show_timing=False)
+
+    async def scenario(pilot):
+        journal = list(app.session.journal.replayable())
+        for _ in range(6):
+            await pilot.press("f2")                  # DOF, Eqns, Const, Win, Time, Opt
+        assert app.focused is app.query_one("#opt-panel")
+        await pilot.press("c")
+        await support.settle(pilot, timeout=120)
+        for _ in range(100):
+            if isinstance(app.screen, CompareScreen):
+                break
+            await pilot.pause(0.02)
+        screen = app.screen
+        assert isinstance(screen, CompareScreen), support.log_text(app)
+        table = screen.query_one("#compare-table")
+        names = sorted(available_backends())
+        assert table.row_count == len(names)
+        assert [r["backend"] for r in screen.rows] == names
+        assert all(r["converged"] for r in screen.rows)
+        assert [table.get_row_at(i)[2] for i in range(table.row_count)] == ["yes"] * len(names)
+        assert app.session.journal.replayable() == journal   # not a journalled command
+        await pilot.press("escape")
+        assert not isinstance(app.screen, CompareScreen)
+
+    run(scenario, app)

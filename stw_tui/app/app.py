@@ -19,7 +19,9 @@ from textual.widgets import Footer, TabbedContent, TabPane
 from textual.worker import Worker, WorkerState
 
 from .console import Console
-from .messages import CommandFinished, CommandRequested, CommandStarted, IterationReported, ItemChosen
+from .dialogs import CompareScreen
+from .messages import (CommandFinished, CommandRequested, CommandStarted, IterationReported, ItemChosen,
+                       TaskFinished)
 from .panels import ConstantsPanel, DofPanel, EquationsPanel, OptimizationPanel, TimePanel, WindowsPanel
 from .plots import ConvergencePlot, DofPlot, ExpressionPlot, FigurePlot, ScenePlot
 from .runner import Job, Runner, Script
@@ -81,6 +83,7 @@ class StwApp(App[int]):
         self._views_shown = 0.0
         self._views_timer = None
         self._stale: set[str] = set()     # ids of views in hidden tabs that missed a refresh
+        self._live: "Scene | None" = None  # a copy of the scene with a running solve's coefficients
 
     def compose(self) -> ComposeResult:
         with Horizontal(id="main"):
@@ -198,6 +201,30 @@ class StwApp(App[int]):
     def on_iteration_reported(self, event: IterationReported) -> None:
         self.status_line.show(report=event.report)
         self.query_one(ConvergencePlot).set_reports(self.runner.reports)
+        if event.report.coefficients is not None and self.session is not None:
+            self.show_iteration(event.report.coefficients)
+
+    LIVE_PLOTS = (DofPlot, ExpressionPlot, FigurePlot)
+
+    def show_iteration(self, coefficients) -> None:
+        """Redraw the curves, expression values and figure from the running solve's coefficients.
+
+        They are drawn from a copy of the scene: the session's scene belongs to the worker.
+        """
+        try:
+            live = self.session.scene.copy()
+            live.with_coefficients(coefficients)
+        except Exception:  # a redraw while solving is best effort
+            return
+        self._live = live
+        tabs = self.query_one("#plots", TabbedContent)
+        for pane in tabs.query(TabPane):
+            for widget in pane.query(".scene-view"):
+                if isinstance(widget, self.LIVE_PLOTS):
+                    if pane.id == tabs.active:
+                        widget.set_scene(live)
+                    else:
+                        self._stale.add(widget.id)
 
     def on_command_finished(self, event: CommandFinished) -> None:
         job, outcome, error = event.job, event.outcome, event.error
@@ -211,8 +238,18 @@ class StwApp(App[int]):
             if outcome.run is not None and outcome.run.reports:
                 self.status_line.show(report=outcome.run.reports[-1])
                 self.query_one(ConvergencePlot).set_reports(outcome.run.reports)
+        self._live = None
         self.repl.set_prompt(self.session.in_block)
         self._refresh_views(event.info)
+        self.runner.finished()
+        self._feed_script()
+        self._show_state()
+
+    def on_task_finished(self, event: TaskFinished) -> None:
+        if event.error is not None:
+            self.repl.write_error(event.error)
+        elif event.job.origin == "compare":
+            self._show_compare(event.result)
         self.runner.finished()
         self._feed_script()
         self._show_state()
@@ -261,7 +298,8 @@ class StwApp(App[int]):
         for widget in event.pane.query(".scene-view"):
             if widget.id in self._stale and self.session is not None:
                 self._stale.discard(widget.id)
-                widget.set_scene(self.session.scene, self._info)
+                live = self._live is not None and isinstance(widget, self.LIVE_PLOTS)
+                widget.set_scene(self._live if live else self.session.scene, self._info)
 
     def on_item_chosen(self, event: ItemChosen) -> None:
         if event.kind == "dof":
@@ -301,6 +339,29 @@ class StwApp(App[int]):
 
     def action_iterate(self) -> None:
         self.submit(f"iterate {self.query_one(OptimizationPanel).iterations}", origin="key")
+
+    def action_compare(self) -> None:
+        """Solve copies of the scene with each installed backend (`iterate N` each, N from the Opt
+        panel) in the worker, then show the table. Read-only: nothing is journalled."""
+        n = self.query_one(OptimizationPanel).iterations
+        backends = self._backend_names()
+
+        def task(session: "Session") -> tuple[int, list[dict]]:
+            from ..compare import compare_scene
+
+            return n, compare_scene(session.scene, n, backends, label="session")
+
+        waiting = self.runner.submit(Job("", origin="compare", task=task))
+        note = " (after the running command)" if waiting else ""
+        self.repl.write_note(f"comparing {', '.join(backends)}: up to {n} iteration(s) each{note}…")
+        self._show_state()
+
+    def _show_compare(self, result: tuple[int, list[dict]]) -> None:
+        n, rows = result
+        self.repl.write_note(f"compared {len(rows)} backend(s): "
+                             + ", ".join(f"{r['backend']} {'converged' if r['converged'] else 'not converged'}"
+                                         f" in {r['iterations']}" for r in rows))
+        self.push_screen(CompareScreen(rows, n, show_timing=self.show_timing))
 
     def action_step(self) -> None:
         if self.script is not None and not self.script.done:

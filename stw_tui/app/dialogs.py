@@ -1,4 +1,5 @@
-"""A one-line edit dialog: panels ask for a value, then turn it into a command line."""
+"""Dialogs: a one-line edit (panels ask for a value, then turn it into a command line) and the
+backend comparison table."""
 
 from __future__ import annotations
 
@@ -6,7 +7,7 @@ from textual.app import ComposeResult
 from textual.binding import Binding
 from textual.containers import Vertical
 from textual.screen import ModalScreen
-from textual.widgets import Input, Label
+from textual.widgets import DataTable, Input, Label
 
 
 class EditDialog(ModalScreen[str | None]):
@@ -37,4 +38,46 @@ class EditDialog(ModalScreen[str | None]):
         self.dismiss(event.value)
 
     def action_cancel(self) -> None:
+        self.dismiss(None)
+
+
+COMPARE_COLUMNS = ("backend", "its", "conv", "ms/it", "s total", "objective", "max viol", "Δ motion")
+
+
+class CompareScreen(ModalScreen[None]):
+    """The rows of :func:`stw_tui.compare.compare_scene` in a table (as `stw compare` prints them).
+
+    Args:
+        rows: one dict per backend (keys as compare_scene returns them).
+        n: the iterations each backend was given.
+        show_timing: show ms per iteration and seconds (False for deterministic snapshots).
+    """
+
+    BINDINGS = [Binding("escape", "close", "Close"), Binding("c", "close", "Close", show=False)]
+
+    def __init__(self, rows: list[dict], n: int, show_timing: bool = True):
+        super().__init__()
+        self.rows, self.n, self.show_timing = rows, n, show_timing
+
+    def compose(self) -> ComposeResult:
+        with Vertical(id="compare"):
+            yield Label(f"Backends on this scene, up to {self.n} iteration(s) each from the same start",
+                        id="compare-title")
+            yield DataTable(id="compare-table", cursor_type="row", zebra_stripes=True)
+            yield Label("Esc closes · Δ motion: largest DOF difference from the first backend",
+                        id="compare-hint")
+
+    def on_mount(self) -> None:
+        table = self.query_one(DataTable)
+        table.add_columns(*COMPARE_COLUMNS)
+        for r in self.rows:
+            timing = (f"{r['median_ms_per_iteration']:.2f}", f"{r['seconds_to_converge']:.3f}")
+            if not self.show_timing:
+                timing = ("-", "-")
+            table.add_row(str(r["backend"]), str(r["iterations"]), "yes" if r["converged"] else "no",
+                          *timing, f"{r['objective']:.6g}", f"{r['max_violation']:.2e}",
+                          f"{r['max_motion_difference']:.2e}", key=str(r["backend"]))
+        table.focus()
+
+    def action_close(self) -> None:
         self.dismiss(None)

@@ -50,6 +50,15 @@ class CommandFinished(Message):
 
 
 @dataclass
+class TaskFinished(Message):
+    """The worker finished a read-only task (a Job with ``task``): its result or its error."""
+
+    job: "Job"
+    result: Any
+    error: BaseException | None
+
+
+@dataclass
 class ItemChosen(Message):
     """A panel chose the DOF or equation the plots follow."""
 

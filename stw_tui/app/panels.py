@@ -191,11 +191,13 @@ class TimePanel(SettingsPanel):
 
 
 class OptimizationPanel(SettingsPanel):
-    """Backend and its options, iterations per run, merit weight and tolerances."""
+    """Backend and its options, iterations per run, merit weight and tolerances; c compares the
+    installed backends on the scene (iterate N each) in a table."""
 
     BINDINGS = [
         Binding("i", "iterate", "Iterate"),
         Binding("s", "shake", "Shake window"),
+        Binding("c", "compare", "Compare backends"),
     ]
 
     def __init__(self, **kwargs):
@@ -223,6 +225,9 @@ class OptimizationPanel(SettingsPanel):
 
     def action_iterate(self) -> None:
         self.emit(f"iterate {self.iterations}")
+
+    def action_compare(self) -> None:
+        self.app.action_compare()
 
     def action_shake(self) -> None:
         self.ask("Shake the window's DOF: amplitude", "0.05", lambda v: f"shake amplitude={v}")

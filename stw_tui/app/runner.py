@@ -12,10 +12,10 @@ import threading
 from collections import deque
 from dataclasses import dataclass
 from pathlib import Path
-from typing import TYPE_CHECKING
+from typing import TYPE_CHECKING, Any, Callable
 
 from ..errors import StwError
-from .messages import CommandFinished, CommandStarted, IterationReported
+from .messages import CommandFinished, CommandStarted, IterationReported, TaskFinished
 from .values import SceneInfo, scene_info
 
 if TYPE_CHECKING:
@@ -33,6 +33,9 @@ class Job:
     number: int | None = None     # its line in the opened session file
     origin: str = "console"       # console | panel | key | file | startup
     continuation: bool = False    # a row inside an open `linkage` block (set by the worker)
+    # A read-only task instead of a command line (e.g. comparing backends): called with the
+    # session in the worker, not journalled; its result comes back in a TaskFinished message.
+    task: "Callable[[Session], Any] | None" = None
 
     @property
     def is_solve(self) -> bool:
@@ -134,6 +137,9 @@ class Runner:
             from ..session import Session
 
             self.session = Session()
+        if job.task is not None:
+            self._run_task(job)
+            return
         job.continuation = self.session.in_block   # read here: the UI thread would race the worker
         self.app.post_message(CommandStarted(job))
 
@@ -154,3 +160,11 @@ class Runner:
         except Exception:  # measuring is best effort
             info = SceneInfo()
         self.app.post_message(CommandFinished(job, outcome, error, info))
+
+    def _run_task(self, job: Job) -> None:
+        result, error = None, None
+        try:
+            result = job.task(self.session)
+        except Exception as exc:  # shown in the console, like a command's error
+            error = exc
+        self.app.post_message(TaskFinished(job, result, error))
