@@ -100,7 +100,7 @@ def lower(term: CompiledTerm) -> LoweredTerm:
             rename[symbol] = p_syms[params[name]]
         else:  # compile_term guarantees this never happens
             raise ValueError(f"symbol {symbol} of term {term.expr} is neither variable nor constant")
-    expr = _fold_numbers(sp.sympify(term.expr).xreplace(rename))
+    expr = _fold_numbers(term.expr.xreplace(rename))   # term.expr is always a sympy object
     fn = sp.lambdify([*v_syms, t_sym, *p_syms], expr, modules=[_OVERRIDES, "torch"], cse=True)
     lowered = LoweredTerm(term, fn)
     _CACHE[id(term)] = lowered
