@@ -154,8 +154,12 @@ class _Fn(casadi.Callback):
     def get_sparsity_out(self, i):
         return self._sp_out[i]
 
-    def eval(self, args):
+    def _numeric(self, args):
         return self._fn(*args)
+
+    # casadi.Callback's hook for numeric evaluation has this name; it runs our callbacks on
+    # numbers and never evaluates text.
+    eval = _numeric
 
 
 @dataclass
