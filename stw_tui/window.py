@@ -83,6 +83,7 @@ class TermGroup:
     slot_offset: int = 0
     row_offset: int = 0
     condition: Condition | None = None
+    basis: list | None = None   # basis rows computed while choosing instances, until assembly
 
     @property
     def n(self) -> int:
@@ -245,8 +246,9 @@ class WindowProblem:
 
     def _add_group(self, label, source, kind, expr, times, weight, when, *, term=None, weights=None):
         term = term or self._compile(expr)
+        basis = None
         if kind != OBJ:
-            times = self._touching_free(term, times)
+            times, basis = self._touching_free(term, times)
         if times.size == 0 or not term.dofs & self.free_dofs:
             return
         weights = weights if weights is not None else np.full(times.size, float(weight))
@@ -256,20 +258,23 @@ class WindowProblem:
                 return
             condition = Condition(when)
         self.groups.append(TermGroup(label, source, kind, term, times, weights, self._params(term),
-                                     condition=condition))
+                                     condition=condition, basis=basis))
 
-    def _touching_free(self, term: CompiledTerm, times: np.ndarray) -> np.ndarray:
-        """Drop instances that no free control point can influence (their Jacobian rows are zero)."""
+    def _touching_free(self, term: CompiledTerm, times: np.ndarray):
+        """Drop instances that no free control point can influence (their Jacobian rows are zero).
+
+        Returns the kept times and their basis rows (reused when P is assembled)."""
         if times.size == 0:
-            return times
+            return times, []
         free_mask = np.zeros(self.n_total, bool)
         free_mask[self.free] = True
+        blocks = self._basis_rows(term, times)
         keep = np.zeros(times.size, bool)
-        for block in self._basis_rows(term, times):
+        for block in blocks:
             coo = block.tocoo()
             hit = free_mask[coo.col] & (coo.data != 0)
             keep[coo.row[hit]] = True
-        return times[keep]
+        return times[keep], [block[keep] for block in blocks]
 
     def _assemble_patterns(self) -> None:
         """Stack basis rows of every group into P and precompute the sparsity of G and D."""
@@ -280,7 +285,8 @@ class WindowProblem:
         for group in self.groups:
             n, k = group.n, group.term.k
             group.slot_offset, group.row_offset = slot, counts[group.kind]
-            rows.extend(self._basis_rows(group.term, group.times))
+            rows.extend(group.basis if group.basis is not None else self._basis_rows(group.term, group.times))
+            group.basis = None   # only needed here
             inst = np.arange(n)
             r, c = g_idx[group.kind]
             for a in range(k):

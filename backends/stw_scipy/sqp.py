@@ -210,7 +210,7 @@ class ScipyBackend(Backend):
             return mv.objective + rho * (eq + ge)
 
         phi0 = merit(ev)
-        viol1 = merit(ev) - ev.objective
+        viol1 = phi0 - ev.objective
         slope = float(ev.gradient @ d) - viol1
         if slope >= 0:  # not a descent direction for this ρ: ask only for simple decrease
             slope = 0.0
