@@ -12,8 +12,7 @@ from dataclasses import dataclass
 
 import sympy as sp
 
-from ..errors import SourceError
-from .expressions import FUNCTIONS, ExpressionParser, NameKind, Scope
+from .expressions import FUNCTIONS, DictScope, ExpressionParser, NameKind, Scope
 from .tokens import END, NAME, NUMBER, Token, strip_comment, tokenize
 
 Interval = tuple[sp.Expr, sp.Expr]
@@ -187,18 +186,9 @@ COMMAND_NAMES = ("time", "const", "dof", "let", "constraint", "objective", "key"
 RESERVED = set(COMMAND_NAMES) | set(FUNCTIONS) | {"t", "pi", "all", "on", "when", "and", "or", "not"}
 
 
-class _ConstantsOnly:
-    """Scope for expressions that must be numbers: constants only."""
-
-    def __init__(self, scope: Scope):
-        self.scope = scope
-
-    def kind_of(self, name: str):
-        kind = self.scope.kind_of(name)
-        return kind if kind is NameKind.CONST else None
-
-    def names(self):
-        return [n for n in getattr(self.scope, "names", lambda: [])() if self.kind_of(n)]
+MAX_COUNT = 1_000_000      # knots, samples, passes, iterations: larger is surely a typo
+MAX_SEED = 2**63 - 1
+_NUMERIC_RULE = "a time, value or weight may use only numbers and constants"
 
 
 class CommandParser(ExpressionParser):
@@ -207,7 +197,6 @@ class CommandParser(ExpressionParser):
     def __init__(self, text: str, scope: Scope, line: int | None):
         super().__init__(tokenize(text, line=line), scope, line=line, source=text)
         self.text = strip_comment(text).strip()
-        self.constants = _ConstantsOnly(scope)
 
     # --- small pieces ------------------------------------------------------------------------
     def name(self, what: str = "a name") -> Token:
@@ -227,26 +216,19 @@ class CommandParser(ExpressionParser):
             raise self.error(f"'{token.text}' is not a DOF", token, expected="a DOF name")
         return token.text
 
-    def integer(self, what: str) -> int:
+    def integer(self, what: str, limit: int = MAX_COUNT) -> int:
         token = self.token
         if token.kind != NUMBER or not token.text.isdigit():
             raise self.unexpected(what)
+        if len(token.text) > len(str(limit)) or int(token.text) > limit:
+            raise self.error("number too large", token, expected=f"{what} up to {limit}")
         self.advance()
         return int(token.text)
 
     def number_expr(self) -> sp.Expr:
         """An expression of numbers and constants (a time, a value, a weight)."""
-        saved, self.scope = self.scope, self.constants
-        saved_time, self.time_allowed = self.time_allowed, False
-        try:
+        with self.restricted((NameKind.CONST,), time=False, rule=_NUMERIC_RULE):
             return self.expression()
-        finally:
-            self.scope, self.time_allowed = saved, saved_time
-
-    def keyword_value(self, key: str) -> Token:
-        """After `key`, expect `=` (the key token was consumed)."""
-        self.expect_op("=", f"'=' after {key}")
-        return self.token
 
     def interval(self) -> Interval:
         self.expect_op("[", "'['")
@@ -261,15 +243,16 @@ class CommandParser(ExpressionParser):
             raise self.unexpected("end of line")
 
     def options(self, allowed: dict[str, str]) -> dict[str, object]:
-        """`key=value` options in any order; ``allowed`` maps key to "int" or "expr"."""
+        """`key=value` options in any order; ``allowed`` maps key to "int", "seed" or "expr"."""
         found: dict[str, object] = {}
         while self.token.kind == NAME and self.token.text in allowed:
             key = self.advance()
             if key.text in found:
                 raise self.error(f"'{key.text}' given twice", key)
-            self.keyword_value(key.text)
-            found[key.text] = self.integer(f"a whole number for {key.text}") if allowed[key.text] == "int" \
-                else self.number_expr()
+            self.expect_op("=", f"'=' after {key.text}")
+            kind = allowed[key.text]
+            found[key.text] = self.number_expr() if kind == "expr" else \
+                self.integer(f"a whole number for {key.text}", MAX_SEED if kind == "seed" else MAX_COUNT)
         return found
 
     # --- commands ----------------------------------------------------------------------------
@@ -279,7 +262,7 @@ class CommandParser(ExpressionParser):
         word = self.token
         if word.kind != NAME or word.text not in _PARSERS:
             close = difflib.get_close_matches(word.text, COMMAND_NAMES, n=2)
-            hint = f" (did you mean {' or '.join(close)}?)" if close else ""
+            hint = f" (did you mean {' or '.join(repr(c) for c in close)}?)" if close else ""
             raise self.error(f"unknown command '{word.text}'{hint}", word,
                              expected="a command; `help` lists them")
         self.advance()
@@ -294,39 +277,43 @@ class CommandParser(ExpressionParser):
         return TimeCmd(start, end, opts.get("knots"), opts.get("samples"), self.text)
 
     def p_const(self):
-        items = []
-        while True:
-            token = self.name("a constant name")
-            if token.text in RESERVED or "." in token.text:
-                raise self.error(f"'{token.text}' cannot be used as a name", token)
-            if self.scope.kind_of(token.text) not in (None, NameKind.CONST):
-                raise self.error(f"'{token.text}' is already a {self.scope.kind_of(token.text).value}", token)
-            self.expect_op("=", f"'=' after {token.text}")
-            items.append((token.text, self.number_expr()))
-            if not self.token.is_op(","):
-                break
-            self.advance()
-        return ConstCmd(tuple(items), self.text)
+        items: dict[str, sp.Expr] = {}
+        outer = self.scope
+        try:
+            while True:
+                token = self.name("a constant name")
+                if token.text in RESERVED or "." in token.text:
+                    raise self.error(f"'{token.text}' cannot be used as a name", token)
+                kind = outer.kind_of(token.text)
+                if kind not in (None, NameKind.CONST):
+                    raise self.error(f"'{token.text}' is already a {kind.value}", token)
+                if token.text in items:
+                    raise self.error(f"'{token.text}' given twice", token)
+                self.expect_op("=", f"'=' after {token.text}")
+                items[token.text] = self.number_expr()
+                # The interpreter applies the items in order, so later ones may use earlier ones.
+                self.scope = DictScope(dict.fromkeys(items, NameKind.CONST), parent=outer)
+                if not self.token.is_op(","):
+                    break
+                self.advance()
+        finally:
+            self.scope = outer
+        return ConstCmd(tuple(items.items()), self.text)
 
     def p_dof(self):
         names = [self.new_name("a DOF name")]
         while self.token.is_op(","):
             self.advance()
+            token = self.token
             names.append(self.new_name("a DOF name"))
+            if names[-1] in names[:-1]:
+                raise self.error(f"'{names[-1]}' given twice", token)
         init = None
         if self.token.is_op("="):
             self.advance()
-            saved, self.scope = self.scope, self.constants
-            try:
+            with self.restricted((NameKind.CONST,), time=True,
+                                 rule="an initial curve may use only t and constants"):
                 init = self.expression()
-            except SourceError as exc:
-                if "unknown name" in exc.message:
-                    raise SourceError(exc.message + "; an initial curve may use only t and constants",
-                                      line=exc.line, column=exc.column, source=exc.source,
-                                      expected="t, a constant or a number") from None
-                raise
-            finally:
-                self.scope = saved
         opts = self.options({"knots": "int", "lo": "expr", "hi": "expr"})
         return DofCmd(tuple(names), init, opts.get("knots"), opts.get("lo"), opts.get("hi"), self.text)
 
@@ -396,6 +383,8 @@ class CommandParser(ExpressionParser):
             assignments.append((dof, self.number_expr()))
             if self.token.is_op(","):
                 self.advance()
+                if self.token.kind != NAME:
+                    raise self.unexpected("DOF=VALUE after ','")
         if not assignments:
             raise self.unexpected("DOF=VALUE")
         return KeyCmd(time, tuple(assignments), self.text)
@@ -437,7 +426,7 @@ class CommandParser(ExpressionParser):
             names.append(self.dof_name())
             if self.token.is_op(","):
                 self.advance()
-        opts = self.options({"amplitude": "expr", "seed": "int"})
+        opts = self.options({"amplitude": "expr", "seed": "seed"})
         if "amplitude" not in opts:
             raise self.unexpected("amplitude=A")
         return ShakeCmd(tuple(names), opts["amplitude"], opts.get("seed"), self.text)
@@ -488,13 +477,7 @@ class CommandParser(ExpressionParser):
         expr = self.expression()
         end = self.token.column
         expr_text = self.source[start - 1:end - 1].strip()
-        at = interval = None
-        if self.token.is_op("@"):
-            self.advance()
-            at = self.number_expr()
-        elif self.token.is_word("on"):
-            self.advance()
-            interval = self.interval()
+        at, interval = self._scope_clause()
         return PrintCmd(expr, at, expr_text, self.text, interval)
 
     def p_help(self):

@@ -15,12 +15,17 @@ Grammar (lowest precedence first)::
     unary      := ("-" | "+") unary | power
     power      := atom (("^" | "**") unary)?          # right-associative, binds tighter than unary minus
     atom       := NUMBER | NAME primes? | FUNCTION "(" sum ("," sum)* ")" | "(" sum ")"
+
+A stranger's file must not hang or crash the parser either: nesting depth, literal sizes and exact
+powers are bounded, and undefined values (1/0, log(0)) are errors at the operation that made them.
 """
 
 from __future__ import annotations
 
 import difflib
 import enum
+import math
+from contextlib import contextmanager
 from typing import Protocol
 
 import sympy as sp
@@ -31,26 +36,36 @@ from .tokens import END, NAME, NUMBER, Token, tokenize
 
 
 class NameKind(enum.Enum):
-    DOF = "dof"
+    DOF = "DOF"
     CONST = "constant"
     LET = "subexpression"
 
 
 class Scope(Protocol):
+    """What the parser asks of the world: the kind of a name, None if unknown. A scope may also
+    offer ``names() -> list[str]``, used only to suggest close matches."""
+
     def kind_of(self, name: str) -> NameKind | None: ...
 
 
 class DictScope:
-    """A scope from a plain mapping (tests, and callers with a fixed set of names)."""
+    """A scope from a plain mapping (tests, and callers with a fixed set of names), optionally
+    layered over a ``parent`` scope that answers for the names it lacks."""
 
-    def __init__(self, kinds: dict[str, NameKind] | None = None):
+    def __init__(self, kinds: dict[str, NameKind] | None = None, parent: Scope | None = None):
         self.kinds = dict(kinds or {})
+        self.parent = parent
 
     def kind_of(self, name: str) -> NameKind | None:
-        return self.kinds.get(name)
+        """The kind of ``name``, or None if neither this scope nor its parent defines it."""
+        if name in self.kinds:
+            return self.kinds[name]
+        return self.parent.kind_of(name) if self.parent is not None else None
 
     def names(self) -> list[str]:
-        return list(self.kinds)
+        """Every name defined here or in the parent (for suggestions)."""
+        inherited = getattr(self.parent, "names", lambda: [])() if self.parent is not None else []
+        return list(self.kinds) + [n for n in inherited if n not in self.kinds]
 
 
 def _min(*args):
@@ -72,6 +87,10 @@ FUNCTIONS: dict[str, tuple[object, tuple[int, ...] | None]] = {
 }
 CONSTANT_NAMES = {"pi": sp.pi}
 CONDITION_WORDS = ("and", "or", "not")
+MAX_DEPTH = 60        # nesting levels of parentheses, calls, signs and powers
+MAX_DIGITS = 300      # digits of an integer literal
+MAX_BITS = 8192       # size of an exact number (Python refuses to print ints past ~14000 bits)
+_UNDEFINED = (sp.zoo, sp.nan, sp.oo, -sp.oo)
 _COMPARISONS = {">": sp.StrictGreaterThan, ">=": sp.GreaterThan, "<": sp.StrictLessThan,
                 "<=": sp.LessThan, "==": sp.Eq, "!=": sp.Ne}
 
@@ -81,17 +100,20 @@ class ExpressionParser:
 
     The command parser shares the token list and position: an expression ends at the first token
     that cannot continue it (a top-level ',', '@', ']', '=', a keyword…), which is left in place.
+    Which names are allowed can be narrowed for a stretch with :meth:`restricted`.
     """
 
     def __init__(self, tokens: list[Token], scope: Scope, *, line: int | None = None,
-                 source: str | None = None, time_allowed: bool = True, dof_allowed: bool = True):
+                 source: str | None = None):
         self.tokens = tokens
         self.pos = 0
         self.scope = scope
         self.line = line
         self.source = source
-        self.time_allowed = time_allowed
-        self.dof_allowed = dof_allowed
+        self.allowed: frozenset[NameKind] = frozenset(NameKind)
+        self.time_allowed = True
+        self.rule = ""          # why a known name is refused, e.g. "a time may use only constants"
+        self.depth = 0
 
     # --- token helpers -----------------------------------------------------------------------
     @property
@@ -116,8 +138,41 @@ class ExpressionParser:
 
     def expect_op(self, op: str, expected: str | None = None) -> Token:
         if not self.token.is_op(op):
+            if op in (")", "]") and self.token.kind == END:
+                raise self.error(f"missing '{op}'", expected=expected or f"'{op}'")
             raise self.unexpected(expected or f"'{op}'")
         return self.advance()
+
+    @contextmanager
+    def restricted(self, kinds: tuple[NameKind, ...], *, time: bool, rule: str):
+        """Allow only names of ``kinds`` (and ``t`` if ``time``) while parsing inside the block;
+        ``rule`` ends the error message for a refused name."""
+        saved = self.allowed, self.time_allowed, self.rule
+        self.allowed, self.time_allowed, self.rule = frozenset(kinds), time, rule
+        try:
+            yield
+        finally:
+            self.allowed, self.time_allowed, self.rule = saved
+
+    @contextmanager
+    def _nested(self, token: Token):
+        # Deep nesting would exhaust Python's stack (a RecursionError is not a user-facing error).
+        self.depth += 1
+        if self.depth > MAX_DEPTH:
+            raise self.error(f"expression nested too deeply (more than {MAX_DEPTH} levels)", token)
+        try:
+            yield
+        finally:
+            self.depth -= 1
+
+    def _checked(self, value: sp.Expr, token: Token) -> sp.Expr:
+        """``value`` unless it is undefined/infinite or an exact number too large to handle."""
+        if value.has(*_UNDEFINED):
+            raise self.error("the value is undefined or infinite here (division by zero?)", token,
+                             expected="a finite expression")
+        if value.is_Rational and max(abs(value.p), value.q).bit_length() > MAX_BITS:
+            raise self.error("number too large", token, expected=f"numbers below 2^{MAX_BITS}")
+        return value
 
     # --- expressions -------------------------------------------------------------------------
     def expression(self) -> sp.Expr:
@@ -134,41 +189,62 @@ class ExpressionParser:
     def _product(self) -> sp.Expr:
         left = self._unary()
         while self.token.is_op("*", "/"):
-            op = self.advance().text
+            op = self.advance()
             right = self._unary()
-            left = left * right if op == "*" else left / right
+            left = self._checked(left * right if op.text == "*" else left / right, op)
         return left
 
     def _unary(self) -> sp.Expr:
-        if self.token.is_op("-"):
-            self.advance()
-            return -self._unary()
-        if self.token.is_op("+"):
-            self.advance()
-            return self._unary()
+        if self.token.is_op("-", "+"):
+            op = self.advance()
+            with self._nested(op):
+                operand = self._unary()
+            return -operand if op.text == "-" else operand
         return self._power()
 
     def _power(self) -> sp.Expr:
         base = self._atom()
         if self.token.is_op("^", "**"):
-            self.advance()
-            return sp.Pow(base, self._unary())
+            op = self.advance()
+            with self._nested(op):
+                exponent = self._unary()
+            # sympy computes exact powers at once: 9^9^9 would never finish.
+            if base.is_number and not base.is_Float and exponent.is_Rational:
+                bits = max((max(abs(r.p), r.q).bit_length() for r in base.atoms(sp.Rational)), default=1)
+                if abs(exponent) * bits > MAX_BITS:
+                    raise self.error("number too large", op, expected="a smaller exponent")
+            return self._checked(sp.Pow(base, exponent), op)
         return base
 
     def _atom(self) -> sp.Expr:
         token = self.token
         if token.kind == NUMBER:
             self.advance()
-            text = token.text
-            return sp.Integer(int(text)) if text.isdigit() else sp.Float(float(text))
+            return self._number(token)
         if token.is_op("("):
             self.advance()
-            inner = self._sum()
+            with self._nested(token):
+                inner = self._sum()
             self.expect_op(")", "')'")
             return inner
         if token.kind == NAME:
             return self._name()
+        numeric = not self.time_allowed and NameKind.DOF not in self.allowed
+        if token.kind == END:
+            raise self.error("expected a number" if numeric else "expected an expression",
+                             expected="a number, name, function or '('")
         raise self.unexpected("a number, name, function or '('")
+
+    def _number(self, token: Token) -> sp.Expr:
+        text = token.text
+        if text.isdigit():
+            if len(text.lstrip("0")) > MAX_DIGITS:
+                raise self.error("number too long", token, expected=f"at most {MAX_DIGITS} digits")
+            return sp.Integer(int(text))
+        value = float(text)
+        if not math.isfinite(value):
+            raise self.error("number out of range", token, expected="a number below 1e308")
+        return sp.Float(value)
 
     def _name(self) -> sp.Expr:
         token = self.advance()
@@ -180,53 +256,67 @@ class ExpressionParser:
         primes = 0
         while self.token.is_op("'", "''") and self.token.column == token.column + len(name) + primes:
             primes += len(self.advance().text)
-        if name == "t" and self.time_allowed:
+        kind: NameKind | None = None
+        if name == "t":
+            if not self.time_allowed:
+                raise self.error(f"'t' (time) is not allowed here; {self.rule}", token,
+                                 expected=self._allowed_text())
             symbol = TIME
-            kind = "time"
         elif name in CONSTANT_NAMES:
-            symbol, kind = CONSTANT_NAMES[name], "number"
+            symbol = CONSTANT_NAMES[name]
         else:
             kind = self.scope.kind_of(name)
             if kind is None:
                 raise self._unknown(token)
-            if kind is NameKind.DOF and not self.dof_allowed:
-                raise self.error(f"'{name}' is a DOF; only t and constants are allowed here", token)
-            symbol = None
+            if kind not in self.allowed:
+                raise self.error(f"'{name}' is a {kind.value}; {self.rule}", token,
+                                 expected=self._allowed_text())
+            symbol = dof_symbol(name, 0) if kind is NameKind.DOF else named_symbol(name)
         if primes:
             if kind is not NameKind.DOF:
                 raise self.error(f"only DOF can be differentiated with primes ('{name}' is not a DOF)",
-                                 token)
+                                 token, expected="a DOF before ' or ''")
             if primes > 2:
-                raise self.error("at most two primes (acceleration) are allowed", token)
-        if kind is NameKind.DOF:
-            return dof_symbol(name, primes)
-        if symbol is not None:
-            return symbol
-        return named_symbol(name)
+                raise self.error("at most two primes (acceleration) are allowed", token,
+                                 expected="x, x' or x''")
+            symbol = dof_symbol(name, primes)
+        return symbol
+
+    def _allowed_text(self) -> str:
+        words = [k.value for k in NameKind if k in self.allowed] + (["t"] if self.time_allowed else [])
+        return "a number" + "".join(f", {w}" for w in words)
 
     def _unknown(self, token: Token) -> SourceError:
-        candidates = list(getattr(self.scope, "names", lambda: [])()) + list(FUNCTIONS) + ["t", "pi"]
+        names = [n for n in getattr(self.scope, "names", lambda: [])() if self.scope.kind_of(n) in self.allowed]
+        candidates = names + list(FUNCTIONS) + ["pi"] + (["t"] if self.time_allowed else [])
         close = difflib.get_close_matches(token.text, candidates, n=3)
-        hint = f" (did you mean {', '.join(close)}?)" if close else ""
-        return self.error(f"unknown name '{token.text}'{hint}", token,
-                          expected="a DOF, constant, subexpression or function")
+        hint = f" (did you mean {', '.join(repr(c) for c in close)}?)" if close else ""
+        what = "a DOF, constant, subexpression or function" if self.allowed == frozenset(NameKind) \
+            else self._allowed_text() + " or a function"
+        return self.error(f"unknown name '{token.text}'{hint}", token, expected=what)
 
     def _call(self, token: Token) -> sp.Expr:
         name = token.text
         if name not in FUNCTIONS:
             close = difflib.get_close_matches(name, list(FUNCTIONS), n=3)
-            hint = f" (did you mean {', '.join(close)}?)" if close else ""
+            hint = f" (did you mean {', '.join(repr(c) for c in close)}?)" if close else ""
             raise self.error(f"unknown function '{name}'{hint}", token, expected="a known function")
-        self.expect_op("(")
-        args = [self._sum()]
-        while self.token.is_op(","):
-            self.advance()
-            args.append(self._sum())
-        self.expect_op(")", "',' or ')'")
+        with self._nested(token):
+            self.expect_op("(")
+            args = [self._sum()]
+            while self.token.is_op(","):
+                self.advance()
+                args.append(self._sum())
+            self.expect_op(")", "',' or ')'")
         constructor, arities = FUNCTIONS[name]
         if arities is not None and len(args) not in arities:
-            raise self.error(f"{name} takes {arities[0]} argument(s), not {len(args)}", token)
-        return constructor(*args)
+            raise self.error(f"{name} takes {arities[0]} argument(s), not {len(args)}", token,
+                             expected=f"{arities[0]} argument(s)")
+        try:
+            value = constructor(*args)
+        except (TypeError, ValueError) as exc:   # e.g. min() of a non-real number
+            raise self.error(f"{name}: {exc}", token, expected="real arguments") from None
+        return self._checked(value, token)
 
     # --- conditions --------------------------------------------------------------------------
     def condition(self) -> sp.Basic:
@@ -245,14 +335,16 @@ class ExpressionParser:
 
     def _negation(self) -> sp.Basic:
         if self.token.is_word("not"):
-            self.advance()
-            return sp.Not(self._negation())
+            word = self.advance()
+            with self._nested(word):
+                return sp.Not(self._negation())
         if self.token.is_op("("):
             # A parenthesis may open a condition or an arithmetic sum: try the condition first.
             start = self.pos
             self.advance()
             try:
-                inner = self.condition()
+                with self._nested(self.token):
+                    inner = self.condition()
                 if self.token.is_op(")"):
                     self.advance()
                     if not self.token.is_op(*_COMPARISONS):
@@ -266,9 +358,13 @@ class ExpressionParser:
         left = self._sum()
         if not self.token.is_op(*_COMPARISONS):
             raise self.unexpected("a comparison (>, >=, <, <=, ==, !=)")
-        op = self.advance().text
+        op = self.advance()
         right = self._sum()
-        return _COMPARISONS[op](left, right)
+        try:
+            return _COMPARISONS[op.text](left, right)
+        except TypeError:   # sympy refuses to order non-real values such as sqrt(-1)
+            raise self.error(f"cannot compare with '{op.text}': a side is not real", op,
+                             expected="real-valued expressions") from None
 
 
 def parse_expression(text: str, scope: Scope, *, line: int | None = None, column_offset: int = 0,

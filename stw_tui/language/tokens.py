@@ -15,7 +15,7 @@ _TOKEN = re.compile(r"""
   | (?P<number>(?:\d+\.?\d*|\.\d+)(?:[eE][+-]?\d+)?)
   | (?P<name>[A-Za-z_][A-Za-z0-9_]*(?:\.[A-Za-z_][A-Za-z0-9_]*)*)
   | (?P<op>\*\*|==|!=|>=|<=|''|[-+*/^()\[\],:@=<>'])
-""", re.VERBOSE)
+""", re.VERBOSE | re.ASCII)   # ASCII: \d must not match other scripts' digits
 
 
 @dataclass(frozen=True)
