@@ -181,7 +181,8 @@ def synthetic_session(dofs: int = SMALL[0], knots: int = SMALL[1], *, window: bo
                                              for i, q in enumerate(names)) + " @ 1"]
     for i, (a, b) in enumerate(zip(names, names[1:])):
         lo = (0.1, 0.2, 0.3, 0.15)[i % 4]
-        lines.append(f"constraint couple_{a}_{b}: {a} - {b} = 0 on [{lo:g}, {lo + 0.5:g}]")
+        # samples= keeps the paper's one instance a span (exact placement would take 16 here)
+        lines.append(f"constraint couple_{a}_{b}: {a} - {b} = 0 on [{lo:g}, {lo + 0.5:g}] samples={knots}")
     lines.append("objective effort: " + ", ".join(f"{q}'' + k*sin({q})" for q in names))
     lines.append("iterate 30")
     if window:

@@ -58,16 +58,24 @@ def _run(args: argparse.Namespace) -> int:
 
 
 def summary(session, samples: int, seconds: float) -> dict:
-    """The JSON result of `stw run --json`."""
+    """The JSON result of `stw run --json`: the last solve, and the continuous-time check of
+    every constraint over the whole animation (instances, dense, worst_t)."""
+    from .continuous import check_scene
+
     runs = session.runs
     reports = [r for run in runs for r in run.reports]
     last = reports[-1] if reports else None
+    check = check_scene(session.scene)
+    tol = session.scene.settings["dense_tol"]
     return {
         "backend": session.scene.backend,
         "iterations": len(reports),
         "converged": bool(runs and runs[-1].converged),
         "objective": last.objective if last else None,
         "max_violation": last.max_violation if last else None,
+        "dense_violation": check.dense_violation,
+        "dense_ok": not check.failing(tol),
+        "constraints": {name: c.as_dict() for name, c in check.checks.items()},
         "seconds": seconds,
         "dofs": session.sample(samples),
         "prints": [{"expr": p.expr, "t": p.t, "value": p.value} for p in session.prints],

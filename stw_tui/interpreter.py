@@ -6,15 +6,16 @@ with a message naming what is wrong; :class:`~stw_tui.session.Session` discards 
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from typing import TYPE_CHECKING
 
 import numpy as np
 import sympy as sp
 
 from . import language as lang
-from .backend import Status, SolverState, load_backend, run_iterations
+from .backend import RunResult, Status, SolverState, load_backend, run_iterations
 from .compiler import compile_term
+from .continuous import check_scene, expression_values, refinement_times
 from .errors import StwError
 from .scene import DEFAULT_SETTINGS, Constraint, Dof, Objective, Relation, Scene, Window
 from .spline import DofCurve
@@ -145,6 +146,7 @@ def _time(scene: Scene, cmd) -> str:
         old = dof.curve
         dof.curve = DofCurve.fit(t0, t1, knots, lambda t, c=old: c.evaluate(np.clip(t, c.t0, c.t1)))
     scene.t0, scene.t1, scene.knots = t0, t1, knots
+    scene.extra_instances.clear()   # they were placed for the old span and knots
     if cmd.samples is not None:
         scene.samples = cmd.samples
     return f"time [{t0:g}, {t1:g}], {knots} knot spans, {scene.sample_count} samples"
@@ -221,9 +223,13 @@ def _constraint(scene: Scene, cmd) -> str:
     interval = _interval(scene, cmd.interval, "interval") if cmd.interval is not None else None
     if cmd.samples is not None and cmd.samples < 1:
         raise StwError("samples must be at least 1")
+    dense_tol = scene.numeric(cmd.dense_tol, "dense_tol") if cmd.dense_tol is not None else None
+    if dense_tol is not None and dense_tol <= 0:
+        raise StwError(f"dense_tol must be > 0, not {dense_tol:g}")
+    scene.extra_instances.pop(cmd.name, None)   # placed for the old definition
     scene.constraints[cmd.name] = Constraint(cmd.name, tuple(relations), at, interval, cmd.when,
                                              _weight_value(scene, cmd.weight, False), cmd.text,
-                                             cmd.samples)
+                                             cmd.samples, dense_tol)
     return f"constraint {cmd.name}: {len(relations)} relation(s) {scene.constraints[cmd.name].scope_text}"
 
 
@@ -341,6 +347,14 @@ def _set(scene: Scene, cmd) -> str:
             raise StwError("samples must be at least 1")
         scene.samples = value
         return f"samples = {value}"
+    if cmd.option == "adaptive":
+        words = {"on": 1.0, "off": 0.0, "1": 1.0, "0": 0.0, "yes": 1.0, "no": 0.0}
+        if cmd.value.lower() not in words:
+            raise StwError(f"adaptive is on or off, not '{cmd.value}'")
+        scene.settings["adaptive"] = words[cmd.value.lower()]
+        return f"adaptive {'on' if scene.settings['adaptive'] else 'off'}"
+    if cmd.option == "adaptive_rounds" and not cmd.value.isdigit():
+        raise StwError(f"adaptive_rounds must be a whole number, not '{cmd.value}'")
     if cmd.option not in DEFAULT_SETTINGS:
         raise StwError(f"unknown setting '{cmd.option}' (settings: samples, {', '.join(DEFAULT_SETTINGS)})")
     try:
@@ -366,26 +380,38 @@ def _delete(scene: Scene, cmd) -> str:
     for table in (scene.constraints, scene.objectives, scene.lets, scene.dofs, scene.constants, scene.windows):
         if name in table:
             del table[name]
+            scene.extra_instances.pop(name, None)
+            scene.extra_instances.pop(f"{name}.bounds", None)
             if scene.active_window not in scene.windows:
                 scene.active_window = "all"
             return f"deleted {name}"
     raise StwError(f"nothing named '{name}' to delete")
 
 
+def _print_check(scene: Scene, name: str):
+    from .session import PrintResult
+
+    report = check_scene(scene)
+    if name not in report.checks:
+        known = ", ".join(report.checks) or "none"
+        raise StwError(f"'{name}' is neither defined nor a constraint (constraints: {known})")
+    c = report.checks[name]
+    where = f", worst at t={c.worst_t:.6g}" if c.worst_t is not None and c.dense > 0 else ""
+    text = f"{name}: violation {c.instances:.2e} at its instances, {c.dense:.2e} densely{where}"
+    return text, PrintResult(name, c.worst_t, c.as_dict())
+
+
 def _print(scene: Scene, cmd):
     from .session import PrintResult
 
-    expr = scene.expand(cmd.expr)
-    term = compile_term(expr, set(scene.dofs), set(scene.constants))
-    params = scene.constant_values(term.parameters)
+    if cmd.expr is None:
+        return _print_check(scene, cmd.expr_text)
     if cmd.at is not None:
         times = np.array([_time_in_span(scene, scene.numeric(cmd.at, "time"), "time")])
     else:
         a, b = _interval(scene, cmd.interval, "interval") if cmd.interval else (scene.t0, scene.t1)
         times = np.linspace(a, b, 201)
-    values = np.column_stack([scene.dofs[v.dof].curve.evaluate(times, v.order) for v in term.variables]) \
-        if term.variables else np.zeros((len(times), 0))
-    result = term.value(values, times, params)
+    result = expression_values(scene, cmd.expr, times)
     if cmd.at is not None:
         value = float(result[0])
         return f"{cmd.expr_text} @ {times[0]:g} = {value:.10g}", PrintResult(cmd.expr_text, float(times[0]), value)
@@ -401,13 +427,98 @@ def _help(scene: Scene, cmd) -> str:
     return lang.help_text(cmd.topic)
 
 
+def _instances(scene: Scene, cmd) -> str:
+    name = cmd.name
+    bounded = name.endswith(".bounds") and name[:-len(".bounds")] in scene.dofs
+    if name not in scene.constraints and not bounded:
+        raise StwError(f"no constraint named '{name}' (for a DOF's bounds write DOF.bounds)")
+    if cmd.action == "clear":
+        dropped = len(scene.extra_instances.pop(name, ()))
+        return f"{name}: {dropped} added instance(s) dropped"
+    constraint = scene.constraints.get(name)
+    if constraint is not None and constraint.at is not None:
+        raise StwError(f"'{name}' holds at an instant ({constraint.scope_text}); instances are for intervals")
+    a, b = constraint.interval if constraint is not None else (scene.t0, scene.t1)
+    times = [scene.numeric(t, "instance time") for t in cmd.times]
+    outside = [t for t in times if not a - 1e-12 <= t <= b + 1e-12]
+    if outside:
+        raise StwError(f"instance time {outside[0]:g} is outside {name}'s interval [{a:g}, {b:g}]")
+    merged = sorted(set(scene.extra_instances.get(name, ())) | set(times))
+    scene.extra_instances[name] = tuple(merged)
+    return f"{name}: {len(merged)} added instance(s)"
+
+
 def _iterate(session: "Session", scene: Scene, cmd, on_report) -> "Outcome":
+    """Solve, check every constraint densely over the whole animation, and (adaptive) add
+    instances where the check fails and solve again, at most ``rounds`` times. A re-solve that
+    does not converge (too many instances for the curves' freedom, or a stop) is undone: adaptive
+    refinement never leaves a motion worse than the plain solve."""
     from .session import Outcome
 
     if cmd.n < 1:
         raise StwError("iterate needs a positive number of iterations")
-    problem = WindowProblem(scene)
+    settings = scene.settings
+    rounds = cmd.adapt if cmd.adapt is not None else (int(settings["adaptive_rounds"]) if settings["adaptive"] else 0)
     backend = load_backend(scene.backend)(**scene.backend_options)
+    tol = settings["dense_tol"]
+    problem = WindowProblem(scene)
+    result = _solve(session, scene, problem, backend, cmd.n, on_report)
+    runs = [result]
+    journal = [f"iterate {len(result.reports) if result.status is Status.STOPPED else cmd.n} adapt=0"]
+    added: dict[str, int] = {}
+    undone = ""
+    stopped = result.status is Status.STOPPED
+    while result.status is Status.CONVERGED and len(runs) <= rounds:
+        lo, hi = problem.instance_range   # instances the window cannot move would change nothing
+        new = {name: times[(times >= lo) & (times <= hi)] for name, times in refinement_times(scene, tol).items()}
+        new = {name: times for name, times in new.items() if times.size}
+        if not new:
+            break
+        saved = (scene.coefficient_vector().copy(), dict(scene.extra_instances), session.warm)
+        lines = []
+        for name, times in new.items():
+            scene.extra_instances[name] = tuple(sorted(set(scene.extra_instances.get(name, ())) | set(times.tolist())))
+            lines.append(f"instances {name} add " + ", ".join(repr(float(t)) for t in times))
+        trial_problem = WindowProblem(scene)
+        trial = _solve(session, scene, trial_problem, backend, cmd.n, on_report)
+        if trial.status is not Status.CONVERGED:
+            scene.with_coefficients(saved[0])
+            scene.extra_instances, session.warm = saved[1], saved[2]
+            stopped |= trial.status is Status.STOPPED
+            count = sum(t.size for t in new.values())
+            undone = (f"; undid a re-solve with {count} more instance(s) ({', '.join(new)}): "
+                      f"{trial.status.value} after {len(trial.reports)} iteration(s)")
+            break
+        problem, result = trial_problem, trial
+        runs.append(trial)
+        journal += lines + [f"iterate {cmd.n} adapt=0"]
+        for name, times in new.items():
+            added[name] = added.get(name, 0) + times.size
+    result = _merged(runs)
+    report = check_scene(scene)
+    last = result.reports[-1] if result.reports else None
+    text = f"{problem.summary()}\n{len(result.reports)} iteration(s) with {backend.name}: {result.status.value}"
+    if last is not None:
+        text += (f"; objective {last.objective:.6g}, max violation {last.max_violation:.2e}, "
+                 f"KKT {last.kkt_residual:.2e}")
+    text += f"\ndense violation {report.dense_violation:.2e} over the whole animation"
+    if added:
+        text += (f"; added {sum(added.values())} instance(s) where it failed ("
+                 + ", ".join(f"{n} {k}" for n, k in added.items()) + f"), {len(runs) - 1} re-solve(s)")
+    text += undone
+    if report.failing(tol):
+        text += (f"\nbetween the instances it fails dense_tol {tol:.0e}: {report.describe_failures(tol)}"
+                 " — refine the knots there, or `set dense_tol`")
+    if result.status is Status.STALLED:
+        text += "\n— try `shake`, a keyframe, damping, or a smaller window"
+    # A stopped solve is journalled as what it kept, so a replay reaches the same scene.
+    journal_text = "\n".join(journal) if stopped else None
+    return Outcome(message=text, run=result, journal_text=journal_text)
+
+
+def _solve(session: "Session", scene: Scene, problem: WindowProblem, backend, n: int, on_report) -> RunResult:
+    """Run the backend on one window problem from the scene's curves (and the last solve's
+    multipliers when its rows are the same), and put the result in the scene."""
     signature = (scene.active_window, tuple(problem.free), tuple(g.label for g in problem.groups),
                  tuple(g.n for g in problem.groups))
     start = SolverState.start(problem)
@@ -415,19 +526,21 @@ def _iterate(session: "Session", scene: Scene, cmd, on_report) -> "Outcome":
         start = SolverState(s=start.s, lam_eq=session.warm.state.lam_eq, lam_ge=session.warm.state.lam_ge,
                             working_set=session.warm.state.working_set,
                             merit_weight=session.warm.state.merit_weight)
-    result = run_iterations(backend, problem, start, cmd.n, scene.settings, on_report)
+    result = run_iterations(backend, problem, start, n, scene.settings, on_report)
     scene.with_coefficients(problem.scatter(result.state.s))
     session.warm = WarmStart(signature, result.state)
-    last = result.reports[-1] if result.reports else None
-    text = f"{problem.summary()}\n{len(result.reports)} iteration(s) with {backend.name}: {result.status.value}"
-    if last is not None:
-        text += (f"; objective {last.objective:.6g}, max violation {last.max_violation:.2e}, "
-                 f"KKT {last.kkt_residual:.2e}")
-    if result.status is Status.STALLED:
-        text += " — try `shake`, a keyframe, damping, or a smaller window"
-    # A stopped solve is journalled as the iterations it ran, so a replay reaches the same scene.
-    journal_text = f"iterate {len(result.reports)}" if result.status is Status.STOPPED else None
-    return Outcome(message=text, run=result, journal_text=journal_text)
+    return result
+
+
+def _merged(runs: list[RunResult]) -> RunResult:
+    """One result for the rounds of an adaptive `iterate`: their reports numbered on, the last status."""
+    if len(runs) == 1:
+        return runs[0]
+    reports, offset = [], 0
+    for run in runs:
+        reports += [replace(r, iteration=r.iteration + offset) for r in run.reports]
+        offset += len(run.reports)
+    return RunResult(runs[-1].status, runs[-1].state, reports, sum(r.seconds for r in runs))
 
 
 _HANDLERS = {
@@ -436,5 +549,5 @@ _HANDLERS = {
     lang.WindowCmd: _window, lang.UseCmd: _use, lang.WeightCmd: _weight, lang.DampCmd: _damp,
     lang.FilterCmd: _filter, lang.ShakeCmd: _shake, lang.RefineCmd: _refine, lang.BackendCmd: _backend,
     lang.SetCmd: _set, lang.IterateCmd: _iterate, lang.DeleteCmd: _delete, lang.PrintCmd: _print,
-    lang.HelpCmd: _help,
+    lang.HelpCmd: _help, lang.InstancesCmd: _instances,
 }

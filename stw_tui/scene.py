@@ -23,6 +23,9 @@ DEFAULT_SETTINGS: dict[str, float] = {
     "quadrature": 4,         # Gauss-Legendre points per knot span for objective integrals
     "merit": 1.0,            # least weight of constraint violation in the line-search merit
     "frame": 0.0,            # frame time shown by the player
+    "dense_tol": 1e-6,       # max violation between instances (the continuous-time check)
+    "adaptive": 1.0,         # 1: add instances where the continuous-time check fails, and re-solve
+    "adaptive_rounds": 4,    # at most this many re-solves per `iterate`
 }
 
 
@@ -56,6 +59,7 @@ class Constraint:
     weight: float = 1.0
     text: str = ""
     samples: int | None = None   # instances per animation span (None: the scene's)
+    dense_tol: float | None = None   # largest violation between instances (None: the scene's)
 
     @property
     def scope_text(self) -> str:
@@ -99,6 +103,8 @@ class Scene:
     backend_options: dict[str, str] = field(default_factory=dict)
     settings: dict[str, float] = field(default_factory=lambda: dict(DEFAULT_SETTINGS))
     shake_count: int = 0
+    # Instances added where the continuous-time check failed, by constraint name (or "X.bounds").
+    extra_instances: dict[str, tuple[float, ...]] = field(default_factory=dict)
 
     def copy(self) -> "Scene":
         """A copy that commands may change freely. Sympy expressions, curves and linkage specs
@@ -112,6 +118,7 @@ class Scene:
         new.objectives = {k: replace(v) for k, v in self.objectives.items()}
         new.windows = {k: replace(v) for k, v in self.windows.items()}
         new.backend_options, new.settings = dict(self.backend_options), dict(self.settings)
+        new.extra_instances = dict(self.extra_instances)
         return new
 
     # --- names -------------------------------------------------------------------------------
@@ -135,14 +142,45 @@ class Scene:
 
     # --- expressions -------------------------------------------------------------------------
     def expand(self, expr: sp.Basic) -> sp.Basic:
-        """Substitute subexpressions (lets and derived quantities) until only DOF, t and constants remain."""
+        """Substitute subexpressions (lets and derived quantities) until only DOF, t and constants
+        remain. ``f'`` and ``f''`` of a subexpression ``f`` become its time derivatives."""
         definitions = {named_symbol(n): e for n, e in {**self.derived, **self.lets}.items()}
         for _ in range(100):
             inside = expr.free_symbols & definitions.keys()
-            if not inside:
+            primed = {s for s in expr.free_symbols if s.name.endswith("'") and
+                      named_symbol(s.name.rstrip("'")) in definitions}
+            if not inside and not primed:
                 return expr
-            expr = expr.xreplace({s: definitions[s] for s in inside})
+            replacements = {s: definitions[s] for s in inside}
+            for s in primed:
+                base = s.name.rstrip("'")
+                replacements[s] = self.time_derivative(self.expand(named_symbol(base)), base,
+                                                       len(s.name) - len(base))
+            expr = expr.xreplace(replacements)
         raise StwError("subexpressions refer to each other in a circle")
+
+    def time_derivative(self, expr: sp.Expr, name: str, order: int) -> sp.Expr:
+        """d^order/dt^order of an expanded expression, by the chain rule through the DOF.
+
+        Raises:
+            StwError: it would need a DOF's third derivative (curves have two).
+        """
+        from .symbols import TIME, dof_symbols
+
+        for k in range(order):
+            out = sp.diff(expr, TIME)
+            for dof in self.dofs:
+                q, v, a = dof_symbols(dof)
+                used = expr.free_symbols
+                if a in used:
+                    raise StwError(f"{name}{chr(39) * order} needs the third derivative of {dof}; "
+                                   f"{name}{chr(39) * k} already uses {dof}''")
+                if q in used:
+                    out += sp.diff(expr, q) * v
+                if v in used:
+                    out += sp.diff(expr, v) * a
+            expr = out
+        return expr
 
     def constant_values(self, names) -> np.ndarray:
         return np.array([self.constants[n] for n in names], dtype=float)
@@ -164,7 +202,8 @@ class Scene:
         """Definitions that refer to ``name`` (to refuse deleting something in use)."""
         symbol = named_symbol(name)
         from .symbols import dof_symbols
-        targets = {symbol} | (set(dof_symbols(name)) if name in self.dofs else set())
+        targets = {symbol, named_symbol(name + "'"), named_symbol(name + "''")} | \
+            (set(dof_symbols(name)) if name in self.dofs else set())
         users = []
         for n, e in self.lets.items():
             if n != name and e.free_symbols & targets:

@@ -1,10 +1,10 @@
 """The window problem: a spacetime window of a scene as a sparse nonlinear program.
 
 Free variables are the control points of the window's DOF whose support meets the window's time
-interval; every other control point is fixed (paper 4.2). Constraint instances are taken on the
-window extended by one knot span on each side; objective integrals are taken by Gauss–Legendre
-quadrature over the part of the animation that the free control points can change, so the window
-problem minimizes exactly the scene's objective with everything outside held fixed.
+interval; every other control point is fixed (paper 4.2). Constraint instances (placed by
+instances.py) and objective quadrature points are taken over the whole part of the animation that
+the free control points can change, so the window problem minimizes exactly the scene's objective
+with everything outside held fixed, and cannot break a constraint outside the window.
 
 Evaluation is vectorized: DOF quantities at all instances are one sparse product ``P @ coef``
 (``P`` stacks the B-spline basis rows of every term variable at every instance); Jacobians and
@@ -23,6 +23,7 @@ import sympy as sp
 
 from .compiler import CompiledTerm, compile_term
 from .errors import StwError
+from .instances import bound_times, relation_times
 from .scene import Scene
 from .spline import gauss_legendre_nodes
 from .symbols import dof_symbol
@@ -33,6 +34,26 @@ _RELATIONS = {
     sp.StrictLessThan: np.less, sp.LessThan: np.less_equal,
     sp.Equality: np.equal, sp.Unequality: np.not_equal,
 }
+
+
+def relation_nodes(tree: sp.Basic) -> list[sp.Basic]:
+    """The relations (leaves) of a ``when`` condition, in a fixed order."""
+    return [node for node in sp.preorder_traversal(tree) if isinstance(node, tuple(_RELATIONS))]
+
+
+def evaluate_condition_tree(node: sp.Basic, leaf_values: dict, n: int) -> np.ndarray:
+    """Where a boolean tree of relations holds, given each leaf's ``lhs - rhs`` at n times."""
+    if node is sp.true:
+        return np.ones(n, bool)
+    if node is sp.false:
+        return np.zeros(n, bool)
+    if isinstance(node, sp.And):
+        return np.logical_and.reduce([evaluate_condition_tree(a, leaf_values, n) for a in node.args])
+    if isinstance(node, sp.Or):
+        return np.logical_or.reduce([evaluate_condition_tree(a, leaf_values, n) for a in node.args])
+    if isinstance(node, sp.Not):
+        return ~evaluate_condition_tree(node.args[0], leaf_values, n)
+    return _RELATIONS[type(node)](leaf_values[node], 0.0)
 
 
 @dataclass(eq=False)
@@ -48,20 +69,7 @@ class Condition:
         for node, term, offset in self.leaves:
             x = slot_values[offset:offset + term.k * n].reshape(term.k, n).T
             leaf_values[node] = term.value(x, times, scene_params(term))
-        return self._eval(self.tree, leaf_values, n)
-
-    def _eval(self, node, leaf_values, n):
-        if node is sp.true:
-            return np.ones(n, bool)
-        if node is sp.false:
-            return np.zeros(n, bool)
-        if isinstance(node, sp.And):
-            return np.logical_and.reduce([self._eval(a, leaf_values, n) for a in node.args])
-        if isinstance(node, sp.Or):
-            return np.logical_or.reduce([self._eval(a, leaf_values, n) for a in node.args])
-        if isinstance(node, sp.Not):
-            return ~self._eval(node.args[0], leaf_values, n)
-        return _RELATIONS[type(node)](leaf_values[node], 0.0)
+        return evaluate_condition_tree(self.tree, leaf_values, n)
 
 
 @dataclass(eq=False)
@@ -165,7 +173,7 @@ class WindowProblem:
     def _select_free(self) -> None:
         a, b = self.interval
         full = a <= self.scene.t0 and b >= self.scene.t1
-        free, lo, hi, margin = [], np.inf, -np.inf, 0.0
+        free, lo, hi = [], np.inf, -np.inf
         for name in self.window_dofs:
             curve = self.scene.dofs[name].curve
             support = curve.support()
@@ -174,14 +182,13 @@ class WindowProblem:
             if idx.size:
                 lo, hi = min(lo, support[idx, 0].min()), max(hi, support[idx, 1].max())
             free.append(self.offsets[name] + idx)
-            margin = max(margin, curve.span_width())
         self.free = np.concatenate(free).astype(np.int64) if free else np.zeros(0, np.int64)
         if self.free.size == 0:
             raise StwError(f"window '{self.window.name}' has no free control points")
-        # Constraint instances: window plus one knot span each side (paper 4.2).
-        self.instance_range = (max(self.scene.t0, a - margin), min(self.scene.t1, b + margin))
-        # Objective: where the free control points can change the curves.
-        self.objective_range = (max(self.scene.t0, lo), min(self.scene.t1, hi))
+        # Constraint instances and objective quadrature cover every time the free control points
+        # can change: the union of their supports, up to three knot spans past the window. (The
+        # paper's one span past it (4.2) lets a window break constraints just outside itself.)
+        self.instance_range = self.objective_range = (max(self.scene.t0, lo), min(self.scene.t1, hi))
         self.free_dofs = frozenset(self.window_dofs)
         self.dof_of_free = np.empty(self.free.size, dtype=object)
         pos = 0
@@ -195,23 +202,20 @@ class WindowProblem:
     def _params(self, term: CompiledTerm) -> np.ndarray:
         return self.scene.constant_values(term.parameters)
 
-    def _interval_times(self, a: float, b: float, samples: int | None = None) -> np.ndarray:
-        span = self.scene.t1 - self.scene.t0
-        n = max(1, int(np.ceil((samples or self.scene.sample_count) * (b - a) / span - 1e-9)))
-        return np.linspace(a, b, n + 1)
-
     def _build_groups(self) -> None:
         scene, (ia, ib) = self.scene, self.instance_range
         self.groups: list[TermGroup] = []
+        def inside(times):
+            return times[(times >= ia - 1e-12) & (times <= ib + 1e-12)]
+
         for c in scene.constraints.values():
-            times = np.array([c.at]) if c.at is not None else self._interval_times(*c.interval, c.samples)
-            times = times[(times >= ia - 1e-12) & (times <= ib + 1e-12)]
             for r_index, rel in enumerate(c.relations):
                 label = c.name if len(c.relations) == 1 else f"{c.name}[{r_index + 1}]"
+                times = inside(relation_times(scene, c, rel.expr, rel.kind))
                 self._add_group(label, c.name, rel.kind, rel.expr, times, c.weight, c.when)
         for name in self.window_dofs:
             dof = scene.dofs[name]
-            times = self._interval_times(ia, ib) if ia < ib else np.array([ia])
+            times = inside(bound_times(scene, name))
             x = dof_symbol(name)
             if dof.lo is not None:
                 self._add_group(f"{name}.lo", name, GE, x - dof.lo, times, 1.0, None)
@@ -317,12 +321,11 @@ class WindowProblem:
                           for kind in (EQ, GE, OBJ)}
 
     def _add_condition_slots(self, group: TermGroup, rows: list, slot: int) -> int:
-        for node in sp.preorder_traversal(group.condition.tree):
-            if isinstance(node, tuple(_RELATIONS)):
-                term = self._compile(node.lhs - node.rhs)
-                group.condition.leaves.append((node, term, slot))
-                rows.extend(self._basis_rows(term, group.times))
-                slot += term.k * group.n
+        for node in relation_nodes(group.condition.tree):
+            term = self._compile(node.lhs - node.rhs)
+            group.condition.leaves.append((node, term, slot))
+            rows.extend(self._basis_rows(term, group.times))
+            slot += term.k * group.n
         return slot
 
     # --- evaluation --------------------------------------------------------------------------

@@ -153,7 +153,7 @@ def test_escape_stops_a_solve_at_an_iteration_boundary_and_queues_commands():
         assert app.session.scene.constants["k"] == 2           # the queued command ran after
         # A stopped solve is journalled as the iterations it ran, so a replay matches.
         ran = len(run_result.reports)
-        assert app.session.journal.replayable()[-2:] == [f"iterate {ran}", "const k = 2"]
+        assert app.session.journal.replayable()[-2:] == [f"iterate {ran} adapt=0", "const k = 2"]
 
     run(scenario, app)
 

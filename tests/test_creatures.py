@@ -4,6 +4,7 @@ import numpy as np
 import pytest
 
 from conftest import SESSIONS
+from stw_tui.continuous import check_scene
 from stw_tui.errors import SourceError, StwError
 from stw_tui.figure import scene_figure
 from stw_tui.session import Session
@@ -43,53 +44,198 @@ def test_bad_linkage_block_leaves_the_scene_unchanged():
         s.run_text("linkage x\n  J revolute a=1\nend\n")
 
 
+G = 9.81
+ARM_LENGTHS = (0.35, 0.30, 0.15)
+
+
+def _curves(scene, names, t, order=0):
+    return [float(scene.dofs[n].curve.evaluate(np.array([t]), order)[0]) for n in names]
+
+
+def _planar_tip(angles):
+    """Forward kinematics of the planar arm, written out independently of the linkage module:
+    each joint angle adds to the direction of the links after it."""
+    heading, x, y = 0.0, 0.0, 0.0
+    for length, angle in zip(ARM_LENGTHS, angles):
+        heading += angle
+        x, y = x + length * np.cos(heading), y + length * np.sin(heading)
+    return np.array([x, y])
+
+
+def _hand(scene, t, tip=None, joints=("SHOULDER", "ELBOW", "WRIST"), h=1e-5):
+    """The hand's position and velocity at t from the joint curves alone: forward kinematics and
+    a central finite difference (error ~h^2)."""
+    tip = tip or (lambda ang, base: _planar_tip(ang))
+    at = lambda s: tip(_curves(scene, joints, s), s)
+    return at(t), (at(t + h) - at(t - h)) / (2 * h)
+
+
+def _fly(p, v, dt, vertical=1):
+    """The ball's ballistic flight, integrated independently: p + v dt - g dt^2/2 on the y axis."""
+    drop = np.zeros_like(p)
+    drop[vertical] = -G * dt * dt / 2
+    return p + v * dt + drop
+
+
+def _print(s, expr, index=0):
+    return [p for p in s.prints if p.expr == expr][index].value
+
+
+def _assert_holds_continuously(s, exact_tol=1e-6):
+    """Every constraint holds between its instances too (the continuous-time check)."""
+    report = check_scene(s.scene)
+    assert report.failing(s.scene.settings["dense_tol"]) == []
+    for name, check in report.checks.items():
+        assert check.dense <= exact_tol, (name, check)
+    return report
+
+
+def _arm_throw_checks(s, release=0.55, goal=(1.5, 0.5), land=1.5):
+    """The released ball, integrated from the hand alone, reaches the goal."""
+    p, v = _hand(s.scene, release)
+    assert np.hypot(*(_fly(p, v, land - release) - np.array(goal))) < 1e-4
+    # ... and the ball curve is that same parabola (position and velocity at release)
+    ball = np.array(_curves(s.scene, ("BX", "BY"), release))
+    ball_v = np.array(_curves(s.scene, ("BX", "BY"), release, 1))
+    assert np.allclose(ball, p, atol=1e-6) and np.allclose(ball_v, v, atol=1e-6)
+    return p, v
+
+
 def test_arm_throw_converges_to_an_underhand_toss():
     s = Session()
     s.run_file(SESSIONS / "arm_throw.stw")
-    assert all(run.converged for run in s.runs)
-    assert s.runs[-1].reports[-1].max_violation <= 1e-6
-    prints = [(p.expr, p.t, p.value) for p in s.prints]
-    shoulder = prints[0][2]
+    assert len(s.runs) == 2 and all(run.converged for run in s.runs)
+    assert all(run.reports[-1].max_violation <= 1e-8 for run in s.runs)
+    _assert_holds_continuously(s)
+    p, v = _arm_throw_checks(s)
+    shoulder = _print(s, "SHOULDER")
     assert -np.pi / 2 < shoulder < 0          # hand below the shoulder at release: underhand
-    assert prints[1][2] > 0                   # ball rising as it leaves the hand
-    before, after = prints[2][2], prints[4][2]           # hand-ball gap summaries near release
-    assert after["mean"] < before["mean"] / 2 and after["max"] < before["max"]
-    assert before["max"] < 0.02                          # held within 2 cm even before
-    assert prints[3][2] == pytest.approx(1.5, abs=1e-6)
+    assert v[1] > 0 and v[0] > 0 and p[1] < 0 # leaving the hand forward and rising, below the shoulder
+    assert _print(s, "BY'") == pytest.approx(v[1], abs=1e-6)
+    # The window tightened the carried ball onto the hand before release ...
+    gap = "abs(arm.tip.x - BX) + abs(arm.tip.y - BY)"
+    before, after = _print(s, gap, 0), _print(s, gap, 1)
+    assert after["max"] < before["max"] / 5 and after["mean"] < before["mean"] / 5
+    assert before["max"] < 0.1 and after["max"] < 0.01
+    # ... and left the goal, the release and the arm outside the window as they were.
+    for name in ("release", "flight", "goal", "hang", "rest"):
+        assert _print(s, name, -1)["dense"] <= 1e-6
+    assert _print(s, "BX") == pytest.approx(1.5, abs=1e-9)
+    assert _print(s, "BX'", 1) == pytest.approx(_print(s, "BX'", 0), abs=1e-9)
+    assert _print(s, "WRIST", 1) == pytest.approx(_print(s, "WRIST", 0), abs=1e-12)
 
 
+def test_acrobat_converges_at_its_instances_and_the_check_names_its_gaps():
+    # What the acrobat does today (its header's KNOWN GAPS): three hops and a somersault that hold
+    # at their instances, with the foot sliding and flight forces between them, which the
+    # continuous-time check reports instead of calling the motion right.
+    s = Session()
+    s.run_file(SESSIONS / "acrobat.stw")
+    assert s.runs[-1].converged and s.runs[-1].reports[-1].max_violation <= 1e-8
+    foot, y_high, tau_inst, tau_between, x_end = (p.value for p in s.prints[:5])
+    assert foot == pytest.approx(np.pi / 2 + 2 * np.pi, abs=1e-9) and x_end == pytest.approx(1.8, abs=1e-9)
+    assert y_high > 0.5 and abs(tau_inst) < 1e-8
+    report = check_scene(s.scene)
+    failing = {c.name for c in report.failing(s.scene.settings["dense_tol"])}
+    assert {"air3", "ground1"} <= failing and not failing & {"stand", "flipped"}
+    air3, ground3 = s.prints[5].value, s.prints[6].value
+    assert 1.0 < air3["dense"] < 20.0 and air3["instances"] < 1e-8    # newtons, between instances
+    assert 1e-3 < ground3["dense"] < 0.03                              # metres of foot slide
+    assert abs(tau_between) <= air3["dense"]
+
+
+@pytest.mark.xfail(strict=True, reason="acrobat.stw does not converge yet: its flight constraints "
+                   "hold only at instances (hundreds of N between them in the somersault); see the "
+                   "session's header")
 def test_acrobat_flips_with_physically_valid_flight():
     s = Session()
     s.run_file(SESSIONS / "acrobat.stw")
-    assert s.runs[-1].converged and s.runs[-1].reports[-1].max_violation <= 1e-6
-    values = [p.value for p in s.prints]
-    assert values[0] == pytest.approx(np.pi / 2 + 2 * np.pi, abs=1e-9)
-    assert values[1] > 0.5                      # airborne
-    assert abs(values[2]) < 1e-8                # no vertical force at a flight instance
-    assert abs(values[3]) < 0.1 * 2 * 9.81      # and little between instances (< 10% of weight)
-    assert values[4] == pytest.approx(1.8, abs=1e-9)
-    # Two plain jumps before the flip: the foot leaves the ground and FOOT makes no full turn.
-    foot = s.scene.dofs["FOOT"].curve
-    assert abs(foot.evaluate(np.array([1.5]))[0] - np.pi / 2) < np.pi / 2
-    y = s.scene.dofs["Y"].curve.evaluate(np.array([0.75, 1.75]))
-    assert np.all(y > 0.05)
+    assert all(run.converged for run in s.runs)
+    assert s.runs[-1].reports[-1].max_violation <= 1e-8
+    scene = s.scene
+    report = check_scene(scene)
+    assert report.failing(scene.settings["dense_tol"]) == []
+    weight = 2 * 2.0 * G / 2                       # the body's weight, 2 kg
+    for name, check in report.checks.items():
+        if name.startswith("air"):
+            # Nonlinear flight dynamics cannot hold exactly between samples of cubic splines:
+            # each flight constraint states its residual, a small fraction of the body's weight.
+            assert check.tol is not None and check.tol <= 0.1 * weight and check.dense <= check.tol
+        else:
+            assert check.dense <= 1e-6, (name, check)   # ground contact, start and end: exact
+    curve = lambda n, t: scene.dofs[n].curve.evaluate(np.atleast_1d(np.asarray(t, float)))
+    t_end = scene.t1
+    assert curve("FOOT", t_end)[0] == pytest.approx(np.pi / 2 + 2 * np.pi, abs=1e-8)
+    ground = sorted((c.interval for n, c in scene.constraints.items() if n.startswith("ground")))
+    assert len(ground) == 4
+    flights = [(a[1], b[0]) for a, b in zip(ground, ground[1:])]
+    for (a, b), hop in zip(flights, (1, 2, 3)):
+        mid = (a + b) / 2
+        assert curve("Y", mid)[0] > 0.05                                   # airborne
+        turn = curve("FOOT", b)[0] - curve("FOOT", a)[0]
+        if hop < 3:
+            assert abs(turn) < np.pi / 2                                   # a plain jump
+        else:
+            assert abs(turn) > 1.5 * np.pi                                 # the somersault
+    assert curve("X", t_end)[0] == pytest.approx(1.8, abs=1e-9)            # three hops of 0.6
+    # While planted, the ground pushes up on the foot (tau_Y > 0) and never pulls.
+    for a, b in ground:
+        tau_y = s.execute(f"print tau_Y on [{a + 0.05}, {b - 0.05}]").prints[0].value
+        assert tau_y["min"] > 0
 
 
 def test_keyframes_turn_the_toss_overhand():
     s = Session()
     s.run_file(SESSIONS / "arm_overhand.stw")
-    assert s.runs[-1].converged and s.runs[-1].reports[-1].max_violation <= 1e-6
-    tip_y, ball_vx, goal_x = (p.value for p in s.prints)
-    assert tip_y > 0 and ball_vx > 0            # released above the shoulder, moving forward
-    assert goal_x == pytest.approx(1.5, abs=1e-6)
+    assert s.runs[-1].converged and s.runs[-1].reports[-1].max_violation <= 1e-8
+    _assert_holds_continuously(s)
+    p, v = _arm_throw_checks(s)
+    assert p[1] > 0 and v[0] > 0               # released above the shoulder, moving forward
+    assert _print(s, "arm.tip.y") == pytest.approx(p[1], abs=1e-9)
+    assert _print(s, "SHOULDER") < -np.pi        # wound back over the top
+    assert _print(s, "BX") == pytest.approx(1.5, abs=1e-9)
+    # A different motion from the underhand toss of the same problem.
+    under = Session()
+    under.run_file(SESSIONS / "arm_throw.stw")
+    assert _print(under, "SHOULDER") > -np.pi / 2
+
+
+def _player_tip(angles, base):
+    """The basketball player's hand: the planar arm in a vertical plane, turned by TURN about the
+    vertical (y) axis and carried by the sliding base (PX, 0, PZ)."""
+    px, pz, turn = base
+    x, y = _planar_tip(angles)
+    return np.array([px + x * np.cos(turn), y, pz - x * np.sin(turn)])
 
 
 def test_basketball_player_catches_its_own_throw_and_scores():
     s = Session()
     s.run_file(SESSIONS / "basketball.stw")
-    assert s.runs[-1].converged and s.runs[-1].reports[-1].max_violation <= 1e-6
-    px, pz, turn, gap, bx = (p.value for p in s.prints)
+    assert s.runs[-1].converged and s.runs[-1].reports[-1].max_violation <= 1e-8
+    _assert_holds_continuously(s)
+    px, pz, turn, catch_y, bx = (_print(s, e) for e in ("PX", "PZ", "TURN", "player.tip.y", "BX"))
     assert np.hypot(px, pz) > 0.5 and abs(turn) > 0.1   # it moved and turned to catch
-    assert abs(gap) < 1e-6 and bx == pytest.approx(2.0, abs=1e-6)
+    assert catch_y < 0                                   # caught low
+    assert bx == pytest.approx(2.0, abs=1e-9)
+    scene = s.scene
+    hand = lambda t: _hand(scene, t, tip=lambda ang, at: _player_tip(
+        ang, _curves(scene, ("PX", "PZ", "TURN"), at)))
+    # The independent hand agrees with the session's own forward kinematics.
+    out = s.execute("print player.tip.z @ 1.7").prints[0].value
+    assert _player_tip(_curves(scene, ("SHOULDER", "ELBOW", "WRIST"), 1.7),
+                       _curves(scene, ("PX", "PZ", "TURN"), 1.7))[2] == pytest.approx(out, abs=1e-12)
+    # Throw: from the hand at 0.55 through the goal point at t = 1 ...
+    p, v = hand(0.55)
+    assert np.linalg.norm(_fly(p, v, 0.45) - np.array([0.8, 1.2, 0.5])) < 1e-4
+    # ... into the hand at the catch (t = 1.5), with the hand's velocity (a soft catch) ...
+    q, w = hand(1.5)
+    assert np.linalg.norm(_fly(p, v, 0.95) - q) < 1e-4
+    assert np.linalg.norm(v + np.array([0, -G * 0.95, 0]) - w) < 1e-3
+    # ... and from the hand at 1.95 into the basket at t = 3.
+    p2, v2 = hand(1.95)
+    assert np.linalg.norm(_fly(p2, v2, 1.05) - np.array([2.0, 1.0, 1.0])) < 1e-4
+    # Carried near the hand between catch and second throw (an objective: a few cm at most).
+    gap = "abs(player.tip.x - BX) + abs(player.tip.y - BY) + abs(player.tip.z - BZ)"
+    assert _print(s, gap, 1)["max"] < 0.1
     figure = scene_figure(s.scene, 1.7)
     assert len(figure.segments) == 3                   # the arm is drawn (a side view)

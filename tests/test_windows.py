@@ -116,6 +116,6 @@ def test_a_stopped_solve_is_journalled_as_the_iterations_it_ran():
         assert report.coefficients is not None and report.coefficients.size == s.scene.coefficient_vector().size
         return len(seen) < 2
     s.execute("iterate 50", on_report=stop_after_two)
-    assert s.journal.replayable()[-1] == "iterate 2"
+    assert s.journal.replayable()[-1] == "iterate 2 adapt=0"   # no adaptive round after a stop
     replay = run_lines(Session(), "\n".join(s.journal.replayable()))
     assert np.array_equal(replay.scene.coefficient_vector(), s.scene.coefficient_vector())

@@ -109,7 +109,7 @@ class EquationsPanel(ScenePanel):
             scope = c.scope_text + (" when…" if c.when is not None else "")
             viol = info.violations.get(c.name)
             yield c.name, (c.name, "constraint", show(c.weight), scope,
-                           "?" if viol is None else f"{viol:.2e}", c.text.split(":", 1)[-1].strip())
+                           "n/a" if viol is None else f"{viol:.2e}", c.text.split(":", 1)[-1].strip())
         for o in scene.objectives.values():
             scope = f"on [{o.interval[0]:g}, {o.interval[1]:g}]" if o.interval else "span"
             yield o.name, (o.name, "objective", show(o.weight), scope, "", o.text.split(":", 1)[-1].strip())

@@ -46,14 +46,9 @@ def dof_series(scene: "Scene", name: str, order: int, n: int = 161) -> Series:
 
 
 def _evaluate(scene: "Scene", expr, times: np.ndarray) -> np.ndarray:
-    from ..compiler import compile_term
+    from ..continuous import expression_values
 
-    term = compile_term(scene.expand(expr), set(scene.dofs), set(scene.constants))
-    if term.variables:
-        values = np.column_stack([scene.dofs[v.dof].curve.evaluate(times, v.order) for v in term.variables])
-    else:
-        values = np.zeros((len(times), 0))
-    return term.value(values, times, scene.constant_values(term.parameters))
+    return expression_values(scene, expr, times)
 
 
 def equation_names(scene: "Scene") -> list[str]:
@@ -88,15 +83,15 @@ def equation_series(scene: "Scene", name: str, n: int = 161) -> tuple[list[Serie
 
 
 def equation_violations(scene: "Scene") -> dict[str, float]:
-    """Max violation of every constraint on the current curves ({} when no problem can be built)."""
+    """Max violation of every constraint over its whole scope, between instances too (the
+    continuous-time check), whatever window is in use ({} when a constraint no longer compiles)."""
     if not scene.constraints or not scene.dofs:
         return {}
     try:
-        from ..window import WindowProblem
+        from ..continuous import check_scene
 
-        problem = WindowProblem(scene)
-        return problem.violation_by_source(problem.merit_values(problem.initial()))
-    except Exception:  # a half-built scene (e.g. a window on deleted DOF) has no problem yet
+        return {name: c.dense for name, c in check_scene(scene).checks.items()}
+    except Exception:  # a half-built scene (e.g. a constraint on a deleted name) has no check
         return {}
 
 

@@ -67,6 +67,7 @@ class ConstraintCmd:
     weight: sp.Expr | None
     text: str = ""
     samples: int | None = None      # instances per animation span, overriding `time … samples=`
+    dense_tol: sp.Expr | None = None   # its own continuous-time tolerance, overriding `set dense_tol`
 
 
 @dataclass(frozen=True)
@@ -150,9 +151,18 @@ class SetCmd:
 
 
 @dataclass(frozen=True)
+class InstancesCmd:
+    name: str                       # a constraint, or "DOF.bounds"
+    action: str                     # "add" or "clear"
+    times: tuple[sp.Expr, ...] = ()
+    text: str = ""
+
+
+@dataclass(frozen=True)
 class IterateCmd:
     n: int = 1
     text: str = ""
+    adapt: int | None = None        # at most this many adaptive re-solves (None: the settings')
 
 
 @dataclass(frozen=True)
@@ -163,7 +173,7 @@ class DeleteCmd:
 
 @dataclass(frozen=True)
 class PrintCmd:
-    expr: sp.Expr
+    expr: sp.Expr | None            # None: `print NAME` of a constraint (its continuous-time check)
     at: sp.Expr | None
     expr_text: str
     text: str = ""
@@ -178,11 +188,11 @@ class HelpCmd:
 
 Command = (TimeCmd | ConstCmd | DofCmd | LetCmd | ConstraintCmd | ObjectiveCmd | KeyCmd | WindowCmd
            | UseCmd | WeightCmd | DampCmd | FilterCmd | ShakeCmd | RefineCmd | BackendCmd | SetCmd
-           | IterateCmd | DeleteCmd | PrintCmd | HelpCmd)
+           | IterateCmd | DeleteCmd | PrintCmd | HelpCmd | InstancesCmd)
 
 COMMAND_NAMES = ("time", "const", "dof", "let", "constraint", "objective", "key", "window", "use",
                  "weight", "damp", "filter", "shake", "refine", "backend", "set", "iterate", "delete",
-                 "print", "help", "linkage")
+                 "print", "help", "linkage", "instances")
 RESERVED = set(COMMAND_NAMES) | set(FUNCTIONS) | {"t", "pi", "all", "on", "when", "and", "or", "not"}
 
 
@@ -346,9 +356,9 @@ class CommandParser(ExpressionParser):
         if self.token.is_word("when"):
             self.advance()
             when = self.condition()
-        opts = self.options({"weight": "expr", "samples": "int"})
+        opts = self.options({"weight": "expr", "samples": "int", "dense_tol": "expr"})
         return ConstraintCmd(name, tuple(relations), at, interval, when, opts.get("weight"), self.text,
-                             opts.get("samples"))
+                             opts.get("samples"), opts.get("dense_tol"))
 
     def _relation(self) -> Relation:
         column = self.token.column
@@ -467,12 +477,33 @@ class CommandParser(ExpressionParser):
 
     def p_iterate(self):
         n = self.integer("a number of iterations") if self.token.kind == NUMBER else 1
-        return IterateCmd(n, self.text)
+        opts = self.options({"adapt": "int"})
+        return IterateCmd(n, self.text, opts.get("adapt"))
+
+    def p_instances(self):
+        name = self.name("a constraint name (or DOF.bounds)").text
+        action = self.token
+        if not (action.is_word("add") or action.is_word("clear")):
+            raise self.unexpected("'add' or 'clear'")
+        self.advance()
+        times = []
+        if action.text == "add":
+            times.append(self.number_expr())
+            while self.token.is_op(","):
+                self.advance()
+                times.append(self.number_expr())
+        return InstancesCmd(name, action.text, tuple(times), self.text)
 
     def p_delete(self):
         return DeleteCmd(self.name("the name of something to delete").text, self.text)
 
     def p_print(self):
+        first = self.token
+        if (first.kind == NAME and self.scope.kind_of(first.text) is None
+                and ("." not in first.text or first.text.endswith(".bounds"))
+                and self.tokens[self.pos + 1].kind == END):
+            self.advance()   # `print NAME` of a constraint: its continuous-time check
+            return PrintCmd(None, None, first.text, self.text)
         start = self.token.column
         expr = self.expression()
         end = self.token.column

@@ -273,13 +273,15 @@ class ExpressionParser:
                                  expected=self._allowed_text())
             symbol = dof_symbol(name, 0) if kind is NameKind.DOF else named_symbol(name)
         if primes:
-            if kind is not NameKind.DOF:
-                raise self.error(f"only DOF can be differentiated with primes ('{name}' is not a DOF)",
-                                 token, expected="a DOF before ' or ''")
+            if kind not in (NameKind.DOF, NameKind.LET):
+                raise self.error(f"only DOF and subexpressions can be differentiated with primes "
+                                 f"('{name}' is not one)", token, expected="a DOF or subexpression before ' or ''")
             if primes > 2:
                 raise self.error("at most two primes (acceleration) are allowed", token,
                                  expected="x, x' or x''")
-            symbol = dof_symbol(name, primes)
+            # A subexpression's time derivative (arm.tip.x' is the hand's velocity) is taken by
+            # the scene when it substitutes definitions.
+            symbol = dof_symbol(name, primes) if kind is NameKind.DOF else named_symbol(name + "'" * primes)
         return symbol
 
     def _allowed_text(self) -> str:

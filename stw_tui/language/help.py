@@ -30,10 +30,15 @@ COMMAND_HELP: dict[str, CommandHelp] = {
                        "lo/hi bound its values.", "dof x, y = 0.5*t^2 knots=10 lo=0"),
     "let": CommandHelp("let NAME = EXPR",
                        "Define a subexpression, substituted wherever it is named.", "let f = m*x'' + m*g"),
-    "constraint": CommandHelp("constraint NAME: REL[, REL…] (@ T | on [A, B]) [when COND] [weight=W] [samples=K]",
+    "constraint": CommandHelp("constraint NAME: REL[, REL…] (@ T | on [A, B]) [when COND] [weight=W] "
+                              "[samples=K] [dense_tol=D]",
                               "A constraint: REL is E = E, E >= E or E <= E; at an instant or at sample "
                               "instances over an interval (K per animation span; default the time's "
-                              "samples); optionally only where COND holds (comparisons with and/or/not).",
+                              "samples; a relation linear in DOF, like BY'' + g = 0, gets instances that "
+                              "make it hold exactly); optionally only where COND holds (comparisons with "
+                              "and/or/not). After a solve it is checked between its instances too, "
+                              "against D (default: `set dense_tol`). f' and f'' of a subexpression f are "
+                              "its time derivatives (arm.tip.x' is the hand's velocity).",
                               "constraint floor: y >= 0 on [0, 1.5] when x > 1"),
     "objective": CommandHelp("objective NAME: EXPR[, EXPR…] [on [A, B]] [weight=W]",
                              "Minimize the weighted integral of each expression squared.",
@@ -63,16 +68,28 @@ COMMAND_HELP: dict[str, CommandHelp] = {
                            "backend scipy solver=minres"),
     "set": CommandHelp("set OPTION VALUE",
                        "Settings: tol_violation, tol_kkt, tol_step, quadrature (points per span), merit "
-                       "(least violation weight), frame (player time), samples.", "set tol_kkt 1e-8"),
-    "iterate": CommandHelp("iterate [N]",
-                           "Run up to N SQP iterations on the current window (stops early on convergence).",
+                       "(least violation weight), frame (player time), samples, dense_tol (largest "
+                       "violation allowed between instances), adaptive on|off (add instances where "
+                       "the continuous-time check fails, and re-solve), adaptive_rounds.",
+                       "set dense_tol 1e-7"),
+    "iterate": CommandHelp("iterate [N] [adapt=R]",
+                           "Run up to N SQP iterations on the current window (stops early on convergence). "
+                           "Then every constraint is checked densely over the whole animation; with "
+                           "`set adaptive on` (the default) instances are added where it fails and the "
+                           "window re-solved, at most R times (default: adaptive_rounds).",
                            "iterate 20"),
+    "instances": CommandHelp("instances NAME add T[, T…] | instances NAME clear",
+                             "Add constraint instances at times T (NAME is a constraint, or DOF.bounds "
+                             "for a DOF's lo/hi), or drop the added ones. Adaptive refinement adds "
+                             "them for you where the continuous-time check fails.",
+                             "instances in_hand add 0.52, 0.56"),
     "delete": CommandHelp("delete NAME",
                           "Delete a constraint, objective, subexpression, window, constant or DOF (refused "
                           "while something else uses it).", "delete catch"),
-    "print": CommandHelp("print EXPR [@ T | on [A, B]]",
+    "print": CommandHelp("print EXPR [@ T | on [A, B]] | print CONSTRAINT",
                          "Print an expression's value at T, or a summary (min, max, mean, ends) over [A, B] "
-                         "(default: the span).",
+                         "(default: the span); or how well a constraint holds: its violation at its "
+                         "instances, densely over its whole scope, and where it is worst.",
                          "print x'' @ 0.5"),
     "help": CommandHelp("help [COMMAND]", "List the commands, or document one.", "help constraint"),
     "linkage": CommandHelp("linkage NAME [base=fixed|AXIS:DOF,…] [gravity=-y] … end",

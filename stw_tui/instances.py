@@ -1,0 +1,130 @@
+"""Where constraint instances go: the sample times at which a constraint is imposed.
+
+One place decides this for every user: the window problem imposes constraints there, and the
+continuous-time check (:mod:`stw_tui.continuous`) reports the violation there beside the
+violation between them.
+
+- A constraint ``@ t`` has the one instance ``t``.
+- A relation that is affine in DOF quantities with constant coefficients (``BY'' + g = 0``,
+  ``X = 0``) is a piecewise polynomial in time of degree ``3 - r``, where ``r`` is the highest
+  derivative it uses. It holds *exactly* everywhere on its interval when it holds at a set of
+  points that determines such a piecewise polynomial (Schoenberg–Whitney): the knots, plus
+  ``2 - r`` more points in the first and the last span. Inequalities of degree 1
+  (``x'' >= -g``) hold between the knots when they hold at the knots. These relations get exactly
+  those instances: fewer rows than uniform samples, and nothing for the optimizer to exploit.
+- Every other relation gets the scene's uniform samples (or the constraint's ``samples=``), plus
+  the instances that adaptive refinement added where the continuous-time check failed.
+"""
+
+from __future__ import annotations
+
+from functools import lru_cache
+
+import numpy as np
+import sympy as sp
+
+from .symbols import TIME, dof_symbols
+
+# Two times closer than this (relative to the span) are one instance.
+_SAME_TIME = 1e-9
+
+
+def uniform_times(scene, a: float, b: float, samples: int | None = None) -> np.ndarray:
+    """Uniform samples on [a, b] at the scene's density (``samples`` per animation span)."""
+    span = scene.t1 - scene.t0
+    n = max(1, int(np.ceil((samples or scene.sample_count) * (b - a) / span - 1e-9)))
+    return np.linspace(a, b, n + 1)
+
+
+def exact_degree(scene, expr: sp.Expr, kind: str) -> int | None:
+    """The highest DOF derivative ``r`` of a relation that instances can make hold exactly.
+
+    Returns None when the relation is not affine in DOF quantities with constant coefficients
+    (then no finite set of instances makes it exact), and None for inequalities of degree > 1 in
+    time (holding at points does not bound a polynomial of degree 2 or 3 in between).
+    """
+    return _exact_degree(scene.expand(expr), frozenset(scene.dofs), kind)
+
+
+@lru_cache(maxsize=4096)
+def _exact_degree(expr: sp.Expr, dof_names: frozenset[str], kind: str) -> int | None:
+    used = [(order, s) for name in dof_names for order, s in enumerate(dof_symbols(name))
+            if s in expr.free_symbols]
+    if not used:
+        return None
+    symbols = {s for _, s in used}
+    for _, s in used:
+        coefficient = sp.diff(expr, s)
+        if coefficient.free_symbols & (symbols | {TIME}):
+            return None
+    r = max(order for order, _ in used)
+    rest = expr.xreplace({s: sp.Integer(0) for s in symbols})
+    if TIME in rest.free_symbols:
+        if not rest.is_polynomial(TIME) or sp.degree(rest, TIME) > 3 - r:
+            return None
+    if kind != "eq" and r < 2:
+        return None
+    return r
+
+
+def interval_cuts(breakpoints: np.ndarray, a: float, b: float) -> np.ndarray:
+    """[a, b] cut at the breakpoints inside it. A breakpoint within rounding of an end (the knot
+    0.49999999999999994 of 78 spans on [0, 3.9] against an interval ending at 0.5) is that end,
+    not a piece of zero width."""
+    slack = _SAME_TIME * max(b - a, 1.0)
+    inside = breakpoints[(breakpoints > a + slack) & (breakpoints < b - slack)]
+    return np.concatenate([[a], inside, [b]])
+
+
+def exact_times(breakpoints: np.ndarray, a: float, b: float, r: int) -> np.ndarray:
+    """Points on [a, b] that determine a C^(2-r) piecewise polynomial of degree ``3 - r`` with
+    these breakpoints (a space of dimension pieces + 3 - r): every breakpoint in [a, b] and its
+    ends, plus ``2 - r`` interior points — the midpoints of the first and the last piece, or the
+    thirds of a single piece."""
+    cuts = interval_cuts(breakpoints, a, b)
+    first, last = (cuts[0], cuts[1]), (cuts[-2], cuts[-1])
+    if r == 2:
+        extra = []
+    elif r == 1:
+        extra = [(first, 0.5)]
+    elif cuts.size == 2:
+        extra = [(first, 1 / 3), (first, 2 / 3)]
+    else:
+        extra = [(first, 0.5), (last, 0.5)]
+    points = [lo + f * (hi - lo) for (lo, hi), f in extra]
+    return np.unique(np.concatenate([cuts, points]))
+
+
+def relation_times(scene, constraint, expr: sp.Expr, kind: str) -> np.ndarray:
+    """The instance times of one relation of ``constraint`` over the whole animation."""
+    if constraint.at is not None:
+        return np.array([constraint.at])
+    a, b = constraint.interval
+    r = exact_degree(scene, expr, kind) if constraint.samples is None else None
+    if r is not None:
+        used = [name for name in scene.dofs if set(dof_symbols(name)) & scene.expand(expr).free_symbols]
+        breaks = np.unique(np.concatenate([scene.dofs[name].curve.breakpoints for name in used]))
+        return exact_times(breaks, a, b, r)
+    return merge_times(uniform_times(scene, a, b, constraint.samples), extra_times(scene, constraint.name, a, b),
+                       scene.t1 - scene.t0)
+
+
+def bound_times(scene, dof_name: str) -> np.ndarray:
+    """Instance times of a DOF's bounds (lo=, hi=) over the whole animation."""
+    key = f"{dof_name}.bounds"
+    return merge_times(uniform_times(scene, scene.t0, scene.t1), extra_times(scene, key, scene.t0, scene.t1),
+                       scene.t1 - scene.t0)
+
+
+def extra_times(scene, key: str, a: float, b: float) -> np.ndarray:
+    times = np.asarray(scene.extra_instances.get(key, ()), float)
+    return times[(times >= a) & (times <= b)]
+
+
+def merge_times(base: np.ndarray, extra: np.ndarray, span: float) -> np.ndarray:
+    """Sorted union of two sets of times, with near-duplicates dropped."""
+    times = np.sort(np.concatenate([base, extra]))
+    if times.size < 2:
+        return times
+    keep = np.concatenate([[True], np.diff(times) > _SAME_TIME * span])
+    return times[keep]

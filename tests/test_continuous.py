@@ -1,0 +1,246 @@
+"""Motion that holds between the samples: the continuous-time check, exact instance placement,
+adaptive instances, and windows that keep what holds outside them."""
+
+import json
+import subprocess
+import sys
+
+import numpy as np
+import pytest
+from scipy.interpolate import BSpline
+
+from conftest import ROOT, SESSIONS, run_lines
+from stw_tui.continuous import check_scene
+from stw_tui.instances import exact_times
+from stw_tui.session import Session
+from stw_tui.window import WindowProblem
+
+FINE = np.linspace(0, 1, 100_001)
+
+
+def test_dense_check_sees_what_the_instances_miss():
+    # A wave whose zeros sit exactly on the 17 instances of `flat`: every instance holds, and
+    # between them the curve reaches 0.1 (the peaks of sin at odd multiples of 1/32).
+    s = run_lines(Session(), "time 0 1 knots=64\ndof x = 0.1*sin(16*pi*t)\n"
+                             "constraint flat: x = 0 on [0, 1] samples=16\n")
+    check = check_scene(s.scene).checks["flat"]
+    truth = np.abs(s.scene.dofs["x"].curve.evaluate(FINE))   # an independent, brute-force grid
+    assert check.instances < 2e-4                   # the spline's zeros are at the instances
+    assert check.dense == pytest.approx(truth.max(), rel=1e-6)
+    assert check.dense == pytest.approx(0.1, rel=1e-3)
+    assert abs(np.sin(16 * np.pi * check.worst_t)) == pytest.approx(1, abs=1e-3)   # at a peak
+
+
+def test_inequality_tangency_between_grid_points_is_found():
+    # y = (t - 0.4321)^2 - 1e-5 dips below 0 by 1e-5 on a width of 6e-3 only.
+    s = run_lines(Session(), "time 0 1 knots=4\ndof y = (t - 0.4321)^2 - 1e-5\n"
+                             "constraint floor: y >= 0 on [0, 1] samples=4\n")
+    check = check_scene(s.scene).checks["floor"]
+    assert check.instances == 0.0
+    assert check.dense == pytest.approx(1e-5, rel=1e-6)
+    assert check.worst_t == pytest.approx(0.4321, abs=1e-5)   # a flat minimum: its place is vaguer
+
+
+@pytest.mark.parametrize("r", [0, 1, 2])
+@pytest.mark.parametrize("a, b", [(0.0, 1.0), (0.13, 0.71), (0.26, 0.33)])
+def test_exact_times_determine_the_piecewise_polynomial(r, a, b):
+    # Schoenberg-Whitney, checked independently: the design matrix of the degree 3-r splines that
+    # live on [a, b] at these points has full column rank, so a combination of DOF derivatives
+    # that vanishes there vanishes everywhere on [a, b].
+    knots = np.r_[[0.0] * 3, np.sort(np.r_[np.linspace(0, 1, 9), 0.3, 0.55]), [1.0] * 3]
+    breaks = np.unique(knots)
+    points = exact_times(breaks, a, b, r)
+    degree = 3 - r
+    trimmed = knots[r:len(knots) - r]
+    basis = BSpline.design_matrix(np.linspace(a, b, 400), trimmed, degree).toarray()
+    alive = np.flatnonzero(np.abs(basis).sum(0) > 0)           # basis functions nonzero on [a, b]
+    collocation = BSpline.design_matrix(points, trimmed, degree).toarray()[:, alive]
+    assert np.linalg.matrix_rank(collocation) == alive.size == points.size
+
+
+def test_linear_constraints_hold_everywhere_with_few_instances():
+    s = run_lines(Session(), """time 0 1 knots=10 samples=40
+const g = 9.81
+dof x, y
+constraint start: x = 0, y = 0, x' = 0, y' = 3 @ 0
+constraint track: x = 0.5 + 0.2*t on [0.33, 0.71]
+constraint flight: y'' + g = 0 on [0.25, 1]
+objective effort: x'', y''
+iterate 20
+""")
+    assert s.runs[-1].converged
+    x, y = s.scene.dofs["x"].curve, s.scene.dofs["y"].curve
+    inside = FINE[(FINE >= 0.33) & (FINE <= 0.71)]
+    # Exact up to the solve's instance tolerance (1e-8) times the points' Lebesgue constant.
+    gap = np.abs(x.evaluate(inside) - (0.5 + 0.2 * inside)).max()
+    assert gap < 1e-7
+    assert check_scene(s.scene).checks["track"].dense == pytest.approx(gap, rel=1e-3)
+    air = FINE[FINE >= 0.25]
+    assert np.abs(y.evaluate(air, 2) + 9.81).max() < 1e-7
+    groups = {g.label: g.n for g in WindowProblem(s.scene).groups}
+    assert groups["flight"] == 9        # the knots 0.3 .. 1 and 0.25: not the 31 uniform samples
+    assert groups["track"] == 2 + 4 + 2  # 0.33 and 0.71, the knots 0.4 .. 0.7, a midpoint at each end
+
+
+def test_subexpression_velocity_is_the_derivative_of_its_curve():
+    s = run_lines(Session(), """time 0 1 knots=8
+const g = 9.81
+linkage arm base=fixed
+  S revolute a=0.5 mass=1.0
+  E revolute a=0.4 mass=0.7
+end
+dof S = t*t
+dof E = 0.3*sin(2*t)
+let h = arm.tip.y
+""")
+    t = np.array([0.3, 0.5, 0.8])
+    from stw_tui.continuous import expression_values
+    from stw_tui.symbols import named_symbol
+
+    def tip_y(times):   # forward kinematics by hand, from the DOF curves
+        S, E = (s.scene.dofs[n].curve.evaluate(times) for n in ("S", "E"))
+        return 0.5 * np.sin(S) + 0.4 * np.sin(S + E)
+    step = 1e-4
+    fd1 = (tip_y(t + step) - tip_y(t - step)) / (2 * step)
+    fd2 = (tip_y(t + step) - 2 * tip_y(t) + tip_y(t - step)) / step**2
+    assert np.allclose(expression_values(s.scene, named_symbol("arm.tip.y'"), t), fd1, atol=1e-7)
+    assert np.allclose(expression_values(s.scene, named_symbol("h''"), t), fd2, atol=1e-5)
+
+
+PIN = """time 0 1 knots=20
+dof x = 0.3
+constraint pin: x = 0.3 @ 0.22
+constraint lift: x = 1 @ 0.5
+objective smooth: x''
+window mid [0.4, 0.6]
+iterate 20
+"""
+
+
+def test_a_window_cannot_break_a_constraint_just_outside_it():
+    # The window frees control points whose support reaches 3 spans (0.15) past it, down to
+    # 0.25: with instances only one span past it, x(0.22) used to move to 0.121.
+    s = run_lines(Session(), PIN)
+    assert s.runs[-1].converged
+    x = s.scene.dofs["x"].curve
+    assert x.evaluate([0.5])[0] == pytest.approx(1, abs=1e-8)
+    assert x.evaluate([0.22])[0] == pytest.approx(0.3, abs=1e-8)
+
+
+def _held(report, tol):
+    return {name for name, c in report.checks.items() if c.dense <= tol}
+
+
+@pytest.mark.parametrize("name", ["particle_jet", "point_mass_2d", "cat_mouse"])
+def test_random_windows_keep_what_holds(name):
+    rng = np.random.default_rng(11)
+    s = Session()
+    s.run_file(SESSIONS / f"{name}.stw")
+    scene = s.scene
+    objective = next(iter(scene.objectives))
+    for k in range(3):
+        a = rng.uniform(scene.t0, scene.t1 - 0.2 * (scene.t1 - scene.t0))
+        b = a + rng.uniform(0.1, 0.3) * (scene.t1 - scene.t0)
+        dofs = rng.choice(list(scene.dofs), size=rng.integers(1, len(scene.dofs) + 1), replace=False)
+        tol = s.scene.settings["dense_tol"]
+        before = _held(check_scene(s.scene), tol)
+        s.execute(f"weight {objective} {1 + k}")   # something for the window to re-solve
+        s.execute(f"window w{k} dofs={','.join(dofs)} [{a:.4f}, {min(b, scene.t1):.4f}]")
+        s.execute("iterate 30")
+        after = check_scene(s.scene)
+        assert s.runs[-1].converged
+        broken = {n for n in before if after.checks[n].dense > tol}
+        assert not broken, (name, k, {n: after.checks[n] for n in broken})
+        s.execute("use all")
+
+
+ADAPT = """time 0 2 knots=16 samples=8
+const m = 1, g = 9.81
+dof y = 0.5
+constraint start: y = 0.5, y' = -3 @ 0
+constraint goal:  y = 0.5, y' = 0 @ 2
+constraint floor: y >= 0 on [0, 2]
+objective thrust: m*y'' + m*g
+"""
+
+
+def test_adaptive_instances_fix_what_the_samples_missed():
+    s = run_lines(Session(), ADAPT + "iterate 30 adapt=0\n")
+    plain = check_scene(s.scene).checks["floor"]
+    assert plain.instances <= 1e-8 and plain.dense > 1e-4     # the curve dips between samples
+    outcome = s.execute("iterate 30")
+    assert "added" in outcome.message and s.scene.extra_instances["floor"]
+    fixed = check_scene(s.scene).checks["floor"]
+    y = s.scene.dofs["y"].curve.evaluate(np.linspace(0, 2, 200_001))
+    assert fixed.dense <= 1e-6 and y.min() >= -1e-6
+    # The journal replays to the same motion, and a stopped adaptive solve journals what it kept.
+    replay = run_lines(Session(), "\n".join(s.journal.replayable()))
+    assert np.array_equal(replay.scene.coefficient_vector(), s.scene.coefficient_vector())
+
+
+def test_a_stopped_adaptive_round_is_undone_and_journalled_as_what_was_kept(monkeypatch):
+    from dataclasses import replace
+
+    from stw_tui import interpreter
+    from stw_tui.backend import Status
+
+    s = run_lines(Session(), ADAPT)
+    real, calls = interpreter.run_iterations, []
+
+    def stop_the_re_solve(backend, problem, start, n, settings, on_report=None):
+        calls.append(n)
+        if len(calls) == 1:
+            return real(backend, problem, start, n, settings, on_report)
+        # The user presses Esc at the re-solve's first iteration boundary.
+        return replace(real(backend, problem, start, 1, settings, on_report), status=Status.STOPPED)
+    monkeypatch.setattr(interpreter, "run_iterations", stop_the_re_solve)
+    outcome = s.execute("iterate 30")
+    assert len(calls) == 2 and "undid a re-solve" in outcome.message
+    assert s.journal.replayable()[-1] == "iterate 30 adapt=0"    # what was kept: the plain solve
+    assert not s.scene.extra_instances
+    monkeypatch.undo()
+    replay = run_lines(Session(), "\n".join(s.journal.replayable()))
+    assert np.array_equal(replay.scene.coefficient_vector(), s.scene.coefficient_vector())
+
+
+def test_print_names_a_constraint_and_json_reports_the_dense_check():
+    s = run_lines(Session(), PIN)
+    s.execute("print pin")
+    assert s.prints[-1].value["dense"] <= 1e-8
+    out = subprocess.run([sys.executable, "-m", "stw_tui.cli", "run", str(SESSIONS / "point_mass_2d.stw"),
+                          "--json"], capture_output=True, text=True, check=True, cwd=ROOT)
+    data = json.loads(out.stdout)
+    assert data["dense_violation"] <= 1e-6 and data["dense_ok"]
+    floor = data["constraints"]["floor"]
+    assert set(floor) >= {"instances", "dense", "worst_t"} and floor["dense"] <= 1e-6
+
+
+def test_instances_command_and_its_errors():
+    from stw_tui.errors import StwError
+
+    s = run_lines(Session(), PIN.replace("iterate 20\n", "constraint low: x <= 2 on [0.1, 0.9]\n"))
+    s.execute("instances low add 0.5, 0.45")
+    assert s.scene.extra_instances["low"] == (0.45, 0.5)
+    assert 0.45 in WindowProblem(s.scene).groups[-1].times or any(
+        0.45 in g.times for g in WindowProblem(s.scene).groups if g.source == "low")
+    with pytest.raises(StwError, match="no constraint"):
+        s.execute("instances nothing add 0.5")
+    with pytest.raises(StwError, match="outside"):
+        s.execute("instances low add 0.95")
+    with pytest.raises(StwError, match="instant"):
+        s.execute("instances lift add 0.5")
+    s.execute("instances low clear")
+    assert "low" not in s.scene.extra_instances
+
+
+def test_arm_throw_flight_holds_after_the_release_window():
+    # Once, a window around the release left `BY'' + g` at 0.87 just outside it (t = 0.84-0.91),
+    # and the equations panel showed '?' for it until `use all`.
+    s = Session()
+    s.run_file(SESSIONS / "arm_throw.stw")
+    assert s.scene.active_window != "all"
+    s.execute("print flight")
+    assert s.prints[-1].value["dense"] <= 1e-6
+    s.execute("use all")
+    t = np.linspace(0.55, 1.5, 20_001)
+    assert np.abs(s.scene.dofs["BY"].curve.evaluate(t, 2) + 9.81).max() <= 1e-6
