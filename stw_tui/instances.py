@@ -76,7 +76,8 @@ def interval_cuts(breakpoints: np.ndarray, a: float, b: float) -> np.ndarray:
     return np.concatenate([[a], inside, [b]])
 
 
-def exact_times(breakpoints: np.ndarray, a: float, b: float, r: int) -> np.ndarray:
+def exact_times(breakpoints: np.ndarray, a: float, b: float, r: int,
+                repeated: np.ndarray | None = None) -> np.ndarray:
     """Points on [a, b] that determine a C^(2-r) piecewise polynomial of degree ``3 - r`` with
     these breakpoints (a space of dimension pieces + 3 - r): every breakpoint in [a, b] and its
     ends, plus ``2 - r`` interior points — the midpoints of the first and the last piece, or the
@@ -92,6 +93,12 @@ def exact_times(breakpoints: np.ndarray, a: float, b: float, r: int) -> np.ndarr
     else:
         extra = [(first, 0.5), (last, 0.5)]
     points = [lo + f * (hi - lo) for (lo, hi), f in extra]
+    # A repeated knot inside (refine DOF @ T multiplicity=2) lowers the continuity there, which
+    # frees the pieces on either side: their midpoints pin them down again.
+    for knot in (repeated if repeated is not None else ()):
+        i = np.searchsorted(cuts, knot)
+        if 0 < i < cuts.size - 1 and cuts[i] == knot:
+            points += [(cuts[i - 1] + knot) / 2, (knot + cuts[i + 1]) / 2]
     return np.unique(np.concatenate([cuts, points]))
 
 
@@ -103,10 +110,21 @@ def relation_times(scene, constraint, expr: sp.Expr, kind: str) -> np.ndarray:
     r = exact_degree(scene, expr, kind) if constraint.samples is None else None
     if r is not None:
         used = [name for name in scene.dofs if set(dof_symbols(name)) & scene.expand(expr).free_symbols]
-        breaks = np.unique(np.concatenate([scene.dofs[name].curve.breakpoints for name in used]))
-        return exact_times(breaks, a, b, r)
+        knots = [scene.dofs[name].curve.knots for name in used]
+        breaks = np.unique(np.concatenate(knots))
+        return exact_times(breaks, a, b, r, repeated_knots(knots))
     return merge_times(uniform_times(scene, a, b, constraint.samples), extra_times(scene, constraint.name, a, b),
                        scene.t1 - scene.t0)
+
+
+def repeated_knots(knot_vectors) -> np.ndarray:
+    """Interior knots that appear more than once in any of the knot vectors."""
+    found = []
+    for knots in knot_vectors:
+        inner = knots[(knots > knots[0]) & (knots < knots[-1])]
+        values, counts = np.unique(inner, return_counts=True)
+        found.append(values[counts > 1])
+    return np.unique(np.concatenate(found)) if found else np.zeros(0)
 
 
 def bound_times(scene, dof_name: str) -> np.ndarray:

@@ -316,6 +316,15 @@ def _shake(scene: Scene, cmd) -> str:
 
 
 def _refine(scene: Scene, cmd) -> str:
+    if cmd.at is not None:
+        t = _time_in_span(scene, scene.numeric(cmd.at, "knot time"), "knot time")
+        if not 1 <= cmd.multiplicity <= 3:
+            raise StwError(f"multiplicity must be 1, 2 or 3 (a cubic), not {cmd.multiplicity}")
+        if not scene.t0 < t < scene.t1:
+            raise StwError(f"a knot at {t:g} must lie inside the animation span, not at its end")
+        dof = scene.dofs[cmd.dof]
+        dof.curve = dof.curve.with_knot(t, cmd.multiplicity)
+        return f"refined {cmd.dof}: a knot at {t:g} {cmd.multiplicity} time(s), {dof.curve.n_coef} control points"
     if cmd.interval is not None:
         a, b = _interval(scene, cmd.interval, "refinement interval")
     else:

@@ -260,6 +260,25 @@ class DofCurve:
         # FITPACK pads c to len(t); the trailing entries are not control points.
         return DofCurve(spline.t, spline.c[:len(spline.t) - DEGREE - 1])
 
+    def with_knot(self, t: float, multiplicity: int = 1) -> "DofCurve":
+        """The same curve with a knot at ``t`` repeated ``multiplicity`` times in all (Boehm
+        insertion). Knots already within rounding of ``t`` count toward it (and ``t`` snaps to
+        them). A knot of multiplicity 2 lets the acceleration jump there; 3, the velocity.
+
+        Raises:
+            ValueError: t outside (t0, t1) or multiplicity not in 1..3.
+        """
+        if not 1 <= int(multiplicity) <= DEGREE or not self.t0 < t < self.t1:
+            raise ValueError(f"need t inside ({self.t0}, {self.t1}) and multiplicity 1..3, got {t}, {multiplicity}")
+        near = np.abs(self.knots - t) <= 1e-12 * (self.t1 - self.t0)
+        if near.any():
+            t = float(self.knots[near][0])
+        missing = int(multiplicity) - int(np.count_nonzero(self.knots == t))
+        if missing <= 0:
+            return self
+        spline = insert(t, BSpline(self.knots, self.coef, DEGREE), m=missing)
+        return DofCurve(spline.t, spline.c[:len(spline.t) - DEGREE - 1])
+
     def sketched(self, keys: Sequence[tuple[float, float]], smoothness: float = 1e-3,
                  anchor: float = 1e-9) -> "DofCurve":
         """Bend the curve smoothly through keyframes ("keyframe sketch", paper 4.1).

@@ -244,3 +244,39 @@ def test_arm_throw_flight_holds_after_the_release_window():
     s.execute("use all")
     t = np.linspace(0.55, 1.5, 20_001)
     assert np.abs(s.scene.dofs["BY"].curve.evaluate(t, 2) + 9.81).max() <= 1e-6
+
+
+def test_a_triple_knot_lets_the_velocity_jump_and_linear_constraints_stay_exact():
+    # A point mass kicked off the ground at t = 0.5: an impulse, so its velocity jumps there.
+    s = run_lines(Session(), """time 0 1 knots=8
+const g = 9.81
+dof y
+refine y @ 0.5 multiplicity=3
+constraint rest:   y = 0, y' = 0 @ 0
+constraint ground: y = 0 on [0, 0.5]
+constraint flight: y'' + g = 0 on [0.5, 1]
+constraint top:    y = 0.3 @ 0.75
+objective effort:  y''
+iterate 20
+""")
+    assert s.runs[-1].converged
+    y = s.scene.dofs["y"].curve
+    assert y.n_coef == 13                                     # 8 spans + 3, and two more knots
+    before, after = np.linspace(0, 0.5, 5001), np.linspace(0.5, 1, 5001)
+    assert np.abs(y.evaluate(before)).max() < 1e-9            # planted until 0.5 ...
+    assert np.abs(y.evaluate(after, 2) + 9.81).max() < 1e-7   # ... then ballistic at once
+    # The take-off velocity of a parabola through (0.5, 0) and (0.75, 0.3) under g.
+    assert y.evaluate([0.5], 1)[0] == pytest.approx(0.3 / 0.25 + 9.81 * 0.25 / 2, abs=1e-7)
+    assert check_scene(s.scene).dense_violation <= 1e-7
+
+
+def test_exact_times_pin_both_sides_of_a_repeated_knot():
+    # A double knot inside [a, b] adds a degree of freedom to the piecewise polynomial there.
+    knots = np.r_[[0.0] * 4, 0.25, 0.5, 0.5, 0.75, [1.0] * 4]
+    for r in (0, 1, 2):
+        points = exact_times(np.unique(knots), 0.1, 0.9, r, repeated=np.array([0.5]))
+        trimmed = knots[r:len(knots) - r]
+        basis = BSpline.design_matrix(np.linspace(0.1, 0.9, 400), trimmed, 3 - r).toarray()
+        alive = np.flatnonzero(np.abs(basis).sum(0) > 0)
+        collocation = BSpline.design_matrix(points, trimmed, 3 - r).toarray()[:, alive]
+        assert np.linalg.matrix_rank(collocation) == alive.size

@@ -134,6 +134,8 @@ class RefineCmd:
     dof: str
     interval: Interval | None
     text: str = ""
+    at: sp.Expr | None = None           # `refine DOF @ T`: a knot at T ...
+    multiplicity: int | None = None     # ... repeated this many times (2: acceleration may jump)
 
 
 @dataclass(frozen=True)
@@ -443,6 +445,11 @@ class CommandParser(ExpressionParser):
 
     def p_refine(self):
         dof = self.dof_name()
+        if self.token.is_op("@"):
+            self.advance()
+            at = self.number_expr()
+            opts = self.options({"multiplicity": "int"})
+            return RefineCmd(dof, None, self.text, at, opts.get("multiplicity", 1))
         interval = self.interval() if self.token.is_op("[") else None
         return RefineCmd(dof, interval, self.text)
 

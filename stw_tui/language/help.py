@@ -60,9 +60,11 @@ COMMAND_HELP: dict[str, CommandHelp] = {
     "shake": CommandHelp("shake [DOF…] amplitude=A [seed=S]",
                          "Perturb control points with seeded random noise (default: the window's DOF) to "
                          "leave a local minimum.", "shake x y amplitude=0.05 seed=3"),
-    "refine": CommandHelp("refine DOF [[A, B]]",
-                          "Insert knots halving every span of the DOF over [A, B] (default: the window); "
-                          "the curve is unchanged.", "refine BX [0.4, 0.8]"),
+    "refine": CommandHelp("refine DOF [[A, B]] | refine DOF @ T [multiplicity=M]",
+                          "Insert knots halving every span of the DOF over [A, B] (default: the window), "
+                          "or a knot at T, M times in all (2: the DOF's acceleration may jump there, "
+                          "as a foot's does at take-off; 3: its velocity too); the curve is unchanged.",
+                          "refine BX [0.4, 0.8]"),
     "backend": CommandHelp("backend NAME [OPTION=VALUE…]",
                            "Choose the solver backend and its options (`stw backends` lists them).",
                            "backend scipy solver=minres"),
