@@ -60,6 +60,7 @@ class Status(enum.Enum):
     MAX_ITERATIONS = "iteration limit reached"
     STOPPED = "stopped by the user"
     STALLED = "no further progress (line search failed)"
+    INFEASIBLE = "the constraints conflict: no motion meets them all"
     FAILED = "failed"
 
 
@@ -72,7 +73,9 @@ class SolverState:
     lam_ge: np.ndarray               # multipliers of inequality rows (<= 0 when active)
     working_set: np.ndarray          # bool, inequality rows treated as active
     merit_weight: float = 1.0
-    regularization: float = 0.0
+    regularization: float = 0.0      # proximal (Levenberg-Marquardt) weight; 0: the backend's default
+    trust_radius: float = 0.0        # step limit; 0: the backend's initial one
+    elastic_weight: float = 0.0      # cost of an elastic slack once elastic mode was needed; 0: not yet
 
     @classmethod
     def start(cls, problem) -> "SolverState":
@@ -95,7 +98,12 @@ class StepReport:
     ms: dict[str, float] = field(default_factory=dict)
     converged: bool = False
     stalled: bool = False
-    message: str = ""
+    message: str = ""                # a sentence for the user (e.g. which constraints conflict)
+    fallbacks: int = 0               # iterative KKT solves replaced by a factorization
+    qp_capped: int = 0               # QP solves that stopped at their iteration limit unconverged
+    elastic: bool = False            # the step came from the elastic QP (linearization inconsistent)
+    infeasible: bool = False         # the constraints were found in conflict (status INFEASIBLE)
+    conflicts: tuple[str, ...] = ()  # names of the constraints in conflict, when infeasible
     coefficients: np.ndarray | None = field(default=None, repr=False)  # all DOF control points after
     # this iteration (set by the driver, so front ends can redraw curves while a solve runs)
 
@@ -206,13 +214,17 @@ def run_iterations(backend: Backend, problem, start: SolverState, n: int, settin
             if report.converged:
                 status = Status.CONVERGED
                 break
+            if report.infeasible:
+                status = Status.INFEASIBLE
+                break
             if report.stalled:
                 status = Status.STALLED
                 break
             if on_report is not None and on_report(report) is False:
                 status = Status.STOPPED
                 break
-        if reports and status in (Status.CONVERGED, Status.STALLED) and on_report is not None:
+        if reports and status in (Status.CONVERGED, Status.STALLED, Status.INFEASIBLE) \
+                and on_report is not None:
             on_report(reports[-1])
     except SolveError:
         raise

@@ -27,7 +27,6 @@ from __future__ import annotations
 
 import os
 import platform
-import re
 import statistics
 import sys
 import time
@@ -47,7 +46,6 @@ REFERENCE = ("scipy", "solver=direct")
 PHASES = ("assemble", "solve", "line_search", "evaluate")
 RUN_BUDGET_S = 5.0      # stop repeating a configuration once its timed runs took this long
 SMALL, LARGE = (5, 24), (5, 264)   # synthetic sizes: 5 DOF x 27 and x 267 control points
-_FALLBACK = re.compile(r"(\d+) iterative solve\(s\) fell back")
 
 
 @dataclass
@@ -159,7 +157,7 @@ def measure(name: str, setup: Session, n: int, backend: str, options: str, repea
         seconds=seconds, objective=reports[-1].objective if reports else float("nan"),
         violation=reports[-1].max_violation if reports else float("nan"), motion=motion,
         linear_iterations=median(r.linear_iterations for r in every),
-        fallbacks=sum(int(m.group(1)) for r in reports if (m := _FALLBACK.search(r.message or ""))),
+        fallbacks=sum(r.fallbacks for r in reports),
         runs=len(runs))
 
 

@@ -445,3 +445,54 @@ class WindowProblem:
         return (f"window '{self.window.name}': {self.n_free} free control points, "
                 f"{self.row_counts[EQ]} equality + {self.row_counts[GE]} inequality instances, "
                 f"{self.row_counts[OBJ]} quadrature points")
+
+    # --- backend contract ----------------------------------------------------------------------
+    # What a backend may read from a window problem: ``n_free``, ``row_counts``, ``groups`` (their
+    # label, source, kind, term, times, weights, params, slot_offset, row_offset, condition), ``P``,
+    # ``Pf``, ``free``, ``coef0``, ``dof_of_free``, ``initial``, ``scatter``, ``evaluate``,
+    # ``merit_values``, ``violation_by_source``, and the members below. Nothing else (no private
+    # attribute, nothing of the scene): the rest may change without notice.
+    @property
+    def damping(self) -> np.ndarray:
+        """Per free variable, the user's damping weight of its DOF (paper 4.3; ``damp DOF W``)."""
+        return np.array([self.scene.dofs[name].damp for name in self.dof_of_free], dtype=float)
+
+    @staticmethod
+    def max_violation(values: Evaluation | MeritValues) -> float:
+        """The largest violation of a live row: |c| of equalities, max(0, -c) of inequalities."""
+        eq = np.abs(values.c_eq[values.active_eq]) if values.c_eq.size else np.zeros(0)
+        ge = np.maximum(0.0, -values.c_ge[values.active_ge]) if values.c_ge.size else np.zeros(0)
+        return float(max(eq.max(initial=0.0), ge.max(initial=0.0)))
+
+    def row_sources(self, kind: str) -> np.ndarray:
+        """For every row of ``kind`` ("eq" or "ge"), the name of the constraint (or, for a DOF
+        bound, the DOF) it is an instance of."""
+        names = np.array([g.source for g in self.groups] or [""], dtype=object)
+        return names[self.row_group[kind]] if self.row_group[kind].size else np.zeros(0, dtype=object)
+
+    def jacobian_structure(self, kind: str) -> sps.csr_array:
+        """Structural nonzeros (ones) of the Jacobian of the ``kind`` rows over the free variables."""
+        rows, cols = self._g_pattern[kind]
+        G = sps.csr_array((np.ones(rows.size), (rows, cols)), shape=(self.row_counts[kind], self.n_slots))
+        Pf = sps.csr_array(self.Pf, copy=True)
+        Pf.data[:] = 1.0                  # explicit zeros stay in the structure
+        out = sps.csr_array(G @ Pf)
+        out.data[:] = 1.0
+        return out
+
+    def hessian_structure(self) -> sps.csr_array:
+        """Structural nonzeros (ones) of every Lagrangian Hessian :meth:`Evaluation.lagrangian_hessian`
+        can return (the Gauss-Newton part included)."""
+        d_rows, d_cols = self._d_pattern
+        D = sps.csr_array((np.ones(d_rows.size), (d_rows, d_cols)), shape=(self.n_slots, self.n_slots))
+        Pf = sps.csr_array(self.Pf, copy=True)
+        Pf.data[:] = 1.0
+        Jo = self.jacobian_structure(OBJ)
+        out = sps.csr_array(Pf.T @ D @ Pf + Jo.T @ Jo)
+        out.data[:] = 1.0
+        return out
+
+    def term_parameters(self, term: CompiledTerm) -> np.ndarray:
+        """Current values of the constants ``term`` reads (e.g. a `when` condition's leaves)."""
+        return self._params(term)
+

@@ -19,7 +19,9 @@ iteration (its iterate through ``iteration_callback``, and ``obj``/``inf_pr``/``
 ``alpha_pr`` from the solver statistics); each ``step`` call then hands out the next recorded
 iteration. Intermediate reports carry IPOPT's iterate *of that iteration* (so the curves move as
 the table fills); the last one carries IPOPT's final solution and multipliers, with
-``converged=True`` when IPOPT succeeded and ``stalled=True`` otherwise. If the driver's iteration
+``converged=True`` when the final point passes stw's own convergence tests (the same
+``tol_violation`` / ``tol_kkt`` tests as every backend, stw_tui.sqp.termination) and
+``stalled=True`` otherwise; IPOPT's own verdict is in the message. If the driver's iteration
 budget ends first, the state is that intermediate iterate, and a further ``iterate`` restarts
 IPOPT from it. The whole solve's time is charged to the first report (``ms["ipopt"]``).
 
@@ -39,6 +41,7 @@ import scipy.sparse as sps
 
 from stw_tui.backend import Backend, BackendOption, SolverState, StepReport
 from stw_tui.errors import StwError
+from stw_tui.sqp.termination import is_converged, kkt_residual
 
 
 # --- sparsity handling ---------------------------------------------------------------------
@@ -72,28 +75,12 @@ class _Pattern:
         return casadi.DM(self.sparsity, self.values(matrix))
 
 
-def _ones(matrix) -> sps.csr_array:
-    m = sps.csr_array(matrix, copy=True)
-    m.data = np.ones_like(m.data, dtype=float)
-    return m
-
-
 def _structure(problem, eq_rows: np.ndarray, ge_rows: np.ndarray):
     """Structural patterns of the constraint Jacobian and the Hessian's upper triangle."""
     n = problem.n_free
-    Pf = _ones(problem.Pf)
-    G = {}
-    for kind in ("eq", "ge", "obj"):
-        rows, cols = problem._g_pattern[kind]
-        G[kind] = sps.csr_array((np.ones(rows.size), (rows, cols)),
-                                shape=(problem.row_counts[kind], problem.n_slots))
-    J = sps.vstack([sps.csr_array((G["eq"] @ Pf)[eq_rows]), sps.csr_array((G["ge"] @ Pf)[ge_rows]),
+    J = sps.vstack([problem.jacobian_structure("eq")[eq_rows], problem.jacobian_structure("ge")[ge_rows],
                     sps.csr_array((0, n))]).tocsr()
-    d_rows, d_cols = problem._d_pattern
-    D = sps.csr_array((np.ones(d_rows.size), (d_rows, d_cols)), shape=(problem.n_slots, problem.n_slots))
-    Jo = G["obj"] @ Pf
-    H = _ones(Pf.T @ D @ Pf) + _ones(Jo.T @ Jo)
-    return J, sps.triu(H, format="csr")
+    return J, sps.triu(problem.hessian_structure(), format="csr")
 
 
 # --- CasADi callbacks ----------------------------------------------------------------------
@@ -223,17 +210,25 @@ class IpoptBackend(Backend):
             state = inner.final
         else:
             state = replace(inner.state, s=rec.x.copy())
-        merit = problem.merit_values(state.s)
-        violation = _violation(merit)
-        active = int(np.count_nonzero(state.lam_ge < 0)) if last else int(
-            np.count_nonzero((merit.c_ge <= 1e-8) & merit.active_ge))
         inner.state = state
-        report = StepReport(iteration=iteration, objective=float(merit.objective), max_violation=violation,
-                            kkt_residual=float(rec.inf_du), step_length=float(rec.alpha),
-                            linear_iterations=0, active=active, ms=ms,
-                            converged=last and inner.success, stalled=last and not inner.success,
-                            message=(f"IPOPT: {inner.message} ({len(inner.records)} iterations, "
-                                     f"{inner.evaluations} evaluations)") if last else "")
+        if not last:
+            merit = problem.merit_values(state.s)
+            report = StepReport(iteration=iteration, objective=float(merit.objective),
+                                max_violation=problem.max_violation(merit), kkt_residual=float(rec.inf_du),
+                                step_length=float(rec.alpha), linear_iterations=0,
+                                active=int(np.count_nonzero((merit.c_ge <= 1e-8) & merit.active_ge)), ms=ms)
+            return inner, report
+        # The last report: converged by the same tests as every other backend (stw_tui.sqp.termination).
+        ev = problem.evaluate(state.s)
+        violation = problem.max_violation(ev)
+        kkt = kkt_residual(ev, state.lam_eq, state.lam_ge)
+        converged = is_converged(violation, kkt, inner.settings)
+        report = StepReport(iteration=iteration, objective=float(ev.objective), max_violation=violation,
+                            kkt_residual=kkt, step_length=float(rec.alpha), linear_iterations=0,
+                            active=int(np.count_nonzero(state.lam_ge < 0)), ms=ms,
+                            converged=converged, stalled=not converged,
+                            message=f"IPOPT: {inner.message} ({len(inner.records)} iterations, "
+                                    f"{inner.evaluations} evaluations)")
         return inner, report
 
     def _solve(self, problem, inner: _Inner) -> None:
@@ -304,6 +299,7 @@ class IpoptBackend(Backend):
         p = casadi.MX.sym("p", 0)
         nlp = {"x": x, "p": p, "f": F(x, p), "g": Gf(x, p)}
         ipopt_opts = {"tol": self.config["tol"], "max_iter": self.config["max_iter"],
+                      "constr_viol_tol": float(inner.settings["tol_violation"]) or 1e-12,
                       "print_level": self.config["print_level"], "sb": "yes"}
         opts = {"ipopt": ipopt_opts, "print_time": False, "grad_f": GF, "jac_g": JG,
                 "iteration_callback": IC, "verbose_init": False,
@@ -343,8 +339,3 @@ class IpoptBackend(Backend):
         inner.seconds = time.perf_counter() - t0
         del keep, solver
 
-
-def _violation(merit) -> float:
-    eq = np.abs(merit.c_eq[merit.active_eq]) if merit.c_eq.size else np.zeros(0)
-    ge = np.maximum(0.0, -merit.c_ge[merit.active_ge]) if merit.c_ge.size else np.zeros(0)
-    return float(max(eq.max(initial=0.0), ge.max(initial=0.0)))

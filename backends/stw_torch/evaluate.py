@@ -161,9 +161,7 @@ class TorchEvaluation:
         return self.tp.jac[kind].dense(self.t_J[kind])
 
     def max_violation(self) -> float:
-        eq = np.abs(self.c_eq[self.active_eq])
-        ge = np.maximum(0.0, -self.c_ge[self.active_ge])
-        return float(max(eq.max(initial=0.0), ge.max(initial=0.0)))
+        return self.tp.problem.max_violation(self)
 
     def lagrangian_hessian(self, lam_eq: np.ndarray, lam_ge: np.ndarray):
         """∇²R + Σλ∇²C: scipy CSR (linear=scipy) or a dense tensor on the device (linear=torch)."""
@@ -182,8 +180,8 @@ class TorchProblem:
 
     def __init__(self, problem, device: torch.device, host_linear: bool):
         self.problem = problem
-        self.scene = problem.scene
         self.dof_of_free = problem.dof_of_free
+        self.damping = problem.damping
         self.device = device
         self.host_linear = host_linear
         self.n_free = problem.n_free
@@ -230,7 +228,7 @@ class TorchProblem:
             if g.condition is not None:
                 lowered.leaves = [(node, lower(term), offset,
                                    [torch.as_tensor(float(c), **dev)
-                                    for c in problem.scene.constant_values(term.parameters)])
+                                    for c in problem.term_parameters(term)])
                                   for node, term, offset in g.condition.leaves]
             self.groups.append(lowered)
             inst += g.n

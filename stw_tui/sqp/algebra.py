@@ -1,0 +1,125 @@
+"""The linear algebra the SQP and its QP are written over.
+
+One SQP (sqp/solver.py) and one QP (sqp/qp.py) serve every backend; what differs between
+backends is where vectors and matrices live and how the KKT system
+
+    K = [[H, Aᵀ], [A, -diag(e)]]
+
+is solved: SciPy sparse (SuperLU, MINRES, CG on the least-squares form) or torch (dense LU on the
+CPU or a CUDA device). A backend supplies a :class:`LinearAlgebra`; the QP touches its vectors
+only through Python's arithmetic operators (``+ - * /`` and unary ``-``, which numpy arrays and
+torch tensors share), comparisons with ``<``/``>`` and boolean-mask indexing, and the methods
+below. Nothing here imports torch.
+"""
+
+from __future__ import annotations
+
+from abc import ABC, abstractmethod
+from typing import Any, Sequence
+
+import numpy as np
+
+Vector = Any   # a backend's 1-D float64 array (numpy.ndarray, torch.Tensor, ...)
+Matrix = Any   # a backend's 2-D matrix (scipy sparse, dense torch.Tensor, ...)
+
+
+class SingularSystem(ArithmeticError):
+    """The KKT matrix is exactly singular (the factorization broke down)."""
+
+
+class KKTSystem(ABC):
+    """K = [[H, Aᵀ], [A, -diag(e)]], ready to solve for any right-hand side."""
+
+    iterations: int = 0   # linear-solver iterations spent so far (a factorization counts 1)
+    fallbacks: int = 0    # iterative solves replaced by a factorization so far
+
+    @abstractmethod
+    def solve(self, rhs: Vector) -> Vector:
+        """x with K x = rhs. Raises SingularSystem when K cannot be factorized."""
+
+
+class LinearAlgebra(ABC):
+    """Vectors, matrices and KKT solves of one backend."""
+
+    # --- vectors ----------------------------------------------------------------------------
+    @abstractmethod
+    def vector(self, values: np.ndarray) -> Vector:
+        """A backend vector holding a copy of ``values``."""
+
+    @abstractmethod
+    def numpy(self, v: Vector) -> np.ndarray:
+        """``v`` as a numpy array on the host."""
+
+    @abstractmethod
+    def full(self, n: int, value: float) -> Vector:
+        """A vector of ``n`` entries equal to ``value``."""
+
+    @abstractmethod
+    def concat(self, parts: Sequence[Vector]) -> Vector:
+        """The vectors one after the other."""
+
+    @abstractmethod
+    def maximum(self, v: Vector, floor: float) -> Vector:
+        """Elementwise max(v, floor)."""
+
+    @abstractmethod
+    def max_abs(self, v: Vector) -> float:
+        """max |v_i| (0 for an empty vector)."""
+
+    def dot(self, a: Vector, b: Vector) -> float:
+        return float(a @ b)
+
+    def zeros(self, n: int) -> Vector:
+        return self.full(n, 0.0)
+
+    # --- matrices ---------------------------------------------------------------------------
+    @abstractmethod
+    def matrix(self, m: Any) -> Matrix:
+        """A backend matrix from a scipy sparse matrix (or from one of its own, unchanged)."""
+
+    @abstractmethod
+    def diagonal_matrix(self, v: np.ndarray) -> Matrix:
+        """diag(v) from a numpy vector."""
+
+    @abstractmethod
+    def rows(self, m: Matrix, index: np.ndarray) -> Matrix:
+        """The rows ``index`` of ``m``."""
+
+    @abstractmethod
+    def stack_rows(self, parts: Sequence[Matrix]) -> Matrix:
+        """The matrices one above the other."""
+
+    @abstractmethod
+    def matvec(self, m: Matrix, x: Vector) -> Vector:
+        """m @ x."""
+
+    @abstractmethod
+    def rmatvec(self, m: Matrix, x: Vector) -> Vector:
+        """mᵀ @ x."""
+
+    @abstractmethod
+    def add(self, a: Matrix, b: Matrix) -> Matrix:
+        """a + b (same shape)."""
+
+    @abstractmethod
+    def gram(self, a: Matrix, w: Vector) -> Matrix:
+        """aᵀ diag(w) a."""
+
+    @abstractmethod
+    def max_abs_diagonal(self, m: Matrix) -> float:
+        """max |m_ii|."""
+
+    @abstractmethod
+    def kkt(self, H: Matrix, A: Matrix, e: float | Vector, exact: bool = False) -> KKTSystem:
+        """The system [[H, Aᵀ], [A, -diag(e)]] (``e`` a scalar or one entry per row of A).
+
+        ``exact``: factorize whatever the backend's preferred solver (interior-point systems
+        are too ill-conditioned for unpreconditioned Krylov methods). Raises SingularSystem.
+        """
+
+    def identity(self, n: int) -> Matrix:
+        return self.diagonal_matrix(np.ones(n))
+
+    def jacobian(self, ev: Any, kind: str) -> Matrix:
+        """The Jacobian of the equality ("eq") or inequality ("ge") rows of evaluation ``ev``."""
+        return self.matrix(ev.J_eq if kind == "eq" else ev.J_ge)
