@@ -518,7 +518,9 @@ def _iterate(session: "Session", scene: Scene, cmd, on_report) -> "Outcome":
     if report.failing(tol):
         text += (f"\nbetween the instances it fails dense_tol {tol:.0e}: {report.describe_failures(tol)}"
                  " — refine the knots there, or `set dense_tol`")
-    if result.status is Status.STALLED:
+    if result.status is Status.INFEASIBLE and last is not None and last.message:
+        text += f"\n{last.message}"    # names the constraints in conflict
+    elif result.status is Status.STALLED:
         text += "\n— try `shake`, a keyframe, damping, or a smaller window"
     # A stopped solve is journalled as what it kept, so a replay reaches the same scene.
     journal_text = "\n".join(journal) if stopped else None

@@ -251,7 +251,8 @@ class DofCurve:
             raise ValueError(f"need factor >= 2 and a <= b, got factor={factor}, [{a}, {b}]")
         bp = self.breakpoints
         lo, hi = bp[:-1], bp[1:]
-        hit = (lo < b) & (hi > a)
+        slack = 1e-9 * (self.t1 - self.t0)   # a knot within rounding of a or b is a or b
+        hit = (lo < b - slack) & (hi > a + slack)
         fractions = np.arange(1, int(factor)) / int(factor)
         new = np.sort((lo[hit, None] + (hi - lo)[hit, None] * fractions[None, :]).ravel())
         spline = BSpline(self.knots, self.coef, DEGREE)

@@ -144,9 +144,10 @@ def test_acrobat_converges_at_its_instances_and_the_check_names_its_gaps():
     assert abs(tau_between) <= air3["dense"]
 
 
-@pytest.mark.xfail(strict=True, reason="acrobat.stw does not converge yet: its flight constraints "
-                   "hold only at instances (hundreds of N between them in the somersault); see the "
-                   "session's header")
+@pytest.mark.xfail(strict=True, reason="acrobat.stw converges only with ground constraints at its knots "
+                   "and 0.05 s gaps around each flight (foot slides ~2 cm, ~9 N of flight force between "
+                   "instances); exact ground with adjacent flight and multiplicity-2 knots at take-off "
+                   "and landing does not converge on the three-hop session yet; see the session's header")
 def test_acrobat_flips_with_physically_valid_flight():
     s = Session()
     s.run_file(SESSIONS / "acrobat.stw")
@@ -215,7 +216,7 @@ def test_basketball_player_catches_its_own_throw_and_scores():
     _assert_holds_continuously(s)
     px, pz, turn, catch_y, bx = (_print(s, e) for e in ("PX", "PZ", "TURN", "player.tip.y", "BX"))
     assert np.hypot(px, pz) > 0.5 and abs(turn) > 0.1   # it moved and turned to catch
-    assert catch_y < 0                                   # caught low
+    assert abs(catch_y) < 0.5                            # caught near shoulder height
     assert bx == pytest.approx(2.0, abs=1e-9)
     scene = s.scene
     hand = lambda t: _hand(scene, t, tip=lambda ang, at: _player_tip(

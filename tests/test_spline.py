@@ -347,3 +347,10 @@ def test_gauss_legendre_validation():
         gauss_legendre_nodes([0.0, 1.0], 0, 0.0, 1.0)
     with pytest.raises(ValueError):
         gauss_legendre_nodes([0.0, 1.0], 2, 1.0, 0.0)
+
+
+def test_refining_from_a_knot_splits_no_span_before_it():
+    # 0.95 is the 19th knot of 30 spans on [0, 1.5] only up to rounding (0.9500000000000001).
+    curve = DofCurve.uniform(0.0, 1.5, 30)
+    knots = curve.refined(0.95, 1.0).breakpoints
+    assert np.allclose(knots[(knots > 0.87) & (knots < 1.01)], [0.9, 0.95, 0.975, 1.0])   # no 0.925

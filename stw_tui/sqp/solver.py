@@ -58,7 +58,7 @@ ELASTIC_RAISE, ELASTIC_MAX = 1e2, 1e6   # ... raised by this factor, up to this 
 CONFLICT_FRACTION = 0.1  # a group with this share of the least-violation multipliers is in conflict
 
 SQP_OPTIONS = (
-    BackendOption("trust", float, 0.0, "initial step limit: largest change of any control point "
+    BackendOption("trust", float, 1.0, "initial step limit: largest change of any control point "
                   "in one iteration, times max(1, largest control point); it adapts by the merit's "
                   "ratio test (0: no limit)"),
     BackendOption("growth", float, 0.0, "largest factor by which one step may multiply the "
@@ -238,7 +238,10 @@ class SQPBackend(Backend):
         radius = self._update_radius(radius, trial, d, floor, ceiling)
         # Full steps: trust the model more; cut or capped steps: less — a heavier proximal term
         # shortens the next QP step itself (Levenberg-Marquardt), which scaling a step does not.
-        prox = max(PROX_MIN, prox / 3) if alpha == 1.0 and not capped else min(PROX_MAX, prox * 10)
+        # A capped step whose model predicted the merit well was cut by the limit, not by a bad
+        # model: the growing radius lengthens the next one, and the proximal term stays light.
+        well_modelled = alpha == 1.0 and (not capped or trial.ratio > RATIO_GOOD)
+        prox = max(PROX_MIN, prox / 3) if well_modelled else min(PROX_MAX, prox * 10)
         new_state = replace(st, s=s_new, lam_eq=lam_eq, lam_ge=lam_ge, working_set=sub.working,
                             merit_weight=rho, regularization=prox, trust_radius=radius,
                             elastic_weight=rho_elastic)
