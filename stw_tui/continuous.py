@@ -61,11 +61,6 @@ class DenseReport:
         has its own), worst first."""
         return sorted((c for c in self.checks.values() if c.fails(tol)), key=lambda c: -c.dense)
 
-    def worst_excess(self, tol: float) -> float:
-        """The largest ratio of a dense violation to its tolerance (<= 1: everything holds)."""
-        return max((c.dense / (c.tol if c.tol is not None else tol) for c in self.checks.values()),
-                   default=0.0)
-
     def describe_failures(self, tol: float, limit: int = 3) -> str:
         """'in_hand 3.1e-04 at t=0.52, …' for the worst failures (empty when all hold)."""
         bad = self.failing(tol)
@@ -149,6 +144,16 @@ def _sharpen(score_at, t_grid: np.ndarray, score: np.ndarray, rounds: int = REFI
     return np.concatenate(seen_t), np.concatenate(seen_v)
 
 
+def _densely(score_at, t_inst: np.ndarray, t_base: np.ndarray, exact: bool = False) -> _Samples:
+    """A relation's violations at its instances and on the grid ``t_base``, sharpened at peaks."""
+    score = score_at(t_base)
+    t_more, v_more = _sharpen(score_at, t_base, score)
+    t_grid = np.concatenate([t_base, t_more])
+    order = np.argsort(t_grid, kind="stable")
+    v_grid = np.maximum(0.0, np.concatenate([score, v_more]))[order]
+    return _Samples(t_inst, np.maximum(0.0, score_at(t_inst)), t_grid[order], v_grid, exact)
+
+
 def _relation_samples(scene, constraint) -> list[_Samples]:
     out = []
     for rel in constraint.relations:
@@ -159,19 +164,13 @@ def _relation_samples(scene, constraint) -> list[_Samples]:
             return v
 
         t_inst = relation_times(scene, constraint, rel.expr, rel.kind)
-        v_inst = np.maximum(0.0, score_at(t_inst))
         if constraint.at is not None:
-            t_grid, v_grid = t_inst, v_inst
-        else:
-            t_grid = dense_times(scene, [rel.expr], *constraint.interval, t_inst)
-            score = score_at(t_grid)
-            t_more, v_more = _sharpen(score_at, t_grid, score)
-            t_grid, v_grid = np.concatenate([t_grid, t_more]), np.maximum(0.0, np.concatenate([score, v_more]))
-            order = np.argsort(t_grid, kind="stable")
-            t_grid, v_grid = t_grid[order], v_grid[order]
-        exact = constraint.at is None and constraint.samples is None and \
-            exact_degree(scene, rel.expr, rel.kind) is not None
-        out.append(_Samples(t_inst, v_inst, t_grid, v_grid, exact))
+            v_inst = np.maximum(0.0, score_at(t_inst))
+            out.append(_Samples(t_inst, v_inst, t_inst, v_inst))
+            continue
+        exact = constraint.samples is None and exact_degree(scene, rel.expr, rel.kind) is not None
+        t_base = dense_times(scene, [rel.expr], *constraint.interval, t_inst)
+        out.append(_densely(score_at, t_inst, t_base, exact))
     return out
 
 
@@ -184,12 +183,7 @@ def _bound_samples(scene, dof) -> list[_Samples]:
         if bound is not None:
             def score_at(times, expr=expr):
                 return _score(expression_values(scene, expr, times), "ge", 1.0)
-            score = score_at(t_base)
-            t_more, v_more = _sharpen(score_at, t_base, score)
-            t_grid = np.concatenate([t_base, t_more])
-            order = np.argsort(t_grid, kind="stable")
-            v_grid = np.maximum(0.0, np.concatenate([score, v_more]))[order]
-            out.append(_Samples(t_inst, np.maximum(0.0, score_at(t_inst)), t_grid[order], v_grid))
+            out.append(_densely(score_at, t_inst, t_base))
     return out
 
 
