@@ -188,7 +188,7 @@ class Scene:
     def numeric(self, expr: sp.Basic, what: str = "value") -> float:
         """Evaluate a constant expression (numbers and constants only) to a float."""
         expr = self.expand(expr)
-        subs = {named_symbol(n): v for n, v in self.constants.items()}
+        subs = {named_symbol(n): sp.Float(v) for n, v in self.constants.items()}   # a bare constant stays sympy
         value = expr.xreplace(subs)
         if value.free_symbols:
             names = ", ".join(sorted(s.name for s in value.free_symbols))

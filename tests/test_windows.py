@@ -119,3 +119,12 @@ def test_a_stopped_solve_is_journalled_as_the_iterations_it_ran():
     assert s.journal.replayable()[-1] == "iterate 2 adapt=0"   # no adaptive round after a stop
     replay = run_lines(Session(), "\n".join(s.journal.replayable()))
     assert np.array_equal(replay.scene.coefficient_vector(), s.scene.coefficient_vector())
+
+
+def test_a_bare_constant_is_a_number_wherever_one_is_expected():
+    s = run_lines(Session(), "const T = 2, k = 0.5\ntime 0 T knots=8\ndof x\n"
+                             "constraint c: x = 1 @ T\nobjective o: x''\nkey k x=0.3\nweight o k\n")
+    assert (s.scene.t0, s.scene.t1) == (0.0, 2.0)
+    assert s.scene.dofs["x"].keys == [(0.5, 0.3)] and s.scene.objectives["o"].weight == 0.5
+    s.execute("print x @ T")
+    assert s.prints[-1].t == 2.0
