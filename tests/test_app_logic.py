@@ -4,6 +4,7 @@ from __future__ import annotations
 
 from pathlib import Path
 
+import numpy as np
 import pytest
 
 from stw_tui.app.completion import History, candidates, complete
@@ -80,3 +81,16 @@ def test_importing_the_app_loads_neither_the_solver_stack_nor_torch():
             "print(','.join(m for m in ('torch', 'sympy', 'scipy', 'stw_tui.session') if m in sys.modules))")
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True)
     assert out.stdout.strip() == ""
+
+
+def test_equation_violations_cover_every_constraint_densely_whatever_the_window():
+    s = Session()
+    s.run_text("time 0 1 knots=20\ndof x = 0.3 + 0.1*sin(40*t)\nconstraint pin: x = 0.3 @ 0.02\n"
+               "constraint low: x <= 0.35 on [0, 1] samples=5\nwindow mid [0.8, 0.9]\n")
+    shown = equation_violations(s.scene)
+    assert set(shown) == {"pin", "low"}                  # pin lies far outside the window
+    x = s.scene.dofs["x"].curve
+    assert shown["pin"] == pytest.approx(abs(x.evaluate([0.02])[0] - 0.3), rel=1e-9)
+    # Between its 6 instances `low` is broken where the wave's crests pass 0.35 (brute force).
+    crest = x.evaluate(np.linspace(0, 1, 200_001)).max() - 0.35
+    assert crest > 0.02 and shown["low"] == pytest.approx(crest, rel=1e-6)
