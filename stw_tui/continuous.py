@@ -15,7 +15,7 @@ import numpy as np
 import sympy as sp
 
 from .compiler import compile_term
-from .instances import bound_times, exact_degree, interval_cuts, relation_times
+from .instances import bound_times, exact_degree, from_the_left_at_the_end, interval_cuts, relation_times
 from .symbols import dof_symbol, dof_symbols
 
 DENSE_PER_SPAN = 8
@@ -99,7 +99,8 @@ def dense_times(scene, exprs, a: float, b: float, instances: np.ndarray) -> np.n
     fractions = np.linspace(0.0, 1.0, DENSE_PER_SPAN + 1)
     grid = (cuts[:-1, None] + (cuts[1:] - cuts[:-1])[:, None] * fractions[None, :]).ravel()
     mids = (instances[:-1] + instances[1:]) / 2 if instances.size > 1 else np.zeros(0)
-    return np.unique(np.concatenate([grid, instances, mids, [a, b]]))
+    times = np.unique(np.concatenate([grid, instances, mids, [a, b]]))
+    return np.unique(from_the_left_at_the_end(times, b, [scene.dofs[n].curve.knots for n in used]))
 
 
 def _score(values: np.ndarray, kind: str, weight: float) -> np.ndarray:

@@ -107,14 +107,26 @@ def relation_times(scene, constraint, expr: sp.Expr, kind: str) -> np.ndarray:
     if constraint.at is not None:
         return np.array([constraint.at])
     a, b = constraint.interval
+    used = [name for name in scene.dofs if set(dof_symbols(name)) & scene.expand(expr).free_symbols]
+    knots = [scene.dofs[name].curve.knots for name in used]
     r = exact_degree(scene, expr, kind) if constraint.samples is None else None
     if r is not None:
-        used = [name for name in scene.dofs if set(dof_symbols(name)) & scene.expand(expr).free_symbols]
-        knots = [scene.dofs[name].curve.knots for name in used]
-        breaks = np.unique(np.concatenate(knots))
-        return exact_times(breaks, a, b, r, repeated_knots(knots))
-    return merge_times(uniform_times(scene, a, b, constraint.samples), extra_times(scene, constraint.name, a, b),
-                       scene.t1 - scene.t0)
+        times = exact_times(np.unique(np.concatenate(knots)), a, b, r, repeated_knots(knots))
+    else:
+        times = merge_times(uniform_times(scene, a, b, constraint.samples),
+                            extra_times(scene, constraint.name, a, b), scene.t1 - scene.t0)
+    return from_the_left_at_the_end(times, b, knots)
+
+
+def from_the_left_at_the_end(times: np.ndarray, b: float, knot_vectors) -> np.ndarray:
+    """Curves are evaluated from the right at a knot. Where an interval ends at a repeated knot
+    (a take-off: `refine X @ T multiplicity=2`), its last instance must see the interval's own
+    side, so it moves to the float just before ``b``."""
+    repeated = repeated_knots(knot_vectors)
+    if repeated.size and np.any(np.abs(repeated - b) <= _SAME_TIME * max(abs(b), 1.0)):
+        times = times.copy()
+        times[times >= b] = np.nextafter(b, -np.inf)
+    return times
 
 
 def repeated_knots(knot_vectors) -> np.ndarray:

@@ -280,3 +280,24 @@ def test_exact_times_pin_both_sides_of_a_repeated_knot():
         alive = np.flatnonzero(np.abs(basis).sum(0) > 0)
         collocation = BSpline.design_matrix(points, trimmed, 3 - r).toarray()[:, alive]
         assert np.linalg.matrix_rank(collocation) == alive.size
+
+
+def test_a_phase_ending_at_a_repeated_knot_is_held_on_its_own_side():
+    # The ground phase ends at the take-off knot 0.5, where curves are evaluated from the right
+    # (the flight side); its last instance and its check must see the ground side.
+    s = run_lines(Session(), """time 0 1 knots=8
+const g = 9.81
+dof y
+refine y @ 0.5 multiplicity=2
+constraint rest:   y = 0, y' = 0 @ 0
+constraint ground: y'' = 0 on [0, 0.5]
+constraint flight: y'' + g = 0 on [0.5, 1]
+objective effort:  y
+iterate 20
+""")
+    assert s.runs[-1].converged
+    y = s.scene.dofs["y"].curve
+    assert np.abs(y.evaluate(np.linspace(0, 0.5, 5001)[:-1], 2)).max() < 1e-8   # planted up to 0.5
+    assert y.evaluate([0.5], 2)[0] == pytest.approx(-9.81, abs=1e-8)             # flying from 0.5
+    report = check_scene(s.scene)
+    assert report.checks["ground"].dense < 1e-8 and report.checks["flight"].dense < 1e-8
