@@ -1,10 +1,9 @@
 """Robust SQP steps: inconsistent linearizations (elastic mode), a step limit, conflicting
 constraints named, and the same steps on every backend's linear algebra.
 
-The step limit (``trust``) is on by default (1: no control point moves by more than
-max(1, largest control point) in one step, adapted by the merit's ratio test); the objective-growth
-bound (``growth``) is an option. A tighter limit (trust=0.3) finds lower optima on the
-reproductions, but the basketball session then needs more than its 200 iterations.
+The step limit (``trust``) is on by default (0.5: no control point moves by more than half of
+max(1, largest control point) in one step at first; the limit adapts by the merit's ratio test);
+the objective-growth bound (``growth``) is an option.
 """
 
 import sys
@@ -86,8 +85,8 @@ def test_reproductions_converge_with_the_default_step_limit(ipopt_objectives, ba
         pytest.importorskip("torch")
     arm = _solve(ARM, backend, 100).runs[-1]
     assert arm.status is Status.CONVERGED and arm.reports[-1].max_violation <= 1e-8
-    # A local optimum near IPOPT's (6.73 against 5.30 today), not a blow-up.
-    assert arm.reports[-1].objective <= 1.5 * ipopt_objectives["arm"]
+    # IPOPT's optimum or a lower one (3.14 against 5.30 today), and no blow-up on the way.
+    assert arm.reports[-1].objective <= ipopt_objectives["arm"] * (1 + 1e-6)
     assert max(r.objective for r in arm.reports) <= 1e3
     sine = _solve(SINE, backend, 50).runs[-1]
     assert sine.status is Status.CONVERGED

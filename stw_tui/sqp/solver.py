@@ -58,7 +58,7 @@ ELASTIC_RAISE, ELASTIC_MAX = 1e2, 1e6   # ... raised by this factor, up to this 
 CONFLICT_FRACTION = 0.1  # a group with this share of the least-violation multipliers is in conflict
 
 SQP_OPTIONS = (
-    BackendOption("trust", float, 1.0, "initial step limit: largest change of any control point "
+    BackendOption("trust", float, 0.5, "initial step limit: largest change of any control point "
                   "in one iteration, times max(1, largest control point); it adapts by the merit's "
                   "ratio test (0: no limit)"),
     BackendOption("growth", float, 0.0, "largest factor by which one step may multiply the "
@@ -275,6 +275,11 @@ class SQPBackend(Backend):
         if trial.alpha == 0.0 or trial.ratio < RATIO_POOR:
             return max(floor, 0.5 * min(radius, taken)) if taken > 0 else radius
         if trial.ratio > RATIO_GOOD:
+            return min(ceiling, 2.0 * radius)
+        if trial.alpha == 1.0 and taken >= 0.99 * radius:
+            # A full step stopped by the limit, with a fair ratio: the ℓ1 merit's kink (Maratos)
+            # keeps the ratio below RATIO_GOOD near a solution, and a radius that never grows
+            # there turns Newton's convergence into a crawl at the limit.
             return min(ceiling, 2.0 * radius)
         return radius
 
