@@ -86,14 +86,25 @@ def test_undefined_values_are_errors_at_the_operation(text, column):
     assert err.expected == "a finite expression"
 
 
-def test_non_real_arguments_are_source_errors():
+def test_non_real_values_are_source_errors_where_they_arise():
     err = expr_error("min(sqrt(-1), 1)")
-    assert err.column == 1
-    assert err.expected == "real arguments"
+    assert err.column == 5                    # at sqrt, where the value stops being real
+    assert err.expected == "a real expression"
     with pytest.raises(SourceError) as info:
         parse_condition("x > 0 and sqrt(-1) > 0", SCOPE, line=2)
-    assert (info.value.line, info.value.column) == (2, 20)
-    assert "not real" in info.value.message
+    assert (info.value.line, info.value.column) == (2, 11)
+    assert "not a real number" in info.value.message
+
+
+@pytest.mark.parametrize("text, column", [("sqrt(-1)", 1), ("2*log(-2)", 3), ("(-4)^(1/2)", 5)])
+def test_constant_non_real_values_are_refused(text, column):
+    err = expr_error(text)
+    assert err.column == column and "not a real number" in err.message
+
+
+def test_division_by_an_underflowing_float_is_a_positioned_error():
+    err = expr_error("9.81/1e-400")              # 1e-400 is 0.0 as a float
+    assert err.column == 5 and "division by zero" in err.message
 
 
 def test_non_ascii_digits_and_letters_are_rejected():

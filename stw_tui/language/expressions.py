@@ -170,6 +170,8 @@ class ExpressionParser:
         if value.has(*_UNDEFINED):
             raise self.error("the value is undefined or infinite here (division by zero?)", token,
                              expected="a finite expression")
+        if value.has(sp.I):   # sqrt(-1), log(-2), (-8)^(1/3): stw's curves and values are real
+            raise self.error("the value is not a real number", token, expected="a real expression")
         if value.is_Rational and max(abs(value.p), value.q).bit_length() > MAX_BITS:
             raise self.error("number too large", token, expected=f"numbers below 2^{MAX_BITS}")
         return value
@@ -191,7 +193,12 @@ class ExpressionParser:
         while self.token.is_op("*", "/"):
             op = self.advance()
             right = self._unary()
-            left = self._checked(left * right if op.text == "*" else left / right, op)
+            try:
+                value = left * right if op.text == "*" else left / right
+            except ZeroDivisionError:   # a float zero (1e-400 underflows) divides in mpmath
+                raise self.error("the value is undefined or infinite here (division by zero?)", op,
+                                 expected="a finite expression") from None
+            left = self._checked(value, op)
         return left
 
     def _unary(self) -> sp.Expr:
