@@ -117,9 +117,7 @@ class Evaluation:
     _J_obj: sps.csr_array = field(repr=False, default=None)
 
     def max_violation(self) -> float:
-        eq = np.abs(self.c_eq[self.active_eq]) if self.c_eq.size else np.zeros(0)
-        ge = np.maximum(0.0, -self.c_ge[self.active_ge]) if self.c_ge.size else np.zeros(0)
-        return float(max(eq.max(initial=0.0), ge.max(initial=0.0)))
+        return WindowProblem.max_violation(self)
 
     def lagrangian_hessian(self, lam_eq: np.ndarray, lam_ge: np.ndarray) -> sps.csr_array:
         """∇²R + Σ λ ∇²C over the free variables (sparse, symmetric)."""
