@@ -15,8 +15,9 @@ import numpy as np
 import sympy as sp
 
 from .compiler import compile_term
-from .instances import bound_times, exact_degree, from_the_left_at_the_end, interval_cuts, relation_times
-from .symbols import dof_symbol, dof_symbols
+from .instances import (bound_times, dofs_used, exact_degree, from_the_left_at_the_end, interval_cuts,
+                        relation_times, repeated_knots)
+from .symbols import dof_symbol
 
 DENSE_PER_SPAN = 8
 MAX_PEAKS = 256          # local maxima of a relation's violation looked at more closely
@@ -92,15 +93,14 @@ def condition_holds(scene, when: sp.Basic | None, times: np.ndarray) -> np.ndarr
 def dense_times(scene, exprs, a: float, b: float, instances: np.ndarray) -> np.ndarray:
     """The check's grid on [a, b]: instances, their midpoints, and DENSE_PER_SPAN points in every
     knot span of the DOF the expressions use."""
-    used = [name for name in scene.dofs
-            if any(set(dof_symbols(name)) & scene.expand(e).free_symbols for e in exprs)]
-    breaks = np.unique(np.concatenate([scene.dofs[n].curve.breakpoints for n in used] or [[a, b]]))
+    knots = [scene.dofs[n].curve.knots for n in dofs_used(scene, exprs)]
+    breaks = np.unique(np.concatenate(knots or [[a, b]]))
     cuts = interval_cuts(breaks, a, b)
     fractions = np.linspace(0.0, 1.0, DENSE_PER_SPAN + 1)
     grid = (cuts[:-1, None] + (cuts[1:] - cuts[:-1])[:, None] * fractions[None, :]).ravel()
     mids = (instances[:-1] + instances[1:]) / 2 if instances.size > 1 else np.zeros(0)
     times = np.unique(np.concatenate([grid, instances, mids, [a, b]]))
-    return np.unique(from_the_left_at_the_end(times, b, [scene.dofs[n].curve.knots for n in used]))
+    return np.unique(from_the_left_at_the_end(times, b, repeated_knots(knots)))
 
 
 def _score(values: np.ndarray, kind: str, weight: float) -> np.ndarray:
@@ -215,7 +215,20 @@ def check_scene(scene) -> DenseReport:
     Raises:
         StwError: a constraint that no longer compiles (e.g. it names a deleted definition).
     """
-    return DenseReport({name: _summarize(name, samples, tol) for name, samples, tol in _all_samples(scene)})
+    return survey(scene, None)[0]
+
+
+def survey(scene, tol: float | None) -> tuple[DenseReport, dict[str, np.ndarray]]:
+    """The dense check and, from the same samples, where new instances would help (see
+    :func:`_refinement`; nothing when ``tol`` is None)."""
+    checks, wanted = {}, {}
+    for name, samples, own_tol in _all_samples(scene):
+        checks[name] = _summarize(name, samples, own_tol)
+        if tol is not None:
+            found = _refinement(scene, samples, own_tol if own_tol is not None else tol)
+            if found.size:
+                wanted[name] = found
+    return DenseReport(checks), wanted
 
 
 def _snap(scene, t: float) -> float:
@@ -225,25 +238,20 @@ def _snap(scene, t: float) -> float:
     return float(min(scene.t1, max(scene.t0, scene.t0 + round((t - scene.t0) / step) * step)))
 
 
-def refinement_times(scene, tol: float) -> dict[str, np.ndarray]:
-    """Where new instances would help: per check name, the local maxima of the dense violation
-    above ``tol`` that are not instances already (at most one per gap between instances)."""
-    out: dict[str, np.ndarray] = {}
-    for name, samples, own_tol in _all_samples(scene):
-        limit = own_tol if own_tol is not None else tol
-        found = []
-        for s in samples:
-            v = s.v_grid
-            if v.size < 3 or s.t_inst.size < 2 or s.exact:
-                continue   # an instant, or exactly placed instances: more would add nothing
-            peak = (v > limit) & (v >= np.roll(v, 1)) & (v >= np.roll(v, -1))
-            peak[0] = peak[-1] = False
-            gap = np.searchsorted(s.t_inst, s.t_grid)
-            for g in np.unique(gap[peak]):   # the worst peak of each gap between instances
-                in_gap = np.flatnonzero(peak & (gap == g))
-                t = _snap(scene, s.t_grid[in_gap[np.argmax(v[in_gap])]])
-                if np.min(np.abs(s.t_inst - t)) > 1e-9 * (scene.t1 - scene.t0):
-                    found.append(t)
-        if found:
-            out[name] = np.unique(found)
-    return out
+def _refinement(scene, samples: list[_Samples], limit: float) -> np.ndarray:
+    """Where new instances would help one check: the local maxima of its dense violation above
+    ``limit`` that are not instances already (at most one per gap between instances)."""
+    found = []
+    for s in samples:
+        v = s.v_grid
+        if v.size < 3 or s.t_inst.size < 2 or s.exact:
+            continue   # an instant, or exactly placed instances: more would add nothing
+        peak = (v > limit) & (v >= np.roll(v, 1)) & (v >= np.roll(v, -1))
+        peak[0] = peak[-1] = False
+        gap = np.searchsorted(s.t_inst, s.t_grid)
+        for g in np.unique(gap[peak]):   # the worst peak of each gap between instances
+            in_gap = np.flatnonzero(peak & (gap == g))
+            t = _snap(scene, s.t_grid[in_gap[np.argmax(v[in_gap])]])
+            if np.min(np.abs(s.t_inst - t)) > 1e-9 * (scene.t1 - scene.t0):
+                found.append(t)
+    return np.unique(found)

@@ -107,22 +107,27 @@ def relation_times(scene, constraint, expr: sp.Expr, kind: str) -> np.ndarray:
     if constraint.at is not None:
         return np.array([constraint.at])
     a, b = constraint.interval
-    used = [name for name in scene.dofs if set(dof_symbols(name)) & scene.expand(expr).free_symbols]
-    knots = [scene.dofs[name].curve.knots for name in used]
+    knots = [scene.dofs[name].curve.knots for name in dofs_used(scene, [expr])]
+    repeated = repeated_knots(knots)
     r = exact_degree(scene, expr, kind) if constraint.samples is None else None
     if r is not None:
-        times = exact_times(np.unique(np.concatenate(knots)), a, b, r, repeated_knots(knots))
+        times = exact_times(np.unique(np.concatenate(knots)), a, b, r, repeated)
     else:
         times = merge_times(uniform_times(scene, a, b, constraint.samples),
                             extra_times(scene, constraint.name, a, b), scene.t1 - scene.t0)
-    return from_the_left_at_the_end(times, b, knots)
+    return from_the_left_at_the_end(times, b, repeated)
 
 
-def from_the_left_at_the_end(times: np.ndarray, b: float, knot_vectors) -> np.ndarray:
+def dofs_used(scene, exprs) -> list[str]:
+    """The DOF whose value, velocity or acceleration the expressions use (subexpressions expanded)."""
+    symbols = set().union(*(scene.expand(e).free_symbols for e in exprs))
+    return [name for name in scene.dofs if set(dof_symbols(name)) & symbols]
+
+
+def from_the_left_at_the_end(times: np.ndarray, b: float, repeated: np.ndarray) -> np.ndarray:
     """Curves are evaluated from the right at a knot. Where an interval ends at a repeated knot
-    (a take-off: `refine X @ T multiplicity=2`), its last instance must see the interval's own
-    side, so it moves to the float just before ``b``."""
-    repeated = repeated_knots(knot_vectors)
+    (``repeated``; a take-off: `refine X @ T multiplicity=2`), its last instance must see the
+    interval's own side, so it moves to the float just before ``b``."""
     if repeated.size and np.any(np.abs(repeated - b) <= _SAME_TIME * max(abs(b), 1.0)):
         times = times.copy()
         times[times >= b] = np.nextafter(b, -np.inf)

@@ -15,7 +15,7 @@ import sympy as sp
 from . import language as lang
 from .backend import RunResult, Status, SolverState, load_backend, run_iterations
 from .compiler import compile_term
-from .continuous import check_scene, expression_values, refinement_times
+from .continuous import check_scene, expression_values, survey
 from .errors import StwError
 from .scene import DEFAULT_SETTINGS, Constraint, Dof, Objective, Relation, Scene, Window
 from .spline import DofCurve
@@ -477,9 +477,11 @@ def _iterate(session: "Session", scene: Scene, cmd, on_report) -> "Outcome":
     added: dict[str, int] = {}
     undone = ""
     stopped = result.status is Status.STOPPED
+    report = None   # the dense check of the scene as it is now (None: not made yet)
     while result.status is Status.CONVERGED and len(runs) <= rounds:
-        lo, hi = problem.instance_range   # instances the window cannot move would change nothing
-        new = {name: times[(times >= lo) & (times <= hi)] for name, times in refinement_times(scene, tol).items()}
+        report, wanted = survey(scene, tol)
+        lo, hi = problem.reach   # instances the window cannot move would change nothing
+        new = {name: times[(times >= lo) & (times <= hi)] for name, times in wanted.items()}
         new = {name: times for name, times in new.items() if times.size}
         if not new:
             break
@@ -498,13 +500,13 @@ def _iterate(session: "Session", scene: Scene, cmd, on_report) -> "Outcome":
             undone = (f"; undid a re-solve with {count} more instance(s) ({', '.join(new)}): "
                       f"{trial.status.value} after {len(trial.reports)} iteration(s)")
             break
-        problem, result = trial_problem, trial
+        problem, result, report = trial_problem, trial, None
         runs.append(trial)
         journal += lines + [f"iterate {cmd.n} adapt=0"]
         for name, times in new.items():
             added[name] = added.get(name, 0) + times.size
     result = _merged(runs)
-    report = check_scene(scene)
+    report = report or check_scene(scene)   # an undone round restored the surveyed scene
     last = result.reports[-1] if result.reports else None
     text = f"{problem.summary()}\n{len(result.reports)} iteration(s) with {backend.name}: {result.status.value}"
     if last is not None:

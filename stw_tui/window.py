@@ -186,7 +186,7 @@ class WindowProblem:
         # Constraint instances and objective quadrature cover every time the free control points
         # can change: the union of their supports, up to three knot spans past the window. (The
         # paper's one span past it (4.2) lets a window break constraints just outside itself.)
-        self.instance_range = self.objective_range = (max(self.scene.t0, lo), min(self.scene.t1, hi))
+        self.reach = (max(self.scene.t0, lo), min(self.scene.t1, hi))
         self.free_dofs = frozenset(self.window_dofs)
         self.dof_of_free = np.empty(self.free.size, dtype=object)
         pos = 0
@@ -201,7 +201,7 @@ class WindowProblem:
         return self.scene.constant_values(term.parameters)
 
     def _build_groups(self) -> None:
-        scene, (ia, ib) = self.scene, self.instance_range
+        scene, (ia, ib) = self.scene, self.reach
         self.groups: list[TermGroup] = []
         def inside(times):
             return times[(times >= ia - 1e-12) & (times <= ib + 1e-12)]
@@ -221,7 +221,7 @@ class WindowProblem:
                 self._add_group(f"{name}.hi", name, GE, dof.hi - x, times, 1.0, None)
         quad = int(scene.settings["quadrature"])
         for o in scene.objectives.values():
-            a, b = self.objective_range
+            a, b = self.reach
             if o.interval is not None:
                 a, b = max(a, o.interval[0]), min(b, o.interval[1])
             if b <= a:
