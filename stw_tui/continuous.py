@@ -15,7 +15,7 @@ import numpy as np
 import sympy as sp
 
 from .compiler import compile_term
-from .instances import (bound_times, dofs_used, exact_degree, from_the_left_at_the_end, interval_cuts,
+from .instances import (bound_times, dofs_used, exact_degree, on_own_side, interval_cuts,
                         relation_times, repeated_knots)
 from .symbols import dof_symbol
 
@@ -100,7 +100,7 @@ def dense_times(scene, exprs, a: float, b: float, instances: np.ndarray) -> np.n
     grid = (cuts[:-1, None] + (cuts[1:] - cuts[:-1])[:, None] * fractions[None, :]).ravel()
     mids = (instances[:-1] + instances[1:]) / 2 if instances.size > 1 else np.zeros(0)
     times = np.unique(np.concatenate([grid, instances, mids, [a, b]]))
-    return np.unique(from_the_left_at_the_end(times, b, repeated_knots(knots)))
+    return np.unique(on_own_side(times, a, b, repeated_knots(knots)))
 
 
 def _score(values: np.ndarray, kind: str, weight: float) -> np.ndarray:

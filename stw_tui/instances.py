@@ -115,7 +115,7 @@ def relation_times(scene, constraint, expr: sp.Expr, kind: str) -> np.ndarray:
     else:
         times = merge_times(uniform_times(scene, a, b, constraint.samples),
                             extra_times(scene, constraint.name, a, b), scene.t1 - scene.t0)
-    return from_the_left_at_the_end(times, b, repeated)
+    return on_own_side(times, a, b, repeated)
 
 
 def dofs_used(scene, exprs) -> list[str]:
@@ -124,13 +124,24 @@ def dofs_used(scene, exprs) -> list[str]:
     return [name for name in scene.dofs if set(dof_symbols(name)) & symbols]
 
 
-def from_the_left_at_the_end(times: np.ndarray, b: float, repeated: np.ndarray) -> np.ndarray:
-    """Curves are evaluated from the right at a knot. Where an interval ends at a repeated knot
-    (``repeated``; a take-off: `refine X @ T multiplicity=2`), its last instance must see the
-    interval's own side, so it moves to the float just before ``b``."""
-    if repeated.size and np.any(np.abs(repeated - b) <= _SAME_TIME * max(abs(b), 1.0)):
-        times = times.copy()
-        times[times >= b] = np.nextafter(b, -np.inf)
+def on_own_side(times: np.ndarray, a: float, b: float, repeated: np.ndarray) -> np.ndarray:
+    """Curves are evaluated from the right at a knot. Where an interval [a, b] ends at a repeated
+    knot (``repeated``; a take-off: `refine X @ T multiplicity=2`), its last instances must see the
+    interval's own side, so they move to the float just before the knot; where it starts at one,
+    its first instances move onto the knot. A knot within rounding of an end counts as that end
+    (0.05 * 64 is 3.1999999999999997, not 3.2)."""
+    if not repeated.size:
+        return times
+    scale = _SAME_TIME * max(abs(a), abs(b), 1.0)
+    times = times.copy()
+    at_end = repeated[np.abs(repeated - b) <= scale]
+    if at_end.size:
+        edge = min(float(at_end.min()), b)
+        times[times >= edge] = np.nextafter(edge, -np.inf)
+    at_start = repeated[np.abs(repeated - a) <= scale]
+    if at_start.size:
+        edge = max(float(at_start.max()), a)
+        times[times <= edge] = edge
     return times
 
 

@@ -19,7 +19,7 @@ from .continuous import check_scene, expression_values, survey
 from .errors import StwError
 from .scene import DEFAULT_SETTINGS, Constraint, Dof, Objective, Relation, Scene, Window
 from .spline import DofCurve
-from .symbols import dof_symbols
+from .symbols import dof_symbol, dof_symbols
 from .window import WindowProblem
 
 if TYPE_CHECKING:
@@ -68,7 +68,7 @@ def apply_line(session: "Session", scene: Scene, text: str, line: int | None, on
 def apply_linkage(session: "Session", scene: Scene, block) -> "Outcome":
     """Add a linkage: its joint (and base) variables become DOF, its kinematics and generalized
     forces become derived subexpressions."""
-    from .linkage import derive, dof_names, parse_linkage
+    from .linkage import curve_dofs, derive, dof_names, parse_linkage
     from .session import Outcome
 
     (header_line, header), rows = block[0], block[1:]
@@ -77,11 +77,12 @@ def apply_linkage(session: "Session", scene: Scene, block) -> "Outcome":
         raise StwError(f"'{spec.name}' is already defined; choose another linkage name")
     if spec.gravity_axis is not None and "g" not in scene.constants:
         raise StwError("the linkage feels gravity g: declare it first, e.g. `const g = 9.81`")
-    names = dof_names(spec)
-    taken = [n for n in names if scene.kind_of(n) is not None]
+    names = curve_dofs(spec)
+    taken = [n for n in names + [b.dof for b in spec.base] if scene.kind_of(n) is not None]
     if taken:
         raise StwError(f"linkage DOF {', '.join(taken)} already exist; rename the joints")
     derived = derive(spec)
+    derived.update(_base_from_com(spec, derived))
     clash = [n for n in derived if scene.kind_of(n) is not None]
     if clash:
         raise StwError(f"linkage quantities {', '.join(clash[:4])} clash with existing names")
@@ -89,9 +90,20 @@ def apply_linkage(session: "Session", scene: Scene, block) -> "Outcome":
         scene.dofs[name] = Dof(name, DofCurve.uniform(scene.t0, scene.t1, scene.knots))
     scene.derived.update(derived)
     scene.linkages[spec.name] = spec
-    forces = ", ".join(f"tau_{n}" for n in names)
+    forces = ", ".join(f"tau_{n}" for n in dof_names(spec))
     return Outcome(message=f"linkage {spec.name}: DOF {', '.join(names)}; forces {forces}; "
                            f"positions {spec.name}.JOINT.x|y|z, {spec.name}.tip.*, {spec.name}.com.*")
+
+
+def _base_from_com(spec, derived: dict) -> dict:
+    """With ``com=CX,CY``: each base variable as a subexpression, the centroidal DOF minus where
+    the centre of mass sits relative to the base (which depends on the joints only)."""
+    out = {}
+    for axis, com in zip(spec.base, spec.com):
+        base = dof_symbol(axis.dof)
+        offset = sp.expand(derived[f"{spec.name}.com.{'xyz'[axis.index]}"] - base)
+        out[axis.dof] = dof_symbol(com) - offset
+    return out
 
 
 # --- helpers ---------------------------------------------------------------------------------

@@ -301,3 +301,27 @@ iterate 20
     assert y.evaluate([0.5], 2)[0] == pytest.approx(-9.81, abs=1e-8)             # flying from 0.5
     report = check_scene(s.scene)
     assert report.checks["ground"].dense < 1e-8 and report.checks["flight"].dense < 1e-8
+
+
+def test_a_phase_ending_at_a_knot_within_rounding_of_its_end_is_held_on_its_own_side():
+    # 78 spans over [0, 3.9]: the knot meant at 3.2 is 0.05 * 64 = 3.1999999999999997, and
+    # `refine @ 3.2` doubles that knot. The flight [2.5, 3.2] must still be judged (and held) from
+    # its own side of it, not from the float just below 3.2, which is the knot itself.
+    s = run_lines(Session(), """time 0 3.9 knots=78
+const g = 9.81
+dof y
+refine y @ 3.2 multiplicity=2
+constraint rest:   y = 0, y' = 0 @ 2.5
+constraint flight: y'' + g = 0 on [2.5, 3.2]
+constraint ground: y'' = 0 on [3.2, 3.9]
+objective effort:  y
+iterate 20
+""")
+    assert s.runs[-1].converged
+    y = s.scene.dofs["y"].curve
+    knot = y.knots[np.abs(y.knots - 3.2) < 1e-9]
+    assert knot.size == 2 and knot[0] != 3.2      # the case: the double knot is not 3.2 itself
+    assert np.abs(y.evaluate(np.linspace(2.5, 3.2, 7001)[:-1], 2) + 9.81).max() < 1e-8
+    assert np.abs(y.evaluate(np.linspace(3.2, 3.9, 7001), 2)).max() < 1e-8
+    report = check_scene(s.scene)
+    assert report.checks["flight"].dense < 1e-8 and report.checks["ground"].dense < 1e-8

@@ -455,3 +455,58 @@ def test_cold_derivation_time():
     start = time.perf_counter()
     derive(make(SPATIAL))
     print(f"3-D creature (6 DOF) derive: {time.perf_counter() - start:.3f} s")
+
+
+def test_centroidal_base_places_the_centre_of_mass_and_keeps_the_base_forces():
+    # `com=CX,CY`: the DOF are where the centre of mass is, the foot (X, Y) follows from it. For
+    # two uniform rods of length 0.5 and mass 1 the centre of mass sits 0.375 along the first
+    # link and 0.125 along the second from the foot; and by Newton's second law the force on the
+    # free base (the ground reaction) is the total mass times the centre of mass's acceleration
+    # plus its weight, whatever the joints do.
+    from stw_tui.continuous import expression_values
+    from stw_tui.session import Session
+
+    s = Session()
+    s.run_text("""time 0 1 knots=8
+const g = 9.81
+linkage acro base=tx:X,ty:Y com=CX,CY
+  FOOT  revolute a=0.5 mass=1.0
+  WAIST revolute a=0.5 mass=1.0
+end
+dof FOOT = 1 + 2*t^2
+dof WAIST = 0.5*sin(3*t)
+dof CX = 0.3 + t - t^3
+dof CY = 0.5 + 2*t - 4.9*t^2
+""")
+    sc = s.scene
+    assert list(sc.dofs) == ["CX", "CY", "FOOT", "WAIST"]
+    times = np.linspace(0.05, 0.95, 7)
+    val = {n: sc.dofs[n].curve.evaluate(times) for n in sc.dofs}
+    acc = {n: sc.dofs[n].curve.evaluate(times, 2) for n in sc.dofs}
+    f, w = val["FOOT"], val["FOOT"] + val["WAIST"]
+    foot_x = val["CX"] - 0.375 * np.cos(f) - 0.125 * np.cos(w)
+    foot_y = val["CY"] - 0.375 * np.sin(f) - 0.125 * np.sin(w)
+    at = lambda name: expression_values(sc, named_symbol(name), times)
+    np.testing.assert_allclose(at("X"), foot_x, atol=1e-12)
+    np.testing.assert_allclose(at("Y"), foot_y, atol=1e-12)
+    np.testing.assert_allclose(at("acro.com.x"), val["CX"], atol=1e-12)
+    np.testing.assert_allclose(at("tau_X"), 2.0 * acc["CX"], atol=1e-9)
+    np.testing.assert_allclose(at("tau_Y"), 2.0 * (acc["CY"] + 9.81), atol=1e-9)
+    s.execute("linkage twin base=tx:Q com=CX")        # CX is taken: refused at `end`, nothing added
+    s.execute("A revolute a=0.5")
+    with pytest.raises(StwError, match="already exist"):
+        s.execute("end")
+    assert "twin" not in s.scene.linkages and "Q" not in s.scene.derived
+
+
+@pytest.mark.parametrize("header, message", [
+    ("linkage a base=fixed com=CX", "base of translations"),
+    ("linkage a base=tx:X,rz:R com=CX,CY", "base of translations"),
+    ("linkage a base=tx:X,ty:Y com=CX", "1 DOF for 2 base axes"),
+    ("linkage a base=tx:X,ty:Y com=CX,X", "given twice"),
+])
+def test_centroidal_base_errors(header, message):
+    from stw_tui.errors import SourceError
+
+    with pytest.raises(SourceError, match=message):
+        parse_linkage(header, [(2, "A revolute a=0.5")], header_line=1)

@@ -94,11 +94,13 @@ COMMAND_HELP: dict[str, CommandHelp] = {
                          "instances, densely over its whole scope, and where it is worst.",
                          "print x'' @ 0.5"),
     "help": CommandHelp("help [COMMAND]", "List the commands, or document one.", "help constraint"),
-    "linkage": CommandHelp("linkage NAME [base=fixed|AXIS:DOF,…] [gravity=-y] … end",
+    "linkage": CommandHelp("linkage NAME [base=fixed|AXIS:DOF,…] [com=CX,CY] [gravity=-y] … end",
                            "A block: one row per joint (`JOINT revolute|prismatic a= alpha= d= theta= "
                            "mass= com=x:y:z inertia=Ixx:Iyy:Izz`), closed by `end`. Joint variables "
                            "become DOF; positions (NAME.JOINT.x, NAME.tip.y, NAME.com.z) and generalized "
-                           "forces tau_DOF become subexpressions.",
+                           "forces tau_DOF become subexpressions. With a base of translations, "
+                           "`com=CX,CY` makes the DOF the centre of mass and the base a subexpression "
+                           "(free flight is then CX'' = 0, CY'' + g = 0, exact between the samples).",
                            "linkage arm base=fixed\n  SHOULDER revolute a=0.35 mass=2\nend"),
 }
 

@@ -25,9 +25,9 @@ from stw_tui.symbols import dof_symbol
 from .derivative import time_derivative
 from .dynamics import generalized_forces
 from .kinematics import SYMENGINE, chain, positions, to_sympy
-from .spec import BaseAxis, JointSpec, LinkageSpec, dof_names, parse_linkage
+from .spec import BaseAxis, JointSpec, LinkageSpec, curve_dofs, dof_names, parse_linkage
 
-__all__ = ["BaseAxis", "JointSpec", "LinkageSpec", "derive", "dof_names", "parse_linkage",
+__all__ = ["BaseAxis", "JointSpec", "LinkageSpec", "curve_dofs", "derive", "dof_names", "parse_linkage",
            "segments", "time_derivative"]
 
 

@@ -13,6 +13,10 @@ Header options
     applied in the order given, each in the frame left by the previous one (``base=tx:BX,tz:BZ,ry:BROT``).
     ``gravity=-y`` (the default): the axis gravity pulls along, ``[+|-]x|y|z``, or ``none``. Its
     magnitude is the constant ``g``.
+    ``com=CX,CY`` (only with a base of translations, one name per base axis): centroidal coordinates.
+    The DOF ``CX, CY`` are where the linkage's centre of mass is, and the base DOF (``X, Y``) become
+    subexpressions that follow from it and the joints. Free flight is then linear in the DOF
+    (``CX'' = 0``, ``CY'' + g = 0``), so it can hold exactly between the samples.
 
 Rows: ``JOINT revolute|prismatic key=value ...``
     ``a alpha d theta`` standard Denavit–Hartenberg offsets (default 0). The joint variable (a DOF named
@@ -39,7 +43,7 @@ BASE_AXES = ("tx", "ty", "tz", "rx", "ry", "rz")
 ROW_KEYS = ("a", "alpha", "d", "theta", "mass", "com", "inertia")
 POSITIONAL_KEYS = ("a", "alpha", "d", "theta", "mass")
 ANGLE_KEYS = ("alpha", "theta")
-HEADER_KEYS = ("base", "gravity")
+HEADER_KEYS = ("base", "gravity", "com")
 RESERVED_NAMES = ("tip", "com", "base", "end", "g", "t")
 
 _IDENT = re.compile(r"[A-Za-z_][A-Za-z0-9_]*\Z")
@@ -93,11 +97,18 @@ class LinkageSpec:
     gravity_axis: int | None = 1  # 0, 1, 2 for x, y, z; None: no gravity
     gravity_sign: int = -1
     line: int | None = None
+    com: tuple[str, ...] = ()  # centroidal DOF, one per base axis (``com=CX,CY``), or none
 
 
 def dof_names(spec: LinkageSpec) -> list[str]:
-    """The linkage's DOF: base DOF in order, then the joints in order."""
+    """The variables of the linkage's kinematics: base variables in order, then the joints."""
     return [b.dof for b in spec.base] + [j.name for j in spec.joints]
+
+
+def curve_dofs(spec: LinkageSpec) -> list[str]:
+    """The DOF the linkage adds to a scene: the centroidal DOF in place of the base variables when
+    ``com=`` is given (the base variables are then subexpressions), then the joints."""
+    return list(spec.com) + [j.name for j in spec.joints] if spec.com else dof_names(spec)
 
 
 def link_com(joint: JointSpec) -> tuple[float, float, float]:
@@ -231,22 +242,26 @@ def parse_linkage(header: str, rows: list[tuple[int, str]], *, header_line: int 
     _check_name(name, line=hl, col=toks[1].col, source=hs, what="linkage")
 
     base: tuple[BaseAxis, ...] = ()
+    com_tok: _Tok | None = None
     gravity_axis, gravity_sign = 1, -1
     seen_keys: set[str] = set()
     for tok in toks[2:]:
         if tok.key is None:
-            raise _err(f"unexpected {tok.value!r}", hl, tok.col, hs, "base=... or gravity=...")
+            raise _err(f"unexpected {tok.value!r}", hl, tok.col, hs, "base=..., gravity=... or com=...")
         if tok.key not in HEADER_KEYS:
-            raise _err(f"unknown linkage option {tok.key!r}", hl, tok.col, hs, "base or gravity")
+            raise _err(f"unknown linkage option {tok.key!r}", hl, tok.col, hs, "base, gravity or com")
         if tok.key in seen_keys:
             raise _err(f"option {tok.key!r} given twice", hl, tok.col, hs)
         seen_keys.add(tok.key)
         if tok.key == "base":
             base = _parse_base(tok, hl, hs)
+        elif tok.key == "com":
+            com_tok = tok
         else:
             gravity_axis, gravity_sign = _parse_gravity(tok, hl, hs)
 
-    used = {b.dof: None for b in base}
+    com = _parse_com(com_tok, base, hl, hs) if com_tok is not None else ()
+    used = {n: None for n in [b.dof for b in base] + list(com)}
     joints: list[JointSpec] = []
     for line, text in rows:
         row_toks = _tokens(text)
@@ -265,7 +280,25 @@ def parse_linkage(header: str, rows: list[tuple[int, str]], *, header_line: int 
         raise _err(f"linkage {name!r} has no mass", hl, toks[1].col, hs,
                    "at least one link with mass > 0")
     return LinkageSpec(name=name, joints=tuple(joints), base=base, gravity_axis=gravity_axis,
-                       gravity_sign=gravity_sign, line=hl)
+                       gravity_sign=gravity_sign, line=hl, com=com)
+
+
+def _parse_com(tok: _Tok, base: tuple[BaseAxis, ...], line, source) -> tuple[str, ...]:
+    """``com=CX,CY``: one new DOF name per base axis, which must all be translations."""
+    if not base or any(b.kind != "prismatic" for b in base):
+        raise _err("com= needs a base of translations only", line, tok.col, source,
+                   "base=tx:X,ty:Y com=CX,CY")
+    names, offset = [], 0
+    for item in tok.value.split(","):
+        _check_name(item, line=line, col=tok.vcol + offset, source=source, what="DOF")
+        if item in names or item in [b.dof for b in base]:
+            raise _err(f"DOF {item!r} given twice", line, tok.vcol + offset, source, "a new DOF name")
+        names.append(item)
+        offset += len(item) + 1
+    if len(names) != len(base):
+        raise _err(f"com= names {len(names)} DOF for {len(base)} base axes", line, tok.vcol, source,
+                   "one centroidal DOF per base axis")
+    return tuple(names)
 
 
 def _parse_base(tok: _Tok, line, source) -> tuple[BaseAxis, ...]:
