@@ -9,14 +9,14 @@ so ``dense_tol`` compares with the same numbers as ``tol_violation``.
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import numpy as np
 import sympy as sp
 
 from .compiler import compile_term
-from .instances import (bound_times, dofs_used, exact_degree, on_own_side, interval_cuts,
-                        relation_times, repeated_knots)
+from .instances import (bound_extra_times, bound_times, dofs_used, exact_degree, interval_cuts,
+                        on_own_side, relation_times, repeated_knots)
 from .symbols import dof_symbol
 
 DENSE_PER_SPAN = 8
@@ -176,15 +176,19 @@ def _relation_samples(scene, constraint) -> list[_Samples]:
 
 
 def _bound_samples(scene, dof) -> list[_Samples]:
-    x = dof_symbol(dof.name)
+    """A bound's instances are the control points (see instances.bound_times): their violation is
+    the control points' own; the dense grid checks the curve, which they bound everywhere."""
+    x, coef = dof_symbol(dof.name), np.asarray(dof.curve.coef, float)
     t_inst = bound_times(scene, dof.name)
-    t_base = dense_times(scene, [x], scene.t0, scene.t1, t_inst)
+    t_base = dense_times(scene, [x], scene.t0, scene.t1, np.union1d(t_inst, bound_extra_times(scene, dof.name)))
     out = []
-    for bound, expr in ((dof.lo, x - (dof.lo or 0)), (dof.hi, (dof.hi or 0) - x)):
+    for bound, expr, at_points in ((dof.lo, x - (dof.lo or 0), coef - (dof.lo or 0)),
+                                   (dof.hi, (dof.hi or 0) - x, (dof.hi or 0) - coef)):
         if bound is not None:
             def score_at(times, expr=expr):
                 return _score(expression_values(scene, expr, times), "ge", 1.0)
-            out.append(_densely(score_at, t_inst, t_base))
+            dense = _densely(score_at, t_inst, t_base, exact=True)
+            out.append(replace(dense, v_inst=np.maximum(0.0, -at_points)))
     return out
 
 

@@ -156,10 +156,16 @@ def repeated_knots(knot_vectors) -> np.ndarray:
 
 
 def bound_times(scene, dof_name: str) -> np.ndarray:
-    """Instance times of a DOF's bounds (lo=, hi=) over the whole animation."""
-    key = f"{dof_name}.bounds"
-    return merge_times(uniform_times(scene, scene.t0, scene.t1), extra_times(scene, key, scene.t0, scene.t1),
-                       scene.t1 - scene.t0)
+    """Where a DOF's bounds (lo=, hi=) are imposed: on its control points, named by the times they
+    stand for (Greville abscissae). A cubic B-spline lies in the convex hull of its control points,
+    so bounded control points bound the curve everywhere, not only at samples; it is stricter
+    than the curve needs only where the curve turns just inside a bound. Instances added by hand
+    (`instances X.bounds add T`) are the curve's values at those times (:func:`bound_extra_times`)."""
+    return scene.dofs[dof_name].curve.greville()
+
+
+def bound_extra_times(scene, dof_name: str) -> np.ndarray:
+    return extra_times(scene, f"{dof_name}.bounds", scene.t0, scene.t1)
 
 
 def extra_times(scene, key: str, a: float, b: float) -> np.ndarray:

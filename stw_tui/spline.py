@@ -185,6 +185,12 @@ class DofCurve:
         n = self.n_coef
         return np.column_stack([self.knots[:n], self.knots[DEGREE + 1:DEGREE + 1 + n]])
 
+    def greville(self) -> np.ndarray:
+        """The time each control point stands for: the mean of the DEGREE knots inside its
+        support (Greville abscissae)."""
+        n = self.n_coef
+        return np.mean([self.knots[k:k + n] for k in range(1, DEGREE + 1)], axis=0)
+
     def span_width(self) -> float:
         """The largest knot interval (a safe one-span window margin on non-uniform knots)."""
         return float(np.diff(self.breakpoints).max())

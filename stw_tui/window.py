@@ -23,7 +23,7 @@ import sympy as sp
 
 from .compiler import CompiledTerm, compile_term
 from .errors import StwError
-from .instances import bound_times, relation_times
+from .instances import bound_extra_times, relation_times
 from .scene import Scene
 from .spline import gauss_legendre_nodes
 from .symbols import dof_symbol
@@ -213,12 +213,18 @@ class WindowProblem:
                 self._add_group(label, c.name, rel.kind, rel.expr, times, c.weight, c.when)
         for name in self.window_dofs:
             dof = scene.dofs[name]
-            times = inside(bound_times(scene, name))
-            x = dof_symbol(name)
-            if dof.lo is not None:
-                self._add_group(f"{name}.lo", name, GE, x - dof.lo, times, 1.0, None)
-            if dof.hi is not None:
-                self._add_group(f"{name}.hi", name, GE, dof.hi - x, times, 1.0, None)
+            x, curve = dof_symbol(name), dof.curve
+            # Bounds hold on the control points (so, by the convex hull, everywhere); a row per
+            # control point, named by the time it stands for.
+            points = sps.csr_array((np.ones(curve.n_coef), (np.arange(curve.n_coef),
+                                    self.offsets[name] + np.arange(curve.n_coef))),
+                                   shape=(curve.n_coef, self.n_total))
+            extra = inside(bound_extra_times(scene, name))
+            for side, bound, expr in (("lo", dof.lo, x - (dof.lo or 0)), ("hi", dof.hi, (dof.hi or 0) - x)):
+                if bound is not None:
+                    self._add_group(f"{name}.{side}", name, GE, expr, curve.greville(), 1.0, None,
+                                    basis=[points])
+                    self._add_group(f"{name}.{side}+", name, GE, expr, extra, 1.0, None)
         quad = int(scene.settings["quadrature"])
         for o in scene.objectives.values():
             a, b = self.reach
@@ -246,11 +252,13 @@ class WindowProblem:
                                         shape=(len(times), self.n_total)))
         return blocks
 
-    def _add_group(self, label, source, kind, expr, times, weight, when, *, term=None, weights=None):
+    def _add_group(self, label, source, kind, expr, times, weight, when, *, term=None, weights=None,
+                   basis=None):
+        """``basis``: rows mapping all coefficients to the term's variables at ``times`` (default:
+        the curves' basis functions at ``times``)."""
         term = term or self._compile(expr)
-        basis = None
         if kind != OBJ:
-            times, basis = self._touching_free(term, times)
+            times, basis = self._touching_free(term, times, basis)
         if times.size == 0 or not term.dofs & self.free_dofs:
             return
         weights = weights if weights is not None else np.full(times.size, float(weight))
@@ -262,7 +270,7 @@ class WindowProblem:
         self.groups.append(TermGroup(label, source, kind, term, times, weights, self._params(term),
                                      condition=condition, basis=basis))
 
-    def _touching_free(self, term: CompiledTerm, times: np.ndarray):
+    def _touching_free(self, term: CompiledTerm, times: np.ndarray, blocks=None):
         """Drop instances that no free control point can influence (their Jacobian rows are zero).
 
         Returns the kept times and their basis rows (reused when P is assembled)."""
@@ -270,7 +278,7 @@ class WindowProblem:
             return times, []
         free_mask = np.zeros(self.n_total, bool)
         free_mask[self.free] = True
-        blocks = self._basis_rows(term, times)
+        blocks = blocks if blocks is not None else self._basis_rows(term, times)
         keep = np.zeros(times.size, bool)
         for block in blocks:
             coo = block.tocoo()

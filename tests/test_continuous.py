@@ -325,3 +325,23 @@ iterate 20
     assert np.abs(y.evaluate(np.linspace(3.2, 3.9, 7001), 2)).max() < 1e-8
     report = check_scene(s.scene)
     assert report.checks["flight"].dense < 1e-8 and report.checks["ground"].dense < 1e-8
+
+
+def test_bounds_hold_everywhere_because_they_bound_the_control_points():
+    # An objective pulls x towards a sine that leaves [-1, 1]; the bounds hold on the control
+    # points, so by the convex hull of a B-spline the curve stays inside everywhere, not only at
+    # samples: checked here on a fine grid, independently of the dense check.
+    s = run_lines(Session(), """time 0 1 knots=10
+dof x lo=-1 hi=1
+objective pull: x - 1.5*sin(2*pi*t)
+iterate 30
+""")
+    assert s.runs[-1].converged
+    curve = s.scene.dofs["x"].curve
+    values = curve.evaluate(FINE)
+    assert values.max() <= 1 + 1e-9 and values.min() >= -1 - 1e-9
+    assert values.max() > 0.99 and values.min() < -0.99                 # it does reach the bounds
+    assert np.all(curve.coef <= 1 + 1e-9) and np.all(curve.coef >= -1 - 1e-9)
+    check = check_scene(s.scene).checks["x.bounds"]
+    assert check.dense <= 1e-9 and check.instances <= 1e-9
+    assert not s.scene.extra_instances                                   # nothing had to be added

@@ -27,7 +27,8 @@ COMMAND_HELP: dict[str, CommandHelp] = {
     "dof": CommandHelp("dof NAME[, NAME…] [= EXPR] [knots=N] [lo=A] [hi=B]",
                        "Declare DOF as cubic B-spline curves (constant 0, or fitted to EXPR of t and "
                        "constants). On an existing DOF, `= EXPR` refits the curve and knots=N re-knots it; "
-                       "lo/hi bound its values.", "dof x, y = 0.5*t^2 knots=10 lo=0"),
+                       "lo/hi bound its values: they bound its control points, so the curve holds them everywhere.",
+                       "dof x, y = 0.5*t^2 knots=10 lo=0"),
     "let": CommandHelp("let NAME = EXPR",
                        "Define a subexpression, substituted wherever it is named.", "let f = m*x'' + m*g"),
     "constraint": CommandHelp("constraint NAME: REL[, REL…] (@ T | on [A, B]) [when COND] [weight=W] "
