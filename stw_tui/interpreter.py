@@ -57,8 +57,8 @@ def apply_line(session: "Session", scene: Scene, text: str, line: int | None, on
     if command is None:
         return Outcome()
     handler = _HANDLERS[type(command)]
-    if isinstance(command, lang.IterateCmd):
-        return _iterate(session, scene, command, on_report)
+    if handler in (_iterate, _slide):    # solves: they need the session and report progress
+        return handler(session, scene, command, on_report)
     message = handler(scene, command)
     if isinstance(command, lang.PrintCmd):
         return Outcome(message=message[0], prints=[message[1]])
@@ -541,6 +541,62 @@ def _iterate(session: "Session", scene: Scene, cmd, on_report) -> "Outcome":
     return Outcome(message=text, run=result, journal_text=journal_text)
 
 
+MAX_SLIDE_POSITIONS = 1000
+
+
+def _slide(session: "Session", scene: Scene, cmd, on_report) -> "Outcome":
+    """Move a window along the time axis by ``by``, solving (an `iterate`) at each position, from
+    where it is until its end reaches ``to`` (the last step is shortened to land there). Each
+    solve sees only its window: the paper's cat that chases where the mouse is now."""
+    from .session import Outcome
+
+    window = scene.windows.get(cmd.window)
+    if window is None:
+        raise StwError(f"no window named '{cmd.window}' (windows: {', '.join(scene.windows)})")
+    if window.interval is None:
+        raise StwError(f"window '{cmd.window}' covers the whole animation; give it an interval to slide, "
+                       f"e.g. `window {cmd.window} [0, 0.5]`")
+    by = scene.numeric(cmd.by, "slide step")
+    if not by > 0:
+        raise StwError(f"slide step {by:g} must be positive")
+    a, b = window.interval
+    end = _time_in_span(scene, scene.numeric(cmd.to, "slide end"), "slide end") if cmd.to is not None else scene.t1
+    if not end > b + 1e-12 * (scene.t1 - scene.t0):
+        raise StwError(f"window '{cmd.window}' already ends at {b:g}; slide it `to` a later time than that")
+    if cmd.n < 1:
+        raise StwError("slide needs a positive number of iterations at each position")
+    count = int(np.floor((end - b) / by + 1e-9))
+    ends = [b + k * by for k in range(count + 1)]
+    if end - ends[-1] > 1e-9 * (scene.t1 - scene.t0):
+        ends.append(end)
+    if len(ends) > MAX_SLIDE_POSITIONS:
+        raise StwError(f"slide would solve at {len(ends)} positions (at most {MAX_SLIDE_POSITIONS}); "
+                       "take a larger step")
+    width, lines, runs, journal, outcome = b - a, [], [], [], None
+    for e in ends:
+        interval = (e - width, e)
+        scene.windows[cmd.window] = replace(window, interval=interval)
+        scene.active_window = cmd.window
+        outcome = _iterate(session, scene, lang.IterateCmd(cmd.n), on_report)
+        runs.append(outcome.run)
+        journal += [f"window {cmd.window}" + (f" dofs={','.join(window.dofs)}" if window.dofs else "")
+                    + f" [{interval[0]!r}, {interval[1]!r}]",
+                    outcome.journal_text or f"iterate {cmd.n}"]
+        last = outcome.run.reports[-1] if outcome.run.reports else None
+        lines.append(f"[{interval[0]:.4g}, {interval[1]:.4g}]: {len(outcome.run.reports)} iteration(s), "
+                     f"{outcome.run.status.value}" + (f", objective {last.objective:.6g}" if last else ""))
+        if outcome.run.status is Status.STOPPED:
+            break
+    done = sum(r.converged for r in runs)
+    stopped = runs[-1].status is Status.STOPPED
+    head = (f"slid window {cmd.window} over {len(runs)} of {len(ends)} position(s) by {by:g}; "
+            f"converged at {done} of {len(runs)}" + (" (stopped)" if stopped else ""))
+    tail = outcome.message.split("\n", 2)[2] if outcome.message.count("\n") >= 2 else ""
+    text = "\n".join([head, *lines] + ([tail] if tail else []))
+    # A stopped slide is journalled as the positions it solved, so a replay reaches the same scene.
+    return Outcome(message=text, run=_merged(runs), journal_text="\n".join(journal) if stopped else None)
+
+
 def _solve(session: "Session", scene: Scene, problem: WindowProblem, backend, n: int, on_report) -> RunResult:
     """Run the backend on one window problem from the scene's curves (and the last solve's
     multipliers when its rows are the same), and put the result in the scene."""
@@ -574,5 +630,5 @@ _HANDLERS = {
     lang.WindowCmd: _window, lang.UseCmd: _use, lang.WeightCmd: _weight, lang.DampCmd: _damp,
     lang.FilterCmd: _filter, lang.ShakeCmd: _shake, lang.RefineCmd: _refine, lang.BackendCmd: _backend,
     lang.SetCmd: _set, lang.IterateCmd: _iterate, lang.DeleteCmd: _delete, lang.PrintCmd: _print,
-    lang.HelpCmd: _help, lang.InstancesCmd: _instances,
+    lang.HelpCmd: _help, lang.InstancesCmd: _instances, lang.SlideCmd: _slide,
 }

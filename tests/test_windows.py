@@ -128,3 +128,64 @@ def test_a_bare_constant_is_a_number_wherever_one_is_expected():
     assert s.scene.dofs["x"].keys == [(0.5, 0.3)] and s.scene.objectives["o"].weight == 0.5
     s.execute("print x @ T")
     assert s.prints[-1].t == 2.0
+
+
+CHASE = """time 0 2 knots=20
+let mx = 1 + t
+let my = 1
+dof cx, cy
+constraint start: cx = 0, cy = 0, cx' = 0, cy' = 0 @ 0
+objective effort: cx'', cy''
+objective chase: cx - mx, cy - my weight=500
+window sight dofs=cx,cy [0, 0.5]
+"""
+
+
+def test_slide_solves_at_each_position_and_equals_the_windows_written_by_hand():
+    slid = run_lines(Session(), CHASE + "slide sight by 0.25 to 1.6 iterate 10\n")
+    # Ends at 0.5, 0.75, ..., 1.5 and then the shortened last step to 1.6: 6 positions.
+    by_hand = Session()
+    run_lines(by_hand, CHASE)
+    for end in (0.5, 0.75, 1.0, 1.25, 1.5, 1.6):
+        by_hand.execute(f"window sight dofs=cx,cy [{end - 0.5!r}, {end!r}]")
+        by_hand.execute("iterate 10")
+    assert np.array_equal(slid.scene.coefficient_vector(), by_hand.scene.coefficient_vector())
+    assert slid.scene.windows["sight"].interval == pytest.approx((1.1, 1.6))
+    assert slid.scene.active_window == "sight"
+    assert slid.journal.replayable()[-1] == "slide sight by 0.25 to 1.6 iterate 10"
+    assert sum(len(r.reports) for r in by_hand.runs) == len(slid.runs[-1].reports)
+
+
+@pytest.mark.parametrize("line, message", [
+    ("slide nowhere by 0.25", "no window named 'nowhere'"),
+    ("slide all by 0.25", "covers the whole animation"),
+    ("slide sight by 0", "must be positive"),
+    ("slide sight by 0.25 to 0.4", "already ends at 0.5"),
+    ("slide sight by 0.25 to 3", "outside the animation span"),
+    ("slide sight by 0.000001", "at most 1000"),
+    ("slide sight 0.25", "expected 'by DT'"),
+])
+def test_slide_errors_leave_the_scene_as_it_was(line, message):
+    s = run_lines(Session(), CHASE)
+    before = s.scene.coefficient_vector().copy()
+    with pytest.raises((StwError, SourceError), match=message):
+        s.execute(line)
+    assert np.array_equal(s.scene.coefficient_vector(), before)
+    assert s.scene.windows["sight"].interval == (0.0, 0.5)
+
+
+def test_a_stopped_slide_is_journalled_as_the_positions_it_solved():
+    s = run_lines(Session(), CHASE)
+    seen = []
+
+    def stop_in_the_third_position(report):
+        seen.append(report)
+        return len(seen) < 5
+
+    outcome = s.execute("slide sight by 0.25 iterate 10", on_report=stop_in_the_third_position)
+    assert "stopped" in outcome.message.splitlines()[0]
+    journal = s.journal.replayable()
+    kept = journal[-1].splitlines()
+    assert kept[-2:] == ["window sight dofs=cx,cy [0.5, 1.0]", "iterate 1 adapt=0"]
+    replay = run_lines(Session(), "\n".join(journal) + "\n")
+    assert np.array_equal(replay.scene.coefficient_vector(), s.scene.coefficient_vector())

@@ -168,6 +168,15 @@ class IterateCmd:
 
 
 @dataclass(frozen=True)
+class SlideCmd:
+    window: str
+    by: sp.Expr                     # how far the window moves each time
+    to: sp.Expr | None              # where its end stops (None: the end of the animation)
+    n: int = 10                     # iterations at each position
+    text: str = ""
+
+
+@dataclass(frozen=True)
 class DeleteCmd:
     name: str
     text: str = ""
@@ -190,11 +199,11 @@ class HelpCmd:
 
 Command = (TimeCmd | ConstCmd | DofCmd | LetCmd | ConstraintCmd | ObjectiveCmd | KeyCmd | WindowCmd
            | UseCmd | WeightCmd | DampCmd | FilterCmd | ShakeCmd | RefineCmd | BackendCmd | SetCmd
-           | IterateCmd | DeleteCmd | PrintCmd | HelpCmd | InstancesCmd)
+           | IterateCmd | DeleteCmd | PrintCmd | HelpCmd | InstancesCmd | SlideCmd)
 
 COMMAND_NAMES = ("time", "const", "dof", "let", "constraint", "objective", "key", "window", "use",
                  "weight", "damp", "filter", "shake", "refine", "backend", "set", "iterate", "delete",
-                 "print", "help", "linkage", "instances")
+                 "print", "help", "linkage", "instances", "slide")
 RESERVED = set(COMMAND_NAMES) | set(FUNCTIONS) | {"t", "pi", "all", "on", "when", "and", "or", "not"}
 
 
@@ -486,6 +495,22 @@ class CommandParser(ExpressionParser):
         n = self.integer("a number of iterations") if self.token.kind == NUMBER else 1
         opts = self.options({"adapt": "int"})
         return IterateCmd(n, self.text, opts.get("adapt"))
+
+    def p_slide(self):
+        window = self.name("a window name").text
+        if not self.token.is_word("by"):
+            raise self.unexpected("'by DT'")
+        self.advance()
+        by = self.number_expr()
+        to = None
+        if self.token.is_word("to"):
+            self.advance()
+            to = self.number_expr()
+        n = 10
+        if self.token.is_word("iterate"):
+            self.advance()
+            n = self.integer("a number of iterations")
+        return SlideCmd(window, by, to, n, self.text)
 
     def p_instances(self):
         name = self.name("a constraint name (or DOF.bounds)").text

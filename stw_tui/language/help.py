@@ -51,6 +51,11 @@ COMMAND_HELP: dict[str, CommandHelp] = {
                           "Define a spacetime window (a subset of DOF over a time interval) and use it: "
                           "iterations change only its control points.",
                           "window release dofs=BX,BY [0.4, 0.8]"),
+    "slide": CommandHelp("slide WINDOW by DT [to T] [iterate N]",
+                         "Move a window along the time axis by DT at a time, solving N iterations "
+                         "(default 10) at each position, from where it is until its end reaches T "
+                         "(default: the end of the animation). Each solve sees only its window.",
+                         "slide chase by 0.25 iterate 10"),
     "use": CommandHelp("use NAME", "Iterate on a defined window (`use all` for everything).", "use all"),
     "weight": CommandHelp("weight NAME W", "Set the weight of a constraint or objective.", "weight goal 10"),
     "damp": CommandHelp("damp DOF D",
