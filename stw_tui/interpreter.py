@@ -398,6 +398,16 @@ def _delete(scene: Scene, cmd) -> str:
     users = [u for u in users if u != name]
     if users:
         raise StwError(f"'{name}' is used by {', '.join(users)}; delete or change those first")
+    if name in scene.verbs:
+        _, members = scene.verbs.pop(name)
+        for member in members:
+            scene.constraints.pop(member, None)
+            scene.objectives.pop(member, None)
+            scene.extra_instances.pop(member, None)
+        return f"deleted {name} ({', '.join(members)})"
+    for group, (line, members) in list(scene.verbs.items()):
+        if name in members:     # one part of a verb: the rest stays, as its own group
+            scene.verbs[group] = (line, tuple(m for m in members if m != name))
     for table in (scene.constraints, scene.objectives, scene.lets, scene.dofs, scene.constants, scene.windows):
         if name in table:
             del table[name]
@@ -541,6 +551,38 @@ def _iterate(session: "Session", scene: Scene, cmd, on_report) -> "Outcome":
     return Outcome(message=text, run=result, journal_text=journal_text)
 
 
+def _verb(scene: Scene, cmd) -> str:
+    """A motion verb: expand it into named constraints and objectives (stw_tui.verbs), applied as
+    their own lines would be, and remember them as one group that `delete` removes."""
+    from . import verbs
+
+    a, b = _interval(scene, cmd.interval, "interval")
+    if isinstance(cmd, lang.HoldCmd):
+        weight = _weight_value(scene, cmd.weight, True) if cmd.weight is not None else None
+        group, lines = verbs.hold_lines(scene, cmd.point, cmd.at, a, b, weight)
+    else:
+        group, lines = verbs.ballistic_lines(scene, cmd.point, a, b)
+    members = []
+    for line in lines:
+        command = lang.parse_command(line, SceneScope(scene))
+        _HANDLERS[type(command)](scene, command)
+        members.append(command.name)
+    scene.verbs[group] = (cmd.text, tuple(members))
+    return f"{cmd.text.split()[0]} {group}: " + "; ".join(lines)
+
+
+def _limit(scene: Scene, cmd) -> str:
+    lo, hi = scene.numeric(cmd.lo, "lower limit"), scene.numeric(cmd.hi, "upper limit")
+    if not lo < hi:
+        raise StwError(f"limit {cmd.dof} {lo:g} {hi:g}: the lower limit must be below the upper")
+    dof = scene.dofs[cmd.dof]
+    dof.lo, dof.hi = lo, hi
+    values = dof.curve.evaluate(np.linspace(scene.t0, scene.t1, 2001))
+    outside = (f"; it is outside now ({values.min():.4g} to {values.max():.4g}): the next solve brings it in"
+               if values.min() < lo or values.max() > hi else "")
+    return f"{cmd.dof} limited to [{lo:g}, {hi:g}] everywhere (on its control points){outside}"
+
+
 MAX_SLIDE_POSITIONS = 1000
 
 
@@ -631,4 +673,5 @@ _HANDLERS = {
     lang.FilterCmd: _filter, lang.ShakeCmd: _shake, lang.RefineCmd: _refine, lang.BackendCmd: _backend,
     lang.SetCmd: _set, lang.IterateCmd: _iterate, lang.DeleteCmd: _delete, lang.PrintCmd: _print,
     lang.HelpCmd: _help, lang.InstancesCmd: _instances, lang.SlideCmd: _slide,
+    lang.HoldCmd: _verb, lang.BallisticCmd: _verb, lang.LimitCmd: _limit,
 }

@@ -105,6 +105,8 @@ class Scene:
     shake_count: int = 0
     # Instances added where the continuous-time check failed, by constraint name (or "X.bounds").
     extra_instances: dict[str, tuple[float, ...]] = field(default_factory=dict)
+    # Motion verbs (`hold`, `ballistic`): the verb's line and the constraints/objectives it made.
+    verbs: dict[str, tuple[str, tuple[str, ...]]] = field(default_factory=dict)
 
     def copy(self) -> "Scene":
         """A copy that commands may change freely. Sympy expressions, curves and linkage specs
@@ -119,6 +121,7 @@ class Scene:
         new.windows = {k: replace(v) for k, v in self.windows.items()}
         new.backend_options, new.settings = dict(self.backend_options), dict(self.settings)
         new.extra_instances = dict(self.extra_instances)
+        new.verbs = dict(self.verbs)
         return new
 
     # --- names -------------------------------------------------------------------------------

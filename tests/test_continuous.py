@@ -239,7 +239,7 @@ def test_arm_throw_flight_holds_after_the_release_window():
     s = Session()
     s.run_file(SESSIONS / "arm_throw.stw")
     assert s.scene.active_window != "all"
-    s.execute("print flight")
+    s.execute("print B_flight")
     assert s.prints[-1].value["dense"] <= 1e-6
     s.execute("use all")
     t = np.linspace(0.55, 1.5, 20_001)

@@ -123,7 +123,7 @@ def test_arm_throw_converges_to_an_underhand_toss():
     assert after["max"] < before["max"] / 2 and after["mean"] < before["mean"] / 4
     assert before["max"] < 0.15 and after["max"] < 0.06
     # ... and left the goal, the release and the arm outside the window as they were.
-    for name in ("release", "flight", "goal", "hang", "rest"):
+    for name in ("B_released", "B_flight", "goal", "hang", "rest"):
         assert _print(s, name, -1)["dense"] <= 1e-6
     assert _print(s, "BX") == pytest.approx(1.5, abs=1e-9)
     assert _print(s, "BX'", 1) == pytest.approx(_print(s, "BX'", 0), abs=1e-9)

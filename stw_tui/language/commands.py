@@ -168,6 +168,30 @@ class IterateCmd:
 
 
 @dataclass(frozen=True)
+class HoldCmd:
+    point: str                      # the held object: DOF PX, PY (, PZ) for point P
+    at: str                         # a linkage point, e.g. arm.tip (arm.tip.x, arm.tip.y, …)
+    interval: Interval
+    weight: sp.Expr | None
+    text: str = ""
+
+
+@dataclass(frozen=True)
+class BallisticCmd:
+    point: str
+    interval: Interval
+    text: str = ""
+
+
+@dataclass(frozen=True)
+class LimitCmd:
+    dof: str
+    lo: sp.Expr
+    hi: sp.Expr
+    text: str = ""
+
+
+@dataclass(frozen=True)
 class SlideCmd:
     window: str
     by: sp.Expr                     # how far the window moves each time
@@ -199,11 +223,12 @@ class HelpCmd:
 
 Command = (TimeCmd | ConstCmd | DofCmd | LetCmd | ConstraintCmd | ObjectiveCmd | KeyCmd | WindowCmd
            | UseCmd | WeightCmd | DampCmd | FilterCmd | ShakeCmd | RefineCmd | BackendCmd | SetCmd
-           | IterateCmd | DeleteCmd | PrintCmd | HelpCmd | InstancesCmd | SlideCmd)
+           | IterateCmd | DeleteCmd | PrintCmd | HelpCmd | InstancesCmd | SlideCmd | HoldCmd
+           | BallisticCmd | LimitCmd)
 
 COMMAND_NAMES = ("time", "const", "dof", "let", "constraint", "objective", "key", "window", "use",
                  "weight", "damp", "filter", "shake", "refine", "backend", "set", "iterate", "delete",
-                 "print", "help", "linkage", "instances", "slide")
+                 "print", "help", "linkage", "instances", "slide", "hold", "ballistic", "limit")
 RESERVED = set(COMMAND_NAMES) | set(FUNCTIONS) | {"t", "pi", "all", "on", "when", "and", "or", "not"}
 
 
@@ -495,6 +520,32 @@ class CommandParser(ExpressionParser):
         n = self.integer("a number of iterations") if self.token.kind == NUMBER else 1
         opts = self.options({"adapt": "int"})
         return IterateCmd(n, self.text, opts.get("adapt"))
+
+    def p_hold(self):
+        point = self.new_name("the held object (P for DOF PX, PY)")
+        if not self.token.is_word("at"):
+            raise self.unexpected("'at POINT' (a linkage point such as arm.tip)")
+        self.advance()
+        at = self.name("a linkage point such as arm.tip").text
+        if not self.token.is_word("on"):
+            raise self.unexpected("'on [A, B]'")
+        self.advance()
+        interval = self.interval()
+        opts = self.options({"weight": "expr"})
+        return HoldCmd(point, at, interval, opts.get("weight"), self.text)
+
+    def p_ballistic(self):
+        point = self.new_name("the flying object (P for DOF PX, PY)")
+        if not self.token.is_word("on"):
+            raise self.unexpected("'on [A, B]'")
+        self.advance()
+        return BallisticCmd(point, self.interval(), self.text)
+
+    def p_limit(self):
+        dof = self.dof_name()
+        lo = self.number_expr()
+        hi = self.number_expr()
+        return LimitCmd(dof, lo, hi, self.text)
 
     def p_slide(self):
         window = self.name("a window name").text

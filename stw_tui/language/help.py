@@ -51,6 +51,19 @@ COMMAND_HELP: dict[str, CommandHelp] = {
                           "Define a spacetime window (a subset of DOF over a time interval) and use it: "
                           "iterations change only its control points.",
                           "window release dofs=BX,BY [0.4, 0.8]"),
+    "hold": CommandHelp("hold P at POINT on [A, B] [weight=W]",
+                        "The object P (DOF PX, PY[, PZ]) is carried by a linkage point (arm.tip): it has "
+                        "the point's position and velocity exactly at A (unless A is the start) and at B "
+                        "(unless B is the end), and an objective P_held (weight W, default 1e4) carries it "
+                        "in between. `delete P_held` removes all of it.",
+                        "hold B at arm.tip on [0, 0.55]"),
+    "ballistic": CommandHelp("ballistic P on [A, B]",
+                             "Free flight of the object P under g (along -y): constraint P_flight, "
+                             "PX'' = 0, PY'' + g = 0 (PZ'' = 0), exact between the samples.",
+                             "ballistic B on [0.55, 1.5]"),
+    "limit": CommandHelp("limit DOF A B",
+                         "A range for a DOF (a joint's limits): A <= DOF <= B everywhere, imposed on its "
+                         "control points. The same as `dof DOF lo=A hi=B`.", "limit ELBOW 0 2.5"),
     "slide": CommandHelp("slide WINDOW by DT [to T] [iterate N]",
                          "Move a window along the time axis by DT at a time, solving N iterations "
                          "(default 10) at each position, from where it is until its end reaches T "

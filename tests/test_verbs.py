@@ -1,0 +1,96 @@
+"""Motion verbs: `hold`, `ballistic` and `limit` expand into the constraints one would write by
+hand, solve to the same motion, and are removed as one group."""
+
+import numpy as np
+import pytest
+
+from conftest import run_lines
+from stw_tui.errors import SourceError, StwError
+from stw_tui.session import Session
+
+ARM = """time 0 1.5 knots=24 samples=24
+const g = 9.81
+linkage arm base=fixed
+  SHOULDER revolute a=0.35 mass=2.0
+  ELBOW    revolute a=0.30 mass=1.5
+  WRIST    revolute a=0.15 mass=0.5
+end
+dof BX, BY
+limit SHOULDER -2.6 3.2
+limit ELBOW 0 2.5
+limit WRIST -1.2 1.2
+dof SHOULDER = -pi/2
+dof BY = -0.8
+constraint hang: SHOULDER = -pi/2, ELBOW = 0, WRIST = 0, SHOULDER' = 0, ELBOW' = 0, WRIST' = 0 @ 0
+"""
+TAIL = """constraint goal: BX = 1.5, BY = 0.5 @ 1.5
+constraint rest: SHOULDER' = 0, ELBOW' = 0, WRIST' = 0 @ 1.5
+objective effort: tau_SHOULDER, tau_ELBOW, tau_WRIST
+iterate 40
+"""
+BY_HAND = """objective B_held: arm.tip.x - BX, arm.tip.y - BY on [0, 0.55] weight=1e4
+constraint B_released: BX = arm.tip.x, BY = arm.tip.y, BX' = arm.tip.x', BY' = arm.tip.y' @ 0.55
+constraint B_flight: BX'' = 0, BY'' + g = 0 on [0.55, 1.5]
+"""
+VERBS = "hold B at arm.tip on [0, 0.55]\nballistic B on [0.55, 1.5]\n"
+
+
+def test_verbs_expand_into_the_constraints_written_by_hand_and_solve_the_same():
+    verbs = run_lines(Session(), ARM + VERBS + TAIL)
+    hand = run_lines(Session(), ARM + BY_HAND + TAIL)
+    assert set(verbs.scene.constraints) == set(hand.scene.constraints)
+    assert set(verbs.scene.objectives) == set(hand.scene.objectives)
+    for name, c in hand.scene.constraints.items():
+        mine = verbs.scene.constraints[name]
+        assert [(r.expr, r.kind) for r in mine.relations] == [(r.expr, r.kind) for r in c.relations]
+        assert (mine.at, mine.interval) == (c.at, c.interval)
+    assert verbs.scene.objectives["B_held"].weight == hand.scene.objectives["B_held"].weight
+    assert verbs.runs[-1].converged and hand.runs[-1].converged
+    np.testing.assert_allclose(verbs.scene.coefficient_vector(), hand.scene.coefficient_vector(), atol=1e-9)
+    assert verbs.scene.verbs == {"B_held": ("hold B at arm.tip on [0, 0.55]", ("B_held", "B_released")),
+                                 "B_flight": ("ballistic B on [0.55, 1.5]", ("B_flight",))}
+    # The journal keeps the verbs, and replays to the same scene.
+    assert "hold B at arm.tip on [0, 0.55]" in verbs.journal.replayable()
+    replay = run_lines(Session(), "\n".join(verbs.journal.replayable()) + "\n")
+    assert np.array_equal(replay.scene.coefficient_vector(), verbs.scene.coefficient_vector())
+
+
+def test_hold_inside_the_animation_catches_and_releases_and_delete_removes_the_group():
+    s = run_lines(Session(), ARM + "hold B at arm.tip on [0.3, 0.9] weight=500\n")
+    assert s.scene.verbs["B_held"][1] == ("B_held", "B_caught", "B_released")
+    assert s.scene.constraints["B_caught"].at == 0.3 and s.scene.constraints["B_released"].at == 0.9
+    assert s.scene.objectives["B_held"].weight == 500
+    s.execute("hold B at arm.tip on [1, 1.2]")             # a second hold gets fresh names
+    assert s.scene.verbs["B_held2"][1] == ("B_held2", "B_caught2", "B_released2")
+    s.execute("delete B_held")
+    assert not {"B_held", "B_caught", "B_released"} & (set(s.scene.constraints) | set(s.scene.objectives))
+    assert "B_held" not in s.scene.verbs and "B_released2" in s.scene.constraints
+    s.execute("delete B_caught2")                            # one part: the rest of the group stays
+    assert s.scene.verbs["B_held2"][1] == ("B_held2", "B_released2")
+
+
+@pytest.mark.parametrize("line, message", [
+    ("hold Q at arm.tip on [0, 0.5]", "'Q' is not a point object"),
+    ("hold B at arm.knee on [0, 0.5]", "'arm.knee' is not a linkage point"),
+    ("hold B arm.tip on [0, 0.5]", "expected 'at POINT'"),
+    ("hold B at arm.tip on [0.5, 0.2]", "is empty"),
+    ("ballistic B on [0, 9]", "outside the animation span"),
+    ("limit ELBOW 2 1", "lower limit must be below"),
+    ("limit nothing 0 1", "not a DOF"),
+])
+def test_verb_errors_are_positioned_and_change_nothing(line, message):
+    s = run_lines(Session(), ARM)
+    before = (set(s.scene.constraints), set(s.scene.objectives), dict(s.scene.verbs))
+    with pytest.raises((StwError, SourceError), match=message):
+        s.execute(line)
+    assert (set(s.scene.constraints), set(s.scene.objectives), dict(s.scene.verbs)) == before
+
+
+def test_ballistic_needs_g_and_limit_is_a_dof_range():
+    s = run_lines(Session(), "time 0 1 knots=8\ndof PX, PY\n")
+    with pytest.raises(StwError, match="declare it first"):
+        s.execute("ballistic P on [0, 1]")
+    s.execute("dof PX = 2*t")
+    message = s.execute("limit PX 0 1").message
+    assert "outside now" in message and "to 2)" in message
+    assert (s.scene.dofs["PX"].lo, s.scene.dofs["PX"].hi) == (0.0, 1.0)
