@@ -17,6 +17,7 @@ import numpy as np
 from . import interpreter
 from .backend import RunResult, StepReport
 from .errors import SourceError, StwError
+from .history import History, State
 from .scene import Scene
 
 
@@ -93,6 +94,7 @@ class Session:
         self.runs: list[RunResult] = []
         self.warm: interpreter.WarmStart | None = None
         self._block: list[tuple[int | None, str]] | None = None   # lines of an open `linkage` block
+        self.history = History()    # undo, redo and named snapshots (history.py)
 
     # --- commands ----------------------------------------------------------------------------
     @property
@@ -136,6 +138,7 @@ class Session:
 
     def _apply(self, text: str, line: int | None, on_report, block=None) -> Outcome:
         entry = self.journal.append(text, line)
+        before = State.of(self)
         scene = self.scene.copy()
         try:
             if block is not None:
@@ -154,6 +157,7 @@ class Session:
             self.journal.settle(entry, False, message)
             raise StwError(f"line {line}: {message}" if line is not None else message) from exc
         self.scene = scene
+        self.history.settled(text, before, outcome.journal_text)
         if outcome.journal_text is not None:
             entry.text = outcome.journal_text
         self.journal.settle(entry, True)

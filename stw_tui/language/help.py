@@ -132,3 +132,15 @@ def help_text(topic: str | None = None) -> str:
         raise StwError(f"no help for '{topic}'{hint}")
     h = COMMAND_HELP[topic]
     return f"{h.synopsis}\n  {h.summary}\n  example: {h.example}"
+
+
+# Commands on the session rather than the scene (language/session_commands.py).
+COMMAND_HELP.update({
+    "undo": CommandHelp("undo",
+                        "Take back the last command that changed the scene (a solve included), exactly: "
+                        "control points, constants, constraints, windows, weights and settings return "
+                        "bit for bit. `print`, `help`, `snapshot`, `snapshots`, `diff`, `export` and `save` "
+                        "change nothing and are not undone.", "undo"),
+    "redo": CommandHelp("redo", "Do again what `undo` took back (until another command changes the scene).",
+                        "redo"),
+})
