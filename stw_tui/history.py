@@ -115,3 +115,52 @@ def redo(session: "Session", scene: Scene, cmd) -> "Outcome":
     history.undo_steps.append(Step(step.text, State.of(session)))
     become(session, scene, step.state)
     return Outcome(message=f"redid {History.describe(step.text)}")
+
+
+# --- named snapshots -------------------------------------------------------------------------
+def _snapshot_state(session: "Session", name: str) -> State:
+    history = session.history
+    if name not in history.snapshots:
+        known = ", ".join(history.snapshots) or "none yet; `snapshot NAME` keeps one"
+        raise StwError(f"no snapshot named '{name}' (snapshots: {known})")
+    return history.snapshots[name]
+
+
+def snapshot(session: "Session", scene: Scene, cmd) -> "Outcome":
+    """Keep the scene (not a step: the scene does not change)."""
+    from .session import Outcome
+
+    replaced = cmd.name in session.history.snapshots
+    session.history.snapshots[cmd.name] = State.of(session)
+    return Outcome(message=f"snapshot {cmd.name} {'replaced' if replaced else 'kept'}")
+
+
+def restore(session: "Session", scene: Scene, cmd) -> "Outcome":
+    """Make the scene a snapshot's (a step: `undo` takes it back)."""
+    from .session import Outcome
+
+    become(session, scene, _snapshot_state(session, cmd.name))
+    return Outcome(message=f"restored snapshot {cmd.name}")
+
+
+def list_snapshots(session: "Session", scene: Scene, cmd) -> "Outcome":
+    from .session import Outcome
+    from .snapshots import measure
+
+    snaps = session.history.snapshots
+    if not snaps:
+        return Outcome(message="no snapshots; `snapshot NAME` keeps one")
+    width = max(len(n) for n in [*snaps, "(now)"])
+    lines = [f"{len(snaps)} snapshot(s):"]
+    lines += [f"  {name:<{width}}  {measure(state.scene).describe()}" for name, state in snaps.items()]
+    lines.append(f"  {'(now)':<{width}}  {measure(session.scene).describe()}")
+    return Outcome(message="\n".join(lines))
+
+
+def diff(session: "Session", scene: Scene, cmd) -> "Outcome":
+    from .session import Outcome
+    from .snapshots import describe_diff, diff_scenes, measure
+
+    old = _snapshot_state(session, cmd.name).scene
+    text = describe_diff(cmd.name, diff_scenes(old, session.scene), measure(old), measure(session.scene))
+    return Outcome(message=text)

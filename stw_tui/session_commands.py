@@ -10,4 +10,8 @@ from .language import session_commands as cmds
 SESSION_HANDLERS = {
     cmds.UndoCmd: history.undo,
     cmds.RedoCmd: history.redo,
+    cmds.SnapshotCmd: history.snapshot,
+    cmds.RestoreCmd: history.restore,
+    cmds.SnapshotsCmd: history.list_snapshots,
+    cmds.DiffCmd: history.diff,
 }

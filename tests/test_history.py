@@ -178,3 +178,85 @@ def test_undo_message_names_the_command():
     assert "`weight goal 3`" in s.execute("undo").message
     assert "`weight goal 3`" in s.execute("redo").message
     assert History.describe("iterate 3 adapt=0\ninstances x add 0.5") == "`iterate 3 adapt=0` …"
+
+
+# --- named snapshots -----------------------------------------------------------------------------
+
+def test_restore_brings_back_the_snapshot_exactly_and_is_undoable():
+    s = run_lines(Session(), TWO_D + "iterate 2\n")
+    s.execute("snapshot start")
+    kept, warm = state(s.scene), warm_bytes(s)
+    for line in ["constraint mid: y = 1 @ 1", "refine y [0.5, 1]", "const m = 2", "iterate 3"]:
+        s.execute(line)
+    changed = state(s.scene)
+    s.execute("restore start")
+    assert state(s.scene) == kept and warm_bytes(s) == warm
+    s.execute("undo")
+    assert state(s.scene) == changed
+
+
+def test_snapshot_is_not_a_step():
+    s = run_lines(Session(), TWO_D)
+    before = state(s.scene)
+    s.execute("const m = 5")
+    s.execute("snapshot a")
+    s.execute("snapshots")
+    s.execute("diff a")
+    s.execute("undo")    # takes back `const m = 5`
+    assert state(s.scene) == before
+    assert "replaced" in s.execute("snapshot a").message
+
+
+def test_unknown_snapshot_is_an_error_that_names_the_known_ones():
+    s = run_lines(Session(), TWO_D)
+    s.execute("snapshot first")
+    before = state(s.scene)
+    for line in ("restore nosuch", "diff nosuch"):
+        with pytest.raises(StwError, match="no snapshot named 'nosuch' .*first"):
+            s.execute(line)
+    assert state(s.scene) == before
+
+
+def test_snapshots_lists_objective_and_violation_of_each():
+    s = run_lines(Session(), TWO_D)
+    s.execute("snapshot raw")
+    s.execute("iterate 10")
+    s.execute("snapshot solved")
+    last = s.runs[-1].reports[-1]
+    from stw_tui.snapshots import measure
+    m = measure(s.history.snapshots["solved"].scene)
+    assert m.objective == pytest.approx(last.objective, rel=1e-12)
+    assert m.violation < 1e-8 and m.dense < 1e-8
+    raw = measure(s.history.snapshots["raw"].scene)
+    assert raw.violation == pytest.approx(3.0)      # y' = -3 at the start, the curve's is 0
+    text = s.execute("snapshots").message
+    assert "raw" in text and "solved" in text and f"{last.objective:.6g}" in text and "3.00e+00" in text
+
+
+def test_diff_names_the_changed_dof_and_how_much():
+    s = run_lines(Session(), TWO_D + "iterate 5\n")
+    s.execute("snapshot a")
+    old_y = s.scene.dofs["y"].curve
+    s.execute("shake y amplitude=0.05 seed=1")
+    s.execute("const g = 9.8")
+    from stw_tui.snapshots import diff_scenes
+    d = diff_scenes(s.history.snapshots["a"].scene, s.scene)
+    changes = {c.name: c for c in d.dofs}
+    assert changes["x"].max_abs == 0 and changes["y"].max_abs > 0
+    t = np.linspace(0, 2, 20001)
+    fine = np.max(np.abs(s.scene.dofs["y"].curve.evaluate(t) - old_y.evaluate(t)))
+    assert fine * (1 - 1e-3) <= changes["y"].max_abs <= fine * (1 + 1e-9)   # the grid finds the peak
+    assert d.changed == {"constants": ["~g"]}
+    text = s.execute("diff a").message
+    assert "y: max |change|" in text and "unchanged: x" in text and "constants: ~g" in text
+    assert "before: objective" in text and "now:    objective" in text
+
+
+def test_snapshots_replay_from_the_journal():
+    s = run_lines(Session(), TWO_D + "iterate 2\n")
+    for line in ["snapshot a", "constraint mid: y = 1 @ 1", "iterate 3", "snapshot b", "restore a",
+                 "iterate 1", "restore b", "undo"]:
+        s.execute(line)
+    replay = run_lines(Session(), s.journal.text())
+    assert state(replay.scene) == state(s.scene)
+    assert list(replay.history.snapshots) == ["a", "b"]

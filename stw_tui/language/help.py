@@ -143,4 +143,18 @@ COMMAND_HELP.update({
                         "change nothing and are not undone.", "undo"),
     "redo": CommandHelp("redo", "Do again what `undo` took back (until another command changes the scene).",
                         "redo"),
+    "snapshot": CommandHelp("snapshot NAME",
+                            "Keep the scene as it is now under NAME (replacing a snapshot of that name), "
+                            "to `restore` or `diff` later.", "snapshot before_release"),
+    "restore": CommandHelp("restore NAME",
+                           "Make the scene what it was at `snapshot NAME` (one step: `undo` takes it back).",
+                           "restore before_release"),
+    "snapshots": CommandHelp("snapshots",
+                             "List the snapshots with each one's objective and largest constraint violation "
+                             "(at the instances, and densely between them).", "snapshots"),
+    "diff": CommandHelp("diff NAME",
+                        "Compare the scene with snapshot NAME: which DOF changed and by how much (the "
+                        "largest difference of the curve over the animation), other definitions that "
+                        "changed, and the objective and violation before and after.",
+                        "diff before_release"),
 })

@@ -97,7 +97,8 @@ def _p_file(p):   # never reached: parse_file_command reads these lines first
     raise p.error("a command with a file path is read as text", p.token)
 
 
-SESSION_PARSERS = {"undo": _p_undo, "redo": _p_redo}
+SESSION_PARSERS = {"undo": _p_undo, "redo": _p_redo, "snapshot": _p_snapshot, "restore": _p_restore,
+                   "snapshots": _p_snapshots, "diff": _p_diff}
 FILE_COMMANDS = ()
 
 
