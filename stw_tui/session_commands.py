@@ -4,7 +4,7 @@ copy the command works on, and the parsed command, and returns an Outcome."""
 
 from __future__ import annotations
 
-from . import history
+from . import export, history
 from .language import session_commands as cmds
 
 SESSION_HANDLERS = {
@@ -14,4 +14,5 @@ SESSION_HANDLERS = {
     cmds.RestoreCmd: history.restore,
     cmds.SnapshotsCmd: history.list_snapshots,
     cmds.DiffCmd: history.diff,
+    cmds.ExportCmd: export.export,
 }
