@@ -134,3 +134,13 @@ def export(session: "Session", scene: Scene, cmd) -> "Outcome":
     frames = text.count("\n") - 1 if cmd.format == "csv" else len(frame_times(session.scene, cmd.fps))
     return Outcome(message=f"exported {frames} frames at {cmd.fps} fps to {target}",
                    journal_text=f"# {cmd.text or 'export'}")
+
+
+def save(session: "Session", scene: Scene, cmd) -> "Outcome":
+    """`save FILE`: the session so far, replayable; not a step, and journalled as a comment."""
+    from .session import Outcome
+
+    text = session.journal.text()
+    target = write_text(cmd.path, text)
+    lines = sum(1 for line in text.splitlines() if line.strip() and not line.lstrip().startswith("#"))
+    return Outcome(message=f"saved {lines} command line(s) to {target}", journal_text=f"# {cmd.text or 'save'}")

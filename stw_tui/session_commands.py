@@ -15,4 +15,5 @@ SESSION_HANDLERS = {
     cmds.SnapshotsCmd: history.list_snapshots,
     cmds.DiffCmd: history.diff,
     cmds.ExportCmd: export.export,
+    cmds.SaveCmd: export.save,
 }

@@ -168,3 +168,23 @@ def test_headless_export_matches_the_console(tmp_path, capsys):
         t = np.array(doc["columns"]["t"])
         assert np.max(np.abs(np.array(doc["columns"][name + "'"]) - dof.curve.evaluate(t, 1))) <= 1e-12
     assert cli.main(["export", str(tmp_path / "missing.stw"), "-o", str(out)]) == 1
+
+
+def test_save_writes_a_session_that_replays_to_the_same_scene(tmp_path):
+    s = run_lines(Session(), SESSIONS.joinpath("particle_jet.stw").read_text())
+    s.execute("shake x amplitude=0.01 seed=3")
+    s.execute("snapshot a")
+    s.execute("iterate 2")
+    s.execute("restore a")
+    with pytest.raises(StwError):
+        s.execute("weight nosuch 2")
+    out = tmp_path / "again.stw"
+    assert "saved" in s.execute(f"save {out}").message
+    assert s.journal.entries[-1].text == f"# save {out}"
+    replay = Session()
+    replay.run_file(out)
+    assert np.array_equal(replay.scene.coefficient_vector(), s.scene.coefficient_vector())
+    s.execute("undo")     # `save` is not a step: this undoes the restore
+    assert not np.array_equal(s.scene.coefficient_vector(), replay.scene.coefficient_vector())
+    with pytest.raises(SourceError, match="save needs a file"):
+        s.execute("save")

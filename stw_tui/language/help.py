@@ -163,4 +163,7 @@ COMMAND_HELP.update({
                           "joint, tip and centre of mass position; json adds the control points, knots "
                           "and the session text. Quote a path with spaces. The scene does not change.",
                           "export csv throw.csv fps=60"),
+    "save": CommandHelp("save FILE",
+                        "Write the session so far as a replayable .stw file (the journal's lines that "
+                        "succeeded). The scene does not change.", "save throw.stw"),
 })

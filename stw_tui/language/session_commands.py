@@ -98,8 +98,8 @@ def _p_file(p):   # never reached: parse_file_command reads these lines first
 
 
 SESSION_PARSERS = {"undo": _p_undo, "redo": _p_redo, "snapshot": _p_snapshot, "restore": _p_restore,
-                   "snapshots": _p_snapshots, "diff": _p_diff, "export": _p_file}
-FILE_COMMANDS = ("export",)
+                   "snapshots": _p_snapshots, "diff": _p_diff, "export": _p_file, "save": _p_file}
+FILE_COMMANDS = ("export", "save")
 
 
 # --- commands with a file path ---------------------------------------------------------------
