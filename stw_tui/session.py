@@ -146,13 +146,16 @@ class Session:
             else:
                 outcome = interpreter.apply_line(self, scene, text, line, on_report)
         except SourceError as exc:
+            self.warm = before.warm   # the solver's warm start too (a solve may have run)
             error = exc if exc.line is not None or line is None else exc.at_line(line)
             self.journal.settle(entry, False, str(error))
             raise error from None
         except StwError as exc:
+            self.warm = before.warm   # the solver's warm start too (a solve may have run)
             self.journal.settle(entry, False, str(exc))
             raise type(exc)(f"line {line}: {exc}" if line is not None else str(exc)) from exc
         except Exception as exc:  # a bug must not lose the scene or the session: report it
+            self.warm = before.warm   # the solver's warm start too (a solve may have run)
             message = f"internal error ({type(exc).__name__}: {exc}); the scene is unchanged"
             self.journal.settle(entry, False, message)
             raise StwError(f"line {line}: {message}" if line is not None else message) from exc

@@ -260,3 +260,30 @@ def test_snapshots_replay_from_the_journal():
     replay = run_lines(Session(), s.journal.text())
     assert state(replay.scene) == state(s.scene)
     assert list(replay.history.snapshots) == ["a", "b"]
+
+
+def test_a_stopped_solve_is_one_step():
+    s = run_lines(Session(), TWO_D)
+    before, warm = state(s.scene), warm_bytes(s)
+    before_coef = s.scene.coefficient_vector().copy()
+    s.execute("iterate 10", on_report=lambda report: False)    # stopped after its first iteration
+    assert s.runs[-1].status.name == "STOPPED" and not np.array_equal(s.scene.coefficient_vector(),
+                                                                       before_coef)
+    s.execute("undo")
+    assert state(s.scene) == before and warm_bytes(s) == warm
+
+
+def test_a_failed_solve_leaves_the_warm_start_as_it_was(monkeypatch):
+    """A command that fails after its solve ran keeps neither the scene nor the multipliers, so a
+    replay (where it is a comment) goes on from the same warm start."""
+    import stw_tui.interpreter as interpreter
+
+    s = run_lines(Session(), TWO_D + "iterate 2\nconstraint mid: y = 1 @ 1\n")
+    before, warm = state(s.scene), warm_bytes(s)
+
+    def broken(*args, **kwargs):
+        raise StwError("the dense check broke")
+    monkeypatch.setattr(interpreter, "survey", broken)
+    with pytest.raises(StwError, match="dense check broke"):
+        s.execute("iterate 5")
+    assert state(s.scene) == before and warm_bytes(s) == warm
