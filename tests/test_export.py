@@ -188,3 +188,11 @@ def test_save_writes_a_session_that_replays_to_the_same_scene(tmp_path):
     assert not np.array_equal(s.scene.coefficient_vector(), replay.scene.coefficient_vector())
     with pytest.raises(SourceError, match="save needs a file"):
         s.execute("save")
+
+
+def test_only_export_and_save_lines_are_read_as_plain_text():
+    s = run_lines(Session(), "dof x\n")
+    with pytest.raises(SourceError, match="unexpected character"):
+        s.execute('print x "')          # the tokenizer's error, not a path's
+    with pytest.raises(SourceError, match="unknown command 'exports'"):
+        s.execute("exports csv out.csv")

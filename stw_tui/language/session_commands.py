@@ -93,8 +93,9 @@ def _p_diff(p):
     return DiffCmd(p.name("a snapshot name").text, p.text)
 
 
-def _p_file(p):   # never reached: parse_file_command reads these lines first
-    raise p.error("a command with a file path is read as text", p.token)
+def _p_file(p):   # reached only by a line like `export# …`: parse_file_command reads the others
+    raise p.error("export and save need a file path after them", p.token,
+                  expected="`export csv|json FILE` or `save FILE`")
 
 
 SESSION_PARSERS = {"undo": _p_undo, "redo": _p_redo, "snapshot": _p_snapshot, "restore": _p_restore,
@@ -142,9 +143,10 @@ def parse_file_command(text: str, line: int | None = None):
     Raises:
         SourceError: with line, column and what was expected.
     """
-    words = _words(text, line)
-    if not words or words[0][2] or words[0][0] not in FILE_COMMANDS:
+    first = text.split(None, 1)[:1]
+    if not first or first[0] not in FILE_COMMANDS:
         return None
+    words = _words(text, line)
     command_text = text.strip()
     (word, column, _), rest = words[0], words[1:]
     end = len(text.rstrip()) + 1
