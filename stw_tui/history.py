@@ -60,6 +60,7 @@ class History:
     undo_steps: list[Step] = field(default_factory=list)
     redo_steps: list[Step] = field(default_factory=list)
     snapshots: dict[str, State] = field(default_factory=dict)
+    _measures: dict = field(default_factory=dict, repr=False)   # name -> (scene, its Measures)
 
     def settled(self, text: str, before: State, journal_text: str | None = None) -> None:
         """A command succeeded (called by the session after it replaced the scene).
@@ -75,6 +76,16 @@ class History:
         self.undo_steps.append(Step(journal_text or text, before))
         del self.undo_steps[:-self.limit]
         self.redo_steps.clear()
+
+    def measured(self, name: str):
+        """A snapshot's :class:`~stw_tui.snapshots.Measures`, computed once (its scene never changes)."""
+        from .snapshots import measure
+
+        scene = self.snapshots[name].scene
+        cached = self._measures.get(name)
+        if cached is None or cached[0] is not scene:
+            cached = self._measures[name] = (scene, measure(scene))
+        return cached[1]
 
     @staticmethod
     def describe(text: str) -> str:
@@ -152,7 +163,7 @@ def list_snapshots(session: "Session", scene: Scene, cmd) -> "Outcome":
         return Outcome(message="no snapshots; `snapshot NAME` keeps one")
     width = max(len(n) for n in [*snaps, "(now)"])
     lines = [f"{len(snaps)} snapshot(s):"]
-    lines += [f"  {name:<{width}}  {measure(state.scene).describe()}" for name, state in snaps.items()]
+    lines += [f"  {name:<{width}}  {session.history.measured(name).describe()}" for name in snaps]
     lines.append(f"  {'(now)':<{width}}  {measure(session.scene).describe()}")
     return Outcome(message="\n".join(lines))
 
@@ -162,5 +173,6 @@ def diff(session: "Session", scene: Scene, cmd) -> "Outcome":
     from .snapshots import describe_diff, diff_scenes, measure
 
     old = _snapshot_state(session, cmd.name).scene
-    text = describe_diff(cmd.name, diff_scenes(old, session.scene), measure(old), measure(session.scene))
+    text = describe_diff(cmd.name, diff_scenes(old, session.scene), session.history.measured(cmd.name),
+                         measure(session.scene))
     return Outcome(message=text)

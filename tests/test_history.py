@@ -287,3 +287,13 @@ def test_a_failed_solve_leaves_the_warm_start_as_it_was(monkeypatch):
     with pytest.raises(StwError, match="dense check broke"):
         s.execute("iterate 5")
     assert state(s.scene) == before and warm_bytes(s) == warm
+
+
+def test_a_replaced_snapshot_is_measured_again():
+    s = run_lines(Session(), TWO_D)
+    s.execute("snapshot a")
+    first = s.history.measured("a")
+    assert s.history.measured("a") is first        # kept: the snapshot's scene never changes
+    s.execute("iterate 10")
+    s.execute("snapshot a")
+    assert s.history.measured("a").violation < 1e-8 < first.violation
