@@ -123,7 +123,8 @@ def _export(args: argparse.Namespace) -> int:
     session = Session()
     try:
         session.run_file(args.session)
-        target = write_text(args.output, export_text(session, args.format, args.fps))
+        what = tuple(n for n in (args.what or "").split(",") if n)
+        target = write_text(args.output, export_text(session, args.format, args.fps, what))
     except SourceError as exc:
         print(f"{args.session}: {exc}", file=sys.stderr)
         return 2
@@ -160,6 +161,7 @@ def build_parser() -> argparse.ArgumentParser:
     export.add_argument("--format", choices=("csv", "json"), default="csv", help="file format (default csv)")
     export.add_argument("-o", "--output", type=Path, required=True, help="the file to write")
     export.add_argument("--fps", type=int, default=30, help="frames per second (default 30)")
+    export.add_argument("--what", help="subexpressions to add as columns, e.g. tau_ELBOW,arm.tip.x'")
     export.set_defaults(func=_export)
     backends = sub.add_parser("backends", help="list installed solver backends and their options")
     backends.set_defaults(func=_backends)

@@ -1,10 +1,10 @@
 """Exporting a scene's motion: CSV (one row per frame) and JSON (the same, plus the curves and the
-session text), from the console (`export csv|json FILE [fps=N]`) or headless
+session text), from the console (`export csv|json FILE [fps=N] [what=NAME,…]`) or headless
 (`stw export SESSION --format csv|json -o FILE`).
 
 Columns: ``t``; every DOF ``X`` with ``X'`` and ``X''``; and every linkage's joint, tip and centre
 of mass positions (``arm.ELBOW.x``, ``arm.tip.y``, ``arm.com.z``), evaluated from the derived
-kinematics on the scene's curves. Numbers are written with 17 significant digits, so reading a
+kinematics on the scene's curves; and the subexpressions asked for (``what=tau_ELBOW,f``). Numbers are written with 17 significant digits, so reading a
 file back gives the very floats stw computed.
 
 Export writes a file and changes nothing in the scene. Its journal line is kept as a comment, so a
@@ -54,19 +54,35 @@ def position_names(scene: Scene) -> list[str]:
     return names
 
 
-def motion_table(scene: Scene, times: np.ndarray) -> dict[str, np.ndarray]:
-    """Column name -> values at ``times``: t, each DOF and its two derivatives, each position."""
+def check_what(scene: Scene, what) -> tuple[str, ...]:
+    """The names asked for with ``what=``: subexpressions or linkage quantities, perhaps primed.
+
+    Raises:
+        StwError: a name that is not one.
+    """
+    for name in what:
+        base = name.rstrip("'")
+        if base not in scene.lets and base not in scene.derived:
+            known = ", ".join([*scene.lets, *[n for n in scene.derived if n.startswith("tau_")]][:8])
+            raise StwError(f"what={name}: not a subexpression or linkage quantity"
+                           + (f" (for example {known})" if known else ""))
+    return tuple(dict.fromkeys(what))
+
+
+def motion_table(scene: Scene, times: np.ndarray, what=()) -> dict[str, np.ndarray]:
+    """Column name -> values at ``times``: t, each DOF and its two derivatives, each position, and
+    each subexpression in ``what``."""
     columns = {"t": np.asarray(times, float)}
     for name, dof in scene.dofs.items():
         for order, suffix in enumerate(("", "'", "''")):
             columns[name + suffix] = dof.curve.evaluate(times, order)
-    for name in position_names(scene):
+    for name in [*position_names(scene), *(n for n in check_what(scene, what) if n not in columns)]:
         columns[name] = np.broadcast_to(expression_values(scene, named_symbol(name), times), times.shape)
     return columns
 
 
-def csv_text(scene: Scene, fps: int) -> str:
-    columns = motion_table(scene, frame_times(scene, fps))
+def csv_text(scene: Scene, fps: int, what=()) -> str:
+    columns = motion_table(scene, frame_times(scene, fps), what)
     out = io.StringIO()
     writer = csv.writer(out, lineterminator="\n")
     writer.writerow(columns)
@@ -75,8 +91,8 @@ def csv_text(scene: Scene, fps: int) -> str:
     return out.getvalue()
 
 
-def json_document(scene: Scene, fps: int, session_text: str) -> dict:
-    columns = motion_table(scene, frame_times(scene, fps))
+def json_document(scene: Scene, fps: int, session_text: str, what=()) -> dict:
+    columns = motion_table(scene, frame_times(scene, fps), what)
     return {
         "format": FORMAT_NAME, "version": FORMAT_VERSION, "fps": fps,
         "span": [scene.t0, scene.t1], "frames": int(columns["t"].size),
@@ -112,24 +128,24 @@ def write_text(path: str | Path, text: str) -> Path:
     return target
 
 
-def export_text(session: "Session", fmt: str, fps: int) -> str:
+def export_text(session: "Session", fmt: str, fps: int, what=()) -> str:
     scene = session.scene
     if not 1 <= fps <= 10_000:
         raise StwError(f"fps must be from 1 to 10000, not {fps}")
     if not scene.dofs:
         raise StwError("there is no motion to export: declare a DOF first")
     if fmt == "csv":
-        return csv_text(scene, fps)
+        return csv_text(scene, fps, what)
     if fmt == "json":
-        return json.dumps(json_document(scene, fps, session.journal.text()), indent=1) + "\n"
+        return json.dumps(json_document(scene, fps, session.journal.text(), what), indent=1) + "\n"
     raise StwError(f"unknown export format '{fmt}' (csv or json)")
 
 
 def export(session: "Session", scene: Scene, cmd) -> "Outcome":
-    """`export FORMAT FILE [fps=N]`: not a step, and journalled as a comment."""
+    """`export FORMAT FILE [fps=N] [what=NAME,…]`: not a step, and journalled as a comment."""
     from .session import Outcome
 
-    text = export_text(session, cmd.format, cmd.fps)
+    text = export_text(session, cmd.format, cmd.fps, cmd.what)
     target = write_text(cmd.path, text)
     frames = text.count("\n") - 1 if cmd.format == "csv" else len(frame_times(session.scene, cmd.fps))
     return Outcome(message=f"exported {frames} frames at {cmd.fps} fps to {target}",

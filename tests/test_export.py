@@ -158,7 +158,8 @@ def test_headless_export_matches_the_console(tmp_path, capsys):
     session_file = tmp_path / "jet.stw"
     session_file.write_text(SESSIONS.joinpath("particle_jet.stw").read_text())
     out = tmp_path / "jet.json"
-    assert cli.main(["export", str(session_file), "--format", "json", "-o", str(out), "--fps", "50"]) == 0
+    assert cli.main(["export", str(session_file), "--format", "json", "-o", str(out), "--fps", "50",
+                     "--what", "f"]) == 0
     assert "wrote" in capsys.readouterr().out
     doc = json.loads(out.read_text())
     s = Session()
@@ -167,6 +168,8 @@ def test_headless_export_matches_the_console(tmp_path, capsys):
         assert np.array_equal(np.array(doc["dofs"][name]["control_points"]), dof.curve.coef)
         t = np.array(doc["columns"]["t"])
         assert np.max(np.abs(np.array(doc["columns"][name + "'"]) - dof.curve.evaluate(t, 1))) <= 1e-12
+    t = np.array(doc["columns"]["t"])
+    assert np.array_equal(np.array(doc["columns"]["f"]), expression_values(s.scene, named_symbol("f"), t))
     assert cli.main(["export", str(tmp_path / "missing.stw"), "-o", str(out)]) == 1
 
 
@@ -196,3 +199,23 @@ def test_only_export_and_save_lines_are_read_as_plain_text():
         s.execute('print x "')          # the tokenizer's error, not a path's
     with pytest.raises(SourceError, match="unknown command 'exports'"):
         s.execute("exports csv out.csv")
+
+
+def test_what_adds_subexpressions_as_columns(arm, tmp_path):
+    out = tmp_path / "arm.csv"
+    arm.execute(f"export csv {out} fps=20 what=tau_ELBOW,arm.tip.x',arm.tip.x")
+    table = read_csv(out)
+    t = table["t"]
+    assert list(table).count("arm.tip.x") == 1
+    for name in ("tau_ELBOW", "arm.tip.x'"):
+        expected = expression_values(arm.scene, named_symbol(name), t)
+        assert np.max(np.abs(table[name] - expected)) <= 1e-12 * max(1, np.max(np.abs(expected))), name
+    # the hand's velocity, by the chain rule on the exported joint angles and velocities
+    angles = np.cumsum([table["SHOULDER"], table["ELBOW"], table["WRIST"]], axis=0)
+    rates = np.cumsum([table["SHOULDER'"], table["ELBOW'"], table["WRIST'"]], axis=0)
+    velocity = -sum(a * np.sin(q) * w for a, q, w in zip(LINKS, angles, rates))
+    assert np.max(np.abs(table["arm.tip.x'"] - velocity)) <= 1e-12
+    with pytest.raises(StwError, match="what=nosuch: not a subexpression"):
+        arm.execute(f"export csv {out} what=nosuch")
+    with pytest.raises(SourceError, match="names separated by commas"):
+        arm.execute(f"export csv {out} what=a+b")

@@ -157,10 +157,11 @@ COMMAND_HELP.update({
                         "largest difference of the curve over the animation), other definitions that "
                         "changed, and the objective and violation before and after.",
                         "diff before_release"),
-    "export": CommandHelp("export csv|json FILE [fps=N]",
+    "export": CommandHelp("export csv|json FILE [fps=N] [what=NAME,…]",
                           "Write the motion sampled at N frames per second (default 30): per frame the "
                           "time, every DOF with its first and second derivatives, and every linkage "
-                          "joint, tip and centre of mass position; json adds the control points, knots "
+                          "joint, tip and centre of mass position, and each subexpression NAME (a let, "
+                          "tau_JOINT, arm.tip.x'); json adds the control points, knots "
                           "and the session text. Quote a path with spaces. The scene does not change.",
                           "export csv throw.csv fps=60"),
     "save": CommandHelp("save FILE",

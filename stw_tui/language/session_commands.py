@@ -60,6 +60,7 @@ class ExportCmd:
     path: str
     fps: int = 30
     text: str = ""
+    what: tuple[str, ...] = ()   # subexpressions to add as columns (tau_ELBOW, arm.tip.x')
 
 
 @dataclass(frozen=True)
@@ -104,6 +105,7 @@ FILE_COMMANDS = ("export", "save")
 
 
 # --- commands with a file path ---------------------------------------------------------------
+_NAME = re.compile(r"[A-Za-z_][A-Za-z0-9_]*(\.[A-Za-z_][A-Za-z0-9_]*)*'{0,2}")
 _WORD = re.compile(r'\s*("(?P<quoted>[^"]*)"|(?P<plain>[^\s"#]+))')
 
 
@@ -138,7 +140,7 @@ def _path(word: str, column: int, text: str, line: int | None) -> str:
 
 
 def parse_file_command(text: str, line: int | None = None):
-    """Parse `export FORMAT FILE [fps=N]` or `save FILE`; None for any other command.
+    """Parse `export FORMAT FILE [fps=N] [what=NAME,…]` or `save FILE`; None for any other command.
 
     Raises:
         SourceError: with line, column and what was expected.
@@ -164,14 +166,20 @@ def parse_file_command(text: str, line: int | None = None):
     if len(rest) < 2:
         raise _error("export needs a file", text, line, end, expected="a file path")
     fmt, (path, path_column, _) = rest[0][0], rest[1]
-    fps = 30
+    fps, what = 30, ()
     for option, option_column, quoted in rest[2:]:
         key, _, value = option.partition("=")
-        if quoted or key != "fps":
+        if quoted or key not in ("fps", "what"):
             raise _error(f"unexpected '{option}'", text, line, option_column,
-                         expected="fps=N (quote a path with spaces)")
+                         expected="fps=N or what=NAME,… (quote a path with spaces)")
+        if key == "what":
+            what = tuple(value.split(","))
+            if not all(_NAME.fullmatch(n) for n in what):
+                raise _error(f"what= takes names separated by commas, not '{value}'", text, line,
+                             option_column + 5, expected="subexpression names, e.g. what=tau_ELBOW,f")
+            continue
         if not (value.isascii() and value.isdigit() and len(value) <= 5 and 1 <= int(value) <= MAX_FPS):
             raise _error(f"fps must be a whole number from 1 to {MAX_FPS}, not '{value}'", text, line,
                          option_column + 4, expected="frames per second")
         fps = int(value)
-    return ExportCmd(fmt, _path(path, path_column, text, line), fps, command_text)
+    return ExportCmd(fmt, _path(path, path_column, text, line), fps, command_text, what)
