@@ -11,7 +11,7 @@ from pathlib import Path
 from .backend import StepReport
 from .errors import SourceError, StwError
 
-SUBCOMMANDS = ("run", "bench", "backends", "compare")
+SUBCOMMANDS = ("run", "bench", "backends", "compare", "export")
 
 
 def _table_header() -> str:
@@ -115,6 +115,26 @@ def _bench(args: argparse.Namespace) -> int:
     return run_bench(args)
 
 
+def _export(args: argparse.Namespace) -> int:
+    """Replay a session headless and write its motion (see stw_tui/export.py)."""
+    from .export import export_text, write_text
+    from .session import Session
+
+    session = Session()
+    try:
+        session.run_file(args.session)
+        what = tuple(n for n in (args.what or "").split(",") if n)
+        target = write_text(args.output, export_text(session, args.format, args.fps, what))
+    except SourceError as exc:
+        print(f"{args.session}: {exc}", file=sys.stderr)
+        return 2
+    except StwError as exc:
+        print(f"stw export: {exc}", file=sys.stderr)
+        return 1
+    print(f"wrote {target}")
+    return 0
+
+
 def build_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(prog="stw", description="Spacetime Windows for the terminal.")
     sub = parser.add_subparsers(dest="command")
@@ -136,6 +156,13 @@ def build_parser() -> argparse.ArgumentParser:
     comp.add_argument("--repeat", type=int, default=1, help="timed repetitions per backend")
     comp.add_argument("--json", action="store_true", help="print one JSON object")
     comp.set_defaults(func=_compare)
+    export = sub.add_parser("export", help="replay a session headless and export its motion")
+    export.add_argument("session", type=Path)
+    export.add_argument("--format", choices=("csv", "json"), default="csv", help="file format (default csv)")
+    export.add_argument("-o", "--output", type=Path, required=True, help="the file to write")
+    export.add_argument("--fps", type=int, default=30, help="frames per second (default 30)")
+    export.add_argument("--what", help="subexpressions to add as columns, e.g. tau_ELBOW,arm.tip.x'")
+    export.set_defaults(func=_export)
     backends = sub.add_parser("backends", help="list installed solver backends and their options")
     backends.set_defaults(func=_backends)
     return parser

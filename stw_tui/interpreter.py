@@ -56,6 +56,9 @@ def apply_line(session: "Session", scene: Scene, text: str, line: int | None, on
     command = lang.parse_command(text, SceneScope(scene), line=line)
     if command is None:
         return Outcome()
+    from .session_commands import SESSION_HANDLERS   # undo, snapshots, export: they act on the session
+    if type(command) in SESSION_HANDLERS:
+        return SESSION_HANDLERS[type(command)](session, scene, command)
     handler = _HANDLERS[type(command)]
     if handler in (_iterate, _slide):    # solves: they need the session and report progress
         return handler(session, scene, command, on_report)

@@ -17,6 +17,7 @@ import numpy as np
 from . import interpreter
 from .backend import RunResult, StepReport
 from .errors import SourceError, StwError
+from .history import History, State
 from .scene import Scene
 
 
@@ -93,6 +94,7 @@ class Session:
         self.runs: list[RunResult] = []
         self.warm: interpreter.WarmStart | None = None
         self._block: list[tuple[int | None, str]] | None = None   # lines of an open `linkage` block
+        self.history = History()    # undo, redo and named snapshots (history.py)
 
     # --- commands ----------------------------------------------------------------------------
     @property
@@ -136,6 +138,7 @@ class Session:
 
     def _apply(self, text: str, line: int | None, on_report, block=None) -> Outcome:
         entry = self.journal.append(text, line)
+        before = State.of(self)
         scene = self.scene.copy()
         try:
             if block is not None:
@@ -143,17 +146,21 @@ class Session:
             else:
                 outcome = interpreter.apply_line(self, scene, text, line, on_report)
         except SourceError as exc:
+            self.warm = before.warm   # the solver's warm start too (a solve may have run)
             error = exc if exc.line is not None or line is None else exc.at_line(line)
             self.journal.settle(entry, False, str(error))
             raise error from None
         except StwError as exc:
+            self.warm = before.warm   # the solver's warm start too (a solve may have run)
             self.journal.settle(entry, False, str(exc))
             raise type(exc)(f"line {line}: {exc}" if line is not None else str(exc)) from exc
         except Exception as exc:  # a bug must not lose the scene or the session: report it
+            self.warm = before.warm   # the solver's warm start too (a solve may have run)
             message = f"internal error ({type(exc).__name__}: {exc}); the scene is unchanged"
             self.journal.settle(entry, False, message)
             raise StwError(f"line {line}: {message}" if line is not None else message) from exc
         self.scene = scene
+        self.history.settled(text, before, outcome.journal_text)
         if outcome.journal_text is not None:
             entry.text = outcome.journal_text
         self.journal.settle(entry, True)

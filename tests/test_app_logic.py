@@ -32,7 +32,7 @@ def test_completion_of_commands_names_settings_and_backends(jet):
     assert complete("help lin", scene) == ("help linkage ", [])
     assert complete("print x +", scene) == ("print x +", [])       # nothing to complete after +
     assert candidates("use ", scene)[1] == sorted(["all", "end", "f", "fuel", "g", "m", "pi", "start", "t", "x"])
-    assert complete("d", None)[1] == ["damp", "delete", "dof"]      # before the core has loaded
+    assert complete("d", None)[1] == ["damp", "delete", "diff", "dof"]      # before the core has loaded
 
 
 def test_history_browses_back_and_keeps_the_draft():

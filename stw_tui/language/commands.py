@@ -605,6 +605,14 @@ class CommandParser(ExpressionParser):
 
 _PARSERS = {name: getattr(CommandParser, f"p_{name}") for name in COMMAND_NAMES}
 
+# Commands on the session rather than the scene: undo, redo, snapshots, export, save.
+from .session_commands import *  # noqa: E402,F401,F403  (their dataclasses)
+from .session_commands import SESSION_PARSERS, parse_file_command  # noqa: E402
+
+_PARSERS.update(SESSION_PARSERS)
+COMMAND_NAMES += tuple(SESSION_PARSERS)
+RESERVED |= set(SESSION_PARSERS)
+
 
 def parse_command(text: str, scope: Scope, *, line: int | None = None):
     """Parse one line of the session language.
@@ -614,4 +622,7 @@ def parse_command(text: str, scope: Scope, *, line: int | None = None):
     Raises:
         SourceError: with line, column and what was expected.
     """
+    file_command = parse_file_command(text, line)   # export, save: a path is not a token
+    if file_command is not None:
+        return file_command
     return CommandParser(text, scope, line).parse()

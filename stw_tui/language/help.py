@@ -145,3 +145,39 @@ def help_text(topic: str | None = None) -> str:
         raise StwError(f"no help for '{topic}'{hint}")
     h = COMMAND_HELP[topic]
     return f"{h.synopsis}\n  {h.summary}\n  example: {h.example}"
+
+
+# Commands on the session rather than the scene (language/session_commands.py).
+COMMAND_HELP.update({
+    "undo": CommandHelp("undo",
+                        "Take back the last command that changed the scene (a solve included), exactly: "
+                        "control points, constants, constraints, windows, weights and settings return "
+                        "bit for bit. `print`, `help`, `snapshot`, `snapshots`, `diff`, `export` and `save` "
+                        "change nothing and are not undone.", "undo"),
+    "redo": CommandHelp("redo", "Do again what `undo` took back (until another command changes the scene).",
+                        "redo"),
+    "snapshot": CommandHelp("snapshot NAME",
+                            "Keep the scene as it is now under NAME (replacing a snapshot of that name), "
+                            "to `restore` or `diff` later.", "snapshot before_release"),
+    "restore": CommandHelp("restore NAME",
+                           "Make the scene what it was at `snapshot NAME` (one step: `undo` takes it back).",
+                           "restore before_release"),
+    "snapshots": CommandHelp("snapshots",
+                             "List the snapshots with each one's objective and largest constraint violation "
+                             "(at the instances, and densely between them).", "snapshots"),
+    "diff": CommandHelp("diff NAME",
+                        "Compare the scene with snapshot NAME: which DOF changed and by how much (the "
+                        "largest difference of the curve over the animation), other definitions that "
+                        "changed, and the objective and violation before and after.",
+                        "diff before_release"),
+    "export": CommandHelp("export csv|json FILE [fps=N] [what=NAME,…]",
+                          "Write the motion sampled at N frames per second (default 30): per frame the "
+                          "time, every DOF with its first and second derivatives, and every linkage "
+                          "joint, tip and centre of mass position, and each subexpression NAME (a let, "
+                          "tau_JOINT, arm.tip.x'); json adds the control points, knots "
+                          "and the session text. Quote a path with spaces. The scene does not change.",
+                          "export csv throw.csv fps=60"),
+    "save": CommandHelp("save FILE",
+                        "Write the session so far as a replayable .stw file (the journal's lines that "
+                        "succeeded). The scene does not change.", "save throw.stw"),
+})

@@ -1,0 +1,185 @@
+"""Commands on the session rather than the scene: history (`undo`, `redo`), named snapshots
+(`snapshot`, `restore`, `snapshots`, `diff`) and files (`export`, `save`).
+
+The history and snapshot commands are parsed like every other command (see
+:mod:`.commands`). `export` and `save` take a file path, which is not a token of the language
+(``../out.csv``, ``~/motion.json``, a quoted name with spaces), so :func:`parse_file_command`
+reads their line as plain text, never evaluating it.
+"""
+
+from __future__ import annotations
+
+import re
+from dataclasses import dataclass
+
+from ..errors import SourceError
+
+__all__ = ["UndoCmd", "RedoCmd", "SnapshotCmd", "RestoreCmd", "SnapshotsCmd", "DiffCmd", "ExportCmd",
+           "SaveCmd", "SESSION_PARSERS", "FILE_COMMANDS", "EXPORT_FORMATS", "parse_file_command"]
+
+EXPORT_FORMATS = ("csv", "json")
+MAX_FPS = 10_000
+
+
+@dataclass(frozen=True)
+class UndoCmd:
+    text: str = ""
+
+
+@dataclass(frozen=True)
+class RedoCmd:
+    text: str = ""
+
+
+@dataclass(frozen=True)
+class SnapshotCmd:
+    name: str
+    text: str = ""
+
+
+@dataclass(frozen=True)
+class RestoreCmd:
+    name: str
+    text: str = ""
+
+
+@dataclass(frozen=True)
+class SnapshotsCmd:
+    text: str = ""
+
+
+@dataclass(frozen=True)
+class DiffCmd:
+    name: str
+    text: str = ""
+
+
+@dataclass(frozen=True)
+class ExportCmd:
+    format: str          # one of EXPORT_FORMATS
+    path: str
+    fps: int = 30
+    text: str = ""
+    what: tuple[str, ...] = ()   # subexpressions to add as columns (tau_ELBOW, arm.tip.x')
+
+
+@dataclass(frozen=True)
+class SaveCmd:
+    path: str
+    text: str = ""
+
+
+# --- parsers of the token-based commands (called with the CommandParser) ----------------------
+def _p_undo(p):
+    return UndoCmd(p.text)
+
+
+def _p_redo(p):
+    return RedoCmd(p.text)
+
+
+def _p_snapshot(p):
+    return SnapshotCmd(p.name("a snapshot name").text, p.text)
+
+
+def _p_restore(p):
+    return RestoreCmd(p.name("a snapshot name").text, p.text)
+
+
+def _p_snapshots(p):
+    return SnapshotsCmd(p.text)
+
+
+def _p_diff(p):
+    return DiffCmd(p.name("a snapshot name").text, p.text)
+
+
+def _p_file(p):   # reached only by a line like `export# …`: parse_file_command reads the others
+    raise p.error("export and save need a file path after them", p.token,
+                  expected="`export csv|json FILE` or `save FILE`")
+
+
+SESSION_PARSERS = {"undo": _p_undo, "redo": _p_redo, "snapshot": _p_snapshot, "restore": _p_restore,
+                   "snapshots": _p_snapshots, "diff": _p_diff, "export": _p_file, "save": _p_file}
+FILE_COMMANDS = ("export", "save")
+
+
+# --- commands with a file path ---------------------------------------------------------------
+_NAME = re.compile(r"[A-Za-z_][A-Za-z0-9_]*(\.[A-Za-z_][A-Za-z0-9_]*)*'{0,2}")
+_WORD = re.compile(r'\s*("(?P<quoted>[^"]*)"|(?P<plain>[^\s"#]+))')
+
+
+def _error(message: str, text: str, line: int | None, column: int, expected: str | None = None):
+    return SourceError(message, line=line, column=column, source=text, expected=expected)
+
+
+def _words(text: str, line: int | None) -> list[tuple[str, int, bool]]:
+    """(word, 1-based column, quoted) up to a comment; a quoted word may hold spaces and '#'."""
+    words, pos = [], 0
+    while pos < len(text):
+        rest = text[pos:]
+        if not rest.strip() or rest.lstrip().startswith("#"):
+            break
+        match = _WORD.match(text, pos)
+        if match is None:
+            column = pos + len(rest) - len(rest.lstrip()) + 1
+            raise _error("a quoted path is not closed", text, line, column, expected='a closing "')
+        quoted = match.group("quoted") is not None
+        word = match.group("quoted") if quoted else match.group("plain")
+        words.append((word, match.start(1) + 1, quoted))
+        pos = match.end()
+    return words
+
+
+def _path(word: str, column: int, text: str, line: int | None) -> str:
+    if not word:
+        raise _error("the file path is empty", text, line, column, expected="a file path")
+    if any(ord(c) < 32 or c == "\x7f" for c in word):
+        raise _error("the file path holds a control character", text, line, column)
+    return word
+
+
+def parse_file_command(text: str, line: int | None = None):
+    """Parse `export FORMAT FILE [fps=N] [what=NAME,…]` or `save FILE`; None for any other command.
+
+    Raises:
+        SourceError: with line, column and what was expected.
+    """
+    first = text.split(None, 1)[:1]
+    if not first or first[0] not in FILE_COMMANDS:
+        return None
+    words = _words(text, line)
+    command_text = text.strip()
+    (word, column, _), rest = words[0], words[1:]
+    end = len(text.rstrip()) + 1
+    if word == "save":
+        if not rest:
+            raise _error("save needs a file", text, line, end, expected="a file path")
+        if len(rest) > 1:
+            raise _error(f"unexpected '{rest[1][0]}' after the file", text, line, rest[1][1],
+                         expected="end of line (quote a path with spaces)")
+        return SaveCmd(_path(rest[0][0], rest[0][1], text, line), command_text)
+    if not rest or rest[0][0] not in EXPORT_FORMATS:
+        at = rest[0][1] if rest else end
+        got = f"unknown export format '{rest[0][0]}'" if rest else "export needs a format"
+        raise _error(got, text, line, at, expected=" or ".join(EXPORT_FORMATS))
+    if len(rest) < 2:
+        raise _error("export needs a file", text, line, end, expected="a file path")
+    fmt, (path, path_column, _) = rest[0][0], rest[1]
+    fps, what = 30, ()
+    for option, option_column, quoted in rest[2:]:
+        key, _, value = option.partition("=")
+        if quoted or key not in ("fps", "what"):
+            raise _error(f"unexpected '{option}'", text, line, option_column,
+                         expected="fps=N or what=NAME,… (quote a path with spaces)")
+        if key == "what":
+            what = tuple(value.split(","))
+            if not all(_NAME.fullmatch(n) for n in what):
+                raise _error(f"what= takes names separated by commas, not '{value}'", text, line,
+                             option_column + 5, expected="subexpression names, e.g. what=tau_ELBOW,f")
+            continue
+        if not (value.isascii() and value.isdigit() and len(value) <= 5 and 1 <= int(value) <= MAX_FPS):
+            raise _error(f"fps must be a whole number from 1 to {MAX_FPS}, not '{value}'", text, line,
+                         option_column + 4, expected="frames per second")
+        fps = int(value)
+    return ExportCmd(fmt, _path(path, path_column, text, line), fps, command_text, what)

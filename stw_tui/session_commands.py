@@ -1,0 +1,19 @@
+"""Handlers of the commands that act on the session rather than only on its scene: history
+and snapshots (:mod:`.history`) and files (:mod:`.export`). Each takes the session, the scene
+copy the command works on, and the parsed command, and returns an Outcome."""
+
+from __future__ import annotations
+
+from . import export, history
+from .language import session_commands as cmds
+
+SESSION_HANDLERS = {
+    cmds.UndoCmd: history.undo,
+    cmds.RedoCmd: history.redo,
+    cmds.SnapshotCmd: history.snapshot,
+    cmds.RestoreCmd: history.restore,
+    cmds.SnapshotsCmd: history.list_snapshots,
+    cmds.DiffCmd: history.diff,
+    cmds.ExportCmd: export.export,
+    cmds.SaveCmd: export.save,
+}
