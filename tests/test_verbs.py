@@ -94,3 +94,15 @@ def test_ballistic_needs_g_and_limit_is_a_dof_range():
     message = s.execute("limit PX 0 1").message
     assert "outside now" in message and "to 2)" in message
     assert (s.scene.dofs["PX"].lo, s.scene.dofs["PX"].hi) == (0.0, 1.0)
+
+
+def test_a_verb_and_its_delete_are_each_one_undo_step():
+    s = run_lines(Session(), ARM)
+    s.execute("hold B at arm.tip on [0.3, 0.9]")
+    s.execute("delete B_held")
+    assert "B_caught" not in s.scene.constraints
+    s.execute("undo")                                          # the group is back, whole
+    assert s.scene.verbs["B_held"][1] == ("B_held", "B_caught", "B_released")
+    assert {"B_caught", "B_released"} <= set(s.scene.constraints)
+    s.execute("undo")                                          # and the verb is gone
+    assert not s.scene.verbs and "B_held" not in s.scene.objectives
