@@ -16,12 +16,13 @@ JET = support.SESSIONS / "particle_jet.stw"
 SIZE = (120, 40)
 
 
-def run(scenario, app, size=SIZE):
-    """Run ``scenario(pilot)`` inside ``app`` at a fixed size."""
+def run(scenario, app, size=SIZE, settle=True):
+    """Run ``scenario(pilot)`` inside ``app`` at a fixed size (once it has settled, by default)."""
 
     async def main():
         async with app.run_test(size=size) as pilot:
-            await support.settle(pilot)
+            if settle:
+                await support.settle(pilot)
             await scenario(pilot)
 
     asyncio.run(main())
@@ -130,22 +131,33 @@ def test_iterate_runs_in_the_worker_and_updates_status_and_plots():
     run(scenario, app)
 
 
-def test_escape_stops_a_solve_at_an_iteration_boundary_and_queues_commands():
+def endless_jet() -> Session:
+    """The particle-jet scene with tolerances no solve meets: `iterate N` runs all N iterations."""
     session = jet_without_iterate()
-    for line in ("set tol_violation 0", "set tol_kkt 0", "set tol_step 0"):   # never converges
+    for line in ("set tol_violation 0", "set tol_kkt 0", "set tol_step 0"):
         session.execute(line)
-    app = create_app(session=session)
+    return session
+
+
+async def wait_for_reports(pilot) -> None:
+    """Wait until the running solve has reported an iteration."""
+    for _ in range(500):
+        await pilot.pause(0.02)
+        if pilot.app.runner.reports:
+            return
+    raise AssertionError("the solve reported no iteration")
+
+
+def test_f4_stops_a_solve_at_an_iteration_boundary_and_queues_commands():
+    app = create_app(session=endless_jet())
 
     async def scenario(pilot):
         await support.submit(pilot, "iterate 100000")
-        for _ in range(500):
-            await pilot.pause(0.02)
-            if app.runner.reports:
-                break
+        await wait_for_reports(pilot)
         assert app.runner.solving
         await support.submit(pilot, "const k = 2")           # waits for the solve
         assert "queued" in support.log_text(app)
-        await pilot.press("escape")
+        await pilot.press("f4")
         await support.settle(pilot)
         run_result = app.session.runs[-1]
         assert run_result.status is Status.STOPPED
@@ -156,6 +168,99 @@ def test_escape_stops_a_solve_at_an_iteration_boundary_and_queues_commands():
         assert app.session.journal.replayable()[-2:] == [f"iterate {ran} adapt=0", "const k = 2"]
 
     run(scenario, app)
+
+
+def test_escape_returns_to_the_console_and_never_stops_a_solve():
+    app = create_app(session=endless_jet())
+
+    async def scenario(pilot):
+        await support.submit(pilot, "iterate 60")
+        await wait_for_reports(pilot)
+        await pilot.press("f3")                              # focus a plot
+        assert app.focused is app.query_one("#curves-plot")
+        await pilot.press("escape")
+        assert app.focused is app.repl.input
+        await pilot.press("escape")                          # at the console: still nothing stops
+        await support.settle(pilot)
+        assert not app.runner.stop_requested.is_set()
+        assert app.session.runs[-1].status is not Status.STOPPED
+        assert len(app.session.runs[-1].reports) >= 60
+
+    run(scenario, app)
+
+
+def test_a_replay_halts_and_says_so_when_its_solve_is_stopped(tmp_path):
+    script = tmp_path / "endless.stw"
+    script.write_text(JET.read_text().split("iterate")[0]
+                      + "set tol_violation 0\nset tol_kkt 0\nset tol_step 0\n"
+                      + "iterate 100000\nconst k = 2\n")
+    app = create_app(script)
+
+    async def scenario(pilot):
+        await wait_for_reports(pilot)
+        await pilot.press("f4")
+        await support.settle(pilot)
+        assert app.session.runs[-1].status is Status.STOPPED
+        assert "k" not in app.session.scene.constants          # the line after did not run
+        text = support.log_text(app)
+        assert "replay halted: the solve at line 16 was stopped" in text, text
+        assert "end of endless.stw" not in text
+        assert app.script.upcoming() == (17, "const k = 2")
+        await pilot.press("f7")                                 # the rest, on request
+        await support.settle(pilot)
+        assert app.session.scene.constants["k"] == 2
+
+    run(scenario, app, settle=False)
+
+
+def quit_latency(app, start) -> float:
+    """Seconds from Ctrl+Q, pressed once ``start(pilot)`` has returned, until the app has exited."""
+    import time
+
+    pressed = []
+
+    async def main():
+        async with app.run_test(size=SIZE) as pilot:
+            await support.settle(pilot)
+            await start(pilot)
+            pressed.append(time.monotonic())
+            await pilot.press("ctrl+q")
+        return time.monotonic() - pressed[0]
+
+    return asyncio.run(main())
+
+
+def test_ctrl_q_quits_at_once_during_a_solve():
+    app = create_app(session=endless_jet())
+
+    async def start(pilot):
+        await support.submit(pilot, "iterate 100000")
+        await wait_for_reports(pilot)
+        await pilot.press("f3")                               # from a plot too
+
+    assert quit_latency(app, start) < 1.0
+    thread = app.runner.thread
+    thread.join(timeout=10)                                   # told to stop: ends at the next iteration
+    assert not thread.is_alive()
+    assert app.session.runs[-1].status is Status.STOPPED
+
+
+def test_ctrl_q_does_not_wait_for_a_job_that_cannot_be_stopped():
+    import time
+
+    from stw_tui.app.runner import Job
+
+    app = create_app()
+
+    async def start(pilot):
+        app.runner.submit(Job("", origin="compare", task=lambda session: time.sleep(5)))
+        app.runner.submit(Job("const k = 1"))                 # queued: never runs
+        await pilot.pause(0.1)
+        assert app.runner.thread.is_alive()
+
+    assert quit_latency(app, start) < 1.0
+    assert app.runner.thread.is_alive()                        # abandoned, not waited for
+    assert not app.runner.queue
 
 
 def test_editing_a_constant_in_the_panel_emits_the_command_line():

@@ -5,6 +5,8 @@
 
 from __future__ import annotations
 
+import os
+import sys
 from pathlib import Path
 from typing import TYPE_CHECKING
 
@@ -31,10 +33,17 @@ def create_app(session_path: str | Path | None = None, step: bool = False, sessi
 
 
 def run_app(session_path: str | Path | None = None, step: bool = False,
-            journal: str | Path | None = None) -> int:
-    """Run the TUI until the user quits; returns the process exit code.
+            journal: str | Path | None = None, exit_process: bool = True) -> int:
+    """Run the TUI until the user quits, then end the process (or return its exit code).
 
-    ``journal``: a file the session's journal is appended to as commands are applied.
+    Args:
+        session_path, step: as for :func:`create_app`.
+        journal: a file the session's journal is appended to as commands are applied (each entry
+            is written and closed at once, so nothing is pending at exit).
+        exit_process: end the process with ``os._exit`` once the screen is restored, so Ctrl+Q
+            takes well under a second: an interpreter that has loaded sympy and scipy spends about
+            a second finalizing them, and a solve abandoned by Ctrl+Q (a daemon thread) is not
+            waited for. False: return the exit code instead (for callers that go on).
     """
     session = None
     if journal is not None:
@@ -43,4 +52,9 @@ def run_app(session_path: str | Path | None = None, step: bool = False,
         session = Session(journal_path=journal)
     app = create_app(session_path, step=step, session=session)
     app.run()
-    return app.return_code or 0
+    code = app.return_code or 0
+    if exit_process:
+        sys.stdout.flush()
+        sys.stderr.flush()
+        os._exit(code)
+    return code

@@ -10,13 +10,11 @@ import time
 from pathlib import Path
 from typing import TYPE_CHECKING
 
-from textual import work
 from textual.app import App, ComposeResult
 from textual.binding import Binding
 from textual.containers import Horizontal
 from textual.widget import Widget
 from textual.widgets import Footer, TabbedContent, TabPane
-from textual.worker import Worker, WorkerState
 
 from .console import Console
 from .dialogs import CompareScreen
@@ -64,10 +62,10 @@ class StwApp(App[int]):
         Binding("f6", "step", "Step"),
         Binding("f7", "run_rest", "Run rest"),
         Binding("f8", "play", "Play"),
-        Binding("escape", "escape", "Stop/back"),
-        # Esc can lag in tmux (escape-time); F4 only stops, at once.
-        Binding("f4", "stop", "Stop", show=False),
-        Binding("ctrl+q", "quit", "Quit"),
+        Binding("f4", "stop", "Stop"),
+        # Esc never stops anything: pressed to leave a panel, it must not cost a running solve.
+        Binding("escape", "escape", "Console", show=False),
+        Binding("ctrl+q", "quit", "Quit", priority=True),
     ]
 
     def __init__(self, session: "Session | None" = None, session_path: str | Path | None = None,
@@ -124,7 +122,7 @@ class StwApp(App[int]):
     def on_mount(self) -> None:
         self.repl.input.focus()
         self.repl.write_note("stw — Spacetime Windows. Type a command (`help` lists them); "
-                             "F2 panels, F3 plots, F5 iterate, Esc or F4 stops, Ctrl+Q quits.")
+                             "F1 help, F2 panels, F3 plots, F5 iterate, F4 stops, Esc back here, Ctrl+Q quits.")
         self.status_line.show(state="loading")
         self.runner.submit(Job("", origin="startup"))   # loads the core and measures the scene, off the UI thread
         if self.session_path is not None:
@@ -149,11 +147,6 @@ class StwApp(App[int]):
         """Run one command line through the session, after any running or queued ones."""
         if self.runner.submit(Job(line, number=number, origin=origin)) and origin != "file":
             self.repl.write_note(f"queued until the running command ends: {line}")
-
-    @work(thread=True, exclusive=True, exit_on_error=False, group="session")
-    def start_job(self, job: Job) -> None:
-        """The worker: executes one job on the session (see Runner.run)."""
-        self.runner.run(job)
 
     def _feed_script(self) -> None:
         """Send the next line of a replaying script when nothing else is running."""
@@ -238,7 +231,16 @@ class StwApp(App[int]):
             if outcome.run is not None and outcome.run.reports:
                 self.status_line.show(report=outcome.run.reports[-1])
                 self.query_one(ConvergencePlot).set_reports(outcome.run.reports)
+            if job.origin == "file" and _was_stopped(outcome) and self.script is not None:
+                # The lines after a stopped solve assume it ran to the end: do not run them.
+                self.script.running = False
+                self.repl.write_note(f"replay halted: the solve at line {job.number} was stopped "
+                                     "before it ended; F6 runs the next line, F7 the rest")
         self._live = None
+        if self.session is None:   # the core failed to load
+            self.runner.finished()
+            self._show_state()
+            return
         self.repl.set_prompt(self.session.in_block)
         self._refresh_views(event.info)
         self.runner.finished()
@@ -253,12 +255,6 @@ class StwApp(App[int]):
         self.runner.finished()
         self._feed_script()
         self._show_state()
-
-    def on_worker_state_changed(self, event: Worker.StateChanged) -> None:
-        # Runner.run catches everything, so this is the last line of defence.
-        if event.worker.group == "session" and event.state is WorkerState.ERROR:
-            self.repl.write_error(event.worker.error)
-            self.runner.finished()
 
     @property
     def settled(self) -> bool:
@@ -380,25 +376,36 @@ class StwApp(App[int]):
         self.query_one(FigurePlot).action_play()
 
     def action_stop(self) -> None:
-        """Stop a solve at the next iteration boundary, and pause a replay."""
-        if self.runner.stop():
+        """F4: stop a solve at the next iteration boundary, and pause a replay."""
+        stopped = self.runner.stop()
+        if stopped:
             self.repl.write_note("stopping at the next iteration boundary…")
         if self.script is not None and self.script.running:
             self.script.running = False
-            self.repl.write_note("replay paused: F6 next line, F7 the rest")
+            if not (stopped and self.runner.current.origin == "file"):   # else the solve's end says it
+                self.repl.write_note("replay paused: F6 next line, F7 the rest")
+        elif not stopped:
+            self.repl.write_note("nothing to stop")
         self._show_state()
 
     def action_escape(self) -> None:
-        """Stop a solve; else pause a replay; else return to the console; else drop an open block."""
-        if self.runner.stop():
-            self.repl.write_note("stopping at the next iteration boundary…")
-        elif self.script is not None and self.script.running:
-            self.script.running = False
-            self.repl.write_note("replay paused: F6 next line, F7 the rest")
-        elif self.focused is not self.repl.input:
+        """Esc: return to the console; at the console, drop an open linkage block. Never stops a solve."""
+        if self.focused is not self.repl.input:
             self.repl.input.focus()
         elif self.session is not None and self.session.in_block and not self.runner.busy:
             self.session.cancel_block()
             self.repl.set_prompt(False)
             self.repl.write_note("linkage block dropped")
-        self._show_state()
+
+    async def action_quit(self) -> None:
+        """Ctrl+Q: exit at once. A running solve is told to stop and left behind (a daemon thread)."""
+        self.runner.abandon()
+        self.exit()
+
+
+def _was_stopped(outcome) -> bool:
+    """Whether a command's solve ended because the user stopped it."""
+    from ..backend import Status
+
+    run = getattr(outcome, "run", None)
+    return run is not None and run.status is Status.STOPPED
