@@ -403,3 +403,51 @@ def test_compare_key_in_the_opt_panel_shows_a_row_per_installed_backend():
         assert not isinstance(app.screen, CompareScreen)
 
     run(scenario, app)
+
+
+def test_typing_in_a_panel_or_plot_goes_to_the_console():
+    app = create_app(support.SESSIONS / "point_mass_2d.stw")
+
+    async def scenario(pilot):
+        await pilot.press("f3")                              # a plot
+        assert app.focused is app.query_one("#curves-plot")
+        await pilot.press(*"print")
+        assert app.focused is app.repl.input
+        assert app.repl.input.value == "print"
+        await pilot.press("f2")                              # a panel: its own keys still work
+        assert app.focused is app.query_one("#dof-panel")
+        await pilot.press("space", "x", "@", "0")
+        assert app.focused is app.repl.input
+        assert app.repl.input.value == "print x@0"
+        await pilot.press("f2", "i")                         # `i` is the DOF panel's key
+        await support.settle(pilot)
+        assert app.session.journal.replayable()[-1] == "window w1 dofs=y"
+        assert app.repl.input.value == "print x@0"
+
+    run(scenario, app)
+
+
+def test_the_focused_area_is_marked():
+    from textual.widgets import Tab
+
+    app = create_app()
+
+    def marks():
+        console = app.repl.styles.border_top[1]
+        tabs = {group: app.query_one(f"#{group}").query_one("Tab.-active", Tab).styles.background
+                for group in ("panels", "plots")}
+        return console, tabs["panels"], tabs["plots"]
+
+    async def scenario(pilot):
+        at_console = marks()
+        await pilot.press("f3")
+        await pilot.pause()
+        at_plots = marks()
+        await pilot.press("f2")
+        await pilot.pause()
+        at_panels = marks()
+        assert at_console[0] != at_plots[0] == at_panels[0]         # the console's rule
+        assert at_plots[2] != at_console[2] == at_panels[2]         # the plots' active tab
+        assert at_panels[1] != at_console[1] == at_plots[1]         # the panels' active tab
+
+    run(scenario, app)

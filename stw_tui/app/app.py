@@ -10,6 +10,7 @@ import time
 from pathlib import Path
 from typing import TYPE_CHECKING
 
+from textual import events
 from textual.app import App, ComposeResult
 from textual.binding import Binding
 from textual.containers import Horizontal
@@ -307,7 +308,26 @@ class StwApp(App[int]):
         self.query_one("#plots", TabbedContent).active = tab
         plot.request_draw()
 
-    # --- keys --------------------------------------------------------------------------------
+    # --- focus and keys ----------------------------------------------------------------------
+    def on_descendant_focus(self, event: events.DescendantFocus) -> None:
+        """Mark the tab group that holds the focus (see app.tcss)."""
+        if len(self.screen_stack) == 1:
+            focused = self.focused
+            for tabs in self.query(TabbedContent):
+                tabs.set_class(focused is not None and tabs in focused.ancestors, "-has-focus")
+
+    def on_key(self, event: events.Key) -> None:
+        """A printable key that nothing bound (typed while a panel or plot has the focus) is typing
+        meant for the console: focus it and type the character there, rather than lose it."""
+        if not event.is_printable or event.character is None or len(self.screen_stack) > 1:
+            return
+        field = self.repl.input
+        if self.focused is field or event.key in self.active_bindings:
+            return
+        event.stop()
+        field.focus()
+        field.insert_text_at_cursor(event.character)
+
     def check_action(self, action: str, parameters: tuple) -> bool | None:
         if action in ("step", "run_rest"):
             return self.script is not None and not self.script.done
