@@ -451,3 +451,45 @@ def test_the_focused_area_is_marked():
         assert at_panels[1] != at_console[1] == at_plots[1]         # the panels' active tab
 
     run(scenario, app)
+
+
+def test_f1_opens_a_scrollable_searchable_help_screen_and_help_cmd_still_prints():
+    from stw_tui.app.help_screen import HelpScreen
+
+    app = create_app()
+
+    async def scenario(pilot):
+        await pilot.press("f3")                              # from anywhere
+        await pilot.press("f1")
+        screen = app.screen
+        assert isinstance(screen, HelpScreen)
+        titles = [section.title for section in screen.sections]
+        assert titles[:3] == ["Getting started", "Keys", "Commands"] and "iterate" in titles
+        keys = screen.sections[1].body
+        assert "F4" in keys.upper() and "Stop" in keys and "Prev DOF" in keys and "Complete" not in keys
+        body = screen.query_one("#help-body")
+        assert body.max_scroll_y > 0
+        await pilot.press("pagedown")
+        await pilot.pause()
+        assert body.scroll_y > 0
+        await pilot.press(*"linkage")                         # typing searches
+        await pilot.pause()
+        shown = [s.title for s, w in zip(screen.sections, screen.query(".help-section")) if w.display]
+        assert shown and all("linkage" in (s.title + s.body).lower() for s in screen.sections
+                             if s.title in shown)
+        assert "linkage" in shown and "time" not in shown
+        await pilot.press("q")                               # part of a search: typed
+        assert isinstance(app.screen, HelpScreen)
+        assert screen.query_one("#help-search").value == "linkageq"
+        await pilot.press("escape")
+        assert not isinstance(app.screen, HelpScreen)
+        await support.submit(pilot, "help")                   # the same screen from the console
+        assert isinstance(app.screen, HelpScreen)
+        await pilot.pause()
+        await pilot.press("q")                               # empty search: q closes
+        assert not isinstance(app.screen, HelpScreen)
+        await support.submit(pilot, "help iterate")           # one command, in the console
+        await support.settle(pilot)
+        assert "iterate [N] [adapt=R]" in support.log_text(app)
+
+    run(scenario, app)

@@ -54,3 +54,21 @@ def test_cat_mouse_figure_120x40(snap_compare):
 
     app = quiet_app(support.SESSIONS / "cat_mouse.stw")
     assert snap_compare(app, terminal_size=(120, 40), run_before=run_before)
+
+
+def test_help_screen_80x24(snap_compare):
+    async def run_before(pilot):
+        await support.settle(pilot)
+        await pilot.press("f1")
+        await pilot.pause()
+
+    assert snap_compare(quiet_app(), terminal_size=(80, 24), run_before=run_before)
+
+
+def test_help_searched_120x40(snap_compare):
+    async def run_before(pilot):
+        await support.settle(pilot)
+        await pilot.press("f1", *"window")
+        await pilot.pause()
+
+    assert snap_compare(quiet_app(), terminal_size=(120, 40), run_before=run_before)

@@ -19,6 +19,7 @@ from textual.widgets import Footer, TabbedContent, TabPane
 
 from .console import Console
 from .dialogs import CompareScreen
+from .help_screen import HelpScreen, help_sections
 from .messages import (CommandFinished, CommandRequested, CommandStarted, IterationReported, ItemChosen,
                        TaskFinished)
 from .panels import ConstantsPanel, DofPanel, EquationsPanel, OptimizationPanel, TimePanel, WindowsPanel
@@ -182,6 +183,11 @@ class StwApp(App[int]):
 
     def on_command_requested(self, event: CommandRequested) -> None:
         event.stop()
+        if event.origin == "console" and event.line.split("#", 1)[0].split() == ["help"]:
+            self.repl.write_command(event.line)
+            self.repl.write_note("opened the help screen (F1); `help COMMAND` prints one command here")
+            self.action_help()
+            return
         self.submit(event.line, origin=event.origin)
 
     def on_command_started(self, event: CommandStarted) -> None:
@@ -351,7 +357,11 @@ class StwApp(App[int]):
         self._cycle_tabs("plots", ScenePlot)
 
     def action_help(self) -> None:
-        self.submit("help", origin="key")
+        """F1: the full-screen help (tutorial, keys, commands)."""
+        if isinstance(self.screen, HelpScreen):
+            return
+        areas = [(f"{title} panel", cls) for title, cls in PANELS] + [(f"{title} plot", cls) for title, cls in PLOTS]
+        self.push_screen(HelpScreen(help_sections(self, areas), blink=self.blink))
 
     def action_iterate(self) -> None:
         self.submit(f"iterate {self.query_one(OptimizationPanel).iterations}", origin="key")
