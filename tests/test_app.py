@@ -493,3 +493,40 @@ def test_f1_opens_a_scrollable_searchable_help_screen_and_help_cmd_still_prints(
         assert "iterate [N] [adapt=R]" in support.log_text(app)
 
     run(scenario, app)
+
+
+def test_command_palette_offers_actions_commands_and_scene_names():
+    from textual.command import CommandPalette
+
+    app = create_app(support.SESSIONS / "point_mass_2d.stw")
+
+    async def scenario(pilot):
+        await pilot.press("ctrl+p")
+        await pilot.pause()
+        assert isinstance(app.screen, CommandPalette)
+        await pilot.press(*"plot dof y")
+        await pilot.pause(0.3)
+        await pilot.press("enter")
+        await pilot.pause(0.1)
+        assert not isinstance(app.screen, CommandPalette)
+        assert app.query_one("#plots").active == "tab-curves"
+        assert app.query_one("#curves-plot").dof == "y"
+        await pilot.press("ctrl+p", *"plot constraint floor")
+        await pilot.pause(0.3)
+        await pilot.press("enter")
+        await pilot.pause(0.1)
+        assert app.query_one("#expr-plot").name_shown == "floor"
+        await pilot.press("ctrl+p", *"command refine")
+        await pilot.pause(0.3)
+        await pilot.press("enter")
+        await pilot.pause(0.1)
+        assert app.focused is app.repl.input and app.repl.input.value == "refine "
+        app.repl.input.value = ""
+        await pilot.press("ctrl+p", *"help")
+        await pilot.pause(0.3)
+        await pilot.press("enter")
+        await pilot.pause(0.1)
+        from stw_tui.app.help_screen import HelpScreen
+        assert isinstance(app.screen, HelpScreen)
+
+    run(scenario, app)

@@ -7,11 +7,12 @@ Widgets post messages; the app turns each requested command into a :class:`Job` 
 from __future__ import annotations
 
 import time
+from functools import partial
 from pathlib import Path
-from typing import TYPE_CHECKING
+from typing import TYPE_CHECKING, Iterable
 
 from textual import events
-from textual.app import App, ComposeResult
+from textual.app import App, ComposeResult, SystemCommand
 from textual.binding import Binding
 from textual.containers import Horizontal
 from textual.widget import Widget
@@ -20,6 +21,7 @@ from textual.widgets import Footer, TabbedContent, TabPane
 from .console import Console
 from .dialogs import CompareScreen
 from .help_screen import HelpScreen, help_sections
+from .palette import SceneCommands
 from .messages import (CommandFinished, CommandRequested, CommandStarted, IterationReported, ItemChosen,
                        TaskFinished)
 from .panels import ConstantsPanel, DofPanel, EquationsPanel, OptimizationPanel, TimePanel, WindowsPanel
@@ -55,7 +57,7 @@ class StwApp(App[int]):
 
     CSS_PATH = "app.tcss"
     TITLE = "stw"
-    ENABLE_COMMAND_PALETTE = False
+    COMMANDS = App.COMMANDS | {SceneCommands}
     BINDINGS = [
         Binding("f1", "help", "Help"),
         Binding("f2", "panels", "Panels"),
@@ -98,6 +100,29 @@ class StwApp(App[int]):
         yield Console(lambda: self.scene, self._backend_names, blink=self.blink, id="console")
         yield StatusLine(show_timing=self.show_timing, id="status")
         yield Footer(compact=True, show_command_palette=False)
+
+    # (title, help, action) of the app's own entries in the command palette (Ctrl+P)
+    PALETTE_ACTIONS = (
+        ("Help", "F1: tutorial, keys and commands", "help"),
+        ("Iterate", "F5: `iterate N`, N from the Opt panel", "iterate"),
+        ("Stop", "F4: stop the solve at the next iteration, pause a replay", "stop"),
+        ("Panels", "F2: the next panel", "panels"),
+        ("Plots", "F3: the next plot", "plots"),
+        ("Play", "F8: play the figure", "play"),
+        ("Step", "F6: run the session's next line", "step"),
+        ("Run rest", "F7: run the rest of the session", "run_rest"),
+        ("Compare backends", "solve copies of the scene with each installed backend", "compare"),
+        ("Console", "Esc: back to the console", "escape"),
+    )
+
+    def get_system_commands(self, screen) -> "Iterable[SystemCommand]":
+        if screen is not self.screen_stack[0]:   # e.g. from the help screen: only Textual's own
+            yield from super().get_system_commands(screen)
+            return
+        for title, help, action in self.PALETTE_ACTIONS:
+            if self.check_action(action, ()):
+                yield SystemCommand(title, help, partial(self.run_action, action))
+        yield from super().get_system_commands(screen)
 
     @property
     def session(self) -> "Session | None":
