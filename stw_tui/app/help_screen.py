@@ -16,8 +16,6 @@ from textual.containers import Horizontal, VerticalScroll
 from textual.screen import Screen
 from textual.widgets import Input, Label, Static
 
-from ..language.help import COMMAND_HELP, help_text
-
 if TYPE_CHECKING:
     from textual.app import App
 
@@ -103,6 +101,8 @@ def key_sections(app: "App", areas: Iterable[tuple[str, type]]) -> str:
 
 def help_sections(app: "App", areas: Iterable[tuple[str, type]]) -> list[HelpSection]:
     """The tutorial, the keys, the command list, then one section per command."""
+    from ..language.help import COMMAND_HELP, help_text   # here: the language loads sympy
+
     sections = [HelpSection("Getting started", TUTORIAL), HelpSection("Keys", key_sections(app, areas)),
                 HelpSection("Commands", help_text())]
     sections += [HelpSection(f"{name}", help_text(name)) for name in COMMAND_HELP]

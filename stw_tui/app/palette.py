@@ -12,7 +12,6 @@ from typing import TYPE_CHECKING, Iterator
 
 from textual.command import DiscoveryHit, Hit, Hits, Provider
 
-from ..language.help import COMMAND_HELP
 from .messages import ItemChosen
 from .values import equation_names
 
@@ -36,6 +35,8 @@ class SceneCommands(Provider):
     """DOF and equations of the scene (plot one), and the language's commands (start one)."""
 
     def _entries(self) -> list[tuple[str, str, object]]:
+        from ..language.help import COMMAND_HELP   # here: the language loads sympy
+
         app = self.app
         entries = [(title, help, partial(app.post_message, ItemChosen(kind, name)))
                    for title, help, kind, name in scene_entries(getattr(app, "scene", None))]
