@@ -530,3 +530,59 @@ def test_command_palette_offers_actions_commands_and_scene_names():
         assert isinstance(app.screen, HelpScreen)
 
     run(scenario, app)
+
+
+def test_status_marks_the_last_solve_stale_after_a_change_and_fits_80_columns():
+    app = create_app(JET, show_timing=False)
+
+    async def scenario(pilot):
+        status = app.status_line
+        assert not status.stale and "stale" not in str(status.render_text())
+        await support.submit(pilot, "print x @ 0.5")          # read-only: still fresh
+        await support.settle(pilot)
+        assert not status.stale
+        await support.submit(pilot, "const g = 1.62")
+        await support.settle(pilot)
+        assert status.stale and "stale: iter" in str(status.render_text())
+        for width in (80, 60, 40):
+            line = str(status.render_text(width))
+            assert len(line) <= width and "all" in line, line   # the window's name survives
+        await pilot.press("f5")
+        await support.settle(pilot)
+        assert not status.stale
+
+    run(scenario, app, size=(80, 24))
+
+
+def plot_text(plot) -> str:
+    """What a plotext plot shows, as plain text."""
+    import re
+
+    return re.sub(r"\x1b\[[0-9;]*m", "", plot.plt.build())
+
+
+def test_plot_titles_fit_80_columns_and_a_constant_dof_plots_plainly():
+    app = create_app(support.SESSIONS / "cat_mouse.stw")
+
+    async def scenario(pilot):
+        await pilot.press("f3", "f3", "f3", "right")          # Figure, one frame on
+        await support.settle(pilot)
+        figure = app.query_one("#figure-plot")
+        assert figure.size.width <= 40
+        assert "t = 0.050" in plot_text(figure)                # the player's time, shortened
+
+    run(scenario, app, size=(80, 24))
+    app = create_app()
+
+    async def constant(pilot):
+        await support.submit(pilot, "dof flat = -pi/2")
+        await support.settle(pilot)
+        await pilot.press("f3")
+        await support.settle(pilot)
+        text = plot_text(app.query_one("#curves-plot"))
+        assert "flat value" in text, support.log_text(app)
+        labels = [line.split("┤")[0].strip() for line in text.splitlines() if "┤" in line]
+        assert labels and all(len(label) <= 4 for label in labels), labels    # e.g. -1.5, no noise
+        assert "-1.5" in labels
+
+    run(constant, app, size=(80, 24))

@@ -41,6 +41,20 @@ VIEW_INTERVAL = 0.1   # seconds between refreshes of the panels and plots
 PLOTS = (("Curves", DofPlot), ("Expr", ExpressionPlot), ("Figure", FigurePlot), ("Conv", ConvergencePlot))
 
 
+class StwFooter(Footer):
+    """The footer with the app's keys first: the focused widget's own keys come after them, so
+    at 80 columns it is those that are cut, never F1-F5 or Ctrl+Q."""
+
+    def compose(self) -> ComposeResult:
+        items = list(super().compose())
+        order = {(binding.key, binding.action): i for i, binding in enumerate(StwApp.BINDINGS)}
+
+        def place(item) -> int:
+            return order.get((getattr(item, "key", None), getattr(item, "action", None)), len(order))
+
+        yield from sorted(items, key=place)   # stable: the widget's own keys keep their order
+
+
 class StwApp(App[int]):
     """Spacetime Windows in the terminal.
 
@@ -58,15 +72,17 @@ class StwApp(App[int]):
     CSS_PATH = "app.tcss"
     TITLE = "stw"
     COMMANDS = App.COMMANDS | {SceneCommands}
+    # App keys first in the footer (see StwFooter), short enough to fit 80 columns with room left
+    # for the focused panel's or plot's own keys; F1 lists them all.
     BINDINGS = [
         Binding("f1", "help", "Help"),
         Binding("f2", "panels", "Panels"),
         Binding("f3", "plots", "Plots"),
+        Binding("f4", "stop", "Stop"),
         Binding("f5", "iterate", "Iterate"),
         Binding("f6", "step", "Step"),
-        Binding("f7", "run_rest", "Run rest"),
-        Binding("f8", "play", "Play"),
-        Binding("f4", "stop", "Stop"),
+        Binding("f7", "run_rest", "Rest"),
+        Binding("f8", "play", "Play", show=False),   # the Figure plot's title says `space plays`
         # Esc never stops anything: pressed to leave a panel, it must not cost a running solve.
         Binding("escape", "escape", "Console", show=False),
         Binding("ctrl+q", "quit", "Quit", priority=True),
@@ -99,7 +115,7 @@ class StwApp(App[int]):
                         yield cls(id=f"{title.lower()}-plot", classes="scene-view")
         yield Console(lambda: self.scene, self._backend_names, blink=self.blink, id="console")
         yield StatusLine(show_timing=self.show_timing, id="status")
-        yield Footer(compact=True, show_command_palette=False)
+        yield StwFooter(compact=True, show_command_palette=False)
 
     # (title, help, action) of the app's own entries in the command palette (Ctrl+P)
     PALETTE_ACTIONS = (
@@ -149,7 +165,8 @@ class StwApp(App[int]):
     def on_mount(self) -> None:
         self.repl.input.focus()
         self.repl.write_note("stw — Spacetime Windows. Type a command (`help` lists them); "
-                             "F1 help, F2 panels, F3 plots, F5 iterate, F4 stops, Esc back here, Ctrl+Q quits.")
+                             "F1 help, F2 panels, F3 plots, F5 iterate, F4 stops, Esc back here, Ctrl+P palette, "
+                             "Ctrl+Q quits.")
         self.status_line.show(state="loading")
         self.runner.submit(Job("", origin="startup"))   # loads the core and measures the scene, off the UI thread
         if self.session_path is not None:
@@ -263,6 +280,8 @@ class StwApp(App[int]):
             if outcome.run is not None and outcome.run.reports:
                 self.status_line.show(report=outcome.run.reports[-1])
                 self.query_one(ConvergencePlot).set_reports(outcome.run.reports)
+            elif _changes_scene(job.line):
+                self.status_line.show(stale=True)   # the last solve's numbers no longer hold
             if job.origin == "file" and _was_stopped(outcome) and self.script is not None:
                 # The lines after a stopped solve assume it ran to the end: do not run them.
                 self.script.running = False
@@ -456,6 +475,15 @@ class StwApp(App[int]):
         """Ctrl+Q: exit at once. A running solve is told to stop and left behind (a daemon thread)."""
         self.runner.abandon()
         self.exit()
+
+
+READ_ONLY_COMMANDS = frozenset({"print", "help"})
+
+
+def _changes_scene(line: str) -> bool:
+    """Whether a command line (that succeeded) may have changed the scene."""
+    words = line.split("#", 1)[0].split()
+    return bool(words) and words[0] not in READ_ONLY_COMMANDS
 
 
 def _was_stopped(outcome) -> bool:
