@@ -586,3 +586,29 @@ def test_plot_titles_fit_80_columns_and_a_constant_dof_plots_plainly():
         assert "-1.5" in labels
 
     run(constant, app, size=(80, 24))
+
+
+def test_the_theme_is_remembered_between_runs(tmp_path):
+    settings = tmp_path / "stw" / "tui.json"
+    first = create_app(settings_path=settings)
+
+    async def change(pilot):
+        assert first.theme != "nord"
+        first.theme = "nord"                                   # as the palette's Theme command does
+        await pilot.pause(0.1)
+
+    run(change, first)
+    assert '"nord"' in settings.read_text()
+    second = create_app(settings_path=settings)
+
+    async def check(pilot):
+        assert second.theme == "nord"
+
+    run(check, second)
+    settings.write_text("not json")                            # a broken file is ignored
+    third = create_app(settings_path=settings)
+
+    async def default(pilot):
+        assert third.theme != "nord"
+
+    run(default, third)

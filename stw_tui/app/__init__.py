@@ -18,8 +18,14 @@ if TYPE_CHECKING:
 __all__ = ["StwApp", "create_app", "run_app"]
 
 
+def settings_file() -> Path:
+    """Where `stw` remembers the TUI's theme: $XDG_CONFIG_HOME/stw/tui.json (~/.config by default)."""
+    base = os.environ.get("XDG_CONFIG_HOME") or Path.home() / ".config"
+    return Path(base) / "stw" / "tui.json"
+
+
 def create_app(session_path: str | Path | None = None, step: bool = False, session: "Session | None" = None,
-               *, show_timing: bool = True, blink: bool = True) -> StwApp:
+               *, show_timing: bool = True, blink: bool = True, settings_path: str | Path | None = None) -> StwApp:
     """A ready-to-run app.
 
     Args:
@@ -28,8 +34,10 @@ def create_app(session_path: str | Path | None = None, step: bool = False, sessi
         session: drive this session instead of a new empty one.
         show_timing: show ms per iteration in the status line (False: deterministic snapshots).
         blink: blink the text cursor (False: deterministic snapshots).
+        settings_path: a JSON file that remembers the theme between runs (None: not remembered).
     """
-    return StwApp(session=session, session_path=session_path, step=step, show_timing=show_timing, blink=blink)
+    return StwApp(session=session, session_path=session_path, step=step, show_timing=show_timing, blink=blink,
+                  settings_path=settings_path)
 
 
 def run_app(session_path: str | Path | None = None, step: bool = False,
@@ -50,7 +58,7 @@ def run_app(session_path: str | Path | None = None, step: bool = False,
         from ..session import Session
 
         session = Session(journal_path=journal)
-    app = create_app(session_path, step=step, session=session)
+    app = create_app(session_path, step=step, session=session, settings_path=settings_file())
     app.run()
     code = app.return_code or 0
     if exit_process:

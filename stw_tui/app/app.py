@@ -6,6 +6,7 @@ Widgets post messages; the app turns each requested command into a :class:`Job` 
 
 from __future__ import annotations
 
+import json
 import time
 from functools import partial
 from pathlib import Path
@@ -67,6 +68,8 @@ class StwApp(App[int]):
         step: step through that file line by line (F6) instead of replaying it to the end.
         show_timing: show ms per iteration (False for deterministic snapshots).
         blink: blink text cursors (False for deterministic snapshots).
+        settings_path: a JSON file remembering the theme between runs (None: nothing is
+            remembered, as in tests).
     """
 
     CSS_PATH = "app.tcss"
@@ -89,8 +92,10 @@ class StwApp(App[int]):
     ]
 
     def __init__(self, session: "Session | None" = None, session_path: str | Path | None = None,
-                 step: bool = False, show_timing: bool = True, blink: bool = True):
+                 step: bool = False, show_timing: bool = True, blink: bool = True,
+                 settings_path: str | Path | None = None):
         super().__init__()
+        self.settings_path = Path(settings_path) if settings_path else None
         self.runner = Runner(self, session)
         self.session_path = Path(session_path) if session_path else None
         self.stepping = step
@@ -162,7 +167,27 @@ class StwApp(App[int]):
 
         return sorted(available_backends())
 
+    def _load_settings(self) -> None:
+        """Apply the remembered theme, and remember the next change of it."""
+        if self.settings_path is None:
+            return
+        try:
+            theme = json.loads(self.settings_path.read_text(encoding="utf-8")).get("theme")
+        except (OSError, ValueError, AttributeError):
+            theme = None
+        if isinstance(theme, str) and theme in self.available_themes:
+            self.theme = theme
+        self.theme_changed_signal.subscribe(self, self._save_theme)
+
+    def _save_theme(self, theme) -> None:
+        try:
+            self.settings_path.parent.mkdir(parents=True, exist_ok=True)
+            self.settings_path.write_text(json.dumps({"theme": theme.name}) + "\n", encoding="utf-8")
+        except OSError as exc:   # remembering is a convenience: say so, go on
+            self.notify(f"cannot remember the theme in {self.settings_path}: {exc}", severity="warning")
+
     def on_mount(self) -> None:
+        self._load_settings()
         self.repl.input.focus()
         self.repl.write_note("stw — Spacetime Windows. Type a command (`help` lists them); "
                              "F1 help, F2 panels, F3 plots, F5 iterate, F4 stops, Esc back here, Ctrl+P palette, "
