@@ -116,3 +116,18 @@ def test_axes_have_round_ticks_and_a_constant_gets_a_sensible_range():
     assert 30 <= room < 40
     assert fit_title(["t = 1.000 of [0, 2] · space plays · ← → and more", "t = 1.000"], room) == "t = 1.000"
     assert fit_title(["a_very_long_dof_name_indeed value"], 10) == "a_very_lo…"
+
+
+def test_stw_help_starts_with_how_to_open_the_tui(capsys):
+    from stw_tui.cli import main
+
+    with pytest.raises(SystemExit):
+        main(["--help"])
+    out = capsys.readouterr().out
+    first = [line.strip() for line in out.splitlines() if line.strip()][:2]
+    assert first[0] == "usage:" and first[1].startswith("stw [SESSION.stw]") and "TUI" in first[1]
+    assert all(len(line) <= 80 for line in out.splitlines())
+    assert "Ctrl+Q" in out and "run" in out and "compare" in out
+    with pytest.raises(SystemExit):
+        main(["run", "--help"])
+    assert capsys.readouterr().out.startswith("usage: stw run ")
