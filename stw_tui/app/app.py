@@ -8,12 +8,11 @@ from __future__ import annotations
 
 import json
 import time
-from functools import partial
 from pathlib import Path
 from typing import TYPE_CHECKING, Iterable
 
 from textual import events
-from textual.app import App, ComposeResult, SystemCommand
+from textual.app import App, ComposeResult
 from textual.binding import Binding
 from textual.containers import Horizontal
 from textual.widget import Widget
@@ -22,7 +21,7 @@ from textual.widgets import Footer, TabbedContent, TabPane
 from .console import Console
 from .dialogs import CompareScreen
 from .help_screen import HelpScreen, help_sections
-from .palette import SceneCommands
+from .palette import SceneCommands, app_commands
 from .messages import (CommandFinished, CommandRequested, CommandStarted, IterationReported, ItemChosen,
                        TaskFinished)
 from .panels import ConstantsPanel, DofPanel, EquationsPanel, OptimizationPanel, TimePanel, WindowsPanel
@@ -32,6 +31,8 @@ from .status import StatusLine
 from .values import SceneInfo
 
 if TYPE_CHECKING:
+    from textual.app import SystemCommand
+
     from ..scene import Scene
     from ..session import Session
 
@@ -122,27 +123,9 @@ class StwApp(App[int]):
         yield StatusLine(show_timing=self.show_timing, id="status")
         yield StwFooter(compact=True, show_command_palette=False)
 
-    # (title, help, action) of the app's own entries in the command palette (Ctrl+P)
-    PALETTE_ACTIONS = (
-        ("Help", "F1: tutorial, keys and commands", "help"),
-        ("Iterate", "F5: `iterate N`, N from the Opt panel", "iterate"),
-        ("Stop", "F4: stop the solve at the next iteration, pause a replay", "stop"),
-        ("Panels", "F2: the next panel", "panels"),
-        ("Plots", "F3: the next plot", "plots"),
-        ("Play", "F8: play the figure", "play"),
-        ("Step", "F6: run the session's next line", "step"),
-        ("Run rest", "F7: run the rest of the session", "run_rest"),
-        ("Compare backends", "solve copies of the scene with each installed backend", "compare"),
-        ("Console", "Esc: back to the console", "escape"),
-    )
-
     def get_system_commands(self, screen) -> "Iterable[SystemCommand]":
-        if screen is not self.screen_stack[0]:   # e.g. from the help screen: only Textual's own
-            yield from super().get_system_commands(screen)
-            return
-        for title, help, action in self.PALETTE_ACTIONS:
-            if self.check_action(action, ()):
-                yield SystemCommand(title, help, partial(self.run_action, action))
+        if screen is self.screen_stack[0]:   # not from the help screen: there only Textual's own
+            yield from app_commands(self)
         yield from super().get_system_commands(screen)
 
     @property

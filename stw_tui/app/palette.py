@@ -1,8 +1,8 @@
 """The command palette (Ctrl+P): the app's actions, the session commands, and the scene's names.
 
-The app's actions are :class:`~textual.app.SystemCommand` entries (see ``StwApp.get_system_commands``);
-this module adds a provider for what the scene holds (a DOF or equation to plot) and for the
-commands of the language (choosing one starts it at the console prompt).
+The app's actions are :class:`~textual.app.SystemCommand` entries (:func:`app_commands`, yielded
+by ``StwApp.get_system_commands``); :class:`SceneCommands` provides what the scene holds (a DOF
+or equation to plot) and the commands of the language (choosing one starts it at the prompt).
 """
 
 from __future__ import annotations
@@ -10,13 +10,37 @@ from __future__ import annotations
 from functools import partial
 from typing import TYPE_CHECKING, Iterator
 
+from textual.app import SystemCommand
 from textual.command import DiscoveryHit, Hit, Hits, Provider
 
 from .messages import ItemChosen
 from .values import equation_names
 
 if TYPE_CHECKING:
+    from textual.app import App
+
     from ..scene import Scene
+
+# (title, help, action) of the app's own entries: its keys' actions, and a few without a key
+APP_ACTIONS = (
+    ("Help", "F1: tutorial, keys and commands", "help"),
+    ("Iterate", "F5: `iterate N`, N from the Opt panel", "iterate"),
+    ("Stop", "F4: stop the solve at the next iteration, pause a replay", "stop"),
+    ("Panels", "F2: the next panel", "panels"),
+    ("Plots", "F3: the next plot", "plots"),
+    ("Play", "F8: play the figure", "play"),
+    ("Step", "F6: run the session's next line", "step"),
+    ("Run rest", "F7: run the rest of the session", "run_rest"),
+    ("Compare backends", "solve copies of the scene with each installed backend", "compare"),
+    ("Console", "Esc: back to the console", "escape"),
+)
+
+
+def app_commands(app: "App") -> Iterator[SystemCommand]:
+    """The app's actions that are available now, as palette entries."""
+    for title, help, action in APP_ACTIONS:
+        if app.check_action(action, ()):
+            yield SystemCommand(title, help, partial(app.run_action, action))
 
 
 def scene_entries(scene: "Scene | None") -> Iterator[tuple[str, str, str, str]]:
