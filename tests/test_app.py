@@ -612,3 +612,19 @@ def test_the_theme_is_remembered_between_runs(tmp_path):
         assert third.theme != "nord"
 
     run(default, third)
+
+
+def test_page_up_at_the_prompt_scrolls_the_console_log():
+    app = create_app(JET)
+
+    async def scenario(pilot):
+        log = app.repl.log_widget
+        assert log.max_scroll_y > 0 and log.scroll_y == log.max_scroll_y
+        await pilot.press("pageup")
+        await pilot.pause()
+        assert log.scroll_y < log.max_scroll_y and app.focused is app.repl.input
+        await pilot.press("pagedown", "pagedown")
+        await pilot.pause()
+        assert log.scroll_y == log.max_scroll_y
+
+    run(scenario, app, size=(80, 24))

@@ -38,7 +38,8 @@ While it solves, the plots follow each iteration: F3 cycles Curves, Expr (constr
 `stw sessions/NAME.stw` replays a session; with --step, F6 runs it line by line and F7 runs the rest. Ctrl+P opens the command palette."""
 
 CONSOLE_KEYS = (("Enter", "run the line"), ("Up / Down", "previous / next command"),
-                ("Tab", "complete a command, name or setting"), ("Esc", "drop an open linkage block"))
+                ("Tab", "complete a command, name or setting"), ("PgUp/PgDn", "scroll the log"),
+                ("Esc", "drop an open linkage block"))
 
 
 class SearchField(Input):
@@ -90,7 +91,7 @@ def _key_lines(app: "App", bindings: Iterable[Binding]) -> list[str]:
 
 def key_sections(app: "App", areas: Iterable[tuple[str, type]]) -> str:
     """Every key of the app and of each area's widget class, from their BINDINGS."""
-    lines = ["Everywhere"] + _key_lines(app, type(app).BINDINGS)
+    lines = ["Everywhere"] + _key_lines(app, type(app).BINDINGS) + [f"  {'^p':<10} Command palette"]
     lines += ["", "Console"] + [f"  {key:<10} {what}" for key, what in CONSOLE_KEYS]
     for title, cls in areas:
         own = [b for b in cls.BINDINGS if isinstance(b, Binding)]
