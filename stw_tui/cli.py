@@ -13,6 +13,11 @@ from .errors import SourceError, StwError
 
 SUBCOMMANDS = ("run", "bench", "backends", "compare", "export")
 
+# The TUI comes first: it is what `stw` with no command opens.
+USAGE = """
+  stw [SESSION.stw] [--step] [--journal FILE]  open the TUI (and replay SESSION)
+  stw COMMAND ...                              headless (the commands below)"""
+
 
 def _table_header() -> str:
     return f"{'iter':>5} {'objective':>14} {'max viol':>10} {'KKT':>10} {'step':>8} {'lin it':>6} {'active':>6} {'ms':>8}"
@@ -136,8 +141,10 @@ def _export(args: argparse.Namespace) -> int:
 
 
 def build_parser() -> argparse.ArgumentParser:
-    parser = argparse.ArgumentParser(prog="stw", description="Spacetime Windows for the terminal.")
-    sub = parser.add_subparsers(dest="command")
+    parser = argparse.ArgumentParser(
+        prog="stw", usage=USAGE, description="Spacetime Windows for the terminal.",
+        epilog="In the TUI: F1 help, F5 iterate, F4 stop, Ctrl+P palette, Ctrl+Q quit.")
+    sub = parser.add_subparsers(dest="command", title="headless commands", metavar="COMMAND", prog="stw")
     run = sub.add_parser("run", help="replay a session headless and print the iterations")
     run.add_argument("session", type=Path)
     run.add_argument("--backend", help="backend to use (overridden by `backend` lines in the session)")

@@ -16,12 +16,13 @@ JET = support.SESSIONS / "particle_jet.stw"
 SIZE = (120, 40)
 
 
-def run(scenario, app, size=SIZE):
-    """Run ``scenario(pilot)`` inside ``app`` at a fixed size."""
+def run(scenario, app, size=SIZE, settle=True):
+    """Run ``scenario(pilot)`` inside ``app`` at a fixed size (once it has settled, by default)."""
 
     async def main():
         async with app.run_test(size=size) as pilot:
-            await support.settle(pilot)
+            if settle:
+                await support.settle(pilot)
             await scenario(pilot)
 
     asyncio.run(main())
@@ -89,7 +90,7 @@ def test_history_and_tab_completion():
         field.value, field.cursor_position = "d", 1      # several commands: listed in the log
         await pilot.press("tab")
         assert field.value == "d"
-        assert "damp  delete  dof" in support.log_text(app)
+        assert "damp  delete  diff  dof" in support.log_text(app)
 
     run(scenario, app)
 
@@ -130,22 +131,33 @@ def test_iterate_runs_in_the_worker_and_updates_status_and_plots():
     run(scenario, app)
 
 
-def test_escape_stops_a_solve_at_an_iteration_boundary_and_queues_commands():
+def endless_jet() -> Session:
+    """The particle-jet scene with tolerances no solve meets: `iterate N` runs all N iterations."""
     session = jet_without_iterate()
-    for line in ("set tol_violation 0", "set tol_kkt 0", "set tol_step 0"):   # never converges
+    for line in ("set tol_violation 0", "set tol_kkt 0", "set tol_step 0"):
         session.execute(line)
-    app = create_app(session=session)
+    return session
+
+
+async def wait_for_reports(pilot) -> None:
+    """Wait until the running solve has reported an iteration."""
+    for _ in range(500):
+        await pilot.pause(0.02)
+        if pilot.app.runner.reports:
+            return
+    raise AssertionError("the solve reported no iteration")
+
+
+def test_f4_stops_a_solve_at_an_iteration_boundary_and_queues_commands():
+    app = create_app(session=endless_jet())
 
     async def scenario(pilot):
         await support.submit(pilot, "iterate 100000")
-        for _ in range(500):
-            await pilot.pause(0.02)
-            if app.runner.reports:
-                break
+        await wait_for_reports(pilot)
         assert app.runner.solving
         await support.submit(pilot, "const k = 2")           # waits for the solve
         assert "queued" in support.log_text(app)
-        await pilot.press("escape")
+        await pilot.press("f4")
         await support.settle(pilot)
         run_result = app.session.runs[-1]
         assert run_result.status is Status.STOPPED
@@ -156,6 +168,99 @@ def test_escape_stops_a_solve_at_an_iteration_boundary_and_queues_commands():
         assert app.session.journal.replayable()[-2:] == [f"iterate {ran} adapt=0", "const k = 2"]
 
     run(scenario, app)
+
+
+def test_escape_returns_to_the_console_and_never_stops_a_solve():
+    app = create_app(session=endless_jet())
+
+    async def scenario(pilot):
+        await support.submit(pilot, "iterate 60")
+        await wait_for_reports(pilot)
+        await pilot.press("f3")                              # focus a plot
+        assert app.focused is app.query_one("#curves-plot")
+        await pilot.press("escape")
+        assert app.focused is app.repl.input
+        await pilot.press("escape")                          # at the console: still nothing stops
+        await support.settle(pilot)
+        assert not app.runner.stop_requested.is_set()
+        assert app.session.runs[-1].status is not Status.STOPPED
+        assert len(app.session.runs[-1].reports) >= 60
+
+    run(scenario, app)
+
+
+def test_a_replay_halts_and_says_so_when_its_solve_is_stopped(tmp_path):
+    script = tmp_path / "endless.stw"
+    script.write_text(JET.read_text().split("iterate")[0]
+                      + "set tol_violation 0\nset tol_kkt 0\nset tol_step 0\n"
+                      + "iterate 100000\nconst k = 2\n")
+    app = create_app(script)
+
+    async def scenario(pilot):
+        await wait_for_reports(pilot)
+        await pilot.press("f4")
+        await support.settle(pilot)
+        assert app.session.runs[-1].status is Status.STOPPED
+        assert "k" not in app.session.scene.constants          # the line after did not run
+        text = support.log_text(app)
+        assert "replay halted: the solve at line 16 was stopped" in text, text
+        assert "end of endless.stw" not in text
+        assert app.script.upcoming() == (17, "const k = 2")
+        await pilot.press("f7")                                 # the rest, on request
+        await support.settle(pilot)
+        assert app.session.scene.constants["k"] == 2
+
+    run(scenario, app, settle=False)
+
+
+def quit_latency(app, start) -> float:
+    """Seconds from Ctrl+Q, pressed once ``start(pilot)`` has returned, until the app has exited."""
+    import time
+
+    pressed = []
+
+    async def main():
+        async with app.run_test(size=SIZE) as pilot:
+            await support.settle(pilot)
+            await start(pilot)
+            pressed.append(time.monotonic())
+            await pilot.press("ctrl+q")
+        return time.monotonic() - pressed[0]
+
+    return asyncio.run(main())
+
+
+def test_ctrl_q_quits_at_once_during_a_solve():
+    app = create_app(session=endless_jet())
+
+    async def start(pilot):
+        await support.submit(pilot, "iterate 100000")
+        await wait_for_reports(pilot)
+        await pilot.press("f3")                               # from a plot too
+
+    assert quit_latency(app, start) < 1.0
+    thread = app.runner.thread
+    thread.join(timeout=10)                                   # told to stop: ends at the next iteration
+    assert not thread.is_alive()
+    assert app.session.runs[-1].status is Status.STOPPED
+
+
+def test_ctrl_q_does_not_wait_for_a_job_that_cannot_be_stopped():
+    import time
+
+    from stw_tui.app.runner import Job
+
+    app = create_app()
+
+    async def start(pilot):
+        app.runner.submit(Job("", origin="compare", task=lambda session: time.sleep(5)))
+        app.runner.submit(Job("const k = 1"))                 # queued: never runs
+        await pilot.pause(0.1)
+        assert app.runner.thread.is_alive()
+
+    assert quit_latency(app, start) < 1.0
+    assert app.runner.thread.is_alive()                        # abandoned, not waited for
+    assert not app.runner.queue
 
 
 def test_editing_a_constant_in_the_panel_emits_the_command_line():
@@ -298,3 +403,228 @@ def test_compare_key_in_the_opt_panel_shows_a_row_per_installed_backend():
         assert not isinstance(app.screen, CompareScreen)
 
     run(scenario, app)
+
+
+def test_typing_in_a_panel_or_plot_goes_to_the_console():
+    app = create_app(support.SESSIONS / "point_mass_2d.stw")
+
+    async def scenario(pilot):
+        await pilot.press("f3")                              # a plot
+        assert app.focused is app.query_one("#curves-plot")
+        await pilot.press(*"print")
+        assert app.focused is app.repl.input
+        assert app.repl.input.value == "print"
+        await pilot.press("f2")                              # a panel: its own keys still work
+        assert app.focused is app.query_one("#dof-panel")
+        await pilot.press("space", "x", "@", "0")
+        assert app.focused is app.repl.input
+        assert app.repl.input.value == "print x@0"
+        await pilot.press("f2", "i")                         # `i` is the DOF panel's key
+        await support.settle(pilot)
+        assert app.session.journal.replayable()[-1] == "window w1 dofs=y"
+        assert app.repl.input.value == "print x@0"
+
+    run(scenario, app)
+
+
+def test_the_focused_area_is_marked():
+    from textual.widgets import Tab
+
+    app = create_app()
+
+    def marks():
+        console = app.repl.styles.border_top[1]
+        tabs = {group: app.query_one(f"#{group}").query_one("Tab.-active", Tab).styles.background
+                for group in ("panels", "plots")}
+        return console, tabs["panels"], tabs["plots"]
+
+    async def scenario(pilot):
+        at_console = marks()
+        await pilot.press("f3")
+        await pilot.pause()
+        at_plots = marks()
+        await pilot.press("f2")
+        await pilot.pause()
+        at_panels = marks()
+        assert at_console[0] != at_plots[0] == at_panels[0]         # the console's rule
+        assert at_plots[2] != at_console[2] == at_panels[2]         # the plots' active tab
+        assert at_panels[1] != at_console[1] == at_plots[1]         # the panels' active tab
+
+    run(scenario, app)
+
+
+def test_f1_opens_a_scrollable_searchable_help_screen_and_help_cmd_still_prints():
+    from stw_tui.app.help_screen import HelpScreen
+
+    app = create_app()
+
+    async def scenario(pilot):
+        await pilot.press("f3")                              # from anywhere
+        await pilot.press("f1")
+        screen = app.screen
+        assert isinstance(screen, HelpScreen)
+        titles = [section.title for section in screen.sections]
+        assert titles[:3] == ["Getting started", "Keys", "Commands"] and "iterate" in titles
+        keys = screen.sections[1].body
+        assert "F4" in keys.upper() and "Stop" in keys and "Prev DOF" in keys and "Complete" not in keys
+        body = screen.query_one("#help-body")
+        assert body.max_scroll_y > 0
+        await pilot.press("pagedown")
+        await pilot.pause()
+        assert body.scroll_y > 0
+        await pilot.press(*"linkage")                         # typing searches
+        await pilot.pause()
+        shown = [s.title for s, w in zip(screen.sections, screen.query(".help-section")) if w.display]
+        assert shown and all("linkage" in (s.title + s.body).lower() for s in screen.sections
+                             if s.title in shown)
+        assert "linkage" in shown and "time" not in shown
+        await pilot.press("q")                               # part of a search: typed
+        assert isinstance(app.screen, HelpScreen)
+        assert screen.query_one("#help-search").value == "linkageq"
+        await pilot.press("escape")
+        assert not isinstance(app.screen, HelpScreen)
+        await support.submit(pilot, "help")                   # the same screen from the console
+        assert isinstance(app.screen, HelpScreen)
+        await pilot.pause()
+        await pilot.press("q")                               # empty search: q closes
+        assert not isinstance(app.screen, HelpScreen)
+        await support.submit(pilot, "help iterate")           # one command, in the console
+        await support.settle(pilot)
+        assert "iterate [N] [adapt=R]" in support.log_text(app)
+
+    run(scenario, app)
+
+
+def test_command_palette_offers_actions_commands_and_scene_names():
+    from textual.command import CommandPalette
+
+    app = create_app(support.SESSIONS / "point_mass_2d.stw")
+
+    async def scenario(pilot):
+        await pilot.press("ctrl+p")
+        await pilot.pause()
+        assert isinstance(app.screen, CommandPalette)
+        await pilot.press(*"plot dof y")
+        await pilot.pause(0.3)
+        await pilot.press("enter")
+        await pilot.pause(0.1)
+        assert not isinstance(app.screen, CommandPalette)
+        assert app.query_one("#plots").active == "tab-curves"
+        assert app.query_one("#curves-plot").dof == "y"
+        await pilot.press("ctrl+p", *"plot constraint floor")
+        await pilot.pause(0.3)
+        await pilot.press("enter")
+        await pilot.pause(0.1)
+        assert app.query_one("#expr-plot").name_shown == "floor"
+        await pilot.press("ctrl+p", *"command refine")
+        await pilot.pause(0.3)
+        await pilot.press("enter")
+        await pilot.pause(0.1)
+        assert app.focused is app.repl.input and app.repl.input.value == "refine "
+        app.repl.input.value = ""
+        await pilot.press("ctrl+p", *"help")
+        await pilot.pause(0.3)
+        await pilot.press("enter")
+        await pilot.pause(0.1)
+        from stw_tui.app.help_screen import HelpScreen
+        assert isinstance(app.screen, HelpScreen)
+
+    run(scenario, app)
+
+
+def test_status_marks_the_last_solve_stale_after_a_change_and_fits_80_columns():
+    app = create_app(JET, show_timing=False)
+
+    async def scenario(pilot):
+        status = app.status_line
+        assert not status.stale and "stale" not in str(status.render_text())
+        await support.submit(pilot, "print x @ 0.5")          # read-only: still fresh
+        await support.settle(pilot)
+        assert not status.stale
+        await support.submit(pilot, "const g = 1.62")
+        await support.settle(pilot)
+        assert status.stale and "stale: iter" in str(status.render_text())
+        for width in (80, 60, 40):
+            line = str(status.render_text(width))
+            assert len(line) <= width and "all" in line, line   # the window's name survives
+        await pilot.press("f5")
+        await support.settle(pilot)
+        assert not status.stale
+
+    run(scenario, app, size=(80, 24))
+
+
+def plot_text(plot) -> str:
+    """What a plotext plot shows, as plain text."""
+    import re
+
+    return re.sub(r"\x1b\[[0-9;]*m", "", plot.plt.build())
+
+
+def test_plot_titles_fit_80_columns_and_a_constant_dof_plots_plainly():
+    app = create_app(support.SESSIONS / "cat_mouse.stw")
+
+    async def scenario(pilot):
+        await pilot.press("f3", "f3", "f3", "right")          # Figure, one frame on
+        await support.settle(pilot)
+        figure = app.query_one("#figure-plot")
+        assert figure.size.width <= 40
+        assert "t = 0.050" in plot_text(figure)                # the player's time, shortened
+
+    run(scenario, app, size=(80, 24))
+    app = create_app()
+
+    async def constant(pilot):
+        await support.submit(pilot, "dof flat = -pi/2")
+        await support.settle(pilot)
+        await pilot.press("f3")
+        await support.settle(pilot)
+        text = plot_text(app.query_one("#curves-plot"))
+        assert "flat value" in text, support.log_text(app)
+        labels = [line.split("┤")[0].strip() for line in text.splitlines() if "┤" in line]
+        assert labels and all(len(label) <= 4 for label in labels), labels    # e.g. -1.5, no noise
+        assert "-1.5" in labels
+
+    run(constant, app, size=(80, 24))
+
+
+def test_the_theme_is_remembered_between_runs(tmp_path):
+    settings = tmp_path / "stw" / "tui.json"
+    first = create_app(settings_path=settings)
+
+    async def change(pilot):
+        assert first.theme != "nord"
+        first.theme = "nord"                                   # as the palette's Theme command does
+        await pilot.pause(0.1)
+
+    run(change, first)
+    assert '"nord"' in settings.read_text()
+    second = create_app(settings_path=settings)
+
+    async def check(pilot):
+        assert second.theme == "nord"
+
+    run(check, second)
+    settings.write_text("not json")                            # a broken file is ignored
+    third = create_app(settings_path=settings)
+
+    async def default(pilot):
+        assert third.theme != "nord"
+
+    run(default, third)
+
+
+def test_page_up_at_the_prompt_scrolls_the_console_log():
+    app = create_app(JET)
+
+    async def scenario(pilot):
+        log = app.repl.log_widget
+        assert log.max_scroll_y > 0 and log.scroll_y == log.max_scroll_y
+        await pilot.press("pageup")
+        await pilot.pause()
+        assert log.scroll_y < log.max_scroll_y and app.focused is app.repl.input
+        await pilot.press("pagedown", "pagedown")
+        await pilot.pause()
+        assert log.scroll_y == log.max_scroll_y
+
+    run(scenario, app, size=(80, 24))

@@ -94,3 +94,40 @@ def test_equation_violations_cover_every_constraint_densely_whatever_the_window(
     # Between its 6 instances `low` is broken where the wave's crests pass 0.35 (brute force).
     crest = x.evaluate(np.linspace(0, 1, 200_001)).max() - 0.35
     assert crest > 0.02 and shown["low"] == pytest.approx(crest, rel=1e-6)
+
+
+def test_axes_have_round_ticks_and_a_constant_gets_a_sensible_range():
+    from stw_tui.app.axes import fit_title, nice_ticks, title_room, value_limits
+
+    assert nice_ticks(-0.11, 1.19, 4) == ([0.0, 0.5, 1.0], ["0.0", "0.5", "1.0"])
+    assert nice_ticks(0, 1, 5)[1] == ["0.00", "0.25", "0.50", "0.75", "1.00"]
+    assert nice_ticks(1, 2, 5, integer=True) == ([1.0, 2.0], ["1", "2"])
+    assert nice_ticks(0, 2.5e-7, 4)[1] == ["0", "1e-07", "2e-07"]
+    assert nice_ticks(1, 1) == ([], [])
+    # A constant DOF (dof x = -pi/2) differs from itself only by rounding: not zoomed into.
+    noise = [-np.pi / 2 + k * 1e-16 for k in range(5)]
+    lo, hi = value_limits(noise)
+    assert lo < -np.pi / 2 < hi and hi - lo > 1
+    assert all(len(label) <= 4 for label in nice_ticks(lo, hi, 5)[1])
+    assert value_limits([0.0, 0.0]) == (-0.5, 0.5)
+    assert value_limits([float("nan")]) == (-1.0, 1.0)
+    # Titles: the most detailed that fits, else the shortest cut with an ellipsis.
+    room = title_room(40, 4)
+    assert 30 <= room < 40
+    assert fit_title(["t = 1.000 of [0, 2] · space plays · ← → and more", "t = 1.000"], room) == "t = 1.000"
+    assert fit_title(["a_very_long_dof_name_indeed value"], 10) == "a_very_lo…"
+
+
+def test_stw_help_starts_with_how_to_open_the_tui(capsys):
+    from stw_tui.cli import main
+
+    with pytest.raises(SystemExit):
+        main(["--help"])
+    out = capsys.readouterr().out
+    first = [line.strip() for line in out.splitlines() if line.strip()][:2]
+    assert first[0] == "usage:" and first[1].startswith("stw [SESSION.stw]") and "TUI" in first[1]
+    assert all(len(line) <= 80 for line in out.splitlines())
+    assert "Ctrl+Q" in out and "run" in out and "compare" in out
+    with pytest.raises(SystemExit):
+        main(["run", "--help"])
+    assert capsys.readouterr().out.startswith("usage: stw run ")

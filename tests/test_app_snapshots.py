@@ -54,3 +54,56 @@ def test_cat_mouse_figure_120x40(snap_compare):
 
     app = quiet_app(support.SESSIONS / "cat_mouse.stw")
     assert snap_compare(app, terminal_size=(120, 40), run_before=run_before)
+
+
+def test_help_screen_80x24(snap_compare):
+    async def run_before(pilot):
+        await support.settle(pilot)
+        await pilot.press("f1")
+        await pilot.pause()
+
+    assert snap_compare(quiet_app(), terminal_size=(80, 24), run_before=run_before)
+
+
+def test_help_searched_120x40(snap_compare):
+    async def run_before(pilot):
+        await support.settle(pilot)
+        await pilot.press("f1", *"window")
+        await pilot.pause()
+
+    assert snap_compare(quiet_app(), terminal_size=(120, 40), run_before=run_before)
+
+
+def test_particle_jet_replayed_80x24(snap_compare):
+    """Status line, footer and plot title at 80 columns."""
+
+    async def run_before(pilot):
+        await support.settle(pilot)
+
+    assert snap_compare(quiet_app(JET), terminal_size=(80, 24), run_before=run_before)
+
+
+def test_cat_mouse_figure_80x24(snap_compare):
+    """The player's time stays in the figure's title at 80 columns."""
+
+    async def run_before(pilot):
+        await support.settle(pilot)
+        await pilot.press("f3", "f3", "f3")
+        await pilot.press(*["right"] * 20)
+        await support.settle(pilot)
+
+    app = quiet_app(support.SESSIONS / "cat_mouse.stw")
+    assert snap_compare(app, terminal_size=(80, 24), run_before=run_before)
+
+
+def test_constant_dof_curves_80x24(snap_compare):
+    """A constant DOF: round labels around its value, not floating-point noise."""
+
+    async def run_before(pilot):
+        await support.settle(pilot)
+        await support.submit(pilot, "dof x = -pi/2")
+        await support.settle(pilot)
+        await pilot.press("f3")
+        await support.settle(pilot)
+
+    assert snap_compare(quiet_app(), terminal_size=(80, 24), run_before=run_before)

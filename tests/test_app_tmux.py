@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import os
 import shutil
 import subprocess
 import sys
@@ -22,24 +23,65 @@ def tmux(*args: str) -> str:
     return subprocess.run(["tmux", *args], capture_output=True, text=True, check=False).stdout
 
 
+def start(name: str, command: str, cwd=ROOT) -> list[str]:
+    """Start ``command`` in a detached 100x30 tmux session on a private server; returns its base args."""
+    # A private socket (-L) keeps the test off the user's tmux server.
+    base = ["-L", name]
+    # COLUMNS/LINES set by a test runner would override the real pane size.
+    subprocess.run(["tmux", *base, "new-session", "-d", "-s", name, "-x", "100", "-y", "30",
+                    f"env -u COLUMNS -u LINES {command}"], cwd=cwd, check=True)
+    return base
+
+
+def running(pid: int) -> bool:
+    """Whether process ``pid`` is alive (a zombie waiting for tmux to reap it has ended)."""
+    try:
+        stat = Path(f"/proc/{pid}/stat").read_text()
+    except OSError:
+        return False
+    return stat.rsplit(")", 1)[1].split()[0] != "Z"
+
+
+def wait_for(base: list[str], name: str, text: str, timeout: float = 30) -> str:
+    """Capture the pane until it shows ``text``; returns the last capture."""
+    deadline = time.monotonic() + timeout
+    screen = tmux(*base, "capture-pane", "-p", "-t", name)
+    while text not in screen and time.monotonic() < deadline:
+        time.sleep(0.1)
+        screen = tmux(*base, "capture-pane", "-p", "-t", name)
+    return screen
+
+
+@pytest.mark.skipif(not Path("/proc/self/stat").exists(), reason="reads process states in /proc")
+def test_ctrl_q_ends_the_process_within_a_second_while_a_solve_runs(tmp_path):
+    jet = (ROOT / "sessions" / "particle_jet.stw").read_text().split("iterate")[0]
+    script = tmp_path / "endless.stw"
+    script.write_text(jet + "set tol_violation 0\nset tol_kkt 0\nset tol_step 0\niterate 1000000\n")
+    name = f"stw-test-{uuid.uuid4().hex[:8]}"
+    base = start(name, f"{STW} {script}")
+    try:
+        screen = wait_for(base, name, "solving")
+        assert "solving" in screen, screen
+        time.sleep(1.0)                       # well into the solve
+        # The process itself, not the tmux session: tmux notices an exit ~0.4 s late under load.
+        pid = int(tmux(*base, "display-message", "-p", "-t", name, "#{pane_pid}").strip())
+        pressed = time.monotonic()
+        tmux(*base, "send-keys", "-t", name, "C-q")
+        while running(pid) and time.monotonic() - pressed < 10:
+            time.sleep(0.01)
+        latency = time.monotonic() - pressed
+        assert not running(pid), "stw did not quit on Ctrl+Q"
+        print(f"Ctrl+Q to process exit during a solve: {latency:.3f} s")
+        assert latency < 1.0
+    finally:
+        tmux(*base, "kill-server")
 
 
 def test_stw_runs_in_tmux_replays_a_session_and_quits():
     name = f"stw-test-{uuid.uuid4().hex[:8]}"
-    # A private socket (-L) keeps the test off the user's tmux server.
-    base = ["-L", name]
-    subprocess.run(["tmux", *base, "new-session", "-d", "-s", name, "-x", "100", "-y", "30",
-                    # COLUMNS/LINES set by a test runner would override the real pane size.
-                    f"env -u COLUMNS -u LINES {STW} sessions/particle_jet.stw"], cwd=ROOT, check=True)
+    base = start(name, f"{STW} sessions/particle_jet.stw")
     try:
-        def capture() -> str:
-            return tmux(*base, "capture-pane", "-p", "-t", name)
-
-        deadline = time.monotonic() + 30
-        screen = capture()
-        while "end of particle_jet.stw" not in screen and time.monotonic() < deadline:
-            time.sleep(0.2)
-            screen = capture()
+        screen = wait_for(base, name, "end of particle_jet.stw")
         assert "end of particle_jet.stw" in screen, screen
         assert "Opt" + " " * 18 + "Curves" in screen.splitlines()[0], "not laid out at 100 columns"
         for visible in ("stw>", "DOF", "Eqns", "Curves", "f5 Iterate", "backend scipy", "converged"):
@@ -49,5 +91,49 @@ def test_stw_runs_in_tmux_replays_a_session_and_quits():
         while name in tmux(*base, "list-sessions") and time.monotonic() < deadline:
             time.sleep(0.2)
         assert name not in tmux(*base, "list-sessions"), "stw did not quit on Ctrl+Q"
+    finally:
+        tmux(*base, "kill-server")
+
+
+@pytest.mark.skipif(not os.environ.get("STW_LATENCY"), reason="a measurement (about a minute): STW_LATENCY=1")
+def test_key_latency_while_basketball_solves():
+    """Prints key-to-screen latencies at 80x24 while sessions/basketball.stw solves (run with -s).
+
+    A latency is the time from `tmux send-keys` until `capture-pane` shows the change, so it
+    includes tmux's own delays and the capture interval (a few ms each).
+    """
+    name = f"stw-test-{uuid.uuid4().hex[:8]}"
+    base = ["-L", name]
+    subprocess.run(["tmux", *base, "new-session", "-d", "-s", name, "-x", "80", "-y", "24",
+                    f"env -u COLUMNS -u LINES {STW} sessions/basketball.stw"], cwd=ROOT, check=True)
+
+    def capture() -> str:
+        return tmux(*base, "capture-pane", "-p", "-t", name)
+
+    def timed(keys: list[str], changed) -> float:
+        before = capture()
+        sent = time.monotonic()
+        tmux(*base, "send-keys", "-t", name, *keys)
+        while time.monotonic() - sent < 5:
+            if changed(before, capture()):
+                return time.monotonic() - sent
+        return float("inf")
+
+    def percentiles(values: list[float]) -> str:
+        ordered = sorted(values)
+        pick = lambda q: ordered[min(len(ordered) - 1, int(q * len(ordered)))] * 1000
+        return f"median {pick(0.5):.0f} ms, p95 {pick(0.95):.0f} ms, max {ordered[-1] * 1000:.0f} ms"
+
+    try:
+        assert "solving" in wait_for(base, name, "solving", timeout=60)
+        prompt = lambda screen: next((line for line in screen.splitlines() if line.startswith("stw>")), "")
+        echo = [timed(["-l", "x"], lambda old, new: prompt(new).count("x") > prompt(old).count("x"))
+                for _ in range(20)]
+        tmux(*base, "send-keys", "-t", name, "C-u")
+        title = lambda screen: screen.splitlines()[2][40:] if len(screen.splitlines()) > 2 else ""
+        switch = [timed(["F3"], lambda old, new: title(new) != title(old)) for _ in range(12)]
+        solving = "solving" in capture()
+        print(f"\nconsole echo while solving: {percentiles(echo)}")
+        print(f"F3 plot switch while solving: {percentiles(switch)} (still solving at the end: {solving})")
     finally:
         tmux(*base, "kill-server")

@@ -5,6 +5,8 @@
 
 from __future__ import annotations
 
+import os
+import sys
 from pathlib import Path
 from typing import TYPE_CHECKING
 
@@ -16,8 +18,14 @@ if TYPE_CHECKING:
 __all__ = ["StwApp", "create_app", "run_app"]
 
 
+def settings_file() -> Path:
+    """Where `stw` remembers the TUI's theme: $XDG_CONFIG_HOME/stw/tui.json (~/.config by default)."""
+    base = os.environ.get("XDG_CONFIG_HOME") or Path.home() / ".config"
+    return Path(base) / "stw" / "tui.json"
+
+
 def create_app(session_path: str | Path | None = None, step: bool = False, session: "Session | None" = None,
-               *, show_timing: bool = True, blink: bool = True) -> StwApp:
+               *, show_timing: bool = True, blink: bool = True, settings_path: str | Path | None = None) -> StwApp:
     """A ready-to-run app.
 
     Args:
@@ -26,21 +34,35 @@ def create_app(session_path: str | Path | None = None, step: bool = False, sessi
         session: drive this session instead of a new empty one.
         show_timing: show ms per iteration in the status line (False: deterministic snapshots).
         blink: blink the text cursor (False: deterministic snapshots).
+        settings_path: a JSON file that remembers the theme between runs (None: not remembered).
     """
-    return StwApp(session=session, session_path=session_path, step=step, show_timing=show_timing, blink=blink)
+    return StwApp(session=session, session_path=session_path, step=step, show_timing=show_timing, blink=blink,
+                  settings_path=settings_path)
 
 
 def run_app(session_path: str | Path | None = None, step: bool = False,
-            journal: str | Path | None = None) -> int:
-    """Run the TUI until the user quits; returns the process exit code.
+            journal: str | Path | None = None, exit_process: bool = True) -> int:
+    """Run the TUI until the user quits, then end the process (or return its exit code).
 
-    ``journal``: a file the session's journal is appended to as commands are applied.
+    Args:
+        session_path, step: as for :func:`create_app`.
+        journal: a file the session's journal is appended to as commands are applied (each entry
+            is written and closed at once, so nothing is pending at exit).
+        exit_process: end the process with ``os._exit`` once the screen is restored, so Ctrl+Q
+            takes well under a second: an interpreter that has loaded sympy and scipy spends about
+            a second finalizing them, and a solve abandoned by Ctrl+Q (a daemon thread) is not
+            waited for. False: return the exit code instead (for callers that go on).
     """
     session = None
     if journal is not None:
         from ..session import Session
 
         session = Session(journal_path=journal)
-    app = create_app(session_path, step=step, session=session)
+    app = create_app(session_path, step=step, session=session, settings_path=settings_file())
     app.run()
-    return app.return_code or 0
+    code = app.return_code or 0
+    if exit_process:
+        sys.stdout.flush()
+        sys.stderr.flush()
+        os._exit(code)
+    return code

@@ -6,20 +6,22 @@ Widgets post messages; the app turns each requested command into a :class:`Job` 
 
 from __future__ import annotations
 
+import json
 import time
 from pathlib import Path
-from typing import TYPE_CHECKING
+from typing import TYPE_CHECKING, Iterable
 
-from textual import work
+from textual import events
 from textual.app import App, ComposeResult
 from textual.binding import Binding
 from textual.containers import Horizontal
 from textual.widget import Widget
 from textual.widgets import Footer, TabbedContent, TabPane
-from textual.worker import Worker, WorkerState
 
 from .console import Console
 from .dialogs import CompareScreen
+from .help_screen import HelpScreen, help_sections
+from .palette import SceneCommands, app_commands
 from .messages import (CommandFinished, CommandRequested, CommandStarted, IterationReported, ItemChosen,
                        TaskFinished)
 from .panels import ConstantsPanel, DofPanel, EquationsPanel, OptimizationPanel, TimePanel, WindowsPanel
@@ -29,6 +31,8 @@ from .status import StatusLine
 from .values import SceneInfo
 
 if TYPE_CHECKING:
+    from textual.app import SystemCommand
+
     from ..scene import Scene
     from ..session import Session
 
@@ -37,6 +41,20 @@ PANELS = (("DOF", DofPanel), ("Eqns", EquationsPanel), ("Const", ConstantsPanel)
 VIEW_INTERVAL = 0.1   # seconds between refreshes of the panels and plots
 
 PLOTS = (("Curves", DofPlot), ("Expr", ExpressionPlot), ("Figure", FigurePlot), ("Conv", ConvergencePlot))
+
+
+class StwFooter(Footer):
+    """The footer with the app's keys first: the focused widget's own keys come after them, so
+    at 80 columns it is those that are cut, never F1-F5 or Ctrl+Q."""
+
+    def compose(self) -> ComposeResult:
+        items = list(super().compose())
+        order = {(binding.key, binding.action): i for i, binding in enumerate(StwApp.BINDINGS)}
+
+        def place(item) -> int:
+            return order.get((getattr(item, "key", None), getattr(item, "action", None)), len(order))
+
+        yield from sorted(items, key=place)   # stable: the widget's own keys keep their order
 
 
 class StwApp(App[int]):
@@ -51,28 +69,34 @@ class StwApp(App[int]):
         step: step through that file line by line (F6) instead of replaying it to the end.
         show_timing: show ms per iteration (False for deterministic snapshots).
         blink: blink text cursors (False for deterministic snapshots).
+        settings_path: a JSON file remembering the theme between runs (None: nothing is
+            remembered, as in tests).
     """
 
     CSS_PATH = "app.tcss"
     TITLE = "stw"
-    ENABLE_COMMAND_PALETTE = False
+    COMMANDS = App.COMMANDS | {SceneCommands}
+    # App keys first in the footer (see StwFooter), short enough to fit 80 columns with room left
+    # for the focused panel's or plot's own keys; F1 lists them all.
     BINDINGS = [
         Binding("f1", "help", "Help"),
         Binding("f2", "panels", "Panels"),
         Binding("f3", "plots", "Plots"),
+        Binding("f4", "stop", "Stop"),
         Binding("f5", "iterate", "Iterate"),
         Binding("f6", "step", "Step"),
-        Binding("f7", "run_rest", "Run rest"),
-        Binding("f8", "play", "Play"),
-        Binding("escape", "escape", "Stop/back"),
-        # Esc can lag in tmux (escape-time); F4 only stops, at once.
-        Binding("f4", "stop", "Stop", show=False),
-        Binding("ctrl+q", "quit", "Quit"),
+        Binding("f7", "run_rest", "Rest"),
+        Binding("f8", "play", "Play", show=False),   # the Figure plot's title says `space plays`
+        # Esc never stops anything: pressed to leave a panel, it must not cost a running solve.
+        Binding("escape", "escape", "Console", show=False),
+        Binding("ctrl+q", "quit", "Quit", priority=True),
     ]
 
     def __init__(self, session: "Session | None" = None, session_path: str | Path | None = None,
-                 step: bool = False, show_timing: bool = True, blink: bool = True):
+                 step: bool = False, show_timing: bool = True, blink: bool = True,
+                 settings_path: str | Path | None = None):
         super().__init__()
+        self.settings_path = Path(settings_path) if settings_path else None
         self.runner = Runner(self, session)
         self.session_path = Path(session_path) if session_path else None
         self.stepping = step
@@ -97,7 +121,12 @@ class StwApp(App[int]):
                         yield cls(id=f"{title.lower()}-plot", classes="scene-view")
         yield Console(lambda: self.scene, self._backend_names, blink=self.blink, id="console")
         yield StatusLine(show_timing=self.show_timing, id="status")
-        yield Footer(compact=True, show_command_palette=False)
+        yield StwFooter(compact=True, show_command_palette=False)
+
+    def get_system_commands(self, screen) -> "Iterable[SystemCommand]":
+        if screen is self.screen_stack[0]:   # not from the help screen: there only Textual's own
+            yield from app_commands(self)
+        yield from super().get_system_commands(screen)
 
     @property
     def session(self) -> "Session | None":
@@ -121,10 +150,31 @@ class StwApp(App[int]):
 
         return sorted(available_backends())
 
+    def _load_settings(self) -> None:
+        """Apply the remembered theme, and remember the next change of it."""
+        if self.settings_path is None:
+            return
+        try:
+            theme = json.loads(self.settings_path.read_text(encoding="utf-8")).get("theme")
+        except (OSError, ValueError, AttributeError):
+            theme = None
+        if isinstance(theme, str) and theme in self.available_themes:
+            self.theme = theme
+        self.theme_changed_signal.subscribe(self, self._save_theme)
+
+    def _save_theme(self, theme) -> None:
+        try:
+            self.settings_path.parent.mkdir(parents=True, exist_ok=True)
+            self.settings_path.write_text(json.dumps({"theme": theme.name}) + "\n", encoding="utf-8")
+        except OSError as exc:   # remembering is a convenience: say so, go on
+            self.notify(f"cannot remember the theme in {self.settings_path}: {exc}", severity="warning")
+
     def on_mount(self) -> None:
+        self._load_settings()
         self.repl.input.focus()
         self.repl.write_note("stw — Spacetime Windows. Type a command (`help` lists them); "
-                             "F2 panels, F3 plots, F5 iterate, Esc or F4 stops, Ctrl+Q quits.")
+                             "F1 help, F2 panels, F3 plots, F5 iterate, F4 stops, Esc back here, Ctrl+P palette, "
+                             "Ctrl+Q quits.")
         self.status_line.show(state="loading")
         self.runner.submit(Job("", origin="startup"))   # loads the core and measures the scene, off the UI thread
         if self.session_path is not None:
@@ -149,11 +199,6 @@ class StwApp(App[int]):
         """Run one command line through the session, after any running or queued ones."""
         if self.runner.submit(Job(line, number=number, origin=origin)) and origin != "file":
             self.repl.write_note(f"queued until the running command ends: {line}")
-
-    @work(thread=True, exclusive=True, exit_on_error=False, group="session")
-    def start_job(self, job: Job) -> None:
-        """The worker: executes one job on the session (see Runner.run)."""
-        self.runner.run(job)
 
     def _feed_script(self) -> None:
         """Send the next line of a replaying script when nothing else is running."""
@@ -188,6 +233,11 @@ class StwApp(App[int]):
 
     def on_command_requested(self, event: CommandRequested) -> None:
         event.stop()
+        if event.origin == "console" and event.line.split("#", 1)[0].split() == ["help"]:
+            self.repl.write_command(event.line)
+            self.repl.write_note("opened the help screen (F1); `help COMMAND` prints one command here")
+            self.action_help()
+            return
         self.submit(event.line, origin=event.origin)
 
     def on_command_started(self, event: CommandStarted) -> None:
@@ -238,7 +288,18 @@ class StwApp(App[int]):
             if outcome.run is not None and outcome.run.reports:
                 self.status_line.show(report=outcome.run.reports[-1])
                 self.query_one(ConvergencePlot).set_reports(outcome.run.reports)
+            elif _changes_scene(job.line):
+                self.status_line.show(stale=True)   # the last solve's numbers no longer hold
+            if job.origin == "file" and _was_stopped(outcome) and self.script is not None:
+                # The lines after a stopped solve assume it ran to the end: do not run them.
+                self.script.running = False
+                self.repl.write_note(f"replay halted: the solve at line {job.number} was stopped "
+                                     "before it ended; F6 runs the next line, F7 the rest")
         self._live = None
+        if self.session is None:   # the core failed to load
+            self.runner.finished()
+            self._show_state()
+            return
         self.repl.set_prompt(self.session.in_block)
         self._refresh_views(event.info)
         self.runner.finished()
@@ -253,12 +314,6 @@ class StwApp(App[int]):
         self.runner.finished()
         self._feed_script()
         self._show_state()
-
-    def on_worker_state_changed(self, event: Worker.StateChanged) -> None:
-        # Runner.run catches everything, so this is the last line of defence.
-        if event.worker.group == "session" and event.state is WorkerState.ERROR:
-            self.repl.write_error(event.worker.error)
-            self.runner.finished()
 
     @property
     def settled(self) -> bool:
@@ -311,7 +366,26 @@ class StwApp(App[int]):
         self.query_one("#plots", TabbedContent).active = tab
         plot.request_draw()
 
-    # --- keys --------------------------------------------------------------------------------
+    # --- focus and keys ----------------------------------------------------------------------
+    def on_descendant_focus(self, event: events.DescendantFocus) -> None:
+        """Mark the tab group that holds the focus (see app.tcss)."""
+        if len(self.screen_stack) == 1:
+            focused = self.focused
+            for tabs in self.query(TabbedContent):
+                tabs.set_class(focused is not None and tabs in focused.ancestors, "-has-focus")
+
+    def on_key(self, event: events.Key) -> None:
+        """A printable key that nothing bound (typed while a panel or plot has the focus) is typing
+        meant for the console: focus it and type the character there, rather than lose it."""
+        if not event.is_printable or event.character is None or len(self.screen_stack) > 1:
+            return
+        field = self.repl.input
+        if self.focused is field or event.key in self.active_bindings:
+            return
+        event.stop()
+        field.focus()
+        field.insert_text_at_cursor(event.character)
+
     def check_action(self, action: str, parameters: tuple) -> bool | None:
         if action in ("step", "run_rest"):
             return self.script is not None and not self.script.done
@@ -335,7 +409,11 @@ class StwApp(App[int]):
         self._cycle_tabs("plots", ScenePlot)
 
     def action_help(self) -> None:
-        self.submit("help", origin="key")
+        """F1: the full-screen help (tutorial, keys, commands)."""
+        if isinstance(self.screen, HelpScreen):
+            return
+        areas = [(f"{title} panel", cls) for title, cls in PANELS] + [(f"{title} plot", cls) for title, cls in PLOTS]
+        self.push_screen(HelpScreen(help_sections(self, areas), blink=self.blink))
 
     def action_iterate(self) -> None:
         self.submit(f"iterate {self.query_one(OptimizationPanel).iterations}", origin="key")
@@ -380,25 +458,45 @@ class StwApp(App[int]):
         self.query_one(FigurePlot).action_play()
 
     def action_stop(self) -> None:
-        """Stop a solve at the next iteration boundary, and pause a replay."""
-        if self.runner.stop():
+        """F4: stop a solve at the next iteration boundary, and pause a replay."""
+        stopped = self.runner.stop()
+        if stopped:
             self.repl.write_note("stopping at the next iteration boundary…")
         if self.script is not None and self.script.running:
             self.script.running = False
-            self.repl.write_note("replay paused: F6 next line, F7 the rest")
+            if not (stopped and self.runner.current.origin == "file"):   # else the solve's end says it
+                self.repl.write_note("replay paused: F6 next line, F7 the rest")
+        elif not stopped:
+            self.repl.write_note("nothing to stop")
         self._show_state()
 
     def action_escape(self) -> None:
-        """Stop a solve; else pause a replay; else return to the console; else drop an open block."""
-        if self.runner.stop():
-            self.repl.write_note("stopping at the next iteration boundary…")
-        elif self.script is not None and self.script.running:
-            self.script.running = False
-            self.repl.write_note("replay paused: F6 next line, F7 the rest")
-        elif self.focused is not self.repl.input:
+        """Esc: return to the console; at the console, drop an open linkage block. Never stops a solve."""
+        if self.focused is not self.repl.input:
             self.repl.input.focus()
         elif self.session is not None and self.session.in_block and not self.runner.busy:
             self.session.cancel_block()
             self.repl.set_prompt(False)
             self.repl.write_note("linkage block dropped")
-        self._show_state()
+
+    async def action_quit(self) -> None:
+        """Ctrl+Q: exit at once. A running solve is told to stop and left behind (a daemon thread)."""
+        self.runner.abandon()
+        self.exit()
+
+
+READ_ONLY_COMMANDS = frozenset({"print", "help"})
+
+
+def _changes_scene(line: str) -> bool:
+    """Whether a command line (that succeeded) may have changed the scene."""
+    words = line.split("#", 1)[0].split()
+    return bool(words) and words[0] not in READ_ONLY_COMMANDS
+
+
+def _was_stopped(outcome) -> bool:
+    """Whether a command's solve ended because the user stopped it."""
+    from ..backend import Status
+
+    run = getattr(outcome, "run", None)
+    return run is not None and run.status is Status.STOPPED

@@ -28,6 +28,9 @@ class CommandInput(Input):
         Binding("down", "history(1)", "Next command", show=False),
         # Bound here so Tab completes instead of moving the focus (the focused widget wins).
         Binding("tab", "complete", "Complete", show=False),
+        # The log scrolls from the prompt: no need to move the focus to read back.
+        Binding("pageup", "scroll_log(-1)", "Scroll the log", show=False),
+        Binding("pagedown", "scroll_log(1)", "Scroll the log", show=False),
     ]
 
     def __init__(self, scene_of: Callable[[], "Scene"], backends: Callable[[], list[str]], **kwargs):
@@ -39,6 +42,10 @@ class CommandInput(Input):
     def action_history(self, direction: int) -> None:
         self.value = self.history.previous(self.value) if direction < 0 else self.history.next()
         self.cursor_position = len(self.value)
+
+    def action_scroll_log(self, pages: int) -> None:
+        log = self.screen.query_one(Console).log_widget
+        (log.scroll_page_down if pages > 0 else log.scroll_page_up)(animate=False)
 
     def action_complete(self) -> None:
         head = self.value[:self.cursor_position]

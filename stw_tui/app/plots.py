@@ -13,6 +13,7 @@ from typing import TYPE_CHECKING
 from textual.binding import Binding
 from textual_plotext import PlotextPlot
 
+from .axes import fit_title, nice_ticks, title_room, value_limits
 from .messages import ItemChosen
 from .values import QUANTITIES, SceneInfo, dof_series, equation_names, equation_series
 
@@ -66,6 +67,27 @@ class ScenePlot(PlotextPlot, can_focus=True):
     def draw(self, plt) -> None:
         raise NotImplementedError
 
+    _label_width = 5   # of the y tick labels of the last draw (the title's room depends on it)
+
+    def set_axes(self, plt, xlim: tuple[float, float], ylim: tuple[float, float], xinteger: bool = False) -> None:
+        """Limits and round tick labels for both axes, as many as the plot's size allows."""
+        width, height = self.size
+        xticks, xlabels = nice_ticks(*xlim, count=max(2, min(9, width // 8)), integer=xinteger)
+        yticks, ylabels = nice_ticks(*ylim, count=max(3, min(8, (height - 2) // 2)))
+        plt.xlim(*xlim)
+        plt.ylim(*ylim)
+        if xticks:
+            plt.xticks(xticks, xlabels)
+        if yticks:
+            plt.yticks(yticks, ylabels)
+        self._label_width = max(map(len, ylabels), default=5)
+
+    def set_title(self, plt, *variants: str) -> None:
+        """The most detailed of ``variants`` that fits (plotext would drop one that does not)."""
+        width = self.size.width
+        room = title_room(width, self._label_width) if width else len(variants[0])
+        plt.title(fit_title(variants, room))
+
     @staticmethod
     def mark_interval(plt, interval: tuple[float, float] | None, color: str = "gray") -> None:
         if interval is not None:
@@ -109,12 +131,15 @@ class DofPlot(ScenePlot):
         window = scene.window
         inside = window.dofs is None or self.dof in window.dofs
         self.mark_interval(plt, window.interval, "orange")
-        keys = scene.dofs[self.dof].keys
-        if keys and self.order == 0:
+        keys = scene.dofs[self.dof].keys if self.order == 0 else []
+        if keys:
             plt.scatter([k[0] for k in keys], [k[1] for k in keys], marker="dot", color="red", label="keys")
-        note = "" if inside else " (outside window)"
-        plt.title(f"{self.dof} {QUANTITIES[self.order]} · window {window.name}{note}  [ ] v")
-        plt.xlim(scene.t0, scene.t1)
+        self.set_axes(plt, (scene.t0, scene.t1), value_limits([*series.values, *(k[1] for k in keys)]))
+        name, quantity = self.dof, QUANTITIES[self.order]
+        note, short = ("", "") if inside else (" (outside window)", " (out)")
+        self.set_title(plt, f"{name} {quantity} · window {window.name}{note}  [ ] v",
+                       f"{name} {quantity} · window {window.name}{short}", f"{name} {quantity}{short}",
+                       f"{name}{chr(39) * self.order}{short}")
 
 
 class ExpressionPlot(ScenePlot):
@@ -147,10 +172,13 @@ class ExpressionPlot(ScenePlot):
         for s in series:
             plt.plot(s.times, s.values, label=s.label)
         self.mark_interval(plt, scope, "orange")
-        violation = self.info.violations.get(self.name_shown)
-        extra = f" · max violation {violation:.2e}" if violation is not None else ""
-        plt.title(f"{self.name_shown}{extra}  [ ]")
-        plt.xlim(scene.t0, scene.t1)
+        self.set_axes(plt, (scene.t0, scene.t1), value_limits(v for one in series for v in one.values))
+        name, violation = self.name_shown, self.info.violations.get(self.name_shown)
+        if violation is None:
+            self.set_title(plt, f"{name}  [ ]", name)
+        else:
+            self.set_title(plt, f"{name} · max violation {violation:.2e}  [ ]",
+                           f"{name} · viol {violation:.1e}", name)
 
 
 class FigurePlot(ScenePlot):
@@ -224,10 +252,11 @@ class FigurePlot(ScenePlot):
             plt.scatter([x], [y], marker="●", color="red")
             plt.text(label, x, y, color="white")
         if bounds is not None and all(map(math.isfinite, bounds)):
-            plt.xlim(bounds[0], bounds[1])
-            plt.ylim(bounds[2], bounds[3])
+            self.set_axes(plt, (bounds[0], bounds[1]), (bounds[2], bounds[3]))
         state = "playing" if self.playing else "space plays"
-        plt.title(f"t = {t:.3f} of [{scene.t0:g}, {scene.t1:g}] · {state} · ← →")
+        self.set_title(plt, f"t = {t:.3f} of [{scene.t0:g}, {scene.t1:g}] · {state} · ← →",
+                       f"t = {t:.3f} of [{scene.t0:g}, {scene.t1:g}] · {state}",
+                       f"t = {t:.3f} of [{scene.t0:g}, {scene.t1:g}]", f"t = {t:.3f}", f"t={t:.2f}")
 
 
 class ConvergencePlot(ScenePlot):
@@ -246,8 +275,11 @@ class ConvergencePlot(ScenePlot):
             plt.title("no solve yet: F5 or `iterate N`")
             return
         its = [r.iteration for r in self.reports]
-        plt.plot(its, [math.log10(max(abs(r.objective), 1e-300)) for r in self.reports],
-                 label="log10 objective", color="cyan")
-        plt.plot(its, [math.log10(max(r.max_violation, 1e-16)) for r in self.reports],
-                 label="log10 violation", color="orange")
-        plt.title(f"convergence: {len(self.reports)} iteration(s)")
+        objective = [math.log10(max(abs(r.objective), 1e-300)) for r in self.reports]
+        violation = [math.log10(max(r.max_violation, 1e-16)) for r in self.reports]
+        plt.plot(its, objective, label="log10 objective", color="cyan")
+        plt.plot(its, violation, label="log10 violation", color="orange")
+        self.set_axes(plt, (its[0], max(its[-1], its[0] + 1)), value_limits(objective + violation),
+                      xinteger=True)
+        n = len(self.reports)
+        self.set_title(plt, f"convergence: {n} iteration(s)", f"{n} iteration(s)", f"{n} it")

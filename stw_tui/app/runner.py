@@ -1,9 +1,14 @@
 """Running command lines one at a time off the UI thread, and feeding an opened session file.
 
 All commands — typed, from a panel or key, or read from a file — go through one queue and one
-thread worker, in order. A solve therefore never blocks the keyboard, and a command typed while a
+worker thread, in order. A solve therefore never blocks the keyboard, and a command typed while a
 solve runs waits its turn instead of racing it on the scene. The worker talks to the UI only with
 messages (``post_message`` is thread-safe and does not make the solver wait for a redraw).
+
+Each job runs in its own *daemon* thread rather than a Textual thread worker: those run in the
+event loop's default executor, which ``asyncio.run`` and the interpreter join at exit, so quitting
+during a long solve used to wait for the solve. A daemon thread is abandoned instead (it is asked to
+stop at the next iteration boundary, and dies with the process).
 """
 
 from __future__ import annotations
@@ -91,6 +96,7 @@ class Runner:
         self.queue: deque[Job] = deque()
         self.current: Job | None = None
         self.stop_requested = threading.Event()
+        self.thread: threading.Thread | None = None   # the worker of the current job
         self.reports: list["StepReport"] = []     # of the running (or last) solve
 
     @property
@@ -116,7 +122,8 @@ class Runner:
         self.stop_requested.clear()
         if self.current.is_solve:
             self.reports = []
-        self.app.start_job(self.current)
+        self.thread = threading.Thread(target=self.run, args=(self.current,), name="stw-session", daemon=True)
+        self.thread.start()
 
     def stop(self) -> bool:
         """Ask a running solve to stop at the next iteration boundary; True if one was running."""
@@ -125,27 +132,46 @@ class Runner:
         self.stop_requested.set()
         return True
 
+    def abandon(self) -> None:
+        """The app is quitting: ask a running job to stop and never start the queued ones.
+
+        The worker thread is not waited for (it is a daemon thread).
+        """
+        self.queue.clear()
+        self.stop_requested.set()
+
     def finished(self) -> None:
         """The worker's job is done (its message was handled): start the next one."""
         self.current = None
         self.pump()
 
     # --- in the worker thread ----------------------------------------------------------------
+    def _post(self, message) -> None:
+        """Post to the app; a message to an app that has quit meanwhile is dropped."""
+        try:
+            self.app.post_message(message)
+        except RuntimeError:   # the event loop is already closed
+            pass
+
     def run(self, job: Job) -> None:
         """Execute ``job`` on the session and post what happened. Never raises."""
-        if self.session is None:   # the first job loads the core here, off the UI thread
-            from ..session import Session
+        try:
+            if self.session is None:   # the first job loads the core here, off the UI thread
+                from ..session import Session
 
-            self.session = Session()
+                self.session = Session()
+        except Exception as exc:  # e.g. a broken install: say so instead of staying busy forever
+            self._post(CommandFinished(job, None, exc, SceneInfo()))
+            return
         if job.task is not None:
             self._run_task(job)
             return
         job.continuation = self.session.in_block   # read here: the UI thread would race the worker
-        self.app.post_message(CommandStarted(job))
+        self._post(CommandStarted(job))
 
         def on_report(report: "StepReport") -> bool:
             self.reports.append(report)
-            self.app.post_message(IterationReported(report))
+            self._post(IterationReported(report))
             return not self.stop_requested.is_set()
 
         outcome, error = None, None
@@ -159,7 +185,7 @@ class Runner:
             info = scene_info(self.session.scene)
         except Exception:  # measuring is best effort
             info = SceneInfo()
-        self.app.post_message(CommandFinished(job, outcome, error, info))
+        self._post(CommandFinished(job, outcome, error, info))
 
     def _run_task(self, job: Job) -> None:
         result, error = None, None
@@ -167,4 +193,4 @@ class Runner:
             result = job.task(self.session)
         except Exception as exc:  # shown in the console, like a command's error
             error = exc
-        self.app.post_message(TaskFinished(job, result, error))
+        self._post(TaskFinished(job, result, error))

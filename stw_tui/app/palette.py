@@ -1,0 +1,89 @@
+"""The command palette (Ctrl+P): the app's actions, the session commands, and the scene's names.
+
+The app's actions are :class:`~textual.app.SystemCommand` entries (:func:`app_commands`, yielded
+by ``StwApp.get_system_commands``); :class:`SceneCommands` provides what the scene holds (a DOF
+or equation to plot) and the commands of the language (choosing one starts it at the prompt).
+"""
+
+from __future__ import annotations
+
+from functools import partial
+from typing import TYPE_CHECKING, Iterator
+
+from textual.app import SystemCommand
+from textual.command import DiscoveryHit, Hit, Hits, Provider
+
+from .messages import ItemChosen
+from .values import equation_names
+
+if TYPE_CHECKING:
+    from textual.app import App
+
+    from ..scene import Scene
+
+# (title, help, action) of the app's own entries: its keys' actions, and a few without a key
+APP_ACTIONS = (
+    ("Help", "F1: tutorial, keys and commands", "help"),
+    ("Iterate", "F5: `iterate N`, N from the Opt panel", "iterate"),
+    ("Stop", "F4: stop the solve at the next iteration, pause a replay", "stop"),
+    ("Panels", "F2: the next panel", "panels"),
+    ("Plots", "F3: the next plot", "plots"),
+    ("Play", "F8: play the figure", "play"),
+    ("Step", "F6: run the session's next line", "step"),
+    ("Run rest", "F7: run the rest of the session", "run_rest"),
+    ("Compare backends", "solve copies of the scene with each installed backend", "compare"),
+    ("Console", "Esc: back to the console", "escape"),
+)
+
+
+def app_commands(app: "App") -> Iterator[SystemCommand]:
+    """The app's actions that are available now, as palette entries."""
+    for title, help, action in APP_ACTIONS:
+        if app.check_action(action, ()):
+            yield SystemCommand(title, help, partial(app.run_action, action))
+
+
+def scene_entries(scene: "Scene | None") -> Iterator[tuple[str, str, str, str]]:
+    """(title, help, kind, name) of each DOF and equation the plots can show."""
+    if scene is None:
+        return
+    for name in scene.dofs:
+        yield f"Plot DOF {name}", "its curve over time (Curves plot)", "dof", name
+    kinds = {**{n: "objective" for n in scene.objectives}, **{n: "let" for n in scene.lets},
+             **{n: "constraint" for n in scene.constraints}}
+    for name in equation_names(scene):
+        yield f"Plot {kinds.get(name, 'equation')} {name}", "its values over time (Expr plot)", "equation", name
+
+
+class SceneCommands(Provider):
+    """DOF and equations of the scene (plot one), and the language's commands (start one)."""
+
+    def _entries(self) -> list[tuple[str, str, object]]:
+        from ..language.help import COMMAND_HELP   # here: the language loads sympy
+
+        app = self.app
+        entries = [(title, help, partial(app.post_message, ItemChosen(kind, name)))
+                   for title, help, kind, name in scene_entries(getattr(app, "scene", None))]
+        for command, info in COMMAND_HELP.items():
+            # Help is markup to the palette: synopses hold [brackets].
+            entries.append((f"Command {command}", info.synopsis.replace("[", "\\["), partial(self._start, command)))
+        return entries
+
+    def _start(self, command: str) -> None:
+        """Put ``command`` at the console prompt for the user to complete."""
+        field = self.app.repl.input
+        field.value = f"{command} "
+        field.cursor_position = len(field.value)
+        field.focus()
+
+    async def discover(self) -> Hits:
+        for title, help, callback in self._entries():
+            if title.startswith("Plot "):
+                yield DiscoveryHit(title, callback, help=help)
+
+    async def search(self, query: str) -> Hits:
+        matcher = self.matcher(query)
+        for title, help, callback in self._entries():
+            score = matcher.match(title)
+            if score > 0:
+                yield Hit(score, matcher.highlight(title), callback, text=title, help=help)
