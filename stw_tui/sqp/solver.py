@@ -416,10 +416,14 @@ class SQPBackend(Backend):
         c = np.concatenate([trial.c_eq[lin.eq_rows], trial.c_ge[ge_rows]])
         if c.size == 0:
             return None
-        A = la.stack_rows([lin.Ae, la.rows(la.jacobian(ev, "ge"), ge_rows)])
         n = d.size
         try:
-            x = la.kkt(sub.H, A, KKT_EPS).solve(la.concat([la.zeros(n), la.vector(-c)]))
+            if ge_rows.size == 0 and sub.qp.system is not None:
+                system = sub.qp.system   # the same matrix [[H, A_eᵀ], [A_e, -ε]], already factorized
+            else:
+                A = la.stack_rows([lin.Ae, la.rows(la.jacobian(ev, "ge"), ge_rows)])
+                system = la.kkt(sub.H, A, KKT_EPS)
+            x = system.solve(la.concat([la.zeros(n), la.vector(-c)]))
         except SingularSystem:
             return None
         correction = la.numpy(x[:n])
