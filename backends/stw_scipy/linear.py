@@ -21,12 +21,72 @@ SOLVERS = ("direct", "minres", "cg")
 FALLBACK_RESIDUAL = 1e-6   # relative KKT residual above which an iterative solve is not trusted
 
 
-def kkt_matrix(H, A, e) -> sps.csc_array:
+def kkt_matrix(H, A, e, layouts: list | None = None) -> sps.csc_array:
+    """K = [[H, Aᵀ], [A, -diag(e)]] in CSC, entry for entry what ``sps.block_array`` builds (its
+    stored zeros kept, zeros of ``e`` left out, row indices sorted), without its conversions
+    through COO, which cost more than factorizing K.
+
+    Where K's entries go depends only on the sparsity structure of H and A (and on which e_i are
+    zero): that placement is worked out once and kept in ``layouts`` (most recent first), so a
+    later K of the same structure is one gather of its values.
+    """
     m = A.shape[0]
     if not m:
-        return sps.csc_array(H)
-    E = sps.diags_array(np.broadcast_to(np.asarray(e, float), (m,)))
-    return sps.block_array([[H, A.T], [A, -E]], format="csc")
+        return _canonical(sps.csc_array(H))
+    H, A = _canonical(sps.csr_array(H)), _canonical(sps.csr_array(A))
+    diag = -np.broadcast_to(np.asarray(e, float), (m,))
+    keep = diag != 0
+    layouts = [] if layouts is None else layouts
+    layout = next((x for x in layouts if x.fits(H, A, keep)), None)
+    if layout is None:
+        layout = _Layout(H, A, keep)
+        layouts.insert(0, layout)
+        del layouts[LAYOUTS_KEPT:]
+    elif layouts[0] is not layout:
+        layouts.remove(layout)
+        layouts.insert(0, layout)
+    data = np.concatenate([H.data, A.data, A.data, diag[keep]])[layout.order]
+    K = sps.csc_array((data, layout.indices, layout.indptr), shape=layout.shape)
+    K.has_canonical_format = True   # sorted, no duplicates, by construction
+    return K
+
+
+LAYOUTS_KEPT = 8   # KKT structures remembered per algebra (Newton / Gauss-Newton, correction, IPM)
+
+
+class _Layout:
+    """Where the entries of H (CSR order), A, Aᵀ (both A's CSR order) and the kept -e_i go in K's
+    CSC arrays, for one sparsity structure of H and A."""
+
+    def __init__(self, H: sps.csr_array, A: sps.csr_array, keep: np.ndarray):
+        n, m = H.shape[0], A.shape[0]
+        self.key = (H.shape, A.shape, H.indptr.copy(), H.indices.copy(), A.indptr.copy(),
+                    A.indices.copy(), keep.copy())
+        h_rows = np.repeat(np.arange(n), np.diff(H.indptr))
+        a_rows = np.repeat(np.arange(m), np.diff(A.indptr))
+        e_rows = n + np.flatnonzero(keep)
+        rows = np.concatenate([h_rows, n + a_rows, A.indices, e_rows])
+        cols = np.concatenate([H.indices, A.indices, n + a_rows, e_rows])
+        self.order = np.lexsort((rows, cols))          # column-major, rows sorted in each column
+        self.indices = rows[self.order].astype(np.intc)   # SuperLU's index type
+        self.indptr = np.zeros(n + m + 1, dtype=np.intc)
+        np.cumsum(np.bincount(cols, minlength=n + m), out=self.indptr[1:])
+        self.shape = (n + m, n + m)
+
+    def fits(self, H: sps.csr_array, A: sps.csr_array, keep: np.ndarray) -> bool:
+        shape_h, shape_a, h_ptr, h_idx, a_ptr, a_idx, kept = self.key
+        return (H.shape == shape_h and A.shape == shape_a and H.nnz == h_idx.size
+                and A.nnz == a_idx.size and np.array_equal(keep, kept)
+                and np.array_equal(H.indptr, h_ptr) and np.array_equal(A.indptr, a_ptr)
+                and np.array_equal(H.indices, h_idx) and np.array_equal(A.indices, a_idx))
+
+
+def _canonical(m):
+    """``m`` with sorted indices and no duplicates (as block_array's conversion leaves them)."""
+    if not m.has_canonical_format:
+        m = m.copy()
+        m.sum_duplicates()
+    return m
 
 
 class SparseKKT(KKTSystem):
@@ -85,6 +145,7 @@ class SparseAlgebra(LinearAlgebra):
 
     def __init__(self, method: str = "direct", rtol: float = 1e-12, maxiter: int = 1000):
         self.method, self.rtol, self.maxiter = method, rtol, maxiter
+        self._layouts: list = []   # KKT placements by sparsity structure (kkt_matrix)
 
     def vector(self, values):
         return np.array(values, dtype=float)
@@ -132,4 +193,4 @@ class SparseAlgebra(LinearAlgebra):
         return float(np.abs(m.diagonal()).max(initial=0.0))
 
     def kkt(self, H, A, e, exact=False):
-        return SparseKKT(kkt_matrix(H, A, e), "direct" if exact else self.method, self.rtol, self.maxiter)
+        return SparseKKT(kkt_matrix(H, A, e, self._layouts), "direct" if exact else self.method, self.rtol, self.maxiter)
