@@ -115,6 +115,7 @@ class Evaluation:
     _hess_data: dict = field(repr=False, default_factory=dict)
     _residual: np.ndarray = field(repr=False, default=None)
     _J_obj: sps.csr_array = field(repr=False, default=None)
+    _gauss_newton: sps.csr_array = field(repr=False, default=None)
 
     def max_violation(self) -> float:
         return WindowProblem.max_violation(self)
@@ -124,12 +125,17 @@ class Evaluation:
         return self._problem._hessian(self, lam_eq, lam_ge)
 
     def gauss_newton(self) -> sps.csr_array:
-        """2 Jᵀ W J of the objective residuals: positive semidefinite, no second derivatives."""
-        Jo, w = self._J_obj, self._hess_data["w_obj"]
-        n = self.s.size
-        if Jo is None or Jo.shape[0] == 0:
-            return sps.csr_array((n, n))
-        return sps.csr_array(Jo.T @ (sps.diags_array(2.0 * w) @ Jo))
+        """2 Jᵀ W J of the objective residuals: positive semidefinite, no second derivatives.
+
+        Computed once per evaluation (the exact Hessian adds it too); callers must not modify it."""
+        if self._gauss_newton is None:
+            Jo, w = self._J_obj, self._hess_data["w_obj"]
+            n = self.s.size
+            if Jo is None or Jo.shape[0] == 0:
+                self._gauss_newton = sps.csr_array((n, n))
+            else:
+                self._gauss_newton = sps.csr_array(Jo.T @ (sps.diags_array(2.0 * w) @ Jo))
+        return self._gauss_newton
 
 
 @dataclass(frozen=True)
