@@ -16,6 +16,7 @@ instances or control points; one runs over term groups (constraints and objectiv
 from __future__ import annotations
 
 from dataclasses import dataclass, field
+from functools import lru_cache
 
 import numpy as np
 import scipy.sparse as sps
@@ -24,11 +25,13 @@ import sympy as sp
 from .compiler import CompiledTerm, compile_term
 from .errors import StwError
 from .instances import bound_times, relation_times
+from .products import ProductPlan
 from .scene import Scene
 from .spline import gauss_legendre_nodes
 from .symbols import dof_symbol
 
 EQ, GE, OBJ = "eq", "ge", "obj"
+HESSIAN_PLAN_AFTER = 4   # Hessians assembled by plain sparse products before a plan is made
 _RELATIONS = {
     sp.StrictGreaterThan: np.greater, sp.GreaterThan: np.greater_equal,
     sp.StrictLessThan: np.less, sp.LessThan: np.less_equal,
@@ -136,6 +139,24 @@ class Evaluation:
             else:
                 self._gauss_newton = sps.csr_array(Jo.T @ (sps.diags_array(2.0 * w) @ Jo))
         return self._gauss_newton
+
+
+@lru_cache(maxsize=None)
+def _pair_rows(pairs: tuple[tuple[int, int], ...]) -> np.ndarray:
+    """Each Hessian pair once, an off-diagonal one twice: a group's entries of D, in order."""
+    return np.repeat(np.arange(len(pairs)), [1 if a == b else 2 for a, b in pairs])
+
+
+def _triplet_structure(rows, cols, shape) -> tuple[sps.csr_array, np.ndarray] | None:
+    """The CSR structure ``csr_array((data, (rows, cols)))`` gets, and the permutation from the
+    triplets to its stored entries; None when an entry repeats (then values would be summed)."""
+    order = np.lexsort((cols, rows))
+    r, c = rows[order], cols[order]
+    if np.any((r[1:] == r[:-1]) & (c[1:] == c[:-1])):
+        return None
+    indptr = np.zeros(shape[0] + 1, dtype=np.int64)
+    np.cumsum(np.bincount(r, minlength=shape[0]), out=indptr[1:])
+    return sps.csr_array((np.ones(r.size), c, indptr), shape=shape), order
 
 
 @dataclass(frozen=True)
@@ -320,6 +341,8 @@ class WindowProblem:
         self._d_pattern = (np.concatenate(d_rows) if d_rows else np.zeros(0, int),
                            np.concatenate(d_cols) if d_cols else np.zeros(0, int))
         self.PfT = self.Pf.T.tocsr()
+        self._product_plans: dict = {}   # made when first worth it (_plans)
+        self._hessians = 0
         self.row_group = {kind: np.repeat(np.arange(len(self.groups)),
                                           [g.n if g.kind == kind else 0 for g in self.groups])
                           for kind in (EQ, GE, OBJ)}
@@ -401,9 +424,36 @@ class WindowProblem:
                           active_eq=masks[EQ], active_ge=masks[GE], _problem=self,
                           _hess_data={"groups": hess, "w_obj": w_obj}, _residual=residual, _J_obj=J[OBJ])
 
+    def _plans(self, kind: str):
+        """The product G @ Pf of a kind, or ("hess") the pair Pfᵀ D, (Pfᵀ D) Pf, planned once on
+        their fixed structures (products.py: bitwise scipy's products, without working the
+        structure out each time). None: triplets that repeat an entry, or a Hessian plan not yet
+        worth making (it costs about as much as HESSIAN_PLAN_AFTER Hessians)."""
+        plans = self._product_plans
+        if kind not in plans:
+            if kind == "hess":
+                self._hessians += 1
+                if self._hessians < HESSIAN_PLAN_AFTER:
+                    return None
+                D = _triplet_structure(*self._d_pattern, (self.n_slots, self.n_slots))
+                if D is None:
+                    plans[kind] = None
+                else:
+                    left = ProductPlan(self.PfT, D[0], "A", source=D[1])
+                    X = sps.csr_array((np.ones(left.indices.size), left.indices, left.indptr), shape=left.shape)
+                    plans[kind] = (left, ProductPlan(X, self.Pf, "B"))
+            else:
+                rows, cols = self._g_pattern[kind]
+                G = _triplet_structure(rows, cols, (self.row_counts[kind], self.n_slots))
+                plans[kind] = None if G is None else ProductPlan(G[0], self.Pf, "B", source=G[1])
+        return plans[kind]
+
     def _jacobian(self, kind: str, grad_parts: list[np.ndarray]) -> sps.csr_array:
         rows, cols = self._g_pattern[kind]
         data = np.concatenate(grad_parts) if grad_parts else np.zeros(0)
+        plan = self._plans(kind)
+        if plan is not None:
+            return plan.matrix(plan.data(data))
         G = sps.csr_array((data, (rows, cols)), shape=(self.row_counts[kind], self.n_slots))
         return (G @ self.Pf).tocsr()
 
@@ -419,14 +469,16 @@ class WindowProblem:
                 scale = 2.0 * w_obj_all[rows] * residual[rows]
             else:
                 scale = multipliers[group.kind][rows] * group.weights
-            for p, (a, b) in enumerate(group.term.hessian_pairs):
-                entry = h[:, p] * scale
-                data.append(entry)
-                if a != b:
-                    data.append(entry)
+            # Pair p's entries h[:, p] * scale, twice for an off-diagonal pair (D is symmetric).
+            data.append((h * scale[:, None]).T[_pair_rows(group.term.hessian_pairs)].ravel())
+        data = np.concatenate(data) if data else np.zeros(0)
+        plans = self._plans("hess")
+        if plans is not None:
+            left, right = plans
+            X = left.data(data)   # Pfᵀ D on its whole structure; scipy's drops the exact zeros
+            return sps.csr_array(right.matrix(right.data(X), absent=X == 0) + ev.gauss_newton())
         d_rows, d_cols = self._d_pattern
-        D = sps.csr_array((np.concatenate(data) if data else np.zeros(0), (d_rows, d_cols)),
-                          shape=(self.n_slots, self.n_slots))
+        D = sps.csr_array((data, (d_rows, d_cols)), shape=(self.n_slots, self.n_slots))
         H = self.PfT @ D @ self.Pf
         return sps.csr_array(H + ev.gauss_newton())
 

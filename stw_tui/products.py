@@ -1,0 +1,110 @@
+"""Sparse products on fixed sparsity structures, computed as a sparse matrix-vector product.
+
+The window problem's Jacobians (``G @ Pf``) and Hessian (``Pfᵀ D Pf``) multiply matrices whose
+sparsity structure never changes between evaluations; only the values of ``G`` and ``D`` do.
+``scipy.sparse``'s ``A @ B`` works the structure out anew each time (a symbolic pass, a numeric
+pass and a handful of Python-level matrix constructions), which is most of an evaluation's cost on
+small problems. A :class:`ProductPlan` works it out once: each entry of ``C = A @ B`` is a sum of
+products ``A[i, j] B[j, k]``, and with one factor fixed that sum is one row of a constant sparse
+matrix ``M``, so ``C.data = M @ A.data`` (or ``M @ B.data``).
+
+The plan reproduces scipy's ``csr_matmat`` exactly, not just up to rounding: each entry's terms
+are added in the order that routine adds them, from zero, and each row's entries are stored in its
+order (by last first touch); entries that come out exactly zero are dropped, as it drops them. So
+the products are bitwise those of ``A @ B``, and nothing downstream (a factorization, a
+matrix-vector product) can tell the difference.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import scipy.sparse as sps
+
+
+class ProductPlan:
+    """``C = A @ B`` for CSR structures of A (m x K) and B (K x N), one of them with fixed values.
+
+    Args:
+        A, B: CSR matrices giving the structures (stored entries, explicit zeros included, in
+            their storage order); the values of the fixed one too.
+        fixed: which factor's values are built into the plan, "A" or "B".
+        source: optional permutation: the varying factor's stored entry ``p`` is entry
+            ``source[p]`` of the vector later passed to :meth:`data` (so that a factor assembled
+            from another ordering, such as COO triplets, need not be built at all).
+    """
+
+    def __init__(self, A: sps.csr_array, B: sps.csr_array, fixed: str, source: np.ndarray | None = None):
+        m, N = A.shape[0], B.shape[1]
+        a_len = np.diff(B.indptr)[A.indices]          # terms each stored entry of A starts
+        a_term = np.repeat(np.arange(A.nnz), a_len)   # the terms in csr_matmat's order
+        b_term = np.repeat(B.indptr[A.indices] - np.cumsum(a_len) + a_len, a_len) + np.arange(a_term.size)
+        row = np.repeat(np.repeat(np.arange(m), np.diff(A.indptr)), a_len)
+        col = B.indices[b_term]
+        # Group the terms by output entry (row, col), each group in the order they are added.
+        terms = np.argsort(row.astype(np.int64) * max(N, 1) + col, kind="stable")
+        start = np.flatnonzero(np.diff(row[terms], prepend=-1) | np.diff(col[terms], prepend=-1))
+        first, out_row, out_col = terms[start], row[terms[start]], col[terms[start]]
+        # csr_matmat stores a row's entries last-first-touched first: put the groups in that order.
+        place = np.lexsort((-first, out_row))
+        counts = np.diff(np.append(start, terms.size))[place]
+        terms = terms[_ranges(start[place], counts)]
+        varying, constant = (b_term, A.data[a_term]) if fixed == "A" else (a_term, B.data[b_term])
+        # A term whose fixed factor is a stored zero adds ±0: leave it out, and the entries it
+        # alone touches, which are always zero (csr_matmat drops them). It still counted above,
+        # where it may have touched an entry first.
+        live = constant[terms] != 0
+        live_count = np.bincount(np.repeat(np.arange(place.size), counts)[live], minlength=place.size)
+        kept = live_count > 0
+        self.shape = (m, N)
+        self.indices = out_col[place][kept].astype(np.int32)
+        self.indptr = np.zeros(m + 1, dtype=np.int32)
+        np.cumsum(np.bincount(out_row[place][kept], minlength=m), out=self.indptr[1:])
+        if fixed == "B":   # for matrix(absent=...): every term of each kept entry, in order
+            keep_terms = np.repeat(kept, counts)
+            self._touch_ptr = np.concatenate([[0], np.cumsum(counts[kept])])
+            self._touch_t = terms[keep_terms]
+            self._touch_a = a_term[self._touch_t]
+            self._first = self._touch_t[self._touch_ptr[:-1]]
+            self._row = out_row[place][kept]
+        terms = terms[live]
+        columns = varying[terms] if source is None else source[varying[terms]]
+        size = (B.nnz if fixed == "A" else A.nnz) if source is None else source.size
+        term_ptr = np.concatenate([[0], np.cumsum(live_count[kept])])
+        # Rows keep their terms in summation order (unsorted columns): csr_matvec adds them so.
+        self.M = sps.csr_array((constant[terms], columns, term_ptr), shape=(self.indices.size, size))
+
+    def data(self, values: np.ndarray) -> np.ndarray:
+        """The stored values of C (before dropping zeros) from the varying factor's values."""
+        return self.M @ values
+
+    def matrix(self, data: np.ndarray, absent: np.ndarray | None = None) -> sps.csr_array:
+        """C as scipy's product stores it: ``data`` in place, its exact zeros dropped.
+
+        ``absent`` (a plan with A varying): A's entries that the scipy product would not see,
+        because the product that made A dropped them (exact zeros). They touch no entry of C, so
+        an entry they touched first moves within its row (its value is unchanged: they add ±0).
+        """
+        indices, indptr = self.indices, self.indptr
+        if absent is not None and absent.any():
+            hit = np.flatnonzero(absent[self._touch_a[self._touch_ptr[:-1]]])
+            if hit.size:
+                counts = np.diff(self._touch_ptr)[hit]
+                seg = _ranges(self._touch_ptr[hit], counts)
+                touch = np.where(absent[self._touch_a[seg]], np.iinfo(np.int64).max, self._touch_t[seg])
+                first = self._first.copy()
+                first[hit] = np.minimum.reduceat(touch, np.cumsum(counts) - counts)
+                order = np.lexsort((-first, self._row))   # (untouched entries are 0: dropped below)
+                data, indices = data[order], indices[order]
+        zero = data == 0
+        if zero.any():
+            keep = ~zero
+            kept = np.concatenate([[0], np.cumsum(keep)])
+            data, indices, indptr = data[keep], indices[keep], kept[indptr].astype(np.int32)
+        return sps.csr_array((data, indices, indptr), shape=self.shape)
+
+
+def _ranges(starts: np.ndarray, counts: np.ndarray) -> np.ndarray:
+    """The concatenated ranges starts[g] .. starts[g] + counts[g]."""
+    total = int(counts.sum())
+    offsets = np.repeat(starts - np.cumsum(counts) + counts, counts)
+    return offsets + np.arange(total)
