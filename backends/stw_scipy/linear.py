@@ -169,9 +169,16 @@ class SparseAlgebra(LinearAlgebra):
         return m if isinstance(m, sps.csr_array) else sps.csr_array(m)
 
     def diagonal_matrix(self, v):
-        return sps.diags_array(np.asarray(v, float), format="csr")
+        # What diags_array(v, format="csr") builds (its zeros left out), without its conversions.
+        v = np.asarray(v, float)
+        at = np.flatnonzero(v)
+        indptr = np.zeros(v.size + 1, dtype=np.int32)
+        np.cumsum(v != 0, out=indptr[1:])
+        return sps.csr_array((v[at], at.astype(np.int32), indptr), shape=(v.size, v.size))
 
     def rows(self, m, index):
+        if index.size == m.shape[0] and np.array_equal(index, np.arange(index.size)):
+            return m   # every row, in order: m[index] would copy m as it is
         return m[index]
 
     def stack_rows(self, parts):
