@@ -95,12 +95,17 @@ class ProductPlan:
                 first[hit] = np.minimum.reduceat(touch, np.cumsum(counts) - counts)
                 order = np.lexsort((-first, self._row))   # (untouched entries are 0: dropped below)
                 data, indices = data[order], indices[order]
-        zero = data == 0
-        if zero.any():
-            keep = ~zero
-            kept = np.concatenate([[0], np.cumsum(keep)])
-            data, indices, indptr = data[keep], indices[keep], kept[indptr].astype(np.int32)
-        return sps.csr_array((data, indices, indptr), shape=self.shape)
+        return _without_zeros(data, indices, indptr, self.shape)
+
+
+def _without_zeros(data, indices, indptr, shape) -> sps.csr_array:
+    """The CSR matrix with its exact zeros left out (as scipy's products leave them out)."""
+    zero = data == 0
+    if zero.any():
+        keep = ~zero
+        kept = np.concatenate([[0], np.cumsum(keep)])
+        data, indices, indptr = data[keep], indices[keep], kept[indptr].astype(np.int32)
+    return sps.csr_array((data, indices, indptr), shape=shape)
 
 
 def _ranges(starts: np.ndarray, counts: np.ndarray) -> np.ndarray:
@@ -108,3 +113,38 @@ def _ranges(starts: np.ndarray, counts: np.ndarray) -> np.ndarray:
     total = int(counts.sum())
     offsets = np.repeat(starts - np.cumsum(counts) + counts, counts)
     return offsets + np.arange(total)
+
+
+class GramPlan:
+    """``Jᵀ diag(c) J`` for a fixed structure of J (CSR), as ``sps.csr_array(J.T @
+    (sps.diags_array(c) @ J))`` computes it: entry (i, j) adds the products (c_r J_rj) J_ri over
+    the rows r in ascending order, from zero; rows stored sorted, exact zeros dropped. (Zero
+    products, which scipy leaves out, add ±0 here.)"""
+
+    def __init__(self, J: sps.csr_array):
+        m, n = J.shape
+        length = np.diff(J.indptr)
+        pairs = length.astype(np.int64) ** 2
+        row = np.repeat(np.arange(m), pairs)
+        local = np.arange(int(pairs.sum())) - np.repeat(np.cumsum(pairs) - pairs, pairs)
+        width = np.repeat(length, pairs)
+        p = J.indptr[row] + local // np.maximum(width, 1)   # J_ri
+        q = J.indptr[row] + local % np.maximum(width, 1)    # J_rj
+        key = J.indices[p].astype(np.int64) * max(n, 1) + J.indices[q]
+        terms = np.argsort(key, kind="stable")   # by entry (i, j); rows r ascending within one
+        start = np.flatnonzero(np.diff(key[terms], prepend=-1))
+        self.shape = (n, n)
+        self.indices = (key[terms][start] % max(n, 1)).astype(np.int32)
+        self.indptr = np.zeros(n + 1, dtype=np.int32)
+        np.cumsum(np.bincount(key[terms][start] // max(n, 1), minlength=n), out=self.indptr[1:])
+        self._p, self._q = p[terms], q[terms]
+        self._row_of_entry = np.repeat(np.arange(m), length)
+        term_ptr = np.append(start, terms.size)
+        self._sum = sps.csr_array((np.ones(terms.size), np.arange(terms.size), term_ptr),
+                                  shape=(start.size, terms.size))
+
+    def matrix(self, data: np.ndarray, c: np.ndarray) -> sps.csr_array:
+        """Jᵀ diag(c) J from J's stored values ``data`` (on the planned structure)."""
+        scaled = c[self._row_of_entry] * data             # diag(c) @ J
+        values = self._sum @ (scaled[self._q] * data[self._p])
+        return _without_zeros(values, self.indices, self.indptr, self.shape)

@@ -25,7 +25,7 @@ import sympy as sp
 from .compiler import CompiledTerm, compile_term
 from .errors import StwError
 from .instances import bound_times, relation_times
-from .products import ProductPlan
+from .products import GramPlan, ProductPlan
 from .scene import Scene
 from .spline import gauss_legendre_nodes
 from .symbols import dof_symbol
@@ -132,12 +132,7 @@ class Evaluation:
 
         Computed once per evaluation (the exact Hessian adds it too); callers must not modify it."""
         if self._gauss_newton is None:
-            Jo, w = self._J_obj, self._hess_data["w_obj"]
-            n = self.s.size
-            if Jo is None or Jo.shape[0] == 0:
-                self._gauss_newton = sps.csr_array((n, n))
-            else:
-                self._gauss_newton = sps.csr_array(Jo.T @ (sps.diags_array(2.0 * w) @ Jo))
+            self._gauss_newton = self._problem._gauss_newton(self)
         return self._gauss_newton
 
 
@@ -342,7 +337,7 @@ class WindowProblem:
                            np.concatenate(d_cols) if d_cols else np.zeros(0, int))
         self.PfT = self.Pf.T.tocsr()
         self._product_plans: dict = {}   # made when first worth it (_plans)
-        self._hessians = 0
+        self._uses = {"hess": 0, "gram": 0}   # Hessians and Gauss-Newtons before their plans
         self.row_group = {kind: np.repeat(np.arange(len(self.groups)),
                                           [g.n if g.kind == kind else 0 for g in self.groups])
                           for kind in (EQ, GE, OBJ)}
@@ -411,7 +406,9 @@ class WindowProblem:
             scale = group.weights if group.kind != OBJ else np.ones(group.n)
             grads[group.kind].append((grad * scale[:, None]).T.ravel())
             hess.append((group, h))
-        J = {kind: self._jacobian(kind, grads[kind]) for kind in (EQ, GE, OBJ)}
+        J, full = {}, {}
+        for kind in (EQ, GE, OBJ):
+            J[kind], full[kind] = self._jacobian(kind, grads[kind])
         w_obj = np.concatenate([g.weights for g in self.groups if g.kind == OBJ] or [np.zeros(0)])
         residual = values[OBJ]
         objective = float(np.dot(w_obj, residual * residual))
@@ -422,19 +419,25 @@ class WindowProblem:
         return Evaluation(s=s.copy(), objective=objective, gradient=np.asarray(gradient),
                           c_eq=c[EQ], J_eq=J[EQ], c_ge=c[GE], J_ge=J[GE],
                           active_eq=masks[EQ], active_ge=masks[GE], _problem=self,
-                          _hess_data={"groups": hess, "w_obj": w_obj}, _residual=residual, _J_obj=J[OBJ])
+                          _hess_data={"groups": hess, "w_obj": w_obj, "J_obj_full": full[OBJ]}, _residual=residual, _J_obj=J[OBJ])
 
     def _plans(self, kind: str):
-        """The product G @ Pf of a kind, or ("hess") the pair Pfᵀ D, (Pfᵀ D) Pf, planned once on
-        their fixed structures (products.py: bitwise scipy's products, without working the
-        structure out each time). None: triplets that repeat an entry, or a Hessian plan not yet
-        worth making (it costs about as much as HESSIAN_PLAN_AFTER Hessians)."""
+        """The product G @ Pf of a kind, ("hess") the pair Pfᵀ D, (Pfᵀ D) Pf, or ("gram") the
+        Gauss-Newton Joᵀ W Jo, planned once on their fixed structures (products.py: bitwise
+        scipy's products, without working the structure out each time). None: triplets that
+        repeat an entry, or a Hessian or Gauss-Newton plan not yet worth making (one costs about
+        as much as HESSIAN_PLAN_AFTER plain ones)."""
         plans = self._product_plans
         if kind not in plans:
-            if kind == "hess":
-                self._hessians += 1
-                if self._hessians < HESSIAN_PLAN_AFTER:
+            if kind in ("hess", "gram"):
+                self._uses[kind] += 1
+                if self._uses[kind] < HESSIAN_PLAN_AFTER:
                     return None
+            if kind == "gram":   # Gauss-Newton 2 Joᵀ W Jo, on the objective Jacobian's plan
+                J = self._plans(OBJ)
+                plans[kind] = None if J is None else GramPlan(
+                    sps.csr_array((np.ones(J.indices.size), J.indices, J.indptr), shape=J.shape))
+            elif kind == "hess":
                 D = _triplet_structure(*self._d_pattern, (self.n_slots, self.n_slots))
                 if D is None:
                     plans[kind] = None
@@ -448,14 +451,28 @@ class WindowProblem:
                 plans[kind] = None if G is None else ProductPlan(G[0], self.Pf, "B", source=G[1])
         return plans[kind]
 
-    def _jacobian(self, kind: str, grad_parts: list[np.ndarray]) -> sps.csr_array:
+    def _jacobian(self, kind: str, grad_parts: list[np.ndarray]) -> tuple[sps.csr_array, np.ndarray | None]:
+        """The Jacobian of the ``kind`` rows, and its values on the plan's whole structure (None
+        without a plan)."""
         rows, cols = self._g_pattern[kind]
         data = np.concatenate(grad_parts) if grad_parts else np.zeros(0)
         plan = self._plans(kind)
         if plan is not None:
-            return plan.matrix(plan.data(data))
+            full = plan.data(data)
+            return plan.matrix(full), full
         G = sps.csr_array((data, (rows, cols)), shape=(self.row_counts[kind], self.n_slots))
-        return (G @ self.Pf).tocsr()
+        return (G @ self.Pf).tocsr(), None
+
+    def _gauss_newton(self, ev: Evaluation) -> sps.csr_array:
+        Jo, w = ev._J_obj, ev._hess_data["w_obj"]
+        n = ev.s.size
+        if Jo is None or Jo.shape[0] == 0:
+            return sps.csr_array((n, n))
+        full = ev._hess_data.get("J_obj_full")
+        plan = self._plans("gram") if full is not None else None
+        if plan is not None:
+            return plan.matrix(full, 2.0 * w)
+        return sps.csr_array(Jo.T @ (sps.diags_array(2.0 * w) @ Jo))
 
     def _hessian(self, ev: Evaluation, lam_eq: np.ndarray, lam_ge: np.ndarray) -> sps.csr_array:
         multipliers = {EQ: lam_eq, GE: lam_ge}

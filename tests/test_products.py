@@ -7,7 +7,7 @@ import scipy.sparse as sps
 
 from conftest import SESSIONS
 from stw_tui.backend import SolverState
-from stw_tui.products import ProductPlan
+from stw_tui.products import GramPlan, ProductPlan
 from stw_tui.session import Session
 from stw_tui.window import HESSIAN_PLAN_AFTER, WindowProblem
 
@@ -19,6 +19,8 @@ def same(a, b) -> bool:
 
 def random_csr(rng, shape, zeros=0.0):
     m = sps.random_array(shape, density=rng.random() * 0.5, rng=rng, format="csr")
+    m.sum_duplicates()
+    m = sps.csr_array((m.data[:m.nnz].copy(), m.indices[:m.nnz].copy(), m.indptr.copy()), shape=shape)
     m.data[rng.random(m.nnz) < zeros] = 0.0   # stored zeros, as B-spline basis rows have
     return m
 
@@ -54,6 +56,22 @@ def test_a_chain_of_plans_is_the_chain_of_products_when_the_first_drops_zeros():
         assert same(got, P @ sps.csr_array((values, D.indices, D.indptr), shape=D.shape) @ Q)
 
 
+def test_a_gram_plan_is_scipys_weighted_gram_matrix():
+    rng = np.random.default_rng(4)
+    for _ in range(150):
+        m, n = (int(x) for x in rng.integers(0, 20, size=2))
+        J = random_csr(rng, (m, n))
+        if J.nnz and rng.random() < 0.5:
+            J = J @ random_csr(rng, (n, n))     # unsorted rows
+            J = sps.csr_array((J.data[:J.nnz], J.indices[:J.nnz], J.indptr), shape=J.shape)
+        plan = GramPlan(J)
+        values = rng.standard_normal(J.nnz) * (rng.random(J.nnz) < 0.8)
+        c = rng.random(m) * (rng.random(m) < 0.9)
+        J2 = sps.csr_array((values.copy(), J.indices.copy(), J.indptr.copy()), shape=J.shape)
+        J2.eliminate_zeros()      # scipy's J has no stored zeros; the plan sees them as values
+        assert same(plan.matrix(values, c), sps.csr_array(J2.T @ (sps.diags_array(c) @ J2)))
+
+
 def test_the_window_problem_assembles_what_plain_sparse_products_give():
     session = Session()
     lines = (SESSIONS / "arm_throw.stw").read_text().splitlines()
@@ -70,13 +88,15 @@ def test_the_window_problem_assembles_what_plain_sparse_products_give():
             assert same(J, G @ problem.Pf)
         lam_eq = rng.standard_normal(ev.c_eq.size) * (rng.random(ev.c_eq.size) < 0.7)
         lam_ge = -rng.random(ev.c_ge.size)
-        H = ev.lagrangian_hessian(lam_eq, lam_ge)
+        H, GN = ev.lagrangian_hessian(lam_eq, lam_ge), ev.gauss_newton()
         plans, problem._product_plans = problem._product_plans, {}
-        count, problem._hessians = problem._hessians, -10**9   # the plain route
+        uses, problem._uses = problem._uses, {"hess": -10**9, "gram": -10**9}   # the plain route
+        ev._gauss_newton = None
+        assert same(GN, ev.gauss_newton())
         assert same(H, ev.lagrangian_hessian(lam_eq, lam_ge))
-        problem._product_plans, problem._hessians = plans, count
+        problem._product_plans, problem._uses = plans, uses
         s = s + 0.01 * rng.standard_normal(s.size)
-    assert problem._product_plans.get("hess") is not None
+    assert problem._product_plans.get("hess") is not None and problem._product_plans.get("gram") is not None
 
 
 def _gradients(problem, ev, kind):
