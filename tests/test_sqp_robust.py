@@ -169,7 +169,8 @@ def test_kkt_matrix_is_block_arrays_entry_for_entry_through_its_cached_layouts()
     for _ in range(4):
         n, m = int(rng.integers(1, 30)), int(rng.integers(1, 20))
         H = sps.random_array((n, n), density=0.3, rng=rng, format="csr")
-        structures.append((sps.csr_array(H + H.T), sps.random_array((m, n), density=0.3, rng=rng, format="csr")))
+        H = sps.csr_array(H + H.T) if len(structures) % 2 else sps.csr_array(H @ H.T)   # rows unsorted
+        structures.append((H, sps.random_array((m, n), density=0.3, rng=rng, format="csr")))
     layouts: list = []
     for _ in range(60):
         H, A = (M.copy() for M in structures[int(rng.integers(len(structures)))])

@@ -33,19 +33,22 @@ def kkt_matrix(H, A, e, layouts: list | None = None) -> sps.csc_array:
     m = A.shape[0]
     if not m:
         return _canonical(sps.csc_array(H))
-    H, A = _canonical(sps.csr_array(H)), _canonical(sps.csr_array(A))
+    H, A = _csr(H), _csr(A)
     diag = -np.broadcast_to(np.asarray(e, float), (m,))
     keep = diag != 0
     layouts = [] if layouts is None else layouts
     layout = next((x for x in layouts if x.fits(H, A, keep)), None)
     if layout is None:
         layout = _Layout(H, A, keep)
-        layouts.insert(0, layout)
-        del layouts[LAYOUTS_KEPT:]
-    elif layouts[0] is not layout:
+        if layout.repeats:   # block_array sums repeated entries: sum them first
+            H, A = _canonical(H), _canonical(A)
+            layout = next((x for x in layouts if x.fits(H, A, keep)), None) or _Layout(H, A, keep)
+    if layout in layouts:
         layouts.remove(layout)
-        layouts.insert(0, layout)
-    data = np.concatenate([H.data, A.data, A.data, diag[keep]])[layout.order]
+    layouts.insert(0, layout)
+    del layouts[LAYOUTS_KEPT:]
+    h, a = H.data[:H.nnz], A.data[:A.nnz]
+    data = np.concatenate([h, a, a, diag[keep]])[layout.order]
     K = sps.csc_array((data, layout.indices, layout.indptr), shape=layout.shape)
     K.has_canonical_format = True   # sorted, no duplicates, by construction
     return K
@@ -56,18 +59,22 @@ LAYOUTS_KEPT = 8   # KKT structures remembered per algebra (Newton / Gauss-Newto
 
 class _Layout:
     """Where the entries of H (CSR order), A, Aᵀ (both A's CSR order) and the kept -e_i go in K's
-    CSC arrays, for one sparsity structure of H and A."""
+    CSC arrays, for one sparsity structure of H and A (each row's entries in any order, but none
+    stored twice: ``repeats`` says so)."""
 
     def __init__(self, H: sps.csr_array, A: sps.csr_array, keep: np.ndarray):
         n, m = H.shape[0], A.shape[0]
-        self.key = (H.shape, A.shape, H.indptr.copy(), H.indices.copy(), A.indptr.copy(),
-                    A.indices.copy(), keep.copy())
+        h_idx, a_idx = H.indices[:H.nnz], A.indices[:A.nnz]
+        self.key = (H.shape, A.shape, H.indptr.copy(), h_idx.copy(), A.indptr.copy(),
+                    a_idx.copy(), keep.copy())
         h_rows = np.repeat(np.arange(n), np.diff(H.indptr))
         a_rows = np.repeat(np.arange(m), np.diff(A.indptr))
         e_rows = n + np.flatnonzero(keep)
-        rows = np.concatenate([h_rows, n + a_rows, A.indices, e_rows])
-        cols = np.concatenate([H.indices, A.indices, n + a_rows, e_rows])
+        rows = np.concatenate([h_rows, n + a_rows, a_idx, e_rows])
+        cols = np.concatenate([h_idx, a_idx, n + a_rows, e_rows])
         self.order = np.lexsort((rows, cols))          # column-major, rows sorted in each column
+        same = (np.diff(rows[self.order]) == 0) & (np.diff(cols[self.order]) == 0)
+        self.repeats = bool(same.any())                 # an entry stored twice (not canonical)
         self.indices = rows[self.order].astype(np.intc)   # SuperLU's index type
         self.indptr = np.zeros(n + m + 1, dtype=np.intc)
         np.cumsum(np.bincount(cols, minlength=n + m), out=self.indptr[1:])
@@ -78,7 +85,11 @@ class _Layout:
         return (H.shape == shape_h and A.shape == shape_a and H.nnz == h_idx.size
                 and A.nnz == a_idx.size and np.array_equal(keep, kept)
                 and np.array_equal(H.indptr, h_ptr) and np.array_equal(A.indptr, a_ptr)
-                and np.array_equal(H.indices, h_idx) and np.array_equal(A.indices, a_idx))
+                and np.array_equal(H.indices[:H.nnz], h_idx) and np.array_equal(A.indices[:A.nnz], a_idx))
+
+
+def _csr(m) -> sps.csr_array:
+    return m if isinstance(m, sps.csr_array) else sps.csr_array(m)
 
 
 def _canonical(m):
