@@ -182,3 +182,22 @@ def test_kkt_matrix_is_block_arrays_entry_for_entry_through_its_cached_layouts()
         assert np.array_equal(got.indptr, want.indptr) and np.array_equal(got.indices, want.indices)
         assert np.array_equal(got.data, want.data)
     assert 0 < len(layouts) <= 8
+
+
+def test_sparse_gram_and_transposed_products_are_scipys_bit_for_bit():
+    """The interior-point method's Aᵀ diag(w) A (planned once per structure of A) and Aᵀ x (with
+    the transpose kept) are exactly what the plain scipy expressions give."""
+    import scipy.sparse as sps
+    from stw_scipy.linear import SparseAlgebra
+
+    la, rng = SparseAlgebra(), np.random.default_rng(8)
+    factors = [sps.random_array((m, 9), density=0.4, rng=rng, format="csr") for m in (0, 3, 7, 12, 5)]
+    for k in range(60):
+        A = factors[k % len(factors)].copy()
+        A.data = rng.standard_normal(A.nnz) * (rng.random(A.nnz) < 0.9)
+        w = rng.random(A.shape[0])
+        got, want = la.gram(A, w), sps.csr_array(A.T @ (sps.diags_array(w) @ A))
+        assert np.array_equal(got.indptr, want.indptr) and np.array_equal(got.indices, want.indices)
+        assert np.array_equal(got.data, want.data)
+        x = rng.standard_normal(A.shape[0])
+        assert np.array_equal(la.rmatvec(A, x), A.T @ x)

@@ -15,6 +15,7 @@ import numpy as np
 import scipy.sparse as sps
 import scipy.sparse.linalg as spla
 
+from stw_tui.products import GramPlan
 from stw_tui.sqp.algebra import KKTSystem, LinearAlgebra, SingularSystem
 
 SOLVERS = ("direct", "minres", "cg")
@@ -55,6 +56,8 @@ def kkt_matrix(H, A, e, layouts: list | None = None) -> sps.csc_array:
 
 
 LAYOUTS_KEPT = 8   # KKT structures remembered per algebra (Newton / Gauss-Newton, correction, IPM)
+GRAMS_KEPT = 4     # structures of interior-point inequality rows remembered per algebra
+TRANSPOSES_KEPT = 4
 
 
 class _Layout:
@@ -86,6 +89,12 @@ class _Layout:
                 and A.nnz == a_idx.size and np.array_equal(keep, kept)
                 and np.array_equal(H.indptr, h_ptr) and np.array_equal(A.indptr, a_ptr)
                 and np.array_equal(H.indices[:H.nnz], h_idx) and np.array_equal(A.indices[:A.nnz], a_idx))
+
+
+def _same_structure(m: sps.csr_array, key) -> bool:
+    shape, indptr, indices = key
+    return (m.shape == shape and m.nnz == indices.size and np.array_equal(m.indptr, indptr)
+            and np.array_equal(m.indices[:m.nnz], indices))
 
 
 def _csr(m) -> sps.csr_array:
@@ -157,6 +166,8 @@ class SparseAlgebra(LinearAlgebra):
     def __init__(self, method: str = "direct", rtol: float = 1e-12, maxiter: int = 1000):
         self.method, self.rtol, self.maxiter = method, rtol, maxiter
         self._layouts: list = []   # KKT placements by sparsity structure (kkt_matrix)
+        self._grams: list = []     # (structure, GramPlan) of recent gram() factors
+        self._transposes: list = []   # (matrix, its transpose) of recent rmatvec() calls
 
     def vector(self, values):
         return np.array(values, dtype=float)
@@ -199,13 +210,26 @@ class SparseAlgebra(LinearAlgebra):
         return m @ x
 
     def rmatvec(self, m, x):
-        return m.T @ x
+        # The interior-point method multiplies by the same few transposes many times: keep them.
+        for held, transposed in self._transposes:
+            if held is m:
+                return transposed @ x
+        self._transposes.insert(0, (m, m.T))
+        del self._transposes[TRANSPOSES_KEPT:]
+        return self._transposes[0][1] @ x
 
     def add(self, a, b):
         return sps.csr_array(a + b)
 
     def gram(self, a, w):
-        return sps.csr_array(a.T @ (sps.diags_array(w) @ a))
+        # sps.csr_array(a.T @ (sps.diags_array(w) @ a)), bitwise, by a plan kept per structure of a
+        a = _csr(a)
+        plan = next((p for key, p in self._grams if _same_structure(a, key)), None)
+        if plan is None:
+            plan = GramPlan(a)
+            self._grams.insert(0, ((a.shape, a.indptr.copy(), a.indices[:a.nnz].copy()), plan))
+            del self._grams[GRAMS_KEPT:]
+        return plan.matrix(a.data[:a.nnz], np.asarray(w, float))
 
     def max_abs_diagonal(self, m):
         return float(np.abs(m.diagonal()).max(initial=0.0))
