@@ -21,6 +21,10 @@ import numpy as np
 import scipy.sparse as sps
 
 
+TOUCH_ROUNDS = 8             # passes ProductPlan.touch_order may take before giving up
+GRAM_PLAN_TERMS = 200_000    # above this many products scipy's own loop is faster than a plan
+
+
 class ProductPlan:
     """``C = A @ B`` for CSR structures of A (m x K) and B (K x N), one of them with fixed values.
 
@@ -77,25 +81,37 @@ class ProductPlan:
         """The stored values of C (before dropping zeros) from the varying factor's values."""
         return self.M @ values
 
-    def matrix(self, data: np.ndarray, absent: np.ndarray | None = None) -> sps.csr_array:
-        """C as scipy's product stores it: ``data`` in place, its exact zeros dropped.
-
-        ``absent`` (a plan with A varying): A's entries that the scipy product would not see,
-        because the product that made A dropped them (exact zeros). They touch no entry of C, so
-        an entry they touched first moves within its row (its value is unchanged: they add ±0).
-        """
+    def matrix(self, data: np.ndarray, order: np.ndarray | None = None) -> sps.csr_array:
+        """C as scipy's product stores it: ``data`` in place (permuted by ``order``, from
+        :meth:`touch_order`), its exact zeros dropped."""
         indices, indptr = self.indices, self.indptr
-        if absent is not None and absent.any():
-            hit = np.flatnonzero(absent[self._touch_a[self._touch_ptr[:-1]]])
-            if hit.size:
-                counts = np.diff(self._touch_ptr)[hit]
-                seg = _ranges(self._touch_ptr[hit], counts)
-                touch = np.where(absent[self._touch_a[seg]], np.iinfo(np.int64).max, self._touch_t[seg])
-                first = self._first.copy()
-                first[hit] = np.minimum.reduceat(touch, np.cumsum(counts) - counts)
-                order = np.lexsort((-first, self._row))   # (untouched entries are 0: dropped below)
-                data, indices = data[order], indices[order]
+        if order is not None:
+            data, indices = data[order], indices[order]
         return _without_zeros(data, indices, indptr, self.shape)
+
+    def touch_order(self, absent: np.ndarray, rounds: int = TOUCH_ROUNDS):
+        """Where C's entries go when A's entries ``absent`` are missing from A (a product that
+        made A dropped them as exact zeros; plans with A varying): they touch no entry of C, so
+        an entry they touched first moves within its row (its value does not change: they add
+        ±0). None: no entry moves. False: working it out would take more than ``rounds`` passes
+        (then multiply the compacted A instead)."""
+        hit = np.flatnonzero(absent[self._touch_a[self._touch_ptr[:-1]]])
+        if not hit.size:
+            return None
+        # Each such entry is first touched by its first term through a present entry of A:
+        # look at the entries' second terms, then their third, ...
+        first = self._first.copy()
+        first[hit] = np.iinfo(np.int64).max     # never touched: its value is ±0, dropped
+        at, end = self._touch_ptr[hit] + 1, self._touch_ptr[hit + 1]
+        for _ in range(rounds):
+            going = at < end
+            hit, at, end = hit[going], at[going], end[going]
+            if not hit.size:
+                return np.lexsort((-first, self._row))
+            touched = ~absent[self._touch_a[at]]
+            first[hit[touched]] = self._touch_t[at[touched]]
+            hit, at, end = hit[~touched], at[~touched] + 1, end[~touched]
+        return False
 
 
 def _without_zeros(data, indices, indptr, shape) -> sps.csr_array:

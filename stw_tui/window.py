@@ -25,7 +25,7 @@ import sympy as sp
 from .compiler import CompiledTerm, compile_term
 from .errors import StwError
 from .instances import bound_times, relation_times
-from .products import GramPlan, ProductPlan
+from .products import GRAM_PLAN_TERMS, GramPlan, ProductPlan
 from .scene import Scene
 from .spline import gauss_legendre_nodes
 from .symbols import dof_symbol
@@ -435,7 +435,8 @@ class WindowProblem:
                     return None
             if kind == "gram":   # Gauss-Newton 2 Joᵀ W Jo, on the objective Jacobian's plan
                 J = self._plans(OBJ)
-                plans[kind] = None if J is None else GramPlan(
+                terms = 0 if J is None else int((np.diff(J.indptr).astype(np.int64) ** 2).sum())
+                plans[kind] = None if J is None or terms > GRAM_PLAN_TERMS else GramPlan(
                     sps.csr_array((np.ones(J.indices.size), J.indices, J.indptr), shape=J.shape))
             elif kind == "hess":
                 D = _triplet_structure(*self._d_pattern, (self.n_slots, self.n_slots))
@@ -493,7 +494,11 @@ class WindowProblem:
         if plans is not None:
             left, right = plans
             X = left.data(data)   # Pfᵀ D on its whole structure; scipy's drops the exact zeros
-            return sps.csr_array(right.matrix(right.data(X), absent=X == 0) + ev.gauss_newton())
+            order = right.touch_order(X == 0)
+            if order is not False:
+                return sps.csr_array(right.matrix(right.data(X), order) + ev.gauss_newton())
+            H = left.matrix(X) @ self.Pf   # its zeros moved too much of the order: as scipy does
+            return sps.csr_array(H + ev.gauss_newton())
         d_rows, d_cols = self._d_pattern
         D = sps.csr_array((data, (d_rows, d_cols)), shape=(self.n_slots, self.n_slots))
         H = self.PfT @ D @ self.Pf
