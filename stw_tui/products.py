@@ -39,9 +39,10 @@ class ProductPlan:
 
     def __init__(self, A: sps.csr_array, B: sps.csr_array, fixed: str, source: np.ndarray | None = None):
         m, N = A.shape[0], B.shape[1]
-        a_len = np.diff(B.indptr)[A.indices]          # terms each stored entry of A starts
-        a_term = np.repeat(np.arange(A.nnz), a_len)   # the terms in csr_matmat's order
-        b_term = np.repeat(B.indptr[A.indices] - np.cumsum(a_len) + a_len, a_len) + np.arange(a_term.size)
+        a_col = A.indices[:A.nnz]                      # (arrays may run past the stored entries)
+        a_len = np.diff(B.indptr)[a_col]               # terms each stored entry of A starts
+        a_term = np.repeat(np.arange(A.nnz), a_len)    # the terms in csr_matmat's order
+        b_term = np.repeat(B.indptr[a_col] - np.cumsum(a_len) + a_len, a_len) + np.arange(a_term.size)
         row = np.repeat(np.repeat(np.arange(m), np.diff(A.indptr)), a_len)
         col = B.indices[b_term]
         # Group the terms by output entry (row, col), each group in the order they are added.
