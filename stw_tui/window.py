@@ -16,6 +16,7 @@ instances or control points; one runs over term groups (constraints and objectiv
 from __future__ import annotations
 
 from dataclasses import dataclass, field
+from functools import lru_cache
 
 import numpy as np
 import scipy.sparse as sps
@@ -24,11 +25,13 @@ import sympy as sp
 from .compiler import CompiledTerm, compile_term
 from .errors import StwError
 from .instances import bound_extra_times, relation_times
+from .products import GRAM_PLAN_TERMS, GramPlan, ProductPlan
 from .scene import Scene
 from .spline import gauss_legendre_nodes
 from .symbols import dof_symbol
 
 EQ, GE, OBJ = "eq", "ge", "obj"
+HESSIAN_PLAN_AFTER = 4   # Hessians assembled by plain sparse products before a plan is made
 _RELATIONS = {
     sp.StrictGreaterThan: np.greater, sp.GreaterThan: np.greater_equal,
     sp.StrictLessThan: np.less, sp.LessThan: np.less_equal,
@@ -115,6 +118,7 @@ class Evaluation:
     _hess_data: dict = field(repr=False, default_factory=dict)
     _residual: np.ndarray = field(repr=False, default=None)
     _J_obj: sps.csr_array = field(repr=False, default=None)
+    _gauss_newton: sps.csr_array = field(repr=False, default=None)
 
     def max_violation(self) -> float:
         return WindowProblem.max_violation(self)
@@ -124,12 +128,30 @@ class Evaluation:
         return self._problem._hessian(self, lam_eq, lam_ge)
 
     def gauss_newton(self) -> sps.csr_array:
-        """2 Jᵀ W J of the objective residuals: positive semidefinite, no second derivatives."""
-        Jo, w = self._J_obj, self._hess_data["w_obj"]
-        n = self.s.size
-        if Jo is None or Jo.shape[0] == 0:
-            return sps.csr_array((n, n))
-        return sps.csr_array(Jo.T @ (sps.diags_array(2.0 * w) @ Jo))
+        """2 Jᵀ W J of the objective residuals: positive semidefinite, no second derivatives.
+
+        Computed once per evaluation (the exact Hessian adds it too); callers must not modify it."""
+        if self._gauss_newton is None:
+            self._gauss_newton = self._problem._gauss_newton(self)
+        return self._gauss_newton
+
+
+@lru_cache(maxsize=None)
+def _pair_rows(pairs: tuple[tuple[int, int], ...]) -> np.ndarray:
+    """Each Hessian pair once, an off-diagonal one twice: a group's entries of D, in order."""
+    return np.repeat(np.arange(len(pairs)), [1 if a == b else 2 for a, b in pairs])
+
+
+def _triplet_structure(rows, cols, shape) -> tuple[sps.csr_array, np.ndarray] | None:
+    """The CSR structure ``csr_array((data, (rows, cols)))`` gets, and the permutation from the
+    triplets to its stored entries; None when an entry repeats (then values would be summed)."""
+    order = np.lexsort((cols, rows))
+    r, c = rows[order], cols[order]
+    if np.any((r[1:] == r[:-1]) & (c[1:] == c[:-1])):
+        return None
+    indptr = np.zeros(shape[0] + 1, dtype=np.int64)
+    np.cumsum(np.bincount(r, minlength=shape[0]), out=indptr[1:])
+    return sps.csr_array((np.ones(r.size), c, indptr), shape=shape), order
 
 
 @dataclass(frozen=True)
@@ -322,6 +344,8 @@ class WindowProblem:
         self._d_pattern = (np.concatenate(d_rows) if d_rows else np.zeros(0, int),
                            np.concatenate(d_cols) if d_cols else np.zeros(0, int))
         self.PfT = self.Pf.T.tocsr()
+        self._product_plans: dict = {}   # made when first worth it (_plans)
+        self._uses = {"hess": 0, "gram": 0}   # Hessians and Gauss-Newtons before their plans
         self.row_group = {kind: np.repeat(np.arange(len(self.groups)),
                                           [g.n if g.kind == kind else 0 for g in self.groups])
                           for kind in (EQ, GE, OBJ)}
@@ -390,7 +414,9 @@ class WindowProblem:
             scale = group.weights if group.kind != OBJ else np.ones(group.n)
             grads[group.kind].append((grad * scale[:, None]).T.ravel())
             hess.append((group, h))
-        J = {kind: self._jacobian(kind, grads[kind]) for kind in (EQ, GE, OBJ)}
+        J, full = {}, {}
+        for kind in (EQ, GE, OBJ):
+            J[kind], full[kind] = self._jacobian(kind, grads[kind])
         w_obj = np.concatenate([g.weights for g in self.groups if g.kind == OBJ] or [np.zeros(0)])
         residual = values[OBJ]
         objective = float(np.dot(w_obj, residual * residual))
@@ -401,13 +427,61 @@ class WindowProblem:
         return Evaluation(s=s.copy(), objective=objective, gradient=np.asarray(gradient),
                           c_eq=c[EQ], J_eq=J[EQ], c_ge=c[GE], J_ge=J[GE],
                           active_eq=masks[EQ], active_ge=masks[GE], _problem=self,
-                          _hess_data={"groups": hess, "w_obj": w_obj}, _residual=residual, _J_obj=J[OBJ])
+                          _hess_data={"groups": hess, "w_obj": w_obj, "J_obj_full": full[OBJ]}, _residual=residual, _J_obj=J[OBJ])
 
-    def _jacobian(self, kind: str, grad_parts: list[np.ndarray]) -> sps.csr_array:
+    def _plans(self, kind: str):
+        """The product G @ Pf of a kind, ("hess") the pair Pfᵀ D, (Pfᵀ D) Pf, or ("gram") the
+        Gauss-Newton Joᵀ W Jo, planned once on their fixed structures (products.py: bitwise
+        scipy's products, without working the structure out each time). None: triplets that
+        repeat an entry, or a Hessian or Gauss-Newton plan not yet worth making (one costs about
+        as much as HESSIAN_PLAN_AFTER plain ones)."""
+        plans = self._product_plans
+        if kind not in plans:
+            if kind in ("hess", "gram"):
+                self._uses[kind] += 1
+                if self._uses[kind] < HESSIAN_PLAN_AFTER:
+                    return None
+            if kind == "gram":   # Gauss-Newton 2 Joᵀ W Jo, on the objective Jacobian's plan
+                J = self._plans(OBJ)
+                terms = 0 if J is None else int((np.diff(J.indptr).astype(np.int64) ** 2).sum())
+                plans[kind] = None if J is None or terms > GRAM_PLAN_TERMS else GramPlan(
+                    sps.csr_array((np.ones(J.indices.size), J.indices, J.indptr), shape=J.shape))
+            elif kind == "hess":
+                D = _triplet_structure(*self._d_pattern, (self.n_slots, self.n_slots))
+                if D is None:
+                    plans[kind] = None
+                else:
+                    left = ProductPlan(self.PfT, D[0], "A", source=D[1])
+                    X = sps.csr_array((np.ones(left.indices.size), left.indices, left.indptr), shape=left.shape)
+                    plans[kind] = (left, ProductPlan(X, self.Pf, "B"))
+            else:
+                rows, cols = self._g_pattern[kind]
+                G = _triplet_structure(rows, cols, (self.row_counts[kind], self.n_slots))
+                plans[kind] = None if G is None else ProductPlan(G[0], self.Pf, "B", source=G[1])
+        return plans[kind]
+
+    def _jacobian(self, kind: str, grad_parts: list[np.ndarray]) -> tuple[sps.csr_array, np.ndarray | None]:
+        """The Jacobian of the ``kind`` rows, and its values on the plan's whole structure (None
+        without a plan)."""
         rows, cols = self._g_pattern[kind]
         data = np.concatenate(grad_parts) if grad_parts else np.zeros(0)
+        plan = self._plans(kind)
+        if plan is not None:
+            full = plan.data(data)
+            return plan.matrix(full), full
         G = sps.csr_array((data, (rows, cols)), shape=(self.row_counts[kind], self.n_slots))
-        return (G @ self.Pf).tocsr()
+        return (G @ self.Pf).tocsr(), None
+
+    def _gauss_newton(self, ev: Evaluation) -> sps.csr_array:
+        Jo, w = ev._J_obj, ev._hess_data["w_obj"]
+        n = ev.s.size
+        if Jo is None or Jo.shape[0] == 0:
+            return sps.csr_array((n, n))
+        full = ev._hess_data.get("J_obj_full")
+        plan = self._plans("gram") if full is not None else None
+        if plan is not None:
+            return plan.matrix(full, 2.0 * w)
+        return sps.csr_array(Jo.T @ (sps.diags_array(2.0 * w) @ Jo))
 
     def _hessian(self, ev: Evaluation, lam_eq: np.ndarray, lam_ge: np.ndarray) -> sps.csr_array:
         multipliers = {EQ: lam_eq, GE: lam_ge}
@@ -421,14 +495,20 @@ class WindowProblem:
                 scale = 2.0 * w_obj_all[rows] * residual[rows]
             else:
                 scale = multipliers[group.kind][rows] * group.weights
-            for p, (a, b) in enumerate(group.term.hessian_pairs):
-                entry = h[:, p] * scale
-                data.append(entry)
-                if a != b:
-                    data.append(entry)
+            # Pair p's entries h[:, p] * scale, twice for an off-diagonal pair (D is symmetric).
+            data.append((h * scale[:, None]).T[_pair_rows(group.term.hessian_pairs)].ravel())
+        data = np.concatenate(data) if data else np.zeros(0)
+        plans = self._plans("hess")
+        if plans is not None:
+            left, right = plans
+            X = left.data(data)   # Pfᵀ D on its whole structure; scipy's drops the exact zeros
+            order = right.touch_order(X == 0)
+            if order is not False:
+                return sps.csr_array(right.matrix(right.data(X), order) + ev.gauss_newton())
+            H = left.matrix(X) @ self.Pf   # its zeros moved too much of the order: as scipy does
+            return sps.csr_array(H + ev.gauss_newton())
         d_rows, d_cols = self._d_pattern
-        D = sps.csr_array((np.concatenate(data) if data else np.zeros(0), (d_rows, d_cols)),
-                          shape=(self.n_slots, self.n_slots))
+        D = sps.csr_array((data, (d_rows, d_cols)), shape=(self.n_slots, self.n_slots))
         H = self.PfT @ D @ self.Pf
         return sps.csr_array(H + ev.gauss_newton())
 

@@ -151,3 +151,53 @@ def test_torch_takes_the_same_first_step_as_scipy():
             # (Whether the interior-point method reached 1e-11 before its cap may differ between
             # a sparse and a dense factorization; the step may not.)
             assert got.reports[0].objective == pytest.approx(ref.reports[0].objective, rel=1e-8, abs=1e-12)
+
+
+def test_kkt_matrix_is_block_arrays_entry_for_entry_through_its_cached_layouts():
+    """The KKT matrix placed in CSC directly (with placements kept per sparsity structure) holds
+    exactly what ``block_array`` builds: the same entries, stored zeros and order, so SuperLU
+    factorizes the same matrix and the iterates do not change."""
+    import scipy.sparse as sps
+    from stw_scipy.linear import kkt_matrix
+
+    def block(H, A, e):
+        E = sps.diags_array(np.broadcast_to(np.asarray(e, float), (A.shape[0],)))
+        return sps.block_array([[H, A.T], [A, -E]], format="csc")
+
+    rng = np.random.default_rng(7)
+    structures = []
+    for _ in range(4):
+        n, m = int(rng.integers(1, 30)), int(rng.integers(1, 20))
+        H = sps.random_array((n, n), density=0.3, rng=rng, format="csr")
+        H = sps.csr_array(H + H.T) if len(structures) % 2 else sps.csr_array(H @ H.T)   # rows unsorted
+        structures.append((H, sps.random_array((m, n), density=0.3, rng=rng, format="csr")))
+    layouts: list = []
+    for _ in range(60):
+        H, A = (M.copy() for M in structures[int(rng.integers(len(structures)))])
+        H.data[:] = rng.standard_normal(H.nnz) * (rng.random(H.nnz) < 0.9)   # some stored zeros
+        A.data[:] = rng.standard_normal(A.nnz)
+        m = A.shape[0]
+        e = 1e-10 if rng.random() < 0.5 else rng.random(m) * (rng.random(m) < 0.8)   # zeros left out
+        got, want = kkt_matrix(H, A, e, layouts), block(H, A, e)
+        assert np.array_equal(got.indptr, want.indptr) and np.array_equal(got.indices, want.indices)
+        assert np.array_equal(got.data, want.data)
+    assert 0 < len(layouts) <= 8
+
+
+def test_sparse_gram_and_transposed_products_are_scipys_bit_for_bit():
+    """The interior-point method's Aᵀ diag(w) A (planned once per structure of A) and Aᵀ x (with
+    the transpose kept) are exactly what the plain scipy expressions give."""
+    import scipy.sparse as sps
+    from stw_scipy.linear import SparseAlgebra
+
+    la, rng = SparseAlgebra(), np.random.default_rng(8)
+    factors = [sps.random_array((m, 9), density=0.4, rng=rng, format="csr") for m in (0, 3, 7, 12, 5)]
+    for k in range(60):
+        A = factors[k % len(factors)].copy()
+        A.data = rng.standard_normal(A.nnz) * (rng.random(A.nnz) < 0.9)
+        w = rng.random(A.shape[0])
+        got, want = la.gram(A, w), sps.csr_array(A.T @ (sps.diags_array(w) @ A))
+        assert np.array_equal(got.indptr, want.indptr) and np.array_equal(got.indices, want.indices)
+        assert np.array_equal(got.data, want.data)
+        x = rng.standard_normal(A.shape[0])
+        assert np.array_equal(la.rmatvec(A, x), A.T @ x)

@@ -15,18 +15,98 @@ import numpy as np
 import scipy.sparse as sps
 import scipy.sparse.linalg as spla
 
+from stw_tui.products import GramPlan
 from stw_tui.sqp.algebra import KKTSystem, LinearAlgebra, SingularSystem
 
 SOLVERS = ("direct", "minres", "cg")
 FALLBACK_RESIDUAL = 1e-6   # relative KKT residual above which an iterative solve is not trusted
 
 
-def kkt_matrix(H, A, e) -> sps.csc_array:
+def kkt_matrix(H, A, e, layouts: list | None = None) -> sps.csc_array:
+    """K = [[H, Aᵀ], [A, -diag(e)]] in CSC, entry for entry what ``sps.block_array`` builds (its
+    stored zeros kept, zeros of ``e`` left out, row indices sorted), without its conversions
+    through COO, which cost more than factorizing K.
+
+    Where K's entries go depends only on the sparsity structure of H and A (and on which e_i are
+    zero): that placement is worked out once and kept in ``layouts`` (most recent first), so a
+    later K of the same structure is one gather of its values.
+    """
     m = A.shape[0]
     if not m:
-        return sps.csc_array(H)
-    E = sps.diags_array(np.broadcast_to(np.asarray(e, float), (m,)))
-    return sps.block_array([[H, A.T], [A, -E]], format="csc")
+        return _canonical(sps.csc_array(H))
+    H, A = _csr(H), _csr(A)
+    diag = -np.broadcast_to(np.asarray(e, float), (m,))
+    keep = diag != 0
+    layouts = [] if layouts is None else layouts
+    layout = next((x for x in layouts if x.fits(H, A, keep)), None)
+    if layout is None:
+        layout = _Layout(H, A, keep)
+        if layout.repeats:   # block_array sums repeated entries: sum them first
+            H, A = _canonical(H), _canonical(A)
+            layout = next((x for x in layouts if x.fits(H, A, keep)), None) or _Layout(H, A, keep)
+    if layout in layouts:
+        layouts.remove(layout)
+    layouts.insert(0, layout)
+    del layouts[LAYOUTS_KEPT:]
+    h, a = H.data[:H.nnz], A.data[:A.nnz]
+    data = np.concatenate([h, a, a, diag[keep]])[layout.order]
+    K = sps.csc_array((data, layout.indices, layout.indptr), shape=layout.shape)
+    K.has_canonical_format = True   # sorted, no duplicates, by construction
+    return K
+
+
+LAYOUTS_KEPT = 8   # KKT structures remembered per algebra (Newton / Gauss-Newton, correction, IPM)
+GRAMS_KEPT = 4     # structures of interior-point inequality rows remembered per algebra
+TRANSPOSES_KEPT = 4
+
+
+class _Layout:
+    """Where the entries of H (CSR order), A, Aᵀ (both A's CSR order) and the kept -e_i go in K's
+    CSC arrays, for one sparsity structure of H and A (each row's entries in any order, but none
+    stored twice: ``repeats`` says so)."""
+
+    def __init__(self, H: sps.csr_array, A: sps.csr_array, keep: np.ndarray):
+        n, m = H.shape[0], A.shape[0]
+        h_idx, a_idx = H.indices[:H.nnz], A.indices[:A.nnz]
+        self.key = (H.shape, A.shape, H.indptr.copy(), h_idx.copy(), A.indptr.copy(),
+                    a_idx.copy(), keep.copy())
+        h_rows = np.repeat(np.arange(n), np.diff(H.indptr))
+        a_rows = np.repeat(np.arange(m), np.diff(A.indptr))
+        e_rows = n + np.flatnonzero(keep)
+        rows = np.concatenate([h_rows, n + a_rows, a_idx, e_rows])
+        cols = np.concatenate([h_idx, a_idx, n + a_rows, e_rows])
+        self.order = np.lexsort((rows, cols))          # column-major, rows sorted in each column
+        same = (np.diff(rows[self.order]) == 0) & (np.diff(cols[self.order]) == 0)
+        self.repeats = bool(same.any())                 # an entry stored twice (not canonical)
+        self.indices = rows[self.order].astype(np.intc)   # SuperLU's index type
+        self.indptr = np.zeros(n + m + 1, dtype=np.intc)
+        np.cumsum(np.bincount(cols, minlength=n + m), out=self.indptr[1:])
+        self.shape = (n + m, n + m)
+
+    def fits(self, H: sps.csr_array, A: sps.csr_array, keep: np.ndarray) -> bool:
+        shape_h, shape_a, h_ptr, h_idx, a_ptr, a_idx, kept = self.key
+        return (H.shape == shape_h and A.shape == shape_a and H.nnz == h_idx.size
+                and A.nnz == a_idx.size and np.array_equal(keep, kept)
+                and np.array_equal(H.indptr, h_ptr) and np.array_equal(A.indptr, a_ptr)
+                and np.array_equal(H.indices[:H.nnz], h_idx) and np.array_equal(A.indices[:A.nnz], a_idx))
+
+
+def _same_structure(m: sps.csr_array, key) -> bool:
+    shape, indptr, indices = key
+    return (m.shape == shape and m.nnz == indices.size and np.array_equal(m.indptr, indptr)
+            and np.array_equal(m.indices[:m.nnz], indices))
+
+
+def _csr(m) -> sps.csr_array:
+    return m if isinstance(m, sps.csr_array) else sps.csr_array(m)
+
+
+def _canonical(m):
+    """``m`` with sorted indices and no duplicates (as block_array's conversion leaves them)."""
+    if not m.has_canonical_format:
+        m = m.copy()
+        m.sum_duplicates()
+    return m
 
 
 class SparseKKT(KKTSystem):
@@ -85,6 +165,9 @@ class SparseAlgebra(LinearAlgebra):
 
     def __init__(self, method: str = "direct", rtol: float = 1e-12, maxiter: int = 1000):
         self.method, self.rtol, self.maxiter = method, rtol, maxiter
+        self._layouts: list = []   # KKT placements by sparsity structure (kkt_matrix)
+        self._grams: list = []     # (structure, GramPlan) of recent gram() factors
+        self._transposes: list = []   # (matrix, its transpose) of recent rmatvec() calls
 
     def vector(self, values):
         return np.array(values, dtype=float)
@@ -108,9 +191,16 @@ class SparseAlgebra(LinearAlgebra):
         return m if isinstance(m, sps.csr_array) else sps.csr_array(m)
 
     def diagonal_matrix(self, v):
-        return sps.diags_array(np.asarray(v, float), format="csr")
+        # What diags_array(v, format="csr") builds (its zeros left out), without its conversions.
+        v = np.asarray(v, float)
+        at = np.flatnonzero(v)
+        indptr = np.zeros(v.size + 1, dtype=np.int32)
+        np.cumsum(v != 0, out=indptr[1:])
+        return sps.csr_array((v[at], at.astype(np.int32), indptr), shape=(v.size, v.size))
 
     def rows(self, m, index):
+        if index.size == m.shape[0] and np.array_equal(index, np.arange(index.size)):
+            return m   # every row, in order: m[index] would copy m as it is
         return m[index]
 
     def stack_rows(self, parts):
@@ -120,16 +210,29 @@ class SparseAlgebra(LinearAlgebra):
         return m @ x
 
     def rmatvec(self, m, x):
-        return m.T @ x
+        # The interior-point method multiplies by the same few transposes many times: keep them.
+        for held, transposed in self._transposes:
+            if held is m:
+                return transposed @ x
+        self._transposes.insert(0, (m, m.T))
+        del self._transposes[TRANSPOSES_KEPT:]
+        return self._transposes[0][1] @ x
 
     def add(self, a, b):
         return sps.csr_array(a + b)
 
     def gram(self, a, w):
-        return sps.csr_array(a.T @ (sps.diags_array(w) @ a))
+        # sps.csr_array(a.T @ (sps.diags_array(w) @ a)), bitwise, by a plan kept per structure of a
+        a = _csr(a)
+        plan = next((p for key, p in self._grams if _same_structure(a, key)), None)
+        if plan is None:
+            plan = GramPlan(a)
+            self._grams.insert(0, ((a.shape, a.indptr.copy(), a.indices[:a.nnz].copy()), plan))
+            del self._grams[GRAMS_KEPT:]
+        return plan.matrix(a.data[:a.nnz], np.asarray(w, float))
 
     def max_abs_diagonal(self, m):
         return float(np.abs(m.diagonal()).max(initial=0.0))
 
     def kkt(self, H, A, e, exact=False):
-        return SparseKKT(kkt_matrix(H, A, e), "direct" if exact else self.method, self.rtol, self.maxiter)
+        return SparseKKT(kkt_matrix(H, A, e, self._layouts), "direct" if exact else self.method, self.rtol, self.maxiter)

@@ -21,7 +21,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from .algebra import LinearAlgebra, Matrix, Vector
+from .algebra import KKTSystem, LinearAlgebra, Matrix, Vector
 
 STEP_TO_BOUNDARY = 0.995   # fraction of the way to a bound an interior-point step may go
 KKT_EPS = 1e-10            # small negative (2,2) block: redundant (densely sampled) constraint rows get bounded multipliers
@@ -39,6 +39,8 @@ class QPResult:
     fallbacks: int = 0      # iterative solves that had to be replaced by a factorization
     capped: bool = False    # the interior-point method stopped at IPM_MAX without converging
     elastic: float | None = None   # ρ of an elastic QP, None for a hard one
+    system: KKTSystem | None = None   # a hard equality-only QP's system [[H, A_eᵀ], [A_e, -ε]],
+                                      # which the second-order correction solves again
 
 
 def solve_qp(la: LinearAlgebra, H: Matrix, g: Vector, Ae: Matrix, ce: Vector, Ai: Matrix, ci: Vector,
@@ -59,7 +61,7 @@ def solve_qp(la: LinearAlgebra, H: Matrix, g: Vector, Ae: Matrix, ce: Vector, Ai
     if mi == 0 and elastic is None:
         system = la.kkt(H, Ae, KKT_EPS)
         x = system.solve(la.concat([-g, -ce - KKT_EPS * y0]))
-        return QPResult(x[:n], x[n:], la.zeros(0), system.iterations, 0, system.fallbacks)
+        return QPResult(x[:n], x[n:], la.zeros(0), system.iterations, 0, system.fallbacks, system=system)
     return _interior_point(la, H, g, Ae, ce, Ai, ci, y0, elastic, tol, max_ipm)
 
 

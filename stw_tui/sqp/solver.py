@@ -175,11 +175,16 @@ class SQPBackend(Backend):
             [(modes[-1], min(PROX_MAX, prox * 10.0 ** k), False) for k in range(1, RETRIES)] + \
             [(modes[-1], prox, True)]
         trial, sub, rho, capped = _Trial(0.0, np.zeros(ev.s.size)), None, st.merit_weight, False
+        models: dict[str, Any] = {}   # the model Hessian of each mode: only the proximal term changes
+        damping = 2.0 * inner.evaluator.damping
         for mode, prox, backtrack in attempts:
             clock = time.perf_counter()
-            H_model = la.matrix(ev.gauss_newton() if mode == "gauss_newton" else
-                                ev.lagrangian_hessian(st.lam_eq * ev.active_eq, st.lam_ge * ev.active_ge))
-            H = la.add(H_model, la.diagonal_matrix(2.0 * inner.evaluator.damping + prox))
+            if mode not in models:
+                models[mode] = la.matrix(
+                    ev.gauss_newton() if mode == "gauss_newton" else
+                    ev.lagrangian_hessian(st.lam_eq * ev.active_eq, st.lam_ge * ev.active_ge))
+            H_model = models[mode]
+            H = la.add(H_model, la.diagonal_matrix(damping + prox))
             ms["assemble"] += _lap(clock)
 
             clock = time.perf_counter()
@@ -416,10 +421,14 @@ class SQPBackend(Backend):
         c = np.concatenate([trial.c_eq[lin.eq_rows], trial.c_ge[ge_rows]])
         if c.size == 0:
             return None
-        A = la.stack_rows([lin.Ae, la.rows(la.jacobian(ev, "ge"), ge_rows)])
         n = d.size
         try:
-            x = la.kkt(sub.H, A, KKT_EPS).solve(la.concat([la.zeros(n), la.vector(-c)]))
+            if ge_rows.size == 0 and sub.qp.system is not None:
+                system = sub.qp.system   # the same matrix [[H, A_eᵀ], [A_e, -ε]], already factorized
+            else:
+                A = la.stack_rows([lin.Ae, la.rows(la.jacobian(ev, "ge"), ge_rows)])
+                system = la.kkt(sub.H, A, KKT_EPS)
+            x = system.solve(la.concat([la.zeros(n), la.vector(-c)]))
         except SingularSystem:
             return None
         correction = la.numpy(x[:n])
