@@ -251,5 +251,8 @@ def test_basketball_player_catches_its_own_throw_and_scores():
     # Carried near the hand between catch and second throw (an objective: a few cm at most).
     gap = "abs(player.tip.x - BX) + abs(player.tip.y - BY) + abs(player.tip.z - BZ)"
     assert _print(s, gap, 1)["max"] < 0.1
+    _assert_human_arm(s, end=3.0)                      # within the arm's ranges everywhere ...
+    turn = scene.dofs["TURN"].curve.evaluate(np.linspace(0, 3, 30_001))
+    assert turn.min() >= -1.6 - 1e-9 and turn.max() <= 1.6 + 1e-9   # ... and the base's
     figure = scene_figure(s.scene, 1.7)
     assert len(figure.segments) == 3                   # the arm is drawn (a side view)
