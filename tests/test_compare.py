@@ -4,6 +4,7 @@ import json
 import subprocess
 import sys
 
+import numpy as np
 import pytest
 
 from conftest import SESSIONS
@@ -32,3 +33,25 @@ def test_compare_cli_json_and_errors():
     assert bad.returncode == 1 and "no backend named 'nosuch'" in bad.stderr
     with pytest.raises(StwError, match="cannot read session"):
         compare(SESSIONS / "missing.stw", ["scipy"])
+
+
+def test_compare_names_a_different_local_optimum_and_streams_rows(monkeypatch):
+    from stw_tui import compare as compare_module
+    from stw_tui.bench import Measurement
+    from stw_tui.session import Session
+
+    s = Session()
+    s.run_text((SESSIONS / "particle_jet.stw").read_text().split("iterate")[0])
+    seen = []
+    rows = compare_module.compare_scene(s.scene, 20, ["scipy", "scipy:solver=minres"], on_row=seen.append)
+    assert seen == rows and [r["verdict"] for r in rows] == ["same optimum", "same optimum"]
+    rows = compare_module.compare_scene(s.scene, 1, ["scipy", "scipy"])      # cut off: not converged
+    assert {r["verdict"] for r in rows} == {"not converged"}
+
+    # Two converged motions 1e-3 apart are two local optima; 1e-6 apart, one.
+    motions = iter([np.zeros(5), np.full(5, 1e-3), np.full(5, 1e-6)])
+    fake = lambda label, setup, n, name, opts, repeat: Measurement(
+        label, name, 0, 0, 3, True, 1.0, {}, 0.1, 1.0, 0.0, motion=next(motions))
+    monkeypatch.setattr(compare_module, "measure", fake)
+    rows = compare_module.compare_scene(s.scene, 5, ["a", "b", "c"])
+    assert [r["verdict"] for r in rows] == ["same optimum", "different local optimum", "same optimum"]
