@@ -244,9 +244,9 @@ class WindowProblem:
             extra = inside(bound_extra_times(scene, name))
             for side, bound, expr in (("lo", dof.lo, x - (dof.lo or 0)), ("hi", dof.hi, (dof.hi or 0) - x)):
                 if bound is not None:
-                    self._add_group(f"{name}.{side}", name, GE, expr, curve.greville(), 1.0, None,
-                                    basis=[points])
-                    self._add_group(f"{name}.{side}+", name, GE, expr, extra, 1.0, None)
+                    self._add_group(f"{name}.{side}", f"{name}.bounds", GE, expr, curve.greville(), 1.0,
+                                    None, basis=[points])
+                    self._add_group(f"{name}.{side}+", f"{name}.bounds", GE, expr, extra, 1.0, None)
         quad = int(scene.settings["quadrature"])
         for o in scene.objectives.values():
             a, b = self.reach

@@ -201,3 +201,16 @@ def test_sparse_gram_and_transposed_products_are_scipys_bit_for_bit():
         assert np.array_equal(got.data, want.data)
         x = rng.standard_normal(A.shape[0])
         assert np.array_equal(la.rmatvec(A, x), A.T @ x)
+
+
+def test_a_bound_against_a_constraint_is_infeasible_and_names_both():
+    # The hard QP "converged" here with huge multipliers (its equality rows are regularized) to a
+    # step that does not meet the linearization; the line search then failed and the advice was
+    # "try shake". Now the step is refused, the elastic QP is used, and the conflict is named.
+    s = Session()
+    s.run_text("time 0 1 knots=8\ndof x lo=0\nconstraint c: x = -1 @ 0.5\nobjective o: x''\n")
+    outcome = s.execute("iterate 30")
+    run = outcome.run
+    assert run.status is Status.INFEASIBLE
+    assert set(run.reports[-1].conflicts) == {"c", "x.bounds"}
+    assert "c and x.bounds conflict" in outcome.message and "shake" not in outcome.message

@@ -303,12 +303,23 @@ class SQPBackend(Backend):
                     counts: _Counts) -> tuple[_Subproblem | None, float]:
         """The hard QP's step when its linearization can be met; the elastic QP's otherwise."""
         hard = self._qp(la, H, ev, lin, None, counts)
-        if hard is not None and not hard.qp.capped:
+        if hard is not None and not hard.qp.capped and self._meets(la, lin, hard.qp.d):
             return hard, rho_elastic
         multipliers = float(np.abs(hard.lam_eq).max(initial=0.0)) if hard is not None else 0.0
         rho_elastic = max(rho_elastic, ELASTIC_WEIGHT * max(self._elastic_base(ev), min(multipliers, 1e6)))
         counts.elastic = True
         return self._qp(la, H, ev, lin, rho_elastic, counts), rho_elastic
+
+    @staticmethod
+    def _meets(la, lin: _Linearization, d) -> bool:
+        """Whether a hard QP's step meets the linearized constraints. The QP's equality rows are
+        regularized (KKT_EPS): on an inconsistent linearization (a bound against a constraint) it
+        can "converge" with huge multipliers instead of failing, and that step must not pass."""
+        eq = la.numpy(la.matvec(lin.Ae, d) + lin.ce) if lin.ce.shape[0] else np.zeros(0)
+        ge = la.numpy(la.matvec(lin.Ai, d) + lin.ci) if lin.ci.shape[0] else np.zeros(0)
+        residual = max(float(np.abs(eq).max(initial=0.0)), float(-ge.min(initial=0.0)))
+        before = max(float(np.abs(la.numpy(lin.ce)).max(initial=0.0)), float(-la.numpy(lin.ci).min(initial=0.0)))
+        return residual <= max(1e-6, 1e-3 * before)
 
     def _qp(self, la: LinearAlgebra, H, ev, lin: _Linearization, elastic: float | None,
             counts: _Counts) -> _Subproblem | None:
