@@ -24,7 +24,8 @@ import numpy as np
 import symengine as se
 import sympy as sp
 
-from .errors import StwError
+from . import limits
+from .errors import LimitError, StwError
 from .symbols import TIME, split_dof_symbol
 
 _CACHE: dict[tuple, "CompiledTerm"] = {}
@@ -159,6 +160,7 @@ def compile_term(expr: sp.Expr, dof_names: frozenset[str] | set[str],
     """
     if isinstance(expr, (int, float)):
         expr = sp.Float(expr)
+    check_size(expr)
     symbols = expr.free_symbols
     variables, parameters = [], []
     for symbol in symbols:
@@ -182,6 +184,111 @@ def compile_term(expr: sp.Expr, dof_names: frozenset[str] | set[str],
     with _CACHE_LOCK:
         _CACHE[key] = term
     return term
+
+
+def check_size(expr: sp.Basic) -> None:
+    """Refuse, before any work on it, an expression too large to compile in reasonable time, or
+    with an integer exponent that compiled code would wrap (x^2147483648 evaluates to inf).
+
+    The size is that of the expression as a tree (what differentiation and code generation
+    walk), counted over its distinct nodes only, so a subexpression shared 2^30 times costs one
+    visit.
+
+    Raises:
+        StwError: naming the limit expression_size or exponent.
+    """
+    most, largest_exponent = limits.value("expression_size"), limits.value("exponent")
+    sizes: dict[sp.Basic, int] = {}
+    stack = [expr]
+    while stack:   # iterative post-order: deep expressions must not exhaust the Python stack
+        node = stack[-1]
+        pending = [a for a in node.args if a not in sizes]
+        if pending:
+            stack.extend(pending)
+            continue
+        stack.pop()
+        if node in sizes:
+            continue
+        if node.is_Pow and node.exp.is_Integer and abs(node.exp) > largest_exponent:
+            raise LimitError(limits.over("exponent", node.exp, f"{_clip(node)}: exponent") +
+                             "; compiled code cannot raise to such a power exactly")
+        sizes[node] = 1 + sum(sizes[a] for a in node.args)
+        if sizes[node] > most:
+            raise LimitError(limits.over("expression_size", f"{sizes[node]}+ nodes",
+                                         "an expression (its subexpressions substituted) of") +
+                             "; a long linkage's forces grow fast")
+
+
+_HUGE = 10**18   # sizes are capped here: only "over the limit" matters
+
+
+def _tree_size(expr: sp.Basic, leaf_size) -> int:
+    """Size of ``expr`` as a tree, ``leaf_size(symbol)`` counting for each symbol, computed over
+    its distinct nodes (iteratively: deep expressions must not exhaust the Python stack)."""
+    sizes: dict[sp.Basic, int] = {}
+    stack = [expr]
+    while stack:
+        node = stack[-1]
+        pending = [a for a in node.args if a not in sizes]
+        if pending:
+            stack.extend(pending)
+            continue
+        stack.pop()
+        if node not in sizes:
+            own = leaf_size(node) if node.is_Symbol else 1
+            sizes[node] = min(_HUGE, own + sum(sizes[a] for a in node.args))
+    return sizes[expr]
+
+
+def expanded_size(expr: sp.Basic, definitions: dict[sp.Symbol, sp.Basic]) -> int:
+    """The tree size ``expr`` will have once every defined symbol in it is replaced by its
+    definition, recursively — computed without substituting anything, so a chain of
+    subexpressions each using the previous twice (2^30 nodes after 30 lines) is measured at once.
+    A primed subexpression (its time derivative) counts four times per prime."""
+    named = {s.name: d for s, d in definitions.items()}
+    known: dict[str, int] = {}
+
+    def base_of(symbol) -> str | None:
+        base = symbol.name.rstrip("'")
+        return base if base in named else None
+
+    def used(e) -> set[str]:
+        seen, stack, names = set(), [e], set()
+        while stack:
+            node = stack.pop()
+            if node in seen:
+                continue
+            seen.add(node)
+            if node.is_Symbol and base_of(node) is not None:
+                names.add(base_of(node))
+            stack.extend(node.args)
+        return names
+
+    def leaf(symbol) -> int:
+        base = base_of(symbol)
+        if base is None:
+            return 1
+        primes = len(symbol.name) - len(base)
+        return min(_HUGE, known.get(base, 1) * 4 ** primes)
+
+    todo, visiting = list(used(expr)), set()
+    while todo:   # sizes of the definitions, dependencies first (a circle counts 1; expand reports it)
+        name = todo[-1]
+        if name in known:
+            todo.pop()
+            continue
+        waiting = [n for n in used(named[name]) if n not in known and n not in visiting]
+        if waiting and name not in visiting:
+            visiting.add(name)
+            todo.extend(waiting)
+            continue
+        todo.pop()
+        known[name] = _tree_size(named[name], leaf)
+    return _tree_size(expr, leaf)
+
+
+def _clip(power: sp.Pow) -> str:
+    return f"{power.base}^{power.exp}" if power.base.is_Symbol else f"a power ^{power.exp}"
 
 
 def _symbol_of(var: LocalVar) -> se.Symbol:

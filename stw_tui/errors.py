@@ -50,5 +50,9 @@ class SourceError(StwError):
                            expected=self.expected)
 
 
+class LimitError(StwError):
+    """A line asked for more than a limit of stw_tui.limits allows (the message names the limit)."""
+
+
 class SolveError(StwError):
     """A solve failed (non-finite values, backend exception); the scene was left as it was."""

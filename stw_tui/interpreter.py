@@ -13,10 +13,11 @@ import numpy as np
 import sympy as sp
 
 from . import language as lang
+from . import limits
 from .backend import RunResult, Status, SolverState, load_backend, run_iterations
 from .compiler import compile_term
 from .continuous import check_scene, expression_values, survey
-from .errors import StwError
+from .errors import LimitError, StwError
 from .scene import DEFAULT_SETTINGS, Constraint, Dof, Objective, Relation, Scene, Window
 from .spline import DofCurve
 from .symbols import dof_symbols
@@ -78,6 +79,7 @@ def apply_linkage(session: "Session", scene: Scene, block) -> "Outcome":
     if spec.gravity_axis is not None and "g" not in scene.constants:
         raise StwError("the linkage feels gravity g: declare it first, e.g. `const g = 9.81`")
     names = dof_names(spec)
+    limits.check("dofs", len(scene.dofs) + len(names), "the DOF count")
     taken = [n for n in names if scene.kind_of(n) is not None]
     if taken:
         raise StwError(f"linkage DOF {', '.join(taken)} already exist; rename the joints")
@@ -167,6 +169,7 @@ def _dof(scene: Scene, cmd) -> str:
         raise StwError(f"bounds lo={lo:g} hi={hi:g} are empty")
     if cmd.knots is not None and cmd.knots < 1:
         raise StwError("knots must be at least 1")
+    limits.check("dofs", len(scene.dofs) + len(set(cmd.names) - set(scene.dofs)), "the DOF count")
     for name in cmd.names:
         _check_new_name(scene, name, ("dof",))
         dof = scene.dofs.get(name)
@@ -192,6 +195,8 @@ def _let(scene: Scene, cmd) -> str:
     scene.lets[cmd.name] = cmd.expr
     try:
         expanded = scene.expand(sp.Symbol(cmd.name, real=True))
+    except LimitError:
+        raise
     except StwError:
         raise StwError(f"'{cmd.name}' would be defined in terms of itself") from None
     if sp.Symbol(cmd.name, real=True) in expanded.free_symbols:
@@ -324,6 +329,7 @@ def _refine(scene: Scene, cmd) -> str:
             raise StwError(f"a knot at {t:g} must lie inside the animation span, not at its end")
         dof = scene.dofs[cmd.dof]
         dof.curve = dof.curve.with_knot(t, cmd.multiplicity)
+        limits.check("knots", dof.curve.n_coef - 3, f"the knot spans of {cmd.dof} after refining,")
         return f"refined {cmd.dof}: a knot at {t:g} {cmd.multiplicity} time(s), {dof.curve.n_coef} control points"
     if cmd.interval is not None:
         a, b = _interval(scene, cmd.interval, "refinement interval")
@@ -332,6 +338,7 @@ def _refine(scene: Scene, cmd) -> str:
     dof = scene.dofs[cmd.dof]
     before = dof.curve.n_coef
     dof.curve = dof.curve.refined(a, b)
+    limits.check("knots", dof.curve.n_coef - 3, f"the knot spans of {cmd.dof} after refining,")
     return f"refined {cmd.dof} on [{a:g}, {b:g}]: {before} -> {dof.curve.n_coef} control points"
 
 
@@ -347,6 +354,10 @@ def _backend(scene: Scene, cmd) -> str:
 
 
 def _set(scene: Scene, cmd) -> str:
+    if cmd.option == "limit":   # the parser checked the name and the ceiling
+        name, value = cmd.value.split()
+        scene.limits[name] = limits.validated(name, int(value))
+        return f"limit {name} = {value}"
     if cmd.option == "samples":
         try:
             value = int(cmd.value)

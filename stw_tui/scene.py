@@ -12,7 +12,7 @@ from dataclasses import dataclass, field, replace
 import numpy as np
 import sympy as sp
 
-from .errors import StwError
+from .errors import LimitError, StwError
 from .spline import DofCurve
 from .symbols import named_symbol
 
@@ -105,6 +105,8 @@ class Scene:
     shake_count: int = 0
     # Instances added where the continuous-time check failed, by constraint name (or "X.bounds").
     extra_instances: dict[str, tuple[float, ...]] = field(default_factory=dict)
+    # Limits changed with `set limit NAME VALUE` (see stw_tui.limits; the others are the defaults).
+    limits: dict[str, int] = field(default_factory=dict)
 
     def copy(self) -> "Scene":
         """A copy that commands may change freely. Sympy expressions, curves and linkage specs
@@ -119,6 +121,7 @@ class Scene:
         new.windows = {k: replace(v) for k, v in self.windows.items()}
         new.backend_options, new.settings = dict(self.backend_options), dict(self.settings)
         new.extra_instances = dict(self.extra_instances)
+        new.limits = dict(self.limits)
         return new
 
     # --- names -------------------------------------------------------------------------------
@@ -145,6 +148,7 @@ class Scene:
         """Substitute subexpressions (lets and derived quantities) until only DOF, t and constants
         remain. ``f'`` and ``f''`` of a subexpression ``f`` become its time derivatives."""
         definitions = {named_symbol(n): e for n, e in {**self.derived, **self.lets}.items()}
+        self._check_size(expr, definitions)
         for _ in range(100):
             inside = expr.free_symbols & definitions.keys()
             primed = {s for s in expr.free_symbols if s.name.endswith("'") and
@@ -158,6 +162,20 @@ class Scene:
                                                        len(s.name) - len(base))
             expr = expr.xreplace(replacements)
         raise StwError("subexpressions refer to each other in a circle")
+
+    @staticmethod
+    def _check_size(expr: sp.Basic, definitions: dict) -> None:
+        """Refuse an expansion over the limit expression_size before doing it (it would take
+        time and memory exponential in a chain of subexpressions)."""
+        from . import limits
+        from .compiler import expanded_size
+
+        if expr.free_symbols & definitions.keys() or any(s.name.rstrip("'") in {d.name for d in definitions}
+                                                          for s in expr.free_symbols if s.name.endswith("'")):
+            size = expanded_size(expr, definitions)
+            if size > limits.value("expression_size"):
+                raise LimitError(limits.over("expression_size", f"{size} nodes",
+                                             "an expression (its subexpressions substituted) of"))
 
     def time_derivative(self, expr: sp.Expr, name: str, order: int) -> sp.Expr:
         """d^order/dt^order of an expanded expression, by the chain rule through the DOF.
@@ -188,7 +206,8 @@ class Scene:
     def numeric(self, expr: sp.Basic, what: str = "value") -> float:
         """Evaluate a constant expression (numbers and constants only) to a float."""
         expr = self.expand(expr)
-        subs = {named_symbol(n): sp.Float(v) for n, v in self.constants.items()}   # a bare constant stays sympy
+        subs = {s: sp.Float(self.constants[s.name]) for s in expr.free_symbols   # a bare constant stays sympy
+                if s.name in self.constants}   # only those used: a scene may hold thousands
         value = expr.xreplace(subs)
         if value.free_symbols:
             names = ", ".join(sorted(s.name for s in value.free_symbols))

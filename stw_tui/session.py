@@ -14,7 +14,7 @@ from typing import Callable
 
 import numpy as np
 
-from . import interpreter
+from . import interpreter, limits
 from .backend import RunResult, StepReport
 from .errors import SourceError, StwError
 from .scene import Scene
@@ -112,6 +112,7 @@ class Session:
             SourceError: bad input, with line and column; the scene is unchanged.
             SolveError: a solve diverged or its backend raised; the scene is unchanged.
         """
+        self._check_length(text, line)
         stripped = text.split("#", 1)[0].strip()
         if self._block is not None:
             return self._continue_block(text, stripped, line)
@@ -121,6 +122,14 @@ class Session:
             self._block = [(line, text)]
             return Outcome(message="linkage block: enter joint rows, then `end`")
         return self._apply(text.rstrip(), line, on_report)
+
+    def _check_length(self, text: str, line: int | None) -> None:
+        """Refuse an over-long line before anything reads it (a 1 MB line must fail at once)."""
+        with limits.active(self.scene.limits):
+            longest = limits.value("line_length")
+            if len(text) > longest:
+                raise SourceError(limits.over("line_length", f"{len(text)} characters", "a line of"), line=line,
+                                  column=longest + 1, expected=f"at most {longest} characters")
 
     def _continue_block(self, text: str, stripped: str, line: int | None) -> Outcome:
         if stripped == "end":
@@ -138,10 +147,12 @@ class Session:
         entry = self.journal.append(text, line)
         scene = self.scene.copy()
         try:
-            if block is not None:
-                outcome = interpreter.apply_linkage(self, scene, block)
-            else:
-                outcome = interpreter.apply_line(self, scene, text, line, on_report)
+            with limits.active(self.scene.limits):
+                if block is not None:
+                    self._check_joints(block)
+                    outcome = interpreter.apply_linkage(self, scene, block)
+                else:
+                    outcome = interpreter.apply_line(self, scene, text, line, on_report)
         except SourceError as exc:
             error = exc if exc.line is not None or line is None else exc.at_line(line)
             self.journal.settle(entry, False, str(error))
@@ -161,6 +172,16 @@ class Session:
         if outcome.run is not None:
             self.runs.append(outcome.run)
         return outcome
+
+    @staticmethod
+    def _check_joints(block: list[tuple[int | None, str]]) -> None:
+        """Refuse a linkage with more joint rows than the limit, before deriving its equations
+        of motion (their size grows about fourfold with every joint)."""
+        most = limits.value("joints")
+        if len(block) - 1 > most:
+            number, text = block[most + 1]
+            raise SourceError(limits.over("joints", f"{len(block) - 1} joints", "a linkage of"), line=number,
+                              column=1, source=text, expected=f"at most {most} joint rows")
 
     def run_text(self, text: str, on_report: ReportCallback | None = None,
                  on_line: Callable[[int, str, Outcome], None] | None = None) -> None:

@@ -12,6 +12,7 @@ from dataclasses import dataclass
 
 import sympy as sp
 
+from .. import limits
 from .expressions import FUNCTIONS, DictScope, ExpressionParser, NameKind, Scope
 from .tokens import END, NAME, NUMBER, Token, strip_comment, tokenize
 
@@ -198,8 +199,11 @@ COMMAND_NAMES = ("time", "const", "dof", "let", "constraint", "objective", "key"
 RESERVED = set(COMMAND_NAMES) | set(FUNCTIONS) | {"t", "pi", "all", "on", "when", "and", "or", "not"}
 
 
-MAX_COUNT = 1_000_000      # knots, samples, passes, iterations: larger is surely a typo
+MAX_COUNT = 100_000_000    # other counts (multiplicity): larger is surely a typo
 MAX_SEED = 2**63 - 1
+# Counts bounded by a limit of stw_tui.limits, by option or setting name.
+_COUNT_LIMITS = {"knots": "knots", "samples": "samples", "adapt": "adapt_rounds",
+                 "adaptive_rounds": "adapt_rounds"}
 _NUMERIC_RULE = "a time, value or weight may use only numbers and constants"
 
 
@@ -228,14 +232,26 @@ class CommandParser(ExpressionParser):
             raise self.error(f"'{token.text}' is not a DOF", token, expected="a DOF name")
         return token.text
 
-    def integer(self, what: str, limit: int = MAX_COUNT) -> int:
+    def integer(self, what: str, limit: int = MAX_COUNT, limit_name: str | None = None) -> int:
+        """A whole number up to ``limit``, or up to the limit ``limit_name`` (stw_tui.limits)."""
         token = self.token
         if token.kind != NUMBER or not token.text.isdigit():
             raise self.unexpected(what)
+        self.check_count(token, limit_name, what)
         if len(token.text) > len(str(limit)) or int(token.text) > limit:
             raise self.error("number too large", token, expected=f"{what} up to {limit}")
         self.advance()
         return int(token.text)
+
+    def check_count(self, token: Token, limit_name: str | None, what: str = "a number") -> None:
+        """Refuse a digits token over the limit ``limit_name`` (None: no limit), at its column."""
+        if limit_name is None or not token.text.isdigit():
+            return
+        most, ceiling = limits.value(limit_name), limits.LIMITS[limit_name].ceiling
+        if len(token.text.lstrip("0")) > len(str(most)) or int(token.text) > most:
+            raise_it = f"; `set limit {limit_name} N` raises it up to {ceiling}" if most < ceiling else ""
+            raise self.error("number too large", token,
+                             expected=f"{what} up to {most}, the limit {limit_name}{raise_it}")
 
     def number_expr(self) -> sp.Expr:
         """An expression of numbers and constants (a time, a value, a weight)."""
@@ -264,7 +280,8 @@ class CommandParser(ExpressionParser):
             self.expect_op("=", f"'=' after {key.text}")
             kind = allowed[key.text]
             found[key.text] = self.number_expr() if kind == "expr" else \
-                self.integer(f"a whole number for {key.text}", MAX_SEED if kind == "seed" else MAX_COUNT)
+                self.integer(f"a whole number for {key.text}", MAX_SEED if kind == "seed" else MAX_COUNT,
+                             _COUNT_LIMITS.get(key.text) if kind == "int" else None)
         return found
 
     # --- commands ----------------------------------------------------------------------------
@@ -429,7 +446,8 @@ class CommandParser(ExpressionParser):
 
     def p_filter(self):
         dof = self.dof_name()
-        passes = self.integer("a number of passes") if self.token.kind == NUMBER else 1
+        passes = self.integer("a number of passes", limit_name="filter_passes") \
+            if self.token.kind == NUMBER else 1
         return FilterCmd(dof, passes, self.text)
 
     def p_shake(self):
@@ -473,7 +491,10 @@ class CommandParser(ExpressionParser):
 
     def p_set(self):
         option = self.name("a setting name").text
+        if option == "limit":
+            return self._set_limit()
         token = self.token
+        self.check_count(token, _COUNT_LIMITS.get(option), f"a whole number for {option}")
         sign = ""
         if token.is_op("-"):
             sign = self.advance().text
@@ -482,8 +503,23 @@ class CommandParser(ExpressionParser):
             raise self.unexpected("a value")
         return SetCmd(option, sign + self.advance().text, self.text)
 
+    def _set_limit(self):
+        """`set limit NAME VALUE`: a limit of stw_tui.limits, within its ceiling."""
+        name = self.name("a limit name (`help limits` lists them)")
+        if name.text not in limits.LIMITS:
+            close = difflib.get_close_matches(name.text, list(limits.LIMITS), n=2)
+            hint = f" (did you mean {' or '.join(repr(c) for c in close)}?)" if close else ""
+            raise self.error(f"unknown limit '{name.text}'{hint}", name,
+                             expected="a limit name; `help limits` lists them")
+        ceiling = limits.LIMITS[name.text].ceiling
+        value = self.integer(f"a whole number for limit {name.text}", ceiling)
+        if value < 1:
+            raise self.error(f"limit {name.text} must be at least 1", self.tokens[self.pos - 1])
+        return SetCmd("limit", f"{name.text} {value}", self.text)
+
     def p_iterate(self):
-        n = self.integer("a number of iterations") if self.token.kind == NUMBER else 1
+        n = self.integer("a number of iterations", limit_name="iterations") \
+            if self.token.kind == NUMBER else 1
         opts = self.options({"adapt": "int"})
         return IterateCmd(n, self.text, opts.get("adapt"))
 

@@ -1,0 +1,155 @@
+"""Resource guards: every size a line can ask for is a documented limit, checked before the work
+starts, with an error that names the limit. No line hangs, crashes or lies (issue 15)."""
+
+from __future__ import annotations
+
+import time
+
+import pytest
+
+from stw_tui import limits
+from stw_tui.errors import LimitError, SourceError, StwError
+from stw_tui.session import Session
+
+QUICK = 5.0   # seconds: a sanity bound for lines that used to run for minutes, not a benchmark
+
+
+def refused(session: Session, line: str) -> StwError:
+    """Execute ``line``, which must fail quickly, leaving the scene as it was."""
+    before = session.scene
+    start = time.perf_counter()
+    with pytest.raises(StwError) as info:
+        session.execute(line)
+    assert time.perf_counter() - start < QUICK, line[:60]
+    assert session.scene is before
+    return info.value
+
+
+@pytest.fixture
+def plain():
+    s = Session()
+    s.execute("dof x = 0.5")
+    return s
+
+
+# --- the hangs of issue 15 --------------------------------------------------------------------
+
+@pytest.mark.parametrize("line, column, limit", [
+    ("print 9^9^9^9.81", 10, "exponent"),                    # was: over 90 s, 2 GB and growing
+    ("const a = 10**10**10^9.81", 17, "exponent"),           # was: 5.6 GB
+    ("print cos(1.5^2147483648)", 14, "exponent"),           # was: over 90 s
+    ("time 0 1 knots=1000000", 16, "knots"),                 # was: over 90 s in qr_reduce
+    ("set samples 1000000", 13, "samples"),                  # was: 6 GB at the next iterate
+    ("print x^2147483648 @ 0.5", 8, "exponent"),             # was: inf (the exponent wrapped)
+    ("filter x 10000000", 10, "filter_passes"),
+    ("iterate 1 adapt=1000000", 17, "adapt_rounds"),
+])
+def test_hanging_lines_are_refused_at_the_offending_token(plain, line, column, limit):
+    err = refused(plain, line)
+    assert isinstance(err, SourceError)
+    assert err.column == column
+    assert limit in str(err)
+
+
+def test_a_megabyte_line_fails_by_its_length_before_parsing(plain):
+    err = refused(plain, "print " + "(" * 1_000_000)        # was: 11.6 s to say "nested too deeply"
+    assert isinstance(err, SourceError)
+    assert "line_length" in err.message and "1000006 characters" in err.message
+    assert err.source is None   # a megabyte must not be echoed under a caret
+
+
+def test_two_thousand_constants_in_one_line_are_quick(plain):
+    line = "const " + ", ".join(f"k{i} = {i}" for i in range(2000))
+    assert "line_length" in str(refused(plain, line))
+    plain.execute("set limit line_length 100000")
+    start = time.perf_counter()
+    plain.execute(line)                                       # was: 12 s
+    assert time.perf_counter() - start < QUICK
+    assert plain.scene.constants["k1999"] == 1999
+
+
+def test_a_linkage_over_the_joint_limit_is_refused_before_its_equations(plain):
+    plain.execute("const g = 9.81")
+    plain.execute("linkage chain base=fixed")
+    for i in range(8):
+        plain.execute(f"  J{i} revolute a=0.1 mass=1", line=10 + i)
+    start = time.perf_counter()
+    with pytest.raises(SourceError) as info:
+        plain.execute("end", line=18)
+    assert time.perf_counter() - start < QUICK   # 8 joints: a first print took 54 s
+    assert "joints" in info.value.message and info.value.line == 16   # the 7th joint row
+    assert "chain" not in plain.scene.linkages and not plain.in_block
+
+
+def test_a_chain_of_subexpressions_is_measured_before_it_is_expanded(plain):
+    plain.execute("let a0 = x")
+    with pytest.raises(LimitError, match="expression_size"):
+        for i in range(40):   # each doubles the expanded tree: 2^40 nodes if nothing stopped it
+            start = time.perf_counter()
+            plain.execute(f"let a{i + 1} = a{i}*a{i} + sin(a{i})")
+            assert time.perf_counter() - start < QUICK
+    assert len(plain.scene.lets) < 20
+
+
+def test_integer_powers_that_compiled_code_would_wrap_are_refused(plain):
+    plain.execute("let p = x^65536")
+    err = refused(plain, "print p^65536 @ 0.5")              # x^4294967296: was 1, truly ~0
+    assert "exponent" in str(err) and "x^4294967296" in str(err)
+    assert plain.execute("print x^3 @ 0.5").prints[0].value == pytest.approx(0.125)
+
+
+def test_refinement_stops_at_the_knot_limit(plain):
+    plain.execute("set limit knots 50")
+    for _ in range(2):
+        plain.execute("refine x")
+    assert "knots" in str(refused(plain, "refine x"))         # 48 -> 96 spans
+    assert plain.scene.dofs["x"].curve.n_coef == 51
+
+
+def test_dof_count_is_limited(plain):
+    plain.execute("set limit dofs 3")
+    plain.execute("dof y, z")
+    assert "dofs" in str(refused(plain, "dof u"))
+    plain.execute("dof y knots=4")                           # an existing DOF is not a new one
+
+
+# --- the limits as data -----------------------------------------------------------------------
+
+def test_help_limits_lists_every_limit_with_its_value_and_ceiling(plain):
+    plain.execute("set limit knots 2000")
+    text = plain.execute("help limits").message
+    for limit in limits.LIMITS.values():
+        assert limit.name in text and str(limit.ceiling) in text
+    assert "2000" in text.splitlines()[[n for n in limits.LIMITS].index("knots") + 1]
+    assert "help limits" in plain.execute("help").message
+
+
+def test_set_limit_raises_a_limit_within_its_ceiling(plain):
+    plain.execute("set limit knots 2000")
+    plain.execute("time 0 1 knots=1500")
+    assert plain.scene.knots == 1500
+    err = refused(plain, "set limit knots 30000")
+    assert isinstance(err, SourceError) and err.column == 17 and "20000" in err.expected
+    err = refused(plain, "set limit knot 5")
+    assert "did you mean 'knots'" in err.message
+    assert refused(plain, "set limit knots 0").column == 17
+    assert plain.scene.limits == {"knots": 2000}
+
+
+def test_limits_belong_to_the_scene_and_replay(tmp_path):
+    first = Session()
+    first.run_text("set limit samples 9000\ntime 0 1 samples=8000\n")
+    again = Session()
+    again.run_text("\n".join(first.journal.replayable()))
+    assert again.scene.limits == {"samples": 9000} and again.scene.samples == 8000
+    assert limits.value("samples") == limits.LIMITS["samples"].default   # nothing leaks out
+
+
+def test_deepest_nesting_allowed_by_the_ceiling_does_not_exhaust_the_stack(plain):
+    deepest = limits.LIMITS["nesting"].ceiling
+    plain.execute(f"set limit nesting {deepest}")
+    inner = deepest - 2
+    for text in ["(" * inner + "x" + ")" * inner, "-" * inner + "x", "sin(" * inner + "x" + ")" * inner]:
+        plain.execute(f"print {text} @ 0.5")
+    plain.execute("dof y")
+    plain.execute("constraint c: y >= 0 on [0, 1] when " + "not " * inner + "x > 0")
