@@ -14,10 +14,10 @@ import sympy as sp
 
 from . import language as lang
 from . import limits
-from .backend import RunResult, Status, SolverState, load_backend, run_iterations
+from .backend import RunResult, Status, SolverState, create_backend, load_backend, run_iterations
 from .compiler import compile_term
-from .continuous import check_scene, expression_values, survey
-from .errors import LimitError, StwError
+from .continuous import check_scene, condition_holds, expression_values, survey
+from .errors import LimitError, SolveError, SourceError, StwError
 from .scene import DEFAULT_SETTINGS, Constraint, Dof, Objective, Relation, Scene, Window
 from .spline import DofCurve
 from .symbols import dof_symbols
@@ -102,7 +102,16 @@ def _evaluate_curve_expr(scene: Scene, expr: sp.Expr):
     expr = scene.expand(expr)
     term = compile_term(expr, set(), set(scene.constants))
     params = scene.constant_values(term.parameters)
-    return lambda times: term.value(np.zeros((len(times), 0)), np.asarray(times, float), params)
+
+    def curve(times):
+        times = np.asarray(times, float)
+        values = term.value(np.zeros((len(times), 0)), times, params)
+        bad = np.flatnonzero(~np.isfinite(values))
+        if bad.size:   # exp(1000*t), log(t - 1): a curve must be finite everywhere
+            what = "not a real number" if np.isnan(values[bad[0]]) else "infinite"
+            raise StwError(f"the curve {sp.sstr(expr)[:60]} is {what} at t={times[bad[0]]:.6g}")
+        return values
+    return curve
 
 
 def _time_in_span(scene: Scene, value: float, what: str) -> float:
@@ -140,6 +149,9 @@ def _time(scene: Scene, cmd) -> str:
     if not t0 < t1:
         raise StwError(f"the animation span [{t0:g}, {t1:g}] is empty")
     knots = cmd.knots if cmd.knots is not None else scene.knots
+    if max(abs(t0), abs(t1)) > 1e15 or not (t1 - t0) / max(knots, 1) > 1e-9 * max(1.0, abs(t0), abs(t1)):
+        raise StwError(f"the animation span [{t0:g}, {t1:g}] cannot hold {knots} knot spans in "
+                       "double precision; use times within ±1e15 and spans longer than 1e-9 of them")
     if knots < 1:
         raise StwError("knots must be at least 1")
     if cmd.samples is not None and cmd.samples < 1:
@@ -347,7 +359,7 @@ def _backend(scene: Scene, cmd) -> str:
     options = dict(cmd.options)
     if cmd.name == scene.backend:
         options = {**scene.backend_options, **options}
-    cls(**options)  # validates names and values
+    create_backend(cls, options)  # validates names and values
     scene.backend, scene.backend_options = cmd.name, options
     shown = " ".join(f"{k}={v}" for k, v in options.items())
     return f"backend {cmd.name} {shown}".rstrip()
@@ -432,6 +444,13 @@ def _print(scene: Scene, cmd):
         a, b = _interval(scene, cmd.interval, "interval") if cmd.interval else (scene.t0, scene.t1)
         times = np.linspace(a, b, 201)
     result = expression_values(scene, cmd.expr, times)
+    bad = np.flatnonzero(~np.isfinite(result))
+    if bad.size:   # x^(1/3) of a negative x, log(0): say where, never print nan
+        t = times[bad[0]]
+        what = "not a real number" if np.isnan(result[bad[0]]) else "infinite"
+        raise SourceError(f"{cmd.expr_text} is {what} at t={t:.6g}" +
+                          (f" (and at {bad.size - 1} more of {times.size} times)" if bad.size > 1 else ""),
+                          column=cmd.column, expected="an expression defined on the curves")
     if cmd.at is not None:
         value = float(result[0])
         return f"{cmd.expr_text} @ {times[0]:g} = {value:.10g}", PrintResult(cmd.expr_text, float(times[0]), value)
@@ -479,7 +498,7 @@ def _iterate(session: "Session", scene: Scene, cmd, on_report) -> "Outcome":
         raise StwError("iterate needs a positive number of iterations")
     settings = scene.settings
     rounds = cmd.adapt if cmd.adapt is not None else (int(settings["adaptive_rounds"]) if settings["adaptive"] else 0)
-    backend = load_backend(scene.backend)(**scene.backend_options)
+    backend = create_backend(load_backend(scene.backend), scene.backend_options)
     tol = settings["dense_tol"]
     problem = WindowProblem(scene)
     result = _solve(session, scene, problem, backend, cmd.n, on_report)
@@ -540,9 +559,32 @@ def _iterate(session: "Session", scene: Scene, cmd, on_report) -> "Outcome":
     return Outcome(message=text, run=result, journal_text=journal_text)
 
 
+def _check_start(scene: Scene, problem: WindowProblem) -> None:
+    """Refuse to solve from curves where a term or its derivatives is not a finite real number
+    (sqrt or log of a negative value, x^(1/3) of a negative x): name the term and the time,
+    instead of letting the backend fail on NaN with a misleading message."""
+    for group in problem.groups:
+        term, times = group.term, group.times
+        values = np.column_stack([scene.dofs[v.dof].curve.evaluate(times, v.order) for v in term.variables]) \
+            if term.variables else np.zeros((times.size, 0))
+        f, grad, _ = term.full(values, times, scene.constant_values(term.parameters))
+        bad = ~(np.isfinite(f) & np.all(np.isfinite(grad), axis=1))
+        constraint = scene.constraints.get(group.source) if group.kind != "obj" else None
+        if bad.any() and constraint is not None and constraint.when is not None:
+            bad &= condition_holds(scene, constraint.when, times)
+        if bad.any():
+            i = int(np.flatnonzero(bad)[0])
+            what = "its value" if not np.isfinite(f[i]) else "its derivative"
+            kind = "objective" if group.kind == "obj" else "constraint"
+            raise SolveError(f"{kind} {group.label}: {what} is not a finite real number at t={times[i]:.6g} "
+                             f"on the current curves ({sp.sstr(term.expr)[:80]}); the scene is unchanged — "
+                             "a keyframe, bounds (lo=, hi=) or a different start can keep it defined")
+
+
 def _solve(session: "Session", scene: Scene, problem: WindowProblem, backend, n: int, on_report) -> RunResult:
     """Run the backend on one window problem from the scene's curves (and the last solve's
     multipliers when its rows are the same), and put the result in the scene."""
+    _check_start(scene, problem)
     signature = (scene.active_window, tuple(problem.free), tuple(g.label for g in problem.groups),
                  tuple(g.n for g in problem.groups))
     start = SolverState.start(problem)

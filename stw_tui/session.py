@@ -113,6 +113,7 @@ class Session:
             SolveError: a solve diverged or its backend raised; the scene is unchanged.
         """
         self._check_length(text, line)
+        self._check_text(text, line)
         stripped = text.split("#", 1)[0].strip()
         if self._block is not None:
             return self._continue_block(text, stripped, line)
@@ -130,6 +131,16 @@ class Session:
             if len(text) > longest:
                 raise SourceError(limits.over("line_length", f"{len(text)} characters", "a line of"), line=line,
                                   column=longest + 1, expected=f"at most {longest} characters")
+
+    @staticmethod
+    def _check_text(text: str, line: int | None) -> None:
+        """Refuse text that is not valid Unicode (a lone surrogate from a badly decoded file), even
+        in a comment: the journal could not record it, and a line must not apply and then fail."""
+        try:
+            text.encode("utf-8")
+        except UnicodeEncodeError as exc:
+            raise SourceError(f"character {text[exc.start]!r} is not valid text (a lone surrogate)",
+                              line=line, column=exc.start + 1, expected="UTF-8 text") from None
 
     def _continue_block(self, text: str, stripped: str, line: int | None) -> Outcome:
         if stripped == "end":
@@ -164,6 +175,12 @@ class Session:
             message = f"internal error ({type(exc).__name__}: {exc}); the scene is unchanged"
             self.journal.settle(entry, False, message)
             raise StwError(f"line {line}: {message}" if line is not None else message) from exc
+        broken = [name for name, dof in scene.dofs.items() if not np.all(np.isfinite(dof.curve.coef))]
+        if broken:   # shake amplitude=1e308, a key at 1e308: a curve must stay a curve
+            message = (f"the command would make the curve of {', '.join(broken)} non-finite; "
+                       "the scene is unchanged")
+            self.journal.settle(entry, False, message)
+            raise StwError(f"line {line}: {message}" if line is not None else message)
         self.scene = scene
         if outcome.journal_text is not None:
             entry.text = outcome.journal_text

@@ -153,3 +153,126 @@ def test_deepest_nesting_allowed_by_the_ceiling_does_not_exhaust_the_stack(plain
         plain.execute(f"print {text} @ 0.5")
     plain.execute("dof y")
     plain.execute("constraint c: y >= 0 on [0, 1] when " + "not " * inner + "x > 0")
+
+
+# --- exact or refused -------------------------------------------------------------------------
+
+@pytest.fixture
+def negative():
+    s = Session()
+    s.execute("dof x = -8")
+    return s
+
+
+@pytest.mark.parametrize("line, message", [
+    ("print x^(1/3) @ 0.5", "x^(1/3) is not a real number at t=0.5"),     # was: nan
+    ("print log(x)", "log(x) is not a real number at t=0"),
+    ("print 1/(x+8) @ 0.5", "1/(x+8) is infinite at t=0.5"),
+])
+def test_non_real_or_infinite_values_are_positioned_errors_naming_expression_and_time(negative, line, message):
+    negative.execute("key 0.5 x=-8")          # x + 8 is exactly 0 at the key
+    err = refused(negative, line)
+    assert isinstance(err, SourceError) and err.column == 7
+    assert message in err.message
+
+
+@pytest.mark.parametrize("line, words", [
+    ("dof y = exp(1000*t)", "exp(1000*t) is infinite at t="),       # was: scipy "must not contain infs"
+    ("dof y = log(t - 1)", "log(t - 1) is not a real number at t=0"),
+    ("time 0 1e308", "cannot hold 12 knot spans"),
+    ("time -1e308 1e308", "cannot hold 12 knot spans"),
+    ("constraint c: x = 0 on [acos(2), 1]", "not a real number"),  # was: TypeError on a complex
+    ("damp x sqrt(-1)", "not a real number"),
+    ("shake amplitude=1e308", "non-finite"),                        # was: accepted, curves of inf
+    ("key 0.5 x=1e308", "non-finite"),
+])
+def test_values_that_no_curve_can_hold_are_refused(negative, line, words):
+    assert words in str(refused(negative, line))
+
+
+def test_a_solve_from_an_undefined_start_names_the_term_and_the_time(negative):
+    negative.execute("let q = x^(1/3)")
+    negative.execute("constraint cube: q = 1 @ 0.5")
+    err = refused(negative, "iterate 2")                            # was: "non-finite values (diverged)"
+    assert "constraint cube" in str(err) and "t=0.5" in str(err)
+    from stw_tui.interpreter import _check_start
+    from stw_tui.window import WindowProblem
+
+    negative.execute("constraint cube: q = 1 @ 0.5 when x > 0")      # where it is undefined, it is off
+    _check_start(negative.scene, WindowProblem(negative.scene))
+
+
+def test_numbers_no_double_holds_are_refused_where_they_arise():
+    s = Session()
+    for line, column in [("const a = 1e308 + 1e308", 17), ("const a = exp(1000.0)", 11),
+                         ("const a = 1.5^1000000", 14), ("const a = (-8)^(1/3)", 15)]:
+        err = refused(s, line)
+        assert isinstance(err, SourceError) and err.column == column, line
+
+
+# --- one error type ---------------------------------------------------------------------------
+
+@pytest.mark.parametrize("line", ["\udcff", "dof y # \udcff", "print x + \udcff"])
+def test_invalid_text_is_refused_before_anything_is_applied(plain, line):
+    err = refused(plain, line)
+    assert isinstance(err, SourceError) and "surrogate" in err.message
+    assert "y" not in plain.scene.dofs
+
+
+class _Entry:
+    """A stand-in for an installed entry point."""
+
+    def __init__(self, load):
+        self._load = load
+
+    def load(self):
+        return self._load()
+
+
+def _faulty_backend(where: str, fault: type[BaseException]):
+    from stw_tui.backend import Backend, SolverState, StepReport
+
+    class Faulty(Backend):
+        name = "faulty"
+
+        def __init__(self, **options):
+            if where == "init_options":
+                raise fault("constructor")
+            super().__init__(**options)
+
+        def init(self, problem, state, settings):
+            if where == "init":
+                raise fault("init")
+            return state
+
+        def step(self, problem, state, iteration):
+            if where == "step":
+                raise fault("step")
+            return state, StepReport(iteration, 0.0, 0.0, 0.0, 0.0, 0, 0)
+
+        def state(self, inner):
+            return SolverState(inner.s, inner.lam_eq, inner.lam_ge, inner.working_set)
+
+    return Faulty
+
+
+@pytest.mark.parametrize("fault", [SystemExit, KeyboardInterrupt, RuntimeError])
+@pytest.mark.parametrize("where", ["load", "init_options", "init", "step"])
+def test_a_plugin_raising_anything_is_stopped_at_the_backend_boundary(monkeypatch, plain, where, fault):
+    import stw_tui.backend as backend
+
+    def load():
+        if where == "load":
+            raise fault("import")
+        return _faulty_backend(where, fault)
+
+    installed = {**backend.available_backends(), "faulty": _Entry(load)}
+    monkeypatch.setattr(backend, "available_backends", lambda: installed)
+    plain.execute("objective o: x - 1")
+    if where in ("load", "init_options"):
+        err = refused(plain, "backend faulty")
+        assert fault.__name__ in str(err)
+        return
+    plain.execute("backend faulty")
+    err = refused(plain, "iterate 3")
+    assert fault.__name__ in str(err) and "faulty" in str(err)

@@ -8,7 +8,7 @@ seed) are ints.
 from __future__ import annotations
 
 import difflib
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import sympy as sp
 
@@ -181,6 +181,7 @@ class PrintCmd:
     expr_text: str
     text: str = ""
     interval: Interval | None = None   # summary over [A, B] instead of the whole span
+    column: int | None = field(default=None, compare=False)   # where the expression starts (errors)
 
 
 @dataclass(frozen=True)
@@ -552,7 +553,7 @@ class CommandParser(ExpressionParser):
         end = self.token.column
         expr_text = self.source[start - 1:end - 1].strip()
         at, interval = self._scope_clause()
-        return PrintCmd(expr, at, expr_text, self.text, interval)
+        return PrintCmd(expr, at, expr_text, self.text, interval, start)
 
     def p_help(self):
         topic = self.advance().text if self.token.kind == NAME else None

@@ -187,7 +187,8 @@ class ExpressionParser:
         if value.has(*_UNDEFINED):
             raise self.error("the value is undefined or infinite here (division by zero?)", token,
                              expected="a finite expression")
-        if value.has(sp.I):   # sqrt(-1), log(-2), (-8)^(1/3): stw's curves and values are real
+        if value.has(sp.I) or (value.is_number and value.is_extended_real is False):
+            # sqrt(-1), log(-2), acos(2), (-8)^(1/3): stw's curves and values are real
             raise self.error("the value is not a real number", token, expected="a real expression")
         bits = limits.value("number_bits")
         if value.is_Rational and max(abs(value.p), value.q).bit_length() > bits:
