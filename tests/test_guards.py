@@ -382,3 +382,26 @@ def test_compiled_terms_in_memory_are_bounded(monkeypatch):
         compiler.compile_term(x + 1, {"x"}, set())     # used again: stays
     assert compiler.cache_size() == 5
     assert compiler.compile_term(x + 1, {"x"}, set()) is first
+
+
+# --- terminal-safe output ---------------------------------------------------------------------
+
+def test_control_characters_in_an_echoed_line_are_shown_escaped(tmp_path):
+    import os
+    import subprocess
+    import sys
+
+    session = tmp_path / "hostile.stw"
+    session.write_text("dof x\nprint x\x1b[2J\x1b[31m + 1\n", encoding="utf-8")
+    env = dict(os.environ, STW_CACHE_DIR="off")
+    run = subprocess.run([sys.executable, "-m", "stw_tui.cli", "run", str(session)], env=env,
+                         capture_output=True, text=True, timeout=120)
+    assert run.returncode != 0
+    assert "\x1b" not in run.stderr + run.stdout
+    assert "print x\\x1b[2J\\x1b[31m + 1\n       ^" in run.stderr   # the caret under the escape
+
+
+def test_a_carriage_return_in_a_printed_expression_is_escaped(plain):
+    message = plain.execute("print x\r+ 1 @ 0.5").message
+    assert "\r" not in message and "x\\r+ 1" in message
+

@@ -13,6 +13,7 @@ from dataclasses import dataclass, field
 import sympy as sp
 
 from .. import limits
+from ..errors import printable
 from .expressions import FUNCTIONS, DictScope, ExpressionParser, NameKind, Scope
 from .tokens import END, NAME, NUMBER, Token, strip_comment, tokenize
 
@@ -551,7 +552,7 @@ class CommandParser(ExpressionParser):
         start = self.token.column
         expr = self.expression()
         end = self.token.column
-        expr_text = self.source[start - 1:end - 1].strip()
+        expr_text = printable(self.source[start - 1:end - 1].strip())   # echoed: no raw \r, \t
         at, interval = self._scope_clause()
         return PrintCmd(expr, at, expr_text, self.text, interval, start)
 
