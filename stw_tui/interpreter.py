@@ -156,6 +156,10 @@ def _time(scene: Scene, cmd) -> str:
         raise StwError("knots must be at least 1")
     if cmd.samples is not None and cmd.samples < 1:
         raise StwError("samples must be at least 1")
+    outside = _outside_span(scene, t0, t1)
+    if outside:
+        raise StwError(f"{', '.join(outside[:3])}{' and more' if len(outside) > 3 else ''} would lie "
+                       f"outside the span [{t0:g}, {t1:g}]; change or delete them first")
     for dof in scene.dofs.values():
         old = dof.curve
         dof.curve = DofCurve.fit(t0, t1, knots, lambda t, c=old: c.evaluate(np.clip(t, c.t0, c.t1)))
@@ -164,6 +168,19 @@ def _time(scene: Scene, cmd) -> str:
     if cmd.samples is not None:
         scene.samples = cmd.samples
     return f"time [{t0:g}, {t1:g}], {knots} knot spans, {scene.sample_count} samples"
+
+
+def _outside_span(scene: Scene, t0: float, t1: float) -> list[str]:
+    """What would no longer fit a new span: constraints, objectives, windows and keys."""
+    def out(a: float, b: float) -> bool:
+        return a < t0 - 1e-12 or b > t1 + 1e-12
+
+    found = [f"constraint {c.name} {c.scope_text}" for c in scene.constraints.values()
+             if out(*((c.at, c.at) if c.at is not None else c.interval))]
+    found += [f"objective {o.name}" for o in scene.objectives.values() if o.interval and out(*o.interval)]
+    found += [f"window {w.name}" for w in scene.windows.values() if w.interval and out(*w.interval)]
+    found += [f"a key of {d.name}" for d in scene.dofs.values() if d.keys and out(d.keys[0][0], d.keys[-1][0])]
+    return found
 
 
 def _const(scene: Scene, cmd) -> str:

@@ -405,3 +405,12 @@ def test_a_carriage_return_in_a_printed_expression_is_escaped(plain):
     message = plain.execute("print x\r+ 1 @ 0.5").message
     assert "\r" not in message and "x\\r+ 1" in message
 
+
+def test_a_span_that_would_leave_a_constraint_outside_is_refused():
+    s = Session()
+    s.run_text("dof x\nconstraint start: x = 0 @ 0\nwindow w [0.2, 0.9]")
+    err = refused(s, "time 0.1 1")             # found by the fuzzer: a later print raised ValueError
+    assert "constraint start @ 0" in str(err) and "window w" not in str(err)
+    assert "window w" in str(refused(s, "time 0 0.8"))
+    s.execute("time 0 2")
+
