@@ -414,3 +414,17 @@ def test_a_span_that_would_leave_a_constraint_outside_is_refused():
     assert "window w" in str(refused(s, "time 0 0.8"))
     s.execute("time 0 2")
 
+
+@pytest.mark.parametrize("block, words", [
+    (["linkage __import__ base=fixed", "  J1 revolute a=1 mass=1"], "'__'"),
+    (["linkage arm base=fixed", "  sin revolute a=1 mass=1"], "'sin' is reserved"),
+    (["linkage arm base=fixed", "  J__1 revolute a=1 mass=1"], "'__'"),
+    (["linkage arm base=tx:on", "  J1 revolute a=1 mass=1"], "'on' is reserved"),
+])
+def test_linkage_names_follow_the_language_rules(block, words):
+    s = Session()
+    s.execute("const g = 9.81")
+    for line in block:
+        s.execute(line)
+    err = refused(s, "end")
+    assert words in str(err)
