@@ -205,7 +205,9 @@ def test_a_solve_from_an_undefined_start_names_the_term_and_the_time(negative):
 def test_numbers_no_double_holds_are_refused_where_they_arise():
     s = Session()
     for line, column in [("const a = 1e308 + 1e308", 17), ("const a = exp(1000.0)", 11),
-                         ("const a = 1.5^1000000", 14), ("const a = (-8)^(1/3)", 15)]:
+                         ("const a = 1.5^1000000", 14), ("const a = (-8)^(1/3)", 15),
+                         ("const a = exp(exp(exp(100)))", 15),        # was: mpmath evaluating for ever
+                         ("const a = 1/exp(exp(exp(100)))", 17)]:
         err = refused(s, line)
         assert isinstance(err, SourceError) and err.column == column, line
 
