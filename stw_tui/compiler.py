@@ -208,7 +208,7 @@ def check_size(expr: sp.Basic) -> None:
     Raises:
         StwError: naming the limit expression_size or exponent.
     """
-    most, largest_exponent = limits.value("expression_size"), limits.value("exponent")
+    most, largest_exponent = limits.value_or_ceiling("expression_size"), limits.value_or_ceiling("exponent")
     sizes: dict[sp.Basic, int] = {}
     stack = [expr]
     while stack:   # iterative post-order: deep expressions must not exhaust the Python stack

@@ -48,12 +48,20 @@ LIMITS: dict[str, Limit] = {limit.name: limit for limit in (
     Limit("adapt_rounds", 100, 10_000, "adaptive re-solves of one `iterate` (adapt=, adaptive_rounds)"),
 )}
 
-_ACTIVE: ContextVar[Mapping[str, int]] = ContextVar("stw_limits", default={})
+_ACTIVE: ContextVar[Mapping[str, int] | None] = ContextVar("stw_limits", default=None)
 
 
-def value(name: str) -> int:
-    """The limit ``name`` in force now (the active scene's, else the default)."""
-    return int(_ACTIVE.get().get(name, LIMITS[name].default))
+def value(name: str, overrides: Mapping[str, int] | None = None) -> int:
+    """The limit ``name`` in force: from ``overrides`` (a scene's) if given, else the active
+    scene's (see :func:`active`), else the default."""
+    table = overrides if overrides is not None else (_ACTIVE.get() or {})
+    return int(table.get(name, LIMITS[name].default))
+
+
+def value_or_ceiling(name: str) -> int:
+    """The limit in force while a line is applied; outside one (a front end drawing a curve of
+    a term that a line already accepted) only the hard ceiling applies."""
+    return value(name) if _ACTIVE.get() is not None else LIMITS[name].ceiling
 
 
 @contextmanager
@@ -66,9 +74,10 @@ def active(overrides: Mapping[str, int]) -> Iterator[None]:
         _ACTIVE.reset(token)
 
 
-def over(name: str, requested: object, what: str | None = None) -> str:
+def over(name: str, requested: object, what: str | None = None,
+         overrides: Mapping[str, int] | None = None) -> str:
     """The message for ``requested`` going over limit ``name``: names the limit and how to raise it."""
-    limit, current = LIMITS[name], value(name)
+    limit, current = LIMITS[name], value(name, overrides)
     text = f"{what or limit.bounds} {requested} is over the limit {name} = {current}"
     if current < limit.ceiling:
         text += f" (`set limit {name} N` raises it, up to {limit.ceiling})"
@@ -101,7 +110,7 @@ def validated(name: str, requested: int) -> int:
 
 def help_text(overrides: Mapping[str, int] | None = None) -> str:
     """A table of the limits: name, value in force, ceiling, and what each bounds."""
-    values = dict(_ACTIVE.get()) if overrides is None else dict(overrides)
+    values = dict(_ACTIVE.get() or {}) if overrides is None else dict(overrides)
     width = max(len(n) for n in LIMITS)
     lines = ["Limits (set limit NAME VALUE changes one, up to its ceiling):"]
     for limit in LIMITS.values():

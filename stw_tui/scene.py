@@ -163,19 +163,19 @@ class Scene:
             expr = expr.xreplace(replacements)
         raise StwError("subexpressions refer to each other in a circle")
 
-    @staticmethod
-    def _check_size(expr: sp.Basic, definitions: dict) -> None:
+    def _check_size(self, expr: sp.Basic, definitions: dict) -> None:
         """Refuse an expansion over the limit expression_size before doing it (it would take
         time and memory exponential in a chain of subexpressions)."""
         from . import limits
         from .compiler import expanded_size
 
-        if expr.free_symbols & definitions.keys() or any(s.name.rstrip("'") in {d.name for d in definitions}
-                                                          for s in expr.free_symbols if s.name.endswith("'")):
+        names = {d.name for d in definitions}
+        if any(s.name.rstrip("'") in names for s in expr.free_symbols):
             size = expanded_size(expr, definitions)
-            if size > limits.value("expression_size"):
+            if size > limits.value("expression_size", self.limits):
                 raise LimitError(limits.over("expression_size", f"{size} nodes",
-                                             "an expression (its subexpressions substituted) of"))
+                                             "an expression (its subexpressions substituted) of",
+                                             self.limits))
 
     def time_derivative(self, expr: sp.Expr, name: str, order: int) -> sp.Expr:
         """d^order/dt^order of an expanded expression, by the chain rule through the DOF.
