@@ -15,6 +15,7 @@ authenticated by an HMAC under the user's own key (see :func:`_cache_root`).
 from __future__ import annotations
 
 import hashlib
+import math
 import hmac
 import os
 import pickle
@@ -441,6 +442,44 @@ def _compile(expr: sp.Expr, variables: tuple[LocalVar, ...], parameters: tuple[s
     full_fn = _lambdify(args, [e, *grad, *hess])
     return CompiledTerm(expr=expr, variables=variables, parameters=parameters,
                         hessian_pairs=tuple(pairs), _value_fn=value_fn, _full_fn=full_fn)
+
+
+def double_finite(expr: sp.Expr, values: dict[str, float] | None = None) -> bool:
+    """Whether ``expr``, with symbols replaced by ``values``, and every part of it stay finite
+    in double precision. Each node is evaluated once, by symengine in plain floating point
+    (microseconds whatever the size), so exp(-exp(exp(100))) fails at its inner exp even though
+    its value underflows to 0: sympy's exact evaluation of it, or even substituting 100.0 for a
+    constant in it, would compute ever more digits, for ever.
+    """
+    try:
+        root = _to_symengine(expr)
+    except Exception:  # noqa: BLE001 - not convertible: leave it to the later checks
+        return True
+    subs = {se.Symbol(k): se.RealDouble(v) for k, v in (values or {}).items()}
+    memo: dict = {}
+    stack = [root]
+    while stack:
+        node = stack[-1]
+        pending = [a for a in node.args if a not in memo]
+        if pending:
+            stack.extend(pending)
+            continue
+        stack.pop()
+        if node in memo:
+            continue
+        value = node
+        try:
+            value = node.func(*[memo[a] for a in node.args]) if node.args else subs.get(node, node)
+            if not value.free_symbols:
+                number = complex(value.n(53, real=False))
+                if not (math.isfinite(number.real) and math.isfinite(number.imag)):
+                    return False
+                value = se.RealDouble(number.real) + se.I * se.RealDouble(number.imag) \
+                    if number.imag else se.RealDouble(number.real)
+        except Exception:  # noqa: BLE001 - a condition, a Piecewise: not a number to check
+            pass
+        memo[node] = value
+    return True
 
 
 def cache_size() -> int:

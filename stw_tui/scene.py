@@ -206,13 +206,21 @@ class Scene:
     def numeric(self, expr: sp.Basic, what: str = "value") -> float:
         """Evaluate a constant expression (numbers and constants only) to a float."""
         expr = self.expand(expr)
-        subs = {s: sp.Float(self.constants[s.name]) for s in expr.free_symbols   # a bare constant stays sympy
-                if s.name in self.constants}   # only those used: a scene may hold thousands
-        value = expr.xreplace(subs)
-        if value.free_symbols:
-            names = ", ".join(sorted(s.name for s in value.free_symbols))
+        from .compiler import double_finite
+
+        used = {s for s in expr.free_symbols if s.name in self.constants}   # a scene may hold thousands
+        others = expr.free_symbols - used
+        if others:
+            names = ", ".join(sorted(s.name for s in others))
             raise StwError(f"{what} must be a number or constant expression, but it uses {names}")
-        result = float(value.evalf())
+        if not double_finite(expr, {s.name: self.constants[s.name] for s in used}):
+            # before sympy evaluates anything: exp(exp(exp(T))) would compute digits for ever
+            raise StwError(f"{what} is not a finite number (beyond what a double holds)")
+        value = expr.xreplace({s: sp.Float(self.constants[s.name]) for s in used})   # a bare constant stays sympy
+        try:
+            result = float(value.evalf())
+        except TypeError:   # log(T)^3.25 with T = 0.5: complex once the constant's value is known
+            raise StwError(f"{what} is not a real number ({sp.sstr(value)[:60]})") from None
         if not np.isfinite(result):
             raise StwError(f"{what} is not a finite number ({result})")
         return result

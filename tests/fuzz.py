@@ -100,7 +100,9 @@ def expression(rng: random.Random, depth: int = 0, *, numeric: bool = False) -> 
     if kind < 0.93:
         return f"-{sub()}"
     return rng.choice(["(" * 70 + "x" + ")" * 70, "-" * 80 + "x", "9^9^9^9.81", "x^2147483648",
-                       "(-8)^(1/3)", "sqrt(-1)", "log(0)", "1/0", "cos(1.5^2147483648)", "acos(2)"])
+                       "(-8)^(1/3)", "sqrt(-1)", "log(0)", "1/0", "cos(1.5^2147483648)", "acos(2)",
+                       "exp(exp(exp(100)))", "1/exp(exp(exp(100)))", "sinh(1e5)", "x^(1/3)",
+                       "10**10**10^9.81", "atan2(0, 0)", "tan(pi/2)", "sign(x)*abs(x)^0.5"])
 
 
 def _interval(rng: random.Random) -> str:
@@ -265,7 +267,7 @@ class Findings:
 
 
 def run(n_lines: int, seed: int = 1, batch: int = 40) -> Findings:
-    """Fuzz ``n_lines`` lines (in batches on a fresh prelude scene) and return what was found."""
+    """Fuzz ``n_lines`` lines, ``batch`` lines to a fresh prelude scene, and return the findings."""
     rng = random.Random(seed)
     units = session_units()
     found = Findings()
@@ -328,9 +330,10 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--seed", type=int, default=1)
     parser.add_argument("--show", type=int, default=10, help="examples and slow lines to show")
     parser.add_argument("--trace", action="store_true", help="print how to reproduce each finding")
+    parser.add_argument("--batch", type=int, default=40, help="lines run on one scene before a fresh one")
     args = parser.parse_args(argv)
     start = time.perf_counter()
-    found = run(args.lines, args.seed)
+    found = run(args.lines, args.seed, args.batch)
     print(found.report(args.show))
     if args.trace:
         for trace in found.traces.values():

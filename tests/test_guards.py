@@ -451,3 +451,15 @@ def test_a_front_end_drawing_outside_a_command_is_bound_only_by_the_ceilings(pla
     with pytest.raises(LimitError, match="expression_size = 100"):
         Session().run_text("\n".join(line for line in plain.journal.replayable()
                                       if not line.startswith("set limit")))
+
+
+def test_a_constant_expression_complex_only_once_its_constants_are_known_is_refused():
+    s = Session()
+    s.run_text("const T = 0.5\ndof x")
+    assert "not a real number" in str(refused(s, "print x on [log(T) ^ 3.25 - 3.25, 1]"))   # fuzz
+    assert "not a real number" in str(refused(s, "const u = sqrt(T - 1)"))
+    s.execute("const T = 100")
+    assert "not a finite number" in str(refused(s, "const u = exp(exp(exp(T)))"))   # was: for ever
+    assert "not a finite number" in str(refused(s, "const u = exp(-exp(exp(T)))"))  # 0, but not on the way
+    assert "not a real number" in str(refused(s, "key log(0.05 - T/1000) x=1"))
+    assert "not a finite number" in str(refused(s, "key log(0.1 - T/1000) x=1"))

@@ -28,10 +28,10 @@ import math
 from contextlib import contextmanager
 from typing import Protocol
 
-import symengine as se
 import sympy as sp
 
 from .. import limits
+from ..compiler import double_finite
 from ..errors import SourceError
 from ..symbols import TIME, dof_symbol, named_symbol
 from .tokens import END, NAME, NUMBER, Token, tokenize
@@ -111,16 +111,6 @@ def _magnitude(number: sp.Expr) -> float:
         return math.inf
 
 
-def _double_finite(number: sp.Expr) -> bool:
-    """Whether ``number`` (no symbols) and everything it is made of stay finite in double
-    precision, evaluated by symengine in plain floating point (microseconds, whatever the size)."""
-    try:
-        value = complex(se.S(number).n(53, real=False))
-    except (RuntimeError, TypeError, ValueError, OverflowError, NotImplementedError):
-        return True   # symengine cannot evaluate it: leave it to the later checks
-    return math.isfinite(value.real) and math.isfinite(value.imag)
-
-
 class ExpressionParser:
     """Parses expressions from a token list, starting at any position.
 
@@ -198,7 +188,7 @@ class ExpressionParser:
         if value.has(*_UNDEFINED):
             raise self.error("the value is undefined or infinite here (division by zero?)", token,
                              expected="a finite expression")
-        if value.is_number and not (value.is_Rational or value.is_Float) and not _double_finite(value):
+        if value.is_number and not (value.is_Rational or value.is_Float) and not double_finite(value):
             # exp(exp(exp(100))): sympy would later evaluate it with ever more digits, for ever
             raise self.error("number out of range (or undefined)", token,
                              expected="a value a double can hold, below 1e308")
