@@ -310,6 +310,7 @@ class CommandParser(ExpressionParser):
     def p_const(self):
         items: dict[str, sp.Expr] = {}
         outer = self.scope
+        earlier = DictScope({}, parent=outer)   # the items so far, which later ones may use
         try:
             while True:
                 token = self.name("a constant name")
@@ -323,7 +324,8 @@ class CommandParser(ExpressionParser):
                 self.expect_op("=", f"'=' after {token.text}")
                 items[token.text] = self.number_expr()
                 # The interpreter applies the items in order, so later ones may use earlier ones.
-                self.scope = DictScope(dict.fromkeys(items, NameKind.CONST), parent=outer)
+                earlier.kinds[token.text] = NameKind.CONST
+                self.scope = earlier
                 if not self.token.is_op(","):
                     break
                 self.advance()
