@@ -388,8 +388,8 @@ def _load(path: Path, key: bytes):
         return None
     mac, payload = data[:32], data[32:]
     if len(data) < 32 or not hmac.compare_digest(mac, _mac(key, path, payload)):
-        _warn_once("entry", f"stw: ignored a term cache entry that stw did not write ({path}); "
-                            "compiling afresh")
+        _warn_once("entry", f"stw: ignored a term cache entry not signed with your key ({path}: "
+                            "written by an older stw, damaged, or planted); compiling afresh")
         return None
     try:
         return pickle.loads(payload)

@@ -331,7 +331,7 @@ def test_a_planted_entry_is_never_unpickled_but_recompiled_and_reported_once(cac
     _compile_once()
     _plant_everywhere(cache)
     monkeypatch.setattr(compiler, "_CACHE", {})
-    with pytest.warns(RuntimeWarning, match="did not write"):
+    with pytest.warns(RuntimeWarning, match="not signed with your key"):
         term = _compile_once()
     assert not (cache.parent / "PWNED").exists()
     assert term.value([[0.5]], [0.0], []) == pytest.approx([3 * 0.479425538604203])
