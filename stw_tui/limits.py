@@ -37,7 +37,7 @@ LIMITS: dict[str, Limit] = {limit.name: limit for limit in (
     Limit("digits", 300, 4_000, "digits of an integer literal"),
     Limit("number_bits", 8_192, 14_000, "bits of an exact number computed while parsing"),
     Limit("exponent", 1_000_000, 2**31 - 1, "magnitude of a numeric exponent (x^N, 10^N, 1.5^N)"),
-    Limit("expression_size", 40_000, 2_000_000,
+    Limit("expression_size", 30_000, 2_000_000,
           "nodes of an expression once its subexpressions are substituted"),
     Limit("knots", 1_000, 20_000, "knot spans of one DOF (time/dof knots=, and after refine)"),
     Limit("samples", 5_000, 1_000_000, "constraint instances per animation span (samples=, set samples)"),
