@@ -8,6 +8,7 @@ exactly as it was. Replaying the journal's successful lines rebuilds the same sc
 
 from __future__ import annotations
 
+import os
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Callable
@@ -43,10 +44,25 @@ class Journal:
         return entry
 
     def settle(self, entry: JournalEntry, ok: bool, error: str = "") -> None:
+        """Record what became of ``entry``: appended to the journal file, flushed and synced to
+        disk before the caller acknowledges the command.
+
+        Raises:
+            StwError: the file could not be written (a full disk); the entry is then recorded
+                as failed, so it is never replayed.
+        """
         entry.ok, entry.error = ok, error
-        if self.path is not None:
+        if self.path is None:
+            return
+        try:
             with self.path.open("a", encoding="utf-8") as out:
                 out.write(self._render(entry) + "\n")
+                out.flush()
+                os.fsync(out.fileno())
+        except (OSError, ValueError) as exc:
+            entry.ok, entry.error = False, f"the journal could not record it: {exc}"
+            raise StwError(f"the journal {self.path} could not record the line ({exc}); "
+                           "the scene is unchanged") from exc
 
     @staticmethod
     def _render(entry: JournalEntry) -> str:
@@ -166,29 +182,39 @@ class Session:
                     outcome = interpreter.apply_line(self, scene, text, line, on_report)
         except SourceError as exc:
             error = exc if exc.line is not None or line is None else exc.at_line(line)
-            self.journal.settle(entry, False, str(error))
+            self._settle_failed(entry, str(error))
             raise error from None
         except StwError as exc:
-            self.journal.settle(entry, False, str(exc))
+            self._settle_failed(entry, str(exc))
             raise type(exc)(f"line {line}: {exc}" if line is not None else str(exc)) from exc
         except Exception as exc:  # a bug must not lose the scene or the session: report it
             message = f"internal error ({type(exc).__name__}: {exc}); the scene is unchanged"
-            self.journal.settle(entry, False, message)
+            self._settle_failed(entry, message)
             raise StwError(f"line {line}: {message}" if line is not None else message) from exc
         broken = [name for name, dof in scene.dofs.items() if not np.all(np.isfinite(dof.curve.coef))]
         if broken:   # shake amplitude=1e308, a key at 1e308: a curve must stay a curve
             message = (f"the command would make the curve of {', '.join(broken)} non-finite; "
                        "the scene is unchanged")
-            self.journal.settle(entry, False, message)
+            self._settle_failed(entry, message)
             raise StwError(f"line {line}: {message}" if line is not None else message)
-        self.scene = scene
         if outcome.journal_text is not None:
             entry.text = outcome.journal_text
-        self.journal.settle(entry, True)
+        try:
+            self.journal.settle(entry, True)   # on disk first: only then is the command applied
+        except StwError as exc:
+            raise StwError(f"line {line}: {exc}" if line is not None else str(exc)) from exc.__cause__
+        self.scene = scene
         self.prints.extend(outcome.prints)
         if outcome.run is not None:
             self.runs.append(outcome.run)
         return outcome
+
+    def _settle_failed(self, entry: JournalEntry, message: str) -> None:
+        """Record a failed line; a journal that cannot record it must not hide the line's error."""
+        try:
+            self.journal.settle(entry, False, message)
+        except StwError:
+            pass   # the line failed anyway: its own error is what the user needs to see
 
     @staticmethod
     def _check_joints(block: list[tuple[int | None, str]]) -> None:

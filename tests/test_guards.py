@@ -463,3 +463,30 @@ def test_a_constant_expression_complex_only_once_its_constants_are_known_is_refu
     assert "not a finite number" in str(refused(s, "const u = exp(-exp(exp(T)))"))  # 0, but not on the way
     assert "not a real number" in str(refused(s, "key log(0.05 - T/1000) x=1"))
     assert "not a finite number" in str(refused(s, "key log(0.1 - T/1000) x=1"))
+
+
+# --- a journal that cannot be written -----------------------------------------------------------
+
+def test_a_journal_that_cannot_be_written_leaves_the_scene_unchanged(tmp_path):
+    import os
+
+    if not os.path.exists("/dev/full"):
+        pytest.skip("no /dev/full here")
+    s = Session(journal_path="/dev/full")
+    err = refused(s, "dof x")                            # was: a raw OSError after the change
+    assert "journal" in str(err) and "the scene is unchanged" in str(err)
+    assert "x" not in s.scene.dofs and s.journal.replayable() == []
+    with pytest.raises(SourceError):                    # a failing line still reports its own error
+        s.execute("dof 1x")
+
+
+def test_the_journal_is_synced_before_a_line_is_acknowledged(tmp_path, monkeypatch):
+    import os
+
+    synced = []
+    real_fsync = os.fsync
+    monkeypatch.setattr(os, "fsync", lambda fd: (synced.append(fd), real_fsync(fd)))
+    path = tmp_path / "j.stw"
+    s = Session(journal_path=path)
+    s.execute("dof x")
+    assert synced and path.read_text() == "dof x\n"
