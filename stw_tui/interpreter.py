@@ -222,6 +222,8 @@ def _let(scene: Scene, cmd) -> str:
     _check_new_name(scene, cmd.name, ("let",))
     previous = scene.lets.get(cmd.name)
     scene.lets[cmd.name] = cmd.expr
+    if _refers_to_itself(scene, cmd.name):   # also through a derivative: let f = f'
+        raise StwError(f"'{cmd.name}' would be defined in terms of itself")
     try:
         expanded = scene.expand(sp.Symbol(cmd.name, real=True))
     except LimitError:
@@ -231,6 +233,23 @@ def _let(scene: Scene, cmd) -> str:
     if sp.Symbol(cmd.name, real=True) in expanded.free_symbols:
         raise StwError(f"'{cmd.name}' would be defined in terms of itself")
     return f"let {cmd.name}" + (" (redefined)" if previous is not None else "")
+
+
+def _refers_to_itself(scene: Scene, name: str) -> bool:
+    """Whether subexpression ``name`` uses itself, directly, through other subexpressions or
+    through their time derivatives (f', which expansion would differentiate for ever)."""
+    definitions = {**scene.derived, **scene.lets}
+    seen, todo = set(), [name]
+    while todo:
+        current = todo.pop()
+        for symbol in definitions[current].free_symbols:
+            base = symbol.name.rstrip("'")
+            if base == name:
+                return True
+            if base in definitions and base not in seen:
+                seen.add(base)
+                todo.append(base)
+    return False
 
 
 def _weight_value(scene: Scene, expr, allow_zero: bool) -> float:

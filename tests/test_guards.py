@@ -490,3 +490,10 @@ def test_the_journal_is_synced_before_a_line_is_acknowledged(tmp_path, monkeypat
     s = Session(journal_path=path)
     s.execute("dof x")
     assert synced and path.read_text() == "dof x\n"
+
+
+@pytest.mark.parametrize("lines", [["let f = x", "let f = f'"], ["let a = x", "let b = a''", "let a = b'"]])
+def test_a_subexpression_through_its_own_derivative_is_refused(plain, lines):
+    for line in lines[:-1]:
+        plain.execute(line)
+    assert "in terms of itself" in str(refused(plain, lines[-1]))   # was: RecursionError (fuzz)
