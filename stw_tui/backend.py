@@ -146,6 +146,11 @@ class Backend(ABC):
         """The backend-neutral state of ``inner`` (control points and multipliers)."""
 
 
+# What a plugin may raise that must stop at the boundary: any error, and also SystemExit and
+# KeyboardInterrupt raised by the plugin's own code (a stray sys.exit() must not end stw).
+_PLUGIN_FAULTS = (Exception, SystemExit, KeyboardInterrupt)
+
+
 # --- discovery -------------------------------------------------------------------------------
 def available_backends() -> dict[str, metadata.EntryPoint]:
     """Installed backends by name, without importing any of them."""
@@ -164,7 +169,7 @@ def load_backend(name: str) -> type[Backend]:
         raise StwError(f"no backend named '{name}' (installed: {', '.join(sorted(found)) or 'none'})")
     try:
         cls = found[name].load()
-    except Exception as exc:  # a plugin's import error must not take stw down
+    except _PLUGIN_FAULTS as exc:  # a plugin's import error (even a sys.exit) must not take stw down
         raise StwError(f"backend '{name}' failed to load: {type(exc).__name__}: {exc}") from exc
     if not (isinstance(cls, type) and issubclass(cls, Backend)):
         raise StwError(f"backend '{name}' is not a stw_tui.backend.Backend subclass")
@@ -172,6 +177,21 @@ def load_backend(name: str) -> type[Backend]:
         raise StwError(f"backend '{name}' speaks interface {cls.interface_version}, stw speaks "
                        f"{INTERFACE_VERSION}")
     return cls
+
+
+def create_backend(cls: type[Backend], options: dict[str, Any]) -> Backend:
+    """An instance of backend ``cls`` with ``options`` (validated by the backend).
+
+    Raises:
+        StwError: bad options, or the plugin's constructor raised (SystemExit included).
+    """
+    try:
+        return cls(**options)
+    except StwError:
+        raise
+    except _PLUGIN_FAULTS as exc:
+        raise StwError(f"backend {getattr(cls, 'name', cls.__name__)} could not start: "
+                       f"{type(exc).__name__}: {exc}") from exc
 
 
 # --- the driver ------------------------------------------------------------------------------
@@ -230,7 +250,7 @@ def run_iterations(backend: Backend, problem, start: SolverState, n: int, settin
         raise
     except StwError as exc:
         raise SolveError(f"backend {backend.name}: {exc}") from exc
-    except Exception as exc:  # any bug or numerical failure inside a plugin
+    except _PLUGIN_FAULTS as exc:  # any bug or numerical failure inside a plugin, or its sys.exit()
         raise SolveError(f"backend {backend.name} raised {type(exc).__name__}: {exc}; "
                          "the scene is unchanged") from exc
     return RunResult(status, replace(state), reports, time.perf_counter() - t0)

@@ -7,15 +7,22 @@ generation use symengine (hundreds of times faster than sympy on equations of mo
 expression is kept for backends that lower it themselves (torch).
 
 Constants stay symbols: their values are runtime parameters, so changing one never recompiles.
-Compiled terms are cached by (expression, parameter names).
+Compiled terms are cached by (expression, parameter names): in memory, the most recently used
+``MAX_TERMS`` of them; on disk, in a cache directory that only the user can write, each entry
+authenticated by an HMAC under the user's own key (see :func:`_cache_root`).
 """
 
 from __future__ import annotations
 
 import hashlib
+import math
+import hmac
 import os
 import pickle
+import secrets
+import stat
 import threading
+import warnings
 from dataclasses import dataclass, field
 from functools import cached_property
 from pathlib import Path
@@ -24,11 +31,14 @@ import numpy as np
 import symengine as se
 import sympy as sp
 
-from .errors import StwError
+from . import limits
+from .errors import LimitError, StwError
 from .symbols import TIME, split_dof_symbol
 
-_CACHE: dict[tuple, "CompiledTerm"] = {}
+MAX_TERMS = 256   # compiled terms kept in memory (each holds its machine code, up to ~1 MB)
+_CACHE: dict[tuple, "CompiledTerm"] = {}   # in least-recently-used order
 _CACHE_LOCK = threading.Lock()
+_WARNED: set[str] = set()   # cache problems already reported (each once a process)
 
 
 _KINKS = (sp.Abs, sp.sign, sp.Max, sp.Min)
@@ -159,6 +169,7 @@ def compile_term(expr: sp.Expr, dof_names: frozenset[str] | set[str],
     """
     if isinstance(expr, (int, float)):
         expr = sp.Float(expr)
+    check_size(expr)
     symbols = expr.free_symbols
     variables, parameters = [], []
     for symbol in symbols:
@@ -175,51 +186,241 @@ def compile_term(expr: sp.Expr, dof_names: frozenset[str] | set[str],
     parameters = tuple(sorted(parameters))
     key = (expr, variables, parameters)
     with _CACHE_LOCK:
-        cached = _CACHE.get(key)
-    if cached is not None:
-        return cached
+        cached = _CACHE.pop(key, None)
+        if cached is not None:
+            _CACHE[key] = cached   # now the most recently used
+            return cached
     term = _build(expr, variables, parameters)
     with _CACHE_LOCK:
         _CACHE[key] = term
+        while len(_CACHE) > MAX_TERMS:
+            del _CACHE[next(iter(_CACHE))]   # the least recently used
     return term
+
+
+def check_size(expr: sp.Basic) -> None:
+    """Refuse, before any work on it, an expression too large to compile in reasonable time, or
+    with an integer exponent that compiled code would wrap (x^2147483648 evaluates to inf).
+
+    The size is that of the expression as a tree (what differentiation and code generation
+    walk), counted over its distinct nodes only, so a subexpression shared 2^30 times costs one
+    visit.
+
+    Raises:
+        StwError: naming the limit expression_size or exponent.
+    """
+    most, largest_exponent = limits.value_or_ceiling("expression_size"), limits.value_or_ceiling("exponent")
+    sizes: dict[sp.Basic, int] = {}
+    stack = [expr]
+    while stack:   # iterative post-order: deep expressions must not exhaust the Python stack
+        node = stack[-1]
+        pending = [a for a in node.args if a not in sizes]
+        if pending:
+            stack.extend(pending)
+            continue
+        stack.pop()
+        if node in sizes:
+            continue
+        if node.is_Pow and node.exp.is_Integer and abs(node.exp) > largest_exponent:
+            raise LimitError(limits.over("exponent", node.exp, f"{_clip(node)}: exponent") +
+                             "; compiled code cannot raise to such a power exactly")
+        sizes[node] = 1 + sum(sizes[a] for a in node.args)
+        if sizes[node] > most:
+            raise LimitError(limits.over("expression_size", f"{sizes[node]}+ nodes",
+                                         "an expression (its subexpressions substituted) of") +
+                             "; a long linkage's forces grow fast")
+
+
+_HUGE = 10**18   # sizes are capped here: only "over the limit" matters
+
+
+def _tree_size(expr: sp.Basic, leaf_size) -> int:
+    """Size of ``expr`` as a tree, ``leaf_size(symbol)`` counting for each symbol, computed over
+    its distinct nodes (iteratively: deep expressions must not exhaust the Python stack)."""
+    sizes: dict[sp.Basic, int] = {}
+    stack = [expr]
+    while stack:
+        node = stack[-1]
+        pending = [a for a in node.args if a not in sizes]
+        if pending:
+            stack.extend(pending)
+            continue
+        stack.pop()
+        if node not in sizes:
+            own = leaf_size(node) if node.is_Symbol else 1
+            sizes[node] = min(_HUGE, own + sum(sizes[a] for a in node.args))
+    return sizes[expr]
+
+
+def expanded_size(expr: sp.Basic, definitions: dict[sp.Symbol, sp.Basic]) -> int:
+    """The tree size ``expr`` will have once every defined symbol in it is replaced by its
+    definition, recursively — computed without substituting anything, so a chain of
+    subexpressions each using the previous twice (2^30 nodes after 30 lines) is measured at once.
+    A primed subexpression (its time derivative) counts four times per prime."""
+    named = {s.name: d for s, d in definitions.items()}
+    known: dict[str, int] = {}
+
+    def base_of(symbol) -> str | None:
+        base = symbol.name.rstrip("'")
+        return base if base in named else None
+
+    def used(e) -> set[str]:
+        seen, stack, names = set(), [e], set()
+        while stack:
+            node = stack.pop()
+            if node in seen:
+                continue
+            seen.add(node)
+            if node.is_Symbol and base_of(node) is not None:
+                names.add(base_of(node))
+            stack.extend(node.args)
+        return names
+
+    def leaf(symbol) -> int:
+        base = base_of(symbol)
+        if base is None:
+            return 1
+        primes = len(symbol.name) - len(base)
+        return min(_HUGE, known.get(base, 1) * 4 ** primes)
+
+    todo, visiting = list(used(expr)), set()
+    while todo:   # sizes of the definitions, dependencies first (a circle counts 1; expand reports it)
+        name = todo[-1]
+        if name in known:
+            todo.pop()
+            continue
+        waiting = [n for n in used(named[name]) if n not in known and n not in visiting]
+        if waiting and name not in visiting:
+            visiting.add(name)
+            todo.extend(waiting)
+            continue
+        todo.pop()
+        known[name] = _tree_size(named[name], leaf)
+    return _tree_size(expr, leaf)
+
+
+def _clip(power: sp.Pow) -> str:
+    return f"{power.base}^{power.exp}" if power.base.is_Symbol else f"a power ^{power.exp}"
 
 
 def _symbol_of(var: LocalVar) -> se.Symbol:
     return se.Symbol(var.label)
 
 
-def _disk_cache_path(expr, variables, parameters) -> Path | None:
-    """Where the compiled functions of a term are kept across runs (None: caching is off).
+def _warn_once(what: str, message: str) -> None:
+    if what not in _WARNED:
+        _WARNED.add(what)
+        warnings.warn(message, RuntimeWarning, stacklevel=4)
 
-    ``STW_CACHE_DIR`` overrides the place (``off`` disables it); the key is the expression's
-    text with its argument order and the symengine version, so a changed linkage or term
-    compiles afresh. The files are pickles this program wrote itself, in the user's own cache.
+
+def _private(path: Path, *, directory: bool) -> bool:
+    """True when ``path`` is a real directory/file (not a link) owned by this user that no one
+    else may write (a file: nor read)."""
+    try:
+        info = os.lstat(path)
+    except OSError:
+        return False
+    kind_ok = stat.S_ISDIR(info.st_mode) if directory else stat.S_ISREG(info.st_mode)
+    others = 0o022 if directory else 0o077
+    return kind_ok and info.st_uid == os.getuid() and not info.st_mode & others
+
+
+def _cache_root() -> tuple[Path, bytes] | None:
+    """The disk cache directory and the user's key, or None when caching is off or unsafe.
+
+    ``STW_CACHE_DIR`` overrides the place (``off`` disables it). The cache is used only when the
+    directory is owned by the user and not writable by group or others (a new one is created
+    0700), and its entries are authenticated with HMAC-SHA256 under a per-user key kept in
+    ``.key`` inside it (mode 0600, created on first use). An unsafe directory is reported once.
     """
     root = os.environ.get("STW_CACHE_DIR") or str(Path.home() / ".cache" / "stw" / "terms")
-    if root == "off":
+    if root == "off" or not hasattr(os, "getuid"):
         return None
+    path = Path(root)
+    try:
+        if not path.exists():
+            path.parent.mkdir(parents=True, exist_ok=True)
+            path.mkdir(mode=0o700, exist_ok=True)
+    except OSError:
+        return None
+    if not _private(path, directory=True):
+        _warn_once(f"dir:{path}", f"stw: not using the term cache {path}: it is not a directory "
+                                  "owned by you that only you can write; compiling afresh")
+        return None
+    key_path = path / ".key"
+    try:
+        fd = os.open(key_path, os.O_WRONLY | os.O_CREAT | os.O_EXCL, 0o600)
+        with os.fdopen(fd, "wb") as out:
+            out.write(secrets.token_bytes(32))
+    except FileExistsError:
+        pass
+    except OSError:
+        return None
+    if not _private(key_path, directory=False):
+        _warn_once(f"key:{key_path}", f"stw: not using the term cache {path}: its key {key_path} "
+                                      "is not a file of yours that only you can read")
+        return None
+    try:
+        key = key_path.read_bytes()
+    except OSError:
+        return None
+    return (path, key) if len(key) == 32 else None
+
+
+def _disk_cache_path(root: Path, expr, variables, parameters) -> Path:
+    """Where a term's compiled functions are kept: named by the expression's text with its
+    argument order and the symengine version, so a changed linkage or term compiles afresh."""
     key = f"{se.__version__}|{_to_symengine(expr)}|{variables}|{parameters}"  # C++ printing: fast
-    return Path(root) / (hashlib.sha256(key.encode()).hexdigest() + ".pkl")
+    return root / (hashlib.sha256(key.encode()).hexdigest() + ".pkl")
+
+
+def _mac(key: bytes, path: Path, payload: bytes) -> bytes:
+    # The entry's name is signed too: a valid entry copied under another name is refused.
+    return hmac.new(key, path.name.encode() + b"\0" + payload, hashlib.sha256).digest()
+
+
+def _load(path: Path, key: bytes):
+    """The unpickled entry at ``path`` if its HMAC is valid, else None (reported once).
+    Nothing is unpickled before the HMAC is checked."""
+    try:
+        data = path.read_bytes()
+    except OSError:
+        return None
+    mac, payload = data[:32], data[32:]
+    if len(data) < 32 or not hmac.compare_digest(mac, _mac(key, path, payload)):
+        _warn_once("entry", f"stw: ignored a term cache entry not signed with your key ({path}: "
+                            "written by an older stw, damaged, or planted); compiling afresh")
+        return None
+    try:
+        return pickle.loads(payload)
+    except Exception:  # written by another version of a library: compile again
+        return None
+
+
+def _store(path: Path, key: bytes, entry) -> None:
+    try:
+        payload = pickle.dumps(entry)
+        tmp = path.with_suffix(f".{os.getpid()}.tmp")
+        fd = os.open(tmp, os.O_WRONLY | os.O_CREAT | os.O_TRUNC, 0o600)
+        with os.fdopen(fd, "wb") as out:
+            out.write(_mac(key, path, payload) + payload)
+        tmp.replace(path)   # atomic: concurrent runs never read half a file
+    except (OSError, pickle.PicklingError, TypeError):
+        pass  # caching is an optimization only
 
 
 def _build(expr: sp.Expr, variables: tuple[LocalVar, ...], parameters: tuple[str, ...]) -> CompiledTerm:
-    path = _disk_cache_path(expr, variables, parameters)
+    cache = _cache_root()
+    path = _disk_cache_path(cache[0], expr, variables, parameters) if cache is not None else None
     if path is not None and path.is_file():
-        try:
-            pairs, value_fn, full_fn = pickle.loads(path.read_bytes())
+        entry = _load(path, cache[1])
+        if entry is not None:
+            pairs, value_fn, full_fn = entry
             return CompiledTerm(expr=expr, variables=variables, parameters=parameters,
                                 hessian_pairs=tuple(pairs), _value_fn=value_fn, _full_fn=full_fn)
-        except Exception:  # a stale or damaged cache entry: compile again
-            pass
     term = _compile(expr, variables, parameters)
     if path is not None:
-        try:
-            path.parent.mkdir(parents=True, exist_ok=True)
-            tmp = path.with_suffix(f".{os.getpid()}.tmp")
-            tmp.write_bytes(pickle.dumps((term.hessian_pairs, term._value_fn, term._full_fn)))
-            tmp.replace(path)   # atomic: concurrent runs never read half a file
-        except (OSError, pickle.PicklingError, TypeError):
-            pass  # caching is an optimization only
+        _store(path, cache[1], (term.hessian_pairs, term._value_fn, term._full_fn))
     return term
 
 
@@ -241,6 +442,44 @@ def _compile(expr: sp.Expr, variables: tuple[LocalVar, ...], parameters: tuple[s
     full_fn = _lambdify(args, [e, *grad, *hess])
     return CompiledTerm(expr=expr, variables=variables, parameters=parameters,
                         hessian_pairs=tuple(pairs), _value_fn=value_fn, _full_fn=full_fn)
+
+
+def double_finite(expr: sp.Expr, values: dict[str, float] | None = None) -> bool:
+    """Whether ``expr``, with symbols replaced by ``values``, and every part of it stay finite
+    in double precision. Each node is evaluated once, by symengine in plain floating point
+    (microseconds whatever the size), so exp(-exp(exp(100))) fails at its inner exp even though
+    its value underflows to 0: sympy's exact evaluation of it, or even substituting 100.0 for a
+    constant in it, would compute ever more digits, for ever.
+    """
+    try:
+        root = _to_symengine(expr)
+    except Exception:  # noqa: BLE001 - not convertible: leave it to the later checks
+        return True
+    subs = {se.Symbol(k): se.RealDouble(v) for k, v in (values or {}).items()}
+    memo: dict = {}
+    stack = [root]
+    while stack:
+        node = stack[-1]
+        pending = [a for a in node.args if a not in memo]
+        if pending:
+            stack.extend(pending)
+            continue
+        stack.pop()
+        if node in memo:
+            continue
+        value = node
+        try:
+            value = node.func(*[memo[a] for a in node.args]) if node.args else subs.get(node, node)
+            if not value.free_symbols:
+                number = complex(value.n(53, real=False))
+                if not (math.isfinite(number.real) and math.isfinite(number.imag)):
+                    return False
+                value = se.RealDouble(number.real) + se.I * se.RealDouble(number.imag) \
+                    if number.imag else se.RealDouble(number.real)
+        except Exception:  # noqa: BLE001 - a condition, a Piecewise: not a number to check
+            pass
+        memo[node] = value
+    return True
 
 
 def cache_size() -> int:

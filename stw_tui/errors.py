@@ -2,6 +2,22 @@
 
 from __future__ import annotations
 
+import unicodedata
+
+
+def printable(text: str) -> str:
+    """``text`` safe to show on a terminal: control and other invisible characters (escape
+    sequences, carriage returns, tabs, lone surrogates) are written as escapes like \\x1b."""
+    if text.isprintable():
+        return text
+    return "".join(c if c.isprintable() or (c == " ") else _escape(c) for c in text)
+
+
+def _escape(c: str) -> str:
+    if unicodedata.category(c) == "Cs":   # a lone surrogate cannot be encoded at all
+        return f"\\u{ord(c):04x}"
+    return c.encode("unicode_escape").decode("ascii")
+
 
 class StwError(Exception):
     """Base class of all errors caused by user input or by a solve; the message is for the user."""
@@ -36,18 +52,24 @@ class SourceError(StwError):
         text = self.message
         if self.expected:
             text += f" (expected {self.expected})"
-        return f"{', '.join(where)}: {text}" if where else text
+        return printable(f"{', '.join(where)}: {text}" if where else text)
 
     def caret(self) -> str:
-        """The source line with a caret under the offending column ('' if unknown)."""
+        """The source line with a caret under the offending column ('' if unknown); control
+        characters in the line are shown escaped, never sent to the terminal."""
         if self.source is None or self.column is None:
             return ""
-        return f"{self.source}\n{' ' * (self.column - 1)}^"
+        before = printable(self.source[:self.column - 1])
+        return f"{printable(self.source)}\n{' ' * len(before)}^"
 
     def at_line(self, line: int) -> "SourceError":
         """Copy of this error placed at a session line number."""
         return SourceError(self.message, line=line, column=self.column, source=self.source,
                            expected=self.expected)
+
+
+class LimitError(StwError):
+    """A line asked for more than a limit of stw_tui.limits allows (the message names the limit)."""
 
 
 class SolveError(StwError):

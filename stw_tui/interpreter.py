@@ -13,10 +13,11 @@ import numpy as np
 import sympy as sp
 
 from . import language as lang
-from .backend import RunResult, Status, SolverState, load_backend, run_iterations
+from . import limits
+from .backend import RunResult, Status, SolverState, create_backend, load_backend, run_iterations
 from .compiler import compile_term
-from .continuous import check_scene, expression_values, survey
-from .errors import StwError
+from .continuous import check_scene, condition_holds, expression_values, survey
+from .errors import LimitError, SolveError, SourceError, StwError
 from .scene import DEFAULT_SETTINGS, Constraint, Dof, Objective, Relation, Scene, Window
 from .spline import DofCurve
 from .symbols import dof_symbol, dof_symbols
@@ -81,6 +82,7 @@ def apply_linkage(session: "Session", scene: Scene, block) -> "Outcome":
     if spec.gravity_axis is not None and "g" not in scene.constants:
         raise StwError("the linkage feels gravity g: declare it first, e.g. `const g = 9.81`")
     names = curve_dofs(spec)
+    limits.check("dofs", len(scene.dofs) + len(names), "the DOF count")
     taken = [n for n in names + [b.dof for b in spec.base] if scene.kind_of(n) is not None]
     if taken:
         raise StwError(f"linkage DOF {', '.join(taken)} already exist; rename the joints")
@@ -115,7 +117,16 @@ def _evaluate_curve_expr(scene: Scene, expr: sp.Expr):
     expr = scene.expand(expr)
     term = compile_term(expr, set(), set(scene.constants))
     params = scene.constant_values(term.parameters)
-    return lambda times: term.value(np.zeros((len(times), 0)), np.asarray(times, float), params)
+
+    def curve(times):
+        times = np.asarray(times, float)
+        values = term.value(np.zeros((len(times), 0)), times, params)
+        bad = np.flatnonzero(~np.isfinite(values))
+        if bad.size:   # exp(1000*t), log(t - 1): a curve must be finite everywhere
+            what = "not a real number" if np.isnan(values[bad[0]]) else "infinite"
+            raise StwError(f"the curve {sp.sstr(expr)[:60]} is {what} at t={times[bad[0]]:.6g}")
+        return values
+    return curve
 
 
 def _time_in_span(scene: Scene, value: float, what: str) -> float:
@@ -153,10 +164,17 @@ def _time(scene: Scene, cmd) -> str:
     if not t0 < t1:
         raise StwError(f"the animation span [{t0:g}, {t1:g}] is empty")
     knots = cmd.knots if cmd.knots is not None else scene.knots
+    if max(abs(t0), abs(t1)) > 1e15 or not (t1 - t0) / max(knots, 1) > 1e-9 * max(1.0, abs(t0), abs(t1)):
+        raise StwError(f"the animation span [{t0:g}, {t1:g}] cannot hold {knots} knot spans in "
+                       "double precision; use times within ±1e15 and spans longer than 1e-9 of them")
     if knots < 1:
         raise StwError("knots must be at least 1")
     if cmd.samples is not None and cmd.samples < 1:
         raise StwError("samples must be at least 1")
+    outside = _outside_span(scene, t0, t1)
+    if outside:
+        raise StwError(f"{', '.join(outside[:3])}{' and more' if len(outside) > 3 else ''} would lie "
+                       f"outside the span [{t0:g}, {t1:g}]; change or delete them first")
     for dof in scene.dofs.values():
         old = dof.curve
         dof.curve = DofCurve.fit(t0, t1, knots, lambda t, c=old: c.evaluate(np.clip(t, c.t0, c.t1)))
@@ -165,6 +183,19 @@ def _time(scene: Scene, cmd) -> str:
     if cmd.samples is not None:
         scene.samples = cmd.samples
     return f"time [{t0:g}, {t1:g}], {knots} knot spans, {scene.sample_count} samples"
+
+
+def _outside_span(scene: Scene, t0: float, t1: float) -> list[str]:
+    """What would no longer fit a new span: constraints, objectives, windows and keys."""
+    def out(a: float, b: float) -> bool:
+        return a < t0 - 1e-12 or b > t1 + 1e-12
+
+    found = [f"constraint {c.name} {c.scope_text}" for c in scene.constraints.values()
+             if out(*((c.at, c.at) if c.at is not None else c.interval))]
+    found += [f"objective {o.name}" for o in scene.objectives.values() if o.interval and out(*o.interval)]
+    found += [f"window {w.name}" for w in scene.windows.values() if w.interval and out(*w.interval)]
+    found += [f"a key of {d.name}" for d in scene.dofs.values() if d.keys and out(d.keys[0][0], d.keys[-1][0])]
+    return found
 
 
 def _const(scene: Scene, cmd) -> str:
@@ -182,6 +213,7 @@ def _dof(scene: Scene, cmd) -> str:
         raise StwError(f"bounds lo={lo:g} hi={hi:g} are empty")
     if cmd.knots is not None and cmd.knots < 1:
         raise StwError("knots must be at least 1")
+    limits.check("dofs", len(scene.dofs) + len(set(cmd.names) - set(scene.dofs)), "the DOF count")
     for name in cmd.names:
         _check_new_name(scene, name, ("dof",))
         dof = scene.dofs.get(name)
@@ -205,13 +237,34 @@ def _let(scene: Scene, cmd) -> str:
     _check_new_name(scene, cmd.name, ("let",))
     previous = scene.lets.get(cmd.name)
     scene.lets[cmd.name] = cmd.expr
+    if _refers_to_itself(scene, cmd.name):   # also through a derivative: let f = f'
+        raise StwError(f"'{cmd.name}' would be defined in terms of itself")
     try:
         expanded = scene.expand(sp.Symbol(cmd.name, real=True))
+    except LimitError:
+        raise
     except StwError:
         raise StwError(f"'{cmd.name}' would be defined in terms of itself") from None
     if sp.Symbol(cmd.name, real=True) in expanded.free_symbols:
         raise StwError(f"'{cmd.name}' would be defined in terms of itself")
     return f"let {cmd.name}" + (" (redefined)" if previous is not None else "")
+
+
+def _refers_to_itself(scene: Scene, name: str) -> bool:
+    """Whether subexpression ``name`` uses itself, directly, through other subexpressions or
+    through their time derivatives (f', which expansion would differentiate for ever)."""
+    definitions = {**scene.derived, **scene.lets}
+    seen, todo = set(), [name]
+    while todo:
+        current = todo.pop()
+        for symbol in definitions[current].free_symbols:
+            base = symbol.name.rstrip("'")
+            if base == name:
+                return True
+            if base in definitions and base not in seen:
+                seen.add(base)
+                todo.append(base)
+    return False
 
 
 def _weight_value(scene: Scene, expr, allow_zero: bool) -> float:
@@ -339,6 +392,7 @@ def _refine(scene: Scene, cmd) -> str:
             raise StwError(f"a knot at {t:g} must lie inside the animation span, not at its end")
         dof = scene.dofs[cmd.dof]
         dof.curve = dof.curve.with_knot(t, cmd.multiplicity)
+        limits.check("knots", dof.curve.n_coef - 3, f"the knot spans of {cmd.dof} after refining,")
         return f"refined {cmd.dof}: a knot at {t:g} {cmd.multiplicity} time(s), {dof.curve.n_coef} control points"
     if cmd.interval is not None:
         a, b = _interval(scene, cmd.interval, "refinement interval")
@@ -347,6 +401,7 @@ def _refine(scene: Scene, cmd) -> str:
     dof = scene.dofs[cmd.dof]
     before = dof.curve.n_coef
     dof.curve = dof.curve.refined(a, b)
+    limits.check("knots", dof.curve.n_coef - 3, f"the knot spans of {cmd.dof} after refining,")
     return f"refined {cmd.dof} on [{a:g}, {b:g}]: {before} -> {dof.curve.n_coef} control points"
 
 
@@ -355,13 +410,17 @@ def _backend(scene: Scene, cmd) -> str:
     options = dict(cmd.options)
     if cmd.name == scene.backend:
         options = {**scene.backend_options, **options}
-    cls(**options)  # validates names and values
+    create_backend(cls, options)  # validates names and values
     scene.backend, scene.backend_options = cmd.name, options
     shown = " ".join(f"{k}={v}" for k, v in options.items())
     return f"backend {cmd.name} {shown}".rstrip()
 
 
 def _set(scene: Scene, cmd) -> str:
+    if cmd.option == "limit":   # the parser checked the name and the ceiling
+        name, value = cmd.value.split()
+        scene.limits[name] = limits.validated(name, int(value))
+        return f"limit {name} = {value}"
     if cmd.option == "samples":
         try:
             value = int(cmd.value)
@@ -446,6 +505,13 @@ def _print(scene: Scene, cmd):
         a, b = _interval(scene, cmd.interval, "interval") if cmd.interval else (scene.t0, scene.t1)
         times = np.linspace(a, b, 201)
     result = expression_values(scene, cmd.expr, times)
+    bad = np.flatnonzero(~np.isfinite(result))
+    if bad.size:   # x^(1/3) of a negative x, log(0): say where, never print nan
+        t = times[bad[0]]
+        what = "not a real number" if np.isnan(result[bad[0]]) else "infinite"
+        raise SourceError(f"{cmd.expr_text} is {what} at t={t:.6g}" +
+                          (f" (and at {bad.size - 1} more of {times.size} times)" if bad.size > 1 else ""),
+                          column=cmd.column, expected="an expression defined on the curves")
     if cmd.at is not None:
         value = float(result[0])
         return f"{cmd.expr_text} @ {times[0]:g} = {value:.10g}", PrintResult(cmd.expr_text, float(times[0]), value)
@@ -493,7 +559,7 @@ def _iterate(session: "Session", scene: Scene, cmd, on_report) -> "Outcome":
         raise StwError("iterate needs a positive number of iterations")
     settings = scene.settings
     rounds = cmd.adapt if cmd.adapt is not None else (int(settings["adaptive_rounds"]) if settings["adaptive"] else 0)
-    backend = load_backend(scene.backend)(**scene.backend_options)
+    backend = create_backend(load_backend(scene.backend), scene.backend_options)
     tol = settings["dense_tol"]
     problem = WindowProblem(scene)
     result = _solve(session, scene, problem, backend, cmd.n, on_report)
@@ -642,9 +708,32 @@ def _slide(session: "Session", scene: Scene, cmd, on_report) -> "Outcome":
     return Outcome(message=text, run=_merged(runs), journal_text="\n".join(journal) if stopped else None)
 
 
+def _check_start(scene: Scene, problem: WindowProblem) -> None:
+    """Refuse to solve from curves where a term or its derivatives is not a finite real number
+    (sqrt or log of a negative value, x^(1/3) of a negative x): name the term and the time,
+    instead of letting the backend fail on NaN with a misleading message."""
+    for group in problem.groups:
+        term, times = group.term, group.times
+        values = np.column_stack([scene.dofs[v.dof].curve.evaluate(times, v.order) for v in term.variables]) \
+            if term.variables else np.zeros((times.size, 0))
+        f, grad, _ = term.full(values, times, scene.constant_values(term.parameters))
+        bad = ~(np.isfinite(f) & np.all(np.isfinite(grad), axis=1))
+        constraint = scene.constraints.get(group.source) if group.kind != "obj" else None
+        if bad.any() and constraint is not None and constraint.when is not None:
+            bad &= condition_holds(scene, constraint.when, times)
+        if bad.any():
+            i = int(np.flatnonzero(bad)[0])
+            what = "its value" if not np.isfinite(f[i]) else "its derivative"
+            kind = "objective" if group.kind == "obj" else "constraint"
+            raise SolveError(f"{kind} {group.label}: {what} is not a finite real number at t={times[i]:.6g} "
+                             f"on the current curves ({sp.sstr(term.expr)[:80]}); the scene is unchanged — "
+                             "a keyframe, bounds (lo=, hi=) or a different start can keep it defined")
+
+
 def _solve(session: "Session", scene: Scene, problem: WindowProblem, backend, n: int, on_report) -> RunResult:
     """Run the backend on one window problem from the scene's curves (and the last solve's
     multipliers when its rows are the same), and put the result in the scene."""
+    _check_start(scene, problem)
     signature = (scene.active_window, tuple(problem.free), tuple(g.label for g in problem.groups),
                  tuple(g.n for g in problem.groups))
     start = SolverState.start(problem)

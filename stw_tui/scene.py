@@ -12,7 +12,7 @@ from dataclasses import dataclass, field, replace
 import numpy as np
 import sympy as sp
 
-from .errors import StwError
+from .errors import LimitError, StwError
 from .spline import DofCurve
 from .symbols import named_symbol
 
@@ -107,6 +107,8 @@ class Scene:
     extra_instances: dict[str, tuple[float, ...]] = field(default_factory=dict)
     # Motion verbs (`hold`, `ballistic`): the verb's line and the constraints/objectives it made.
     verbs: dict[str, tuple[str, tuple[str, ...]]] = field(default_factory=dict)
+    # Limits changed with `set limit NAME VALUE` (see stw_tui.limits; the others are the defaults).
+    limits: dict[str, int] = field(default_factory=dict)
 
     def copy(self) -> "Scene":
         """A copy that commands may change freely. Sympy expressions, curves and linkage specs
@@ -122,6 +124,7 @@ class Scene:
         new.backend_options, new.settings = dict(self.backend_options), dict(self.settings)
         new.extra_instances = dict(self.extra_instances)
         new.verbs = dict(self.verbs)
+        new.limits = dict(self.limits)
         return new
 
     # --- names -------------------------------------------------------------------------------
@@ -148,6 +151,7 @@ class Scene:
         """Substitute subexpressions (lets and derived quantities) until only DOF, t and constants
         remain. ``f'`` and ``f''`` of a subexpression ``f`` become its time derivatives."""
         definitions = {named_symbol(n): e for n, e in {**self.derived, **self.lets}.items()}
+        self._check_size(expr, definitions)
         for _ in range(100):
             inside = expr.free_symbols & definitions.keys()
             primed = {s for s in expr.free_symbols if s.name.endswith("'") and
@@ -161,6 +165,20 @@ class Scene:
                                                        len(s.name) - len(base))
             expr = expr.xreplace(replacements)
         raise StwError("subexpressions refer to each other in a circle")
+
+    def _check_size(self, expr: sp.Basic, definitions: dict) -> None:
+        """Refuse an expansion over the limit expression_size before doing it (it would take
+        time and memory exponential in a chain of subexpressions)."""
+        from . import limits
+        from .compiler import expanded_size
+
+        names = {d.name for d in definitions}
+        if any(s.name.rstrip("'") in names for s in expr.free_symbols):
+            size = expanded_size(expr, definitions)
+            if size > limits.value("expression_size", self.limits):
+                raise LimitError(limits.over("expression_size", f"{size} nodes",
+                                             "an expression (its subexpressions substituted) of",
+                                             self.limits))
 
     def time_derivative(self, expr: sp.Expr, name: str, order: int) -> sp.Expr:
         """d^order/dt^order of an expanded expression, by the chain rule through the DOF.
@@ -191,12 +209,21 @@ class Scene:
     def numeric(self, expr: sp.Basic, what: str = "value") -> float:
         """Evaluate a constant expression (numbers and constants only) to a float."""
         expr = self.expand(expr)
-        subs = {named_symbol(n): sp.Float(v) for n, v in self.constants.items()}   # a bare constant stays sympy
-        value = expr.xreplace(subs)
-        if value.free_symbols:
-            names = ", ".join(sorted(s.name for s in value.free_symbols))
+        from .compiler import double_finite
+
+        used = {s for s in expr.free_symbols if s.name in self.constants}   # a scene may hold thousands
+        others = expr.free_symbols - used
+        if others:
+            names = ", ".join(sorted(s.name for s in others))
             raise StwError(f"{what} must be a number or constant expression, but it uses {names}")
-        result = float(value.evalf())
+        if not double_finite(expr, {s.name: self.constants[s.name] for s in used}):
+            # before sympy evaluates anything: exp(exp(exp(T))) would compute digits for ever
+            raise StwError(f"{what} is not a finite number (beyond what a double holds)")
+        value = expr.xreplace({s: sp.Float(self.constants[s.name]) for s in used})   # a bare constant stays sympy
+        try:
+            result = float(value.evalf())
+        except TypeError:   # log(T)^3.25 with T = 0.5: complex once the constant's value is known
+            raise StwError(f"{what} is not a real number ({sp.sstr(value)[:60]})") from None
         if not np.isfinite(result):
             raise StwError(f"{what} is not a finite number ({result})")
         return result

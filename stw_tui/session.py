@@ -8,13 +8,14 @@ exactly as it was. Replaying the journal's successful lines rebuilds the same sc
 
 from __future__ import annotations
 
+import os
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Callable
 
 import numpy as np
 
-from . import interpreter
+from . import interpreter, limits
 from .backend import RunResult, StepReport
 from .errors import SourceError, StwError
 from .history import History, State
@@ -44,10 +45,25 @@ class Journal:
         return entry
 
     def settle(self, entry: JournalEntry, ok: bool, error: str = "") -> None:
+        """Record what became of ``entry``: appended to the journal file, flushed and synced to
+        disk before the caller acknowledges the command.
+
+        Raises:
+            StwError: the file could not be written (a full disk); the entry is then recorded
+                as failed, so it is never replayed.
+        """
         entry.ok, entry.error = ok, error
-        if self.path is not None:
+        if self.path is None:
+            return
+        try:
             with self.path.open("a", encoding="utf-8") as out:
                 out.write(self._render(entry) + "\n")
+                out.flush()
+                os.fsync(out.fileno())
+        except (OSError, ValueError) as exc:
+            entry.ok, entry.error = False, f"the journal could not record it: {exc}"
+            raise StwError(f"the journal {self.path} could not record the line ({exc}); "
+                           "the scene is unchanged") from exc
 
     @staticmethod
     def _render(entry: JournalEntry) -> str:
@@ -114,6 +130,8 @@ class Session:
             SourceError: bad input, with line and column; the scene is unchanged.
             SolveError: a solve diverged or its backend raised; the scene is unchanged.
         """
+        self._check_length(text, line)
+        self._check_text(text, line)
         stripped = text.split("#", 1)[0].strip()
         if self._block is not None:
             return self._continue_block(text, stripped, line)
@@ -123,6 +141,24 @@ class Session:
             self._block = [(line, text)]
             return Outcome(message="linkage block: enter joint rows, then `end`")
         return self._apply(text.rstrip(), line, on_report)
+
+    def _check_length(self, text: str, line: int | None) -> None:
+        """Refuse an over-long line before anything reads it (a 1 MB line must fail at once)."""
+        with limits.active(self.scene.limits):
+            longest = limits.value("line_length")
+            if len(text) > longest:
+                raise SourceError(limits.over("line_length", f"{len(text)} characters", "a line of"), line=line,
+                                  column=longest + 1, expected=f"at most {longest} characters")
+
+    @staticmethod
+    def _check_text(text: str, line: int | None) -> None:
+        """Refuse text that is not valid Unicode (a lone surrogate from a badly decoded file), even
+        in a comment: the journal could not record it, and a line must not apply and then fail."""
+        try:
+            text.encode("utf-8")
+        except UnicodeEncodeError as exc:
+            raise SourceError(f"character {text[exc.start]!r} is not valid text (a lone surrogate)",
+                              line=line, column=exc.start + 1, expected="UTF-8 text") from None
 
     def _continue_block(self, text: str, stripped: str, line: int | None) -> Outcome:
         if stripped == "end":
@@ -141,33 +177,63 @@ class Session:
         before = State.of(self)
         scene = self.scene.copy()
         try:
-            if block is not None:
-                outcome = interpreter.apply_linkage(self, scene, block)
-            else:
-                outcome = interpreter.apply_line(self, scene, text, line, on_report)
+            with limits.active(self.scene.limits):
+                if block is not None:
+                    self._check_joints(block)
+                    outcome = interpreter.apply_linkage(self, scene, block)
+                else:
+                    outcome = interpreter.apply_line(self, scene, text, line, on_report)
         except SourceError as exc:
             self.warm = before.warm   # the solver's warm start too (a solve may have run)
             error = exc if exc.line is not None or line is None else exc.at_line(line)
-            self.journal.settle(entry, False, str(error))
+            self._settle_failed(entry, str(error))
             raise error from None
         except StwError as exc:
             self.warm = before.warm   # the solver's warm start too (a solve may have run)
-            self.journal.settle(entry, False, str(exc))
+            self._settle_failed(entry, str(exc))
             raise type(exc)(f"line {line}: {exc}" if line is not None else str(exc)) from exc
         except Exception as exc:  # a bug must not lose the scene or the session: report it
             self.warm = before.warm   # the solver's warm start too (a solve may have run)
             message = f"internal error ({type(exc).__name__}: {exc}); the scene is unchanged"
-            self.journal.settle(entry, False, message)
+            self._settle_failed(entry, message)
             raise StwError(f"line {line}: {message}" if line is not None else message) from exc
-        self.scene = scene
-        self.history.settled(text, before, outcome.journal_text)
+        broken = [name for name, dof in scene.dofs.items() if not np.all(np.isfinite(dof.curve.coef))]
+        if broken:   # shake amplitude=1e308, a key at 1e308: a curve must stay a curve
+            message = (f"the command would make the curve of {', '.join(broken)} non-finite; "
+                       "the scene is unchanged")
+            self.warm = before.warm
+            self._settle_failed(entry, message)
+            raise StwError(f"line {line}: {message}" if line is not None else message)
         if outcome.journal_text is not None:
             entry.text = outcome.journal_text
-        self.journal.settle(entry, True)
+        try:
+            self.journal.settle(entry, True)   # on disk first: only then is the command applied
+        except StwError as exc:
+            self.warm = before.warm
+            raise StwError(f"line {line}: {exc}" if line is not None else str(exc)) from exc.__cause__
+        self.scene = scene
+        self.history.settled(text, before, outcome.journal_text)
         self.prints.extend(outcome.prints)
         if outcome.run is not None:
             self.runs.append(outcome.run)
         return outcome
+
+    def _settle_failed(self, entry: JournalEntry, message: str) -> None:
+        """Record a failed line; a journal that cannot record it must not hide the line's error."""
+        try:
+            self.journal.settle(entry, False, message)
+        except StwError:
+            pass   # the line failed anyway: its own error is what the user needs to see
+
+    @staticmethod
+    def _check_joints(block: list[tuple[int | None, str]]) -> None:
+        """Refuse a linkage with more joint rows than the limit, before deriving its equations
+        of motion (their size grows about fourfold with every joint)."""
+        most = limits.value("joints")
+        if len(block) - 1 > most:
+            number, text = block[most + 1]
+            raise SourceError(limits.over("joints", f"{len(block) - 1} joints", "a linkage of"), line=number,
+                              column=1, source=text, expected=f"at most {most} joint rows")
 
     def run_text(self, text: str, on_report: ReportCallback | None = None,
                  on_line: Callable[[int, str, Outcome], None] | None = None) -> None:

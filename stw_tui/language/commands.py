@@ -8,10 +8,12 @@ seed) are ints.
 from __future__ import annotations
 
 import difflib
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import sympy as sp
 
+from .. import limits
+from ..errors import printable
 from .expressions import FUNCTIONS, DictScope, ExpressionParser, NameKind, Scope
 from .tokens import END, NAME, NUMBER, Token, strip_comment, tokenize
 
@@ -213,6 +215,7 @@ class PrintCmd:
     expr_text: str
     text: str = ""
     interval: Interval | None = None   # summary over [A, B] instead of the whole span
+    column: int | None = field(default=None, compare=False)   # where the expression starts (errors)
 
 
 @dataclass(frozen=True)
@@ -232,8 +235,11 @@ COMMAND_NAMES = ("time", "const", "dof", "let", "constraint", "objective", "key"
 RESERVED = set(COMMAND_NAMES) | set(FUNCTIONS) | {"t", "pi", "all", "on", "when", "and", "or", "not"}
 
 
-MAX_COUNT = 1_000_000      # knots, samples, passes, iterations: larger is surely a typo
+MAX_COUNT = 100_000_000    # other counts (multiplicity): larger is surely a typo
 MAX_SEED = 2**63 - 1
+# Counts bounded by a limit of stw_tui.limits, by option or setting name.
+_COUNT_LIMITS = {"knots": "knots", "samples": "samples", "adapt": "adapt_rounds",
+                 "adaptive_rounds": "adapt_rounds"}
 _NUMERIC_RULE = "a time, value or weight may use only numbers and constants"
 
 
@@ -262,14 +268,26 @@ class CommandParser(ExpressionParser):
             raise self.error(f"'{token.text}' is not a DOF", token, expected="a DOF name")
         return token.text
 
-    def integer(self, what: str, limit: int = MAX_COUNT) -> int:
+    def integer(self, what: str, limit: int = MAX_COUNT, limit_name: str | None = None) -> int:
+        """A whole number up to ``limit``, or up to the limit ``limit_name`` (stw_tui.limits)."""
         token = self.token
         if token.kind != NUMBER or not token.text.isdigit():
             raise self.unexpected(what)
+        self.check_count(token, limit_name, what)
         if len(token.text) > len(str(limit)) or int(token.text) > limit:
             raise self.error("number too large", token, expected=f"{what} up to {limit}")
         self.advance()
         return int(token.text)
+
+    def check_count(self, token: Token, limit_name: str | None, what: str = "a number") -> None:
+        """Refuse a digits token over the limit ``limit_name`` (None: no limit), at its column."""
+        if limit_name is None or not token.text.isdigit():
+            return
+        most, ceiling = limits.value(limit_name), limits.LIMITS[limit_name].ceiling
+        if len(token.text.lstrip("0")) > len(str(most)) or int(token.text) > most:
+            raise_it = f"; `set limit {limit_name} N` raises it up to {ceiling}" if most < ceiling else ""
+            raise self.error("number too large", token,
+                             expected=f"{what} up to {most}, the limit {limit_name}{raise_it}")
 
     def number_expr(self) -> sp.Expr:
         """An expression of numbers and constants (a time, a value, a weight)."""
@@ -298,7 +316,8 @@ class CommandParser(ExpressionParser):
             self.expect_op("=", f"'=' after {key.text}")
             kind = allowed[key.text]
             found[key.text] = self.number_expr() if kind == "expr" else \
-                self.integer(f"a whole number for {key.text}", MAX_SEED if kind == "seed" else MAX_COUNT)
+                self.integer(f"a whole number for {key.text}", MAX_SEED if kind == "seed" else MAX_COUNT,
+                             _COUNT_LIMITS.get(key.text) if kind == "int" else None)
         return found
 
     # --- commands ----------------------------------------------------------------------------
@@ -325,6 +344,7 @@ class CommandParser(ExpressionParser):
     def p_const(self):
         items: dict[str, sp.Expr] = {}
         outer = self.scope
+        earlier = DictScope({}, parent=outer)   # the items so far, which later ones may use
         try:
             while True:
                 token = self.name("a constant name")
@@ -338,7 +358,8 @@ class CommandParser(ExpressionParser):
                 self.expect_op("=", f"'=' after {token.text}")
                 items[token.text] = self.number_expr()
                 # The interpreter applies the items in order, so later ones may use earlier ones.
-                self.scope = DictScope(dict.fromkeys(items, NameKind.CONST), parent=outer)
+                earlier.kinds[token.text] = NameKind.CONST
+                self.scope = earlier
                 if not self.token.is_op(","):
                     break
                 self.advance()
@@ -463,7 +484,8 @@ class CommandParser(ExpressionParser):
 
     def p_filter(self):
         dof = self.dof_name()
-        passes = self.integer("a number of passes") if self.token.kind == NUMBER else 1
+        passes = self.integer("a number of passes", limit_name="filter_passes") \
+            if self.token.kind == NUMBER else 1
         return FilterCmd(dof, passes, self.text)
 
     def p_shake(self):
@@ -507,7 +529,10 @@ class CommandParser(ExpressionParser):
 
     def p_set(self):
         option = self.name("a setting name").text
+        if option == "limit":
+            return self._set_limit()
         token = self.token
+        self.check_count(token, _COUNT_LIMITS.get(option), f"a whole number for {option}")
         sign = ""
         if token.is_op("-"):
             sign = self.advance().text
@@ -516,8 +541,23 @@ class CommandParser(ExpressionParser):
             raise self.unexpected("a value")
         return SetCmd(option, sign + self.advance().text, self.text)
 
+    def _set_limit(self):
+        """`set limit NAME VALUE`: a limit of stw_tui.limits, within its ceiling."""
+        name = self.name("a limit name (`help limits` lists them)")
+        if name.text not in limits.LIMITS:
+            close = difflib.get_close_matches(name.text, list(limits.LIMITS), n=2)
+            hint = f" (did you mean {' or '.join(repr(c) for c in close)}?)" if close else ""
+            raise self.error(f"unknown limit '{name.text}'{hint}", name,
+                             expected="a limit name; `help limits` lists them")
+        ceiling = limits.LIMITS[name.text].ceiling
+        value = self.integer(f"a whole number for limit {name.text}", ceiling)
+        if value < 1:
+            raise self.error(f"limit {name.text} must be at least 1", self.tokens[self.pos - 1])
+        return SetCmd("limit", f"{name.text} {value}", self.text)
+
     def p_iterate(self):
-        n = self.integer("a number of iterations") if self.token.kind == NUMBER else 1
+        n = self.integer("a number of iterations", limit_name="iterations") \
+            if self.token.kind == NUMBER else 1
         opts = self.options({"adapt": "int"})
         return IterateCmd(n, self.text, opts.get("adapt"))
 
@@ -590,9 +630,9 @@ class CommandParser(ExpressionParser):
         start = self.token.column
         expr = self.expression()
         end = self.token.column
-        expr_text = self.source[start - 1:end - 1].strip()
+        expr_text = printable(self.source[start - 1:end - 1].strip())   # echoed: no raw \r, \t
         at, interval = self._scope_clause()
-        return PrintCmd(expr, at, expr_text, self.text, interval)
+        return PrintCmd(expr, at, expr_text, self.text, interval, start)
 
     def p_help(self):
         topic = self.advance().text if self.token.kind == NAME else None

@@ -30,6 +30,8 @@ from typing import Protocol
 
 import sympy as sp
 
+from .. import limits
+from ..compiler import double_finite
 from ..errors import SourceError
 from ..symbols import TIME, dof_symbol, named_symbol
 from .tokens import END, NAME, NUMBER, Token, tokenize
@@ -87,12 +89,26 @@ FUNCTIONS: dict[str, tuple[object, tuple[int, ...] | None]] = {
 }
 CONSTANT_NAMES = {"pi": sp.pi}
 CONDITION_WORDS = ("and", "or", "not")
-MAX_DEPTH = 60        # nesting levels of parentheses, calls, signs and powers
-MAX_DIGITS = 300      # digits of an integer literal
-MAX_BITS = 8192       # size of an exact number (Python refuses to print ints past ~14000 bits)
+# The defaults of the limits the parser checks (stw_tui.limits; `set limit` changes them).
+MAX_DEPTH = limits.LIMITS["nesting"].default           # parentheses, calls, signs and powers
+MAX_DIGITS = limits.LIMITS["digits"].default           # digits of an integer literal
+MAX_BITS = limits.LIMITS["number_bits"].default        # size of an exact number
+MAX_FLOAT = 1.7976931348623157e308                     # a Float beyond this is no double: refused
 _UNDEFINED = (sp.zoo, sp.nan, sp.oo, -sp.oo)
 _COMPARISONS = {">": sp.StrictGreaterThan, ">=": sp.GreaterThan, "<": sp.StrictLessThan,
                 "<=": sp.LessThan, "==": sp.Eq, "!=": sp.Ne}
+
+
+def _magnitude(number: sp.Expr) -> float:
+    """|number| as a float (inf when no float holds it), without exact arithmetic on huge values."""
+    if number.is_Rational:
+        if max(abs(number.p), number.q).bit_length() > 1000:
+            return math.inf if abs(number.p) > number.q else 0.0
+        return abs(float(number))
+    try:
+        return abs(complex(number.evalf(15)))
+    except (TypeError, ValueError, OverflowError):
+        return math.inf
 
 
 class ExpressionParser:
@@ -158,8 +174,10 @@ class ExpressionParser:
     def _nested(self, token: Token):
         # Deep nesting would exhaust Python's stack (a RecursionError is not a user-facing error).
         self.depth += 1
-        if self.depth > MAX_DEPTH:
-            raise self.error(f"expression nested too deeply (more than {MAX_DEPTH} levels)", token)
+        deepest = limits.value("nesting")
+        if self.depth > deepest:
+            raise self.error(f"expression nested too deeply (more than {deepest} levels, the limit "
+                             f"nesting)", token)
         try:
             yield
         finally:
@@ -170,10 +188,18 @@ class ExpressionParser:
         if value.has(*_UNDEFINED):
             raise self.error("the value is undefined or infinite here (division by zero?)", token,
                              expected="a finite expression")
-        if value.has(sp.I):   # sqrt(-1), log(-2), (-8)^(1/3): stw's curves and values are real
+        if value.is_number and not (value.is_Rational or value.is_Float) and not double_finite(value):
+            # exp(exp(exp(100))): sympy would later evaluate it with ever more digits, for ever
+            raise self.error("number out of range (or undefined)", token,
+                             expected="a value a double can hold, below 1e308")
+        if value.has(sp.I) or (value.is_number and value.is_extended_real is False):
+            # sqrt(-1), log(-2), acos(2), (-8)^(1/3): stw's curves and values are real
             raise self.error("the value is not a real number", token, expected="a real expression")
-        if value.is_Rational and max(abs(value.p), value.q).bit_length() > MAX_BITS:
-            raise self.error("number too large", token, expected=f"numbers below 2^{MAX_BITS}")
+        bits = limits.value("number_bits")
+        if value.is_Rational and max(abs(value.p), value.q).bit_length() > bits:
+            raise self.error("number too large", token, expected=f"numbers below 2^{bits} (limit number_bits)")
+        if value.is_Float and not abs(value) <= MAX_FLOAT:   # 1.5^1e6, exp(1000.0): no double holds it
+            raise self.error("number out of range", token, expected="a value below 1e308")
         return value
 
     # --- expressions -------------------------------------------------------------------------
@@ -183,9 +209,11 @@ class ExpressionParser:
     def _sum(self) -> sp.Expr:
         left = self._product()
         while self.token.is_op("+", "-"):
-            op = self.advance().text
+            op = self.advance()
             right = self._product()
-            left = left + right if op == "+" else left - right
+            left = left + right if op.text == "+" else left - right
+            if left.is_Float and not abs(left) <= MAX_FLOAT:   # 1e308 + 1e308
+                raise self.error("number out of range", op, expected="a value below 1e308")
         return left
 
     def _product(self) -> sp.Expr:
@@ -218,8 +246,14 @@ class ExpressionParser:
             # sympy computes exact powers at once: 9^9^9 would never finish.
             if base.is_number and not base.is_Float and exponent.is_Rational:
                 bits = max((max(abs(r.p), r.q).bit_length() for r in base.atoms(sp.Rational)), default=1)
-                if abs(exponent) * bits > MAX_BITS:
+                if abs(exponent) * bits > limits.value("number_bits"):
                     raise self.error("number too large", op, expected="a smaller exponent")
+            # Float powers (9^9.81^…) take mpmath ever longer, and compiled code wraps integer
+            # exponents of 2^31 and more: a numeric exponent is bounded, whatever its base.
+            if exponent.is_number and _magnitude(exponent) > limits.value("exponent"):
+                raise self.error("exponent too large", op,
+                                 expected=f"an exponent of magnitude at most {limits.value('exponent')} "
+                                          f"(limit exponent)")
             return self._checked(sp.Pow(base, exponent), op)
         return base
 

@@ -5,6 +5,7 @@ from __future__ import annotations
 import difflib
 from dataclasses import dataclass
 
+from .. import limits
 from ..errors import StwError
 from .expressions import FUNCTIONS
 
@@ -91,7 +92,8 @@ COMMAND_HELP: dict[str, CommandHelp] = {
                        "Settings: tol_violation, tol_kkt, tol_step, quadrature (points per span), merit "
                        "(least violation weight), frame (player time), samples, dense_tol (largest "
                        "violation allowed between instances), adaptive on|off (add instances where "
-                       "the continuous-time check fails, and re-solve), adaptive_rounds.",
+                       "the continuous-time check fails, and re-solve), adaptive_rounds. "
+                       "`set limit NAME N` changes a limit (`help limits` lists them).",
                        "set dense_tol 1e-7"),
     "iterate": CommandHelp("iterate [N] [adapt=R]",
                            "Run up to N SQP iterations on the current window (stops early on convergence). "
@@ -138,7 +140,10 @@ def help_text(topic: str | None = None) -> str:
         lines += [f"  {name:<{width}}  {h.summary.split('. ')[0].rstrip('.')}" for name, h in COMMAND_HELP.items()]
         lines.append("Functions: " + ", ".join(FUNCTIONS) + "; constant pi")
         lines.append("Operators: " + OPERATORS)
+        lines.append("Limits: `help limits` lists what one line may ask for")
         return "\n".join(lines)
+    if topic == "limits":
+        return limits.help_text()
     if topic not in COMMAND_HELP:
         close = difflib.get_close_matches(topic, list(COMMAND_HELP), n=2)
         hint = f" (did you mean {' or '.join(close)}?)" if close else ""

@@ -218,9 +218,19 @@ def _check_name(name: str, *, line, col, source, what: str):
     if not _IDENT.match(name):
         raise _err(f"bad {what} name {name!r}", line, col, source,
                    "a name of letters, digits and '_', not starting with a digit")
-    if name in RESERVED_NAMES:
+    if "__" in name:   # the session language's rule: no name holds '__'
+        raise _err(f"names with '__' are not allowed ({name!r})", line, col, source, "another name")
+    if name in RESERVED_NAMES or name in _language_words():
         raise _err(f"{name!r} is reserved and cannot name a {what}", line, col, source,
                    "another name")
+
+
+def _language_words() -> set[str]:
+    """Commands, functions and keywords of the session language (a joint named `sin` would
+    make `sin(...)` and the joint's DOF the same word)."""
+    from ..language.commands import RESERVED
+
+    return RESERVED
 
 
 def parse_linkage(header: str, rows: list[tuple[int, str]], *, header_line: int | None = None
