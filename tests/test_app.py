@@ -628,3 +628,21 @@ def test_page_up_at_the_prompt_scrolls_the_console_log():
         assert log.scroll_y == log.max_scroll_y
 
     run(scenario, app, size=(80, 24))
+
+
+def test_ctrl_z_and_ctrl_y_undo_and_redo_through_the_journal():
+    app = create_app()
+
+    async def scenario(pilot):
+        await support.submit(pilot, "time 0 1 knots=8")
+        await support.submit(pilot, "dof x = t")
+        await support.settle(pilot)
+        await pilot.press("ctrl+z")
+        await support.settle(pilot)
+        assert "x" not in app.session.scene.dofs
+        await pilot.press("ctrl+y")
+        await support.settle(pilot)
+        assert "x" in app.session.scene.dofs
+        assert app.session.journal.replayable()[-2:] == ["undo", "redo"]
+
+    run(scenario, app)

@@ -89,6 +89,8 @@ class StwApp(App[int]):
         Binding("f8", "play", "Play", show=False),   # the Figure plot's title says `space plays`
         # Esc never stops anything: pressed to leave a panel, it must not cost a running solve.
         Binding("escape", "escape", "Console", show=False),
+        Binding("ctrl+z", "undo", "Undo", show=False),
+        Binding("ctrl+y", "redo", "Redo", show=False),
         Binding("ctrl+q", "quit", "Quit", priority=True),
     ]
 
@@ -414,6 +416,13 @@ class StwApp(App[int]):
             return
         areas = [(f"{title} panel", cls) for title, cls in PANELS] + [(f"{title} plot", cls) for title, cls in PLOTS]
         self.push_screen(HelpScreen(help_sections(self, areas), blink=self.blink))
+
+    def action_undo(self) -> None:
+        """Ctrl+Z: the console's `undo` (journalled like any command)."""
+        self.submit("undo", origin="key")
+
+    def action_redo(self) -> None:
+        self.submit("redo", origin="key")
 
     def action_iterate(self) -> None:
         self.submit(f"iterate {self.query_one(OptimizationPanel).iterations}", origin="key")
