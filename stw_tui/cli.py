@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import os
 import sys
 import time
 from pathlib import Path
@@ -29,9 +30,24 @@ def format_report(r: StepReport) -> str:
             f"{r.step_length:>8.3g} {r.linear_iterations:>6} {r.active:>6} {r.total_ms:>8.2f}")
 
 
+def _journal_is_the_session(journal: Path | None, session: Path | None) -> bool:
+    """`--journal` naming the session being replayed would append the replay to itself (and the
+    next replay would run everything twice)."""
+    if journal is None or session is None or not journal.exists() or not session.exists():
+        return False
+    return os.path.samefile(journal, session)
+
+
+JOURNAL_ON_ITSELF = ("stw: --journal {0} is the session being replayed: the replay would append itself "
+                     "to it; journal to another file")
+
+
 def _run(args: argparse.Namespace) -> int:
     from .session import Session
 
+    if _journal_is_the_session(args.journal, args.session):
+        print(JOURNAL_ON_ITSELF.format(args.journal), file=sys.stderr)
+        return 2
     session = Session(journal_path=args.journal)
     started = time.perf_counter()
 
@@ -196,6 +212,9 @@ def _launch_tui(argv: list[str]) -> int:
         return 1
     if args.session is not None and not args.session.is_file():
         print(f"stw: no session file {args.session}", file=sys.stderr)
+        return 2
+    if _journal_is_the_session(args.journal, args.session):
+        print(JOURNAL_ON_ITSELF.format(args.journal), file=sys.stderr)
         return 2
     return run_app(args.session, step=args.step, journal=args.journal)
 

@@ -497,3 +497,21 @@ def test_a_subexpression_through_its_own_derivative_is_refused(plain, lines):
     for line in lines[:-1]:
         plain.execute(line)
     assert "in terms of itself" in str(refused(plain, lines[-1]))   # was: RecursionError (fuzz)
+
+
+def test_journal_onto_the_session_being_replayed_is_refused(tmp_path):
+    import subprocess
+    import sys
+
+    session = tmp_path / "s.stw"
+    session.write_text("time 0 1 knots=8\ndof x = t\n")
+    before = session.read_text()
+    for args in (["run", str(session), "--journal", str(session)],      # headless
+                 [str(session), "--journal", str(tmp_path / "." / "s.stw")]):   # the TUI, another spelling
+        out = subprocess.run([sys.executable, "-m", "stw_tui.cli", *args], capture_output=True, text=True,
+                             timeout=120)
+        assert out.returncode == 2 and "would append itself" in out.stderr
+        assert session.read_text() == before
+    ok = subprocess.run([sys.executable, "-m", "stw_tui.cli", "run", str(session), "--journal",
+                         str(tmp_path / "j.stw")], capture_output=True, text=True, timeout=120)
+    assert ok.returncode == 0 and (tmp_path / "j.stw").read_text().startswith("time 0 1 knots=8")
