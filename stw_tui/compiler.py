@@ -234,21 +234,30 @@ def check_size(expr: sp.Basic) -> None:
 _HUGE = 10**18   # sizes are capped here: only "over the limit" matters
 
 
-def _tree_size(expr: sp.Basic, leaf_size) -> int:
-    """Size of ``expr`` as a tree, ``leaf_size(symbol)`` counting for each symbol, computed over
-    its distinct nodes (iteratively: deep expressions must not exhaust the Python stack)."""
-    sizes: dict[sp.Basic, int] = {}
-    stack = [expr]
+def _post_order(root):
+    """Each distinct node of an expression tree (sympy or symengine) once, its arguments before
+    it; iteratively, so deep expressions do not exhaust the Python stack."""
+    done: set = set()
+    stack = [root]
     while stack:
         node = stack[-1]
-        pending = [a for a in node.args if a not in sizes]
+        pending = [a for a in node.args if a not in done]
         if pending:
             stack.extend(pending)
             continue
         stack.pop()
-        if node not in sizes:
-            own = leaf_size(node) if node.is_Symbol else 1
-            sizes[node] = min(_HUGE, own + sum(sizes[a] for a in node.args))
+        if node not in done:
+            done.add(node)
+            yield node
+
+
+def _tree_size(expr: sp.Basic, leaf_size) -> int:
+    """Size of ``expr`` as a tree, ``leaf_size(symbol)`` counting for each symbol, computed over
+    its distinct nodes."""
+    sizes: dict[sp.Basic, int] = {}
+    for node in _post_order(expr):
+        own = leaf_size(node) if node.is_Symbol else 1
+        sizes[node] = min(_HUGE, own + sum(sizes[a] for a in node.args))
     return sizes[expr]
 
 
@@ -457,16 +466,7 @@ def double_finite(expr: sp.Expr, values: dict[str, float] | None = None) -> bool
         return True
     subs = {se.Symbol(k): se.RealDouble(v) for k, v in (values or {}).items()}
     memo: dict = {}
-    stack = [root]
-    while stack:
-        node = stack[-1]
-        pending = [a for a in node.args if a not in memo]
-        if pending:
-            stack.extend(pending)
-            continue
-        stack.pop()
-        if node in memo:
-            continue
+    for node in _post_order(root):
         value = node
         try:
             value = node.func(*[memo[a] for a in node.args]) if node.args else subs.get(node, node)
