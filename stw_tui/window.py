@@ -24,7 +24,7 @@ import sympy as sp
 
 from .compiler import CompiledTerm, compile_term
 from .errors import StwError
-from .instances import bound_extra_times, relation_times
+from .instances import bound_extra_times, bound_times, relation_times
 from .products import GRAM_PLAN_TERMS, GramPlan, ProductPlan
 from .scene import Scene
 from .spline import gauss_legendre_nodes
@@ -235,17 +235,18 @@ class WindowProblem:
                 self._add_group(label, c.name, rel.kind, rel.expr, times, c.weight, c.when)
         for name in self.window_dofs:
             dof = scene.dofs[name]
-            x, curve = dof_symbol(name), dof.curve
+            if dof.lo is None and dof.hi is None:
+                continue
+            x, n = dof_symbol(name), dof.curve.n_coef
             # Bounds hold on the control points (so, by the convex hull, everywhere); a row per
             # control point, named by the time it stands for.
-            points = sps.csr_array((np.ones(curve.n_coef), (np.arange(curve.n_coef),
-                                    self.offsets[name] + np.arange(curve.n_coef))),
-                                   shape=(curve.n_coef, self.n_total))
-            extra = inside(bound_extra_times(scene, name))
+            points = sps.csr_array((np.ones(n), (np.arange(n), self.offsets[name] + np.arange(n))),
+                                   shape=(n, self.n_total))
+            times, extra = bound_times(scene, name), inside(bound_extra_times(scene, name))
             for side, bound, expr in (("lo", dof.lo, x - (dof.lo or 0)), ("hi", dof.hi, (dof.hi or 0) - x)):
                 if bound is not None:
-                    self._add_group(f"{name}.{side}", f"{name}.bounds", GE, expr, curve.greville(), 1.0,
-                                    None, basis=[points])
+                    self._add_group(f"{name}.{side}", f"{name}.bounds", GE, expr, times, 1.0, None,
+                                    basis=[points])
                     self._add_group(f"{name}.{side}+", f"{name}.bounds", GE, expr, extra, 1.0, None)
         quad = int(scene.settings["quadrature"])
         for o in scene.objectives.values():
