@@ -214,3 +214,35 @@ def test_a_bound_against_a_constraint_is_infeasible_and_names_both():
     assert run.status is Status.INFEASIBLE
     assert set(run.reports[-1].conflicts) == {"c", "x.bounds"}
     assert "c and x.bounds conflict" in outcome.message and "shake" not in outcome.message
+
+
+def test_an_elastic_qp_with_a_large_weight_keeps_its_best_acceptable_iterate():
+    # The first QP of a hop (the acrobat's contact and flight verbs, 132 control points, saved
+    # from a real solve) has an inconsistent linearization. Its elastic QP with ρ = 1e6 reaches
+    # scaled residuals near 1e-9 after ~35 interior-point iterations; then round-off throws the
+    # iterates off and they never reach IPM_TOL. It used to run to IPM_MAX and return that
+    # thrown-off last iterate, reported as capped. Checked here from the definition: the
+    # ℓ1-elastic QP min ½dᵀHd + gᵀd + ρ(Σ|A_e d + c_e| + Σ max(0, -(A_i d + c_i))) is convex, and
+    # d is its minimizer iff multipliers with |y| <= ρ, 0 <= z <= ρ make the gradient vanish,
+    # with y = ρ·sign(row) on violated equality rows, z = ρ on violated inequality rows and z = 0
+    # on inactive ones.
+    import scipy.sparse as sps
+
+    from stw_scipy.linear import SparseAlgebra
+    from stw_tui.sqp import qp as Q
+
+    f = np.load(ROOT / "tests" / "data" / "hop_first_qp.npz")
+    H = sps.csr_array((f["H_data"], f["H_indices"], f["H_indptr"]), shape=tuple(f["H_shape"]))
+    Ae, Ai, g = sps.csr_array(f["Ae"]), sps.csr_array(f["Ai"]), f["g"]
+    rho = 1e6
+    qp = Q.solve_qp(SparseAlgebra("direct", 1e-12, 1000), H, g, Ae, f["ce"], Ai, f["ci"], f["y0"], elastic=rho)
+    assert not qp.capped and qp.ipm_iterations < Q.IPM_MAX
+    d, y, z = qp.d, qp.y, qp.z
+    assert np.abs(H @ d + g + Ae.T @ y - Ai.T @ z).max() <= 1e-6 * rho
+    assert np.all(np.abs(y) <= rho * (1 + 1e-6)) and np.all((z >= -1e-6 * rho) & (z <= rho * (1 + 1e-6)))
+    row_e, row_i = Ae @ d + f["ce"], Ai @ d + f["ci"]
+    violated = np.abs(row_e) > 1e-4
+    assert violated.any()                                   # the linearization is inconsistent
+    np.testing.assert_allclose(y[violated], rho * np.sign(row_e[violated]), rtol=1e-3)
+    np.testing.assert_allclose(z[row_i < -1e-4], rho, rtol=1e-3)
+    assert np.all(np.abs(z[row_i > 1e-4]) <= 1e-3 * rho)

@@ -27,6 +27,8 @@ STEP_TO_BOUNDARY = 0.995   # fraction of the way to a bound an interior-point st
 KKT_EPS = 1e-10            # small negative (2,2) block: redundant (densely sampled) constraint rows get bounded multipliers
 IPM_TOL = 1e-11            # relative residuals and complementarity at which the interior-point method stops
 IPM_MAX = 100              # interior-point iteration limit (hitting it is reported, never silent)
+IPM_ACCEPTABLE = 1e-6      # when the method stalls short of IPM_TOL, its best iterate is used if it got this far
+IPM_STALL = 20             # iterations without halving the best error: stalled (round-off, or an infeasible QP)
 
 
 @dataclass
@@ -37,7 +39,7 @@ class QPResult:
     linear_iterations: int
     ipm_iterations: int
     fallbacks: int = 0      # iterative solves that had to be replaced by a factorization
-    capped: bool = False    # the interior-point method stopped at IPM_MAX without converging
+    capped: bool = False    # the interior-point method stopped (limit or stall) short of IPM_ACCEPTABLE
     elastic: float | None = None   # ρ of an elastic QP, None for a hard one
     system: KKTSystem | None = None   # a hard equality-only QP's system [[H, A_eᵀ], [A_e, -ε]],
                                       # which the second-order correction solves again
@@ -81,6 +83,10 @@ def _interior_point(la, H, g, Ae, ce, Ai, ci, y0, rho, tol, max_ipm) -> QPResult
     pairs = mi + (2 * mi + 2 * me if elastic else 0)
     linear_its = fallbacks = 0
     converged = False
+    # The best iterate so far, by its largest scaled residual: near the solution round-off can
+    # throw the iterates off again (large elastic weights), and an infeasible hard QP never
+    # converges; both stall, and the best iterate is what there is to return.
+    best, best_error, since_best = (d, y, z), np.inf, 0
     k = 0
     for k in range(1, max_ipm + 1):
         r_d = la.matvec(H, d) + g + la.rmatvec(Ae, y) - la.rmatvec(Ai, z)
@@ -94,10 +100,19 @@ def _interior_point(la, H, g, Ae, ce, Ai, ci, y0, rho, tol, max_ipm) -> QPResult
         mu = gap / pairs
         if not np.isfinite(mu):
             break
-        if (la.max_abs(r_d) <= tol * scale_d and la.max_abs(r_i) <= tol * scale_c
-                and la.max_abs(r_e) <= tol * scale_c and mu <= tol * scale_d):
+        error = max(la.max_abs(r_d) / scale_d, la.max_abs(r_i) / scale_c, la.max_abs(r_e) / scale_c,
+                    mu / scale_d)
+        if error <= tol:
             converged = True
             break
+        if error < 0.5 * best_error:
+            since_best = 0
+        else:
+            since_best += 1
+            if since_best >= IPM_STALL:
+                break
+        if error < best_error:
+            best, best_error = (d, y, z), error
         q_inv = z / w if not elastic else 1.0 / (w / z + t / s)
         e = KKT_EPS + (u / a + v / b if elastic else 0.0) + la.zeros(me)
         system = la.kkt(la.add(H, la.gram(Ai, q_inv)), Ae, e, exact=True)
@@ -139,6 +154,8 @@ def _interior_point(la, H, g, Ae, ce, Ai, ci, y0, rho, tol, max_ipm) -> QPResult
             s, a, b = s - ad * dual[0][1], a + ad * dy, b - ad * dy
         y = y + ad * dy
         z = z + ad * dual[0][1]
+    if not converged and best_error <= IPM_ACCEPTABLE:
+        (d, y, z), converged = best, True
     return QPResult(d, y, z, linear_its, k, fallbacks, capped=not converged, elastic=rho)
 
 
