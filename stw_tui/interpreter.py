@@ -629,6 +629,12 @@ def _verb(scene: Scene, cmd) -> str:
     if isinstance(cmd, lang.HoldCmd):
         weight = _weight_value(scene, cmd.weight, True) if cmd.weight is not None else None
         group, lines = verbs.hold_lines(scene, cmd.point, cmd.at, a, b, weight)
+    elif isinstance(cmd, lang.ContactCmd):
+        opt = lambda e, what: scene.numeric(e, what) if e is not None else None
+        group, lines = verbs.contact_lines(scene, cmd.point, opt(cmd.height, "ground height") or 0.0, a, b,
+                                           opt(cmd.friction, "friction coefficient"), opt(cmd.x, "x"))
+    elif isinstance(cmd, lang.FlightCmd):
+        group, lines = verbs.flight_lines(scene, cmd.linkage, a, b)
     else:
         group, lines = verbs.ballistic_lines(scene, cmd.point, a, b)
     members = []
@@ -765,5 +771,6 @@ _HANDLERS = {
     lang.FilterCmd: _filter, lang.ShakeCmd: _shake, lang.RefineCmd: _refine, lang.BackendCmd: _backend,
     lang.SetCmd: _set, lang.IterateCmd: _iterate, lang.DeleteCmd: _delete, lang.PrintCmd: _print,
     lang.HelpCmd: _help, lang.InstancesCmd: _instances, lang.SlideCmd: _slide,
-    lang.HoldCmd: _verb, lang.BallisticCmd: _verb, lang.LimitCmd: _limit,
+    lang.HoldCmd: _verb, lang.BallisticCmd: _verb, lang.ContactCmd: _verb,
+    lang.FlightCmd: _verb, lang.LimitCmd: _limit,
 }

@@ -8,6 +8,15 @@ objectives (which the journal does not keep: it keeps the verb, and replays it).
   cubic spline), and a ball tied only at samples leaves the hand with the wrong velocity.
 - ``ballistic P on [A, B]``: free flight under g along -y: PX'' = 0, PY'' + g = 0 (PZ'' = 0),
   linear in the DOF, so it holds exactly everywhere on [A, B].
+- ``contact acro.FOOT on ground [y=H] on [A, B] [friction=MU] [x=X0]``: the point stays on the
+  ground, planted (at X0, or wherever it lands), and the ground only pushes. The ground's force
+  on a creature with a free base is the generalized force of the base's translations (tau_X,
+  tau_Y): whatever else acts inside, only external forces move the base. So the push is
+  ``tau_Y >= 0`` and the friction cone ``MU*tau_Y >= |tau_X|``. With ``com=CX,CY`` those are
+  linear in the DOF (M (CY'' + g)) and hold exactly between the samples.
+- ``flight acro on [A, B]``: nothing outside acts on the creature: the generalized forces of its
+  base DOF vanish, and so do the torques of the joints that hang the first massive link on the
+  (massless) base, which has nothing to push against in the air.
 """
 
 from __future__ import annotations
@@ -75,3 +84,59 @@ def ballistic_lines(scene, point: str, a: float, b: float) -> tuple[str, list[st
     group = fresh_name(scene, f"{point}_flight")
     relations = [f"{dof}'' + g = 0" if axis == "y" else f"{dof}'' = 0" for axis, dof in axes]
     return group, [f"constraint {group}: {', '.join(relations)} on [{_t(a)}, {_t(b)}]"]
+
+
+def _free_linkage(scene, name: str, what: str):
+    """The linkage ``name``, which must have a free base (a creature that can leave the ground)."""
+    spec = scene.linkages.get(name)
+    if spec is None:
+        known = ", ".join(scene.linkages) or "none; add a linkage"
+        raise StwError(f"'{name}' is not a linkage (linkages: {known})")
+    if not spec.base:
+        raise StwError(f"linkage {name} has a fixed base: {what} needs a free one, "
+                       f"e.g. `linkage {name} base=tx:X,ty:Y`")
+    return spec
+
+
+def contact_lines(scene, point: str, height: float, a: float, b: float,
+                  friction: float | None, x: float | None) -> tuple[str, list[str]]:
+    """(group name, command lines) of ``contact``."""
+    spec = _free_linkage(scene, point.split(".")[0], "a contact with the ground")
+    if f"{point}.y" not in scene.derived:
+        points = sorted({n.rsplit(".", 1)[0] for n in scene.derived if n.startswith(spec.name + ".")})
+        raise StwError(f"'{point}' is not a point of linkage {spec.name} (points: {', '.join(points)})")
+    if (spec.gravity_axis, spec.gravity_sign) != (1, -1):
+        raise StwError(f"the ground is y = H under gravity along -y; linkage {spec.name} falls along "
+                       f"{'none' if spec.gravity_axis is None else 'xyz'[spec.gravity_axis]}")
+    axes = {axis.axis: axis.dof for axis in spec.base}
+    if "ty" not in axes:
+        raise StwError(f"the ground pushes linkage {spec.name} up through a base translation along y, "
+                       f"and it has none: give it one, e.g. `base=tx:X,ty:Y`")
+    if friction is not None and not friction >= 0:
+        raise StwError(f"friction coefficient {friction:g} must be at least 0")
+    tangential = [(ax, axes[f"t{ax}"]) for ax in "xz" if f"t{ax}" in axes]
+    if x is not None and "tx" not in axes:
+        raise StwError(f"x= plants the point along x, and linkage {spec.name} cannot move along x")
+    short = point.rsplit(".", 1)[-1]
+    on = f"on [{_t(a)}, {_t(b)}]"
+    planted = [f"{point}.y = {height!r}"] + [
+        f"{point}.x = {x!r}" if ax == "x" and x is not None else f"{point}.{ax}' = 0" for ax, _ in tangential]
+    normal = f"tau_{axes['ty']}"
+    lines = [f"constraint {fresh_name(scene, f'{short}_planted')}: {', '.join(planted)} {on}",
+             f"constraint {fresh_name(scene, f'{short}_push')}: {normal} >= 0 {on}"]
+    if friction is not None and tangential:
+        cone = ", ".join(f"{friction!r}*{normal} {sign} tau_{dof} >= 0" for _, dof in tangential for sign in "-+")
+        lines.append(f"constraint {fresh_name(scene, f'{short}_friction')}: {cone} {on}")
+    return fresh_name(scene, f"{short}_contact"), lines
+
+
+def flight_lines(scene, name: str, a: float, b: float) -> tuple[str, list[str]]:
+    """(group name, command lines) of ``flight``: the unactuated DOF's forces vanish on [A, B]."""
+    spec = _free_linkage(scene, name, "flight")
+    free = [axis.dof for axis in spec.base]
+    for joint in spec.joints:       # joints up to the first massive link hang on the massless base
+        free.append(joint.name)
+        if joint.mass > 0:
+            break
+    group = fresh_name(scene, f"{name}_flight")
+    return group, [f"constraint {group}: {', '.join(f'tau_{d} = 0' for d in free)} on [{_t(a)}, {_t(b)}]"]

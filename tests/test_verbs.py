@@ -106,3 +106,105 @@ def test_a_verb_and_its_delete_are_each_one_undo_step():
     assert {"B_caught", "B_released"} <= set(s.scene.constraints)
     s.execute("undo")                                          # and the verb is gone
     assert not s.scene.verbs and "B_held" not in s.scene.objectives
+
+
+ACRO = """time 0 1.5 knots=30 samples=30
+const g = 9.81
+linkage acro base=tx:X,ty:Y com=CX,CY
+  FOOT  revolute a=0.5 mass=1.0
+  WAIST revolute a=0.5 mass=1.0
+end
+"""
+
+
+def test_contact_and_flight_expand_into_named_constraints_grouped_under_the_verb():
+    s = run_lines(Session(), ACRO + "contact acro.FOOT on ground y=0.1 on [0, 0.5] friction=0.8 x=0\n"
+                  "flight acro on [0.5, 1]\ncontact acro.FOOT on ground on [1, 1.5]\n")
+    c = s.scene.constraints
+    assert s.scene.verbs["FOOT_contact"][1] == ("FOOT_planted", "FOOT_push", "FOOT_friction")
+    assert [r.kind for r in c["FOOT_planted"].relations] == ["eq", "eq"]
+    assert [r.kind for r in c["FOOT_push"].relations] == ["ge"]
+    assert len(c["FOOT_friction"].relations) == 2            # both sides of the cone
+    # The foot (the FOOT joint's origin) stays at height 0.1 and x = 0 on the interval.
+    assert "acro.FOOT.y = 0.1, acro.FOOT.x = 0.0 on [0.0, 0.5]" in c["FOOT_planted"].text
+    assert c["FOOT_planted"].interval == (0.0, 0.5)
+    # In the air: the base forces and the torque hanging the first (massive) link on the base.
+    assert s.scene.verbs["acro_flight"][1] == ("acro_flight",)
+    assert len(c["acro_flight"].relations) == 3
+    # Without x=, the second contact keeps the foot still wherever it lands; no friction cone.
+    assert s.scene.verbs["FOOT_contact2"][1] == ("FOOT_planted2", "FOOT_push2")
+    assert "acro.FOOT.x' = 0" in c["FOOT_planted2"].text
+    s.execute("delete FOOT_contact")
+    assert not {"FOOT_planted", "FOOT_push", "FOOT_friction"} & set(s.scene.constraints)
+    assert "FOOT_planted2" in s.scene.constraints
+
+
+def _values(scene, expr_text, times):
+    from stw_tui.continuous import expression_values
+    from stw_tui.language.commands import parse_command
+    from stw_tui.session import SceneScope
+    return expression_values(scene, parse_command(f"print {expr_text}", SceneScope(scene)).expr, times)
+
+
+def test_contact_and_flight_relations_are_the_ground_force_and_free_fall_of_the_centre_of_mass():
+    # Independent of the linkage's derivation: two uniform rods of mass 1 (total 2), so the
+    # ground's force on the free base is 2 (C'' + g y) (Newton for the whole body), whatever the
+    # joints do; and the planted foot sits 0.375 and 0.125 along the links below the centre of mass.
+    s = run_lines(Session(), ACRO + """dof FOOT = 1 + 2*t^2
+dof WAIST = 0.5*sin(3*t)
+dof CX = 0.3 + t - t^3
+dof CY = 0.5 + 2*t - 4.9*t^2
+contact acro.FOOT on ground on [0, 0.5] friction=0.8 x=0.25
+flight acro on [0.5, 1]
+""")
+    sc = s.scene
+    times = np.linspace(0.01, 0.49, 9)
+    cx, cy = (sc.dofs[n].curve.evaluate(times, 2) for n in ("CX", "CY"))
+    f = sc.dofs["FOOT"].curve.evaluate(times)
+    w = f + sc.dofs["WAIST"].curve.evaluate(times)
+    planted, push, friction = (sc.constraints[n] for n in ("FOOT_planted", "FOOT_push", "FOOT_friction"))
+    from stw_tui.continuous import expression_values
+    np.testing.assert_allclose(expression_values(sc, push.relations[0].expr, times), 2 * (cy + 9.81), atol=1e-9)
+    np.testing.assert_allclose(expression_values(sc, friction.relations[0].expr, times),
+                               0.8 * 2 * (cy + 9.81) - 2 * cx, atol=1e-9)
+    foot_x = sc.dofs["CX"].curve.evaluate(times) - 0.375 * np.cos(f) - 0.125 * np.cos(w)
+    np.testing.assert_allclose(expression_values(sc, planted.relations[1].expr, times), foot_x - 0.25, atol=1e-12)
+    flight = sc.constraints["acro_flight"].relations
+    np.testing.assert_allclose(expression_values(sc, flight[0].expr, times), 2 * cx, atol=1e-9)
+
+
+@pytest.mark.parametrize("line, message", [
+    ("contact arm.tip on ground on [0, 0.5]", "fixed base"),
+    ("contact acro.KNEE on ground on [0, 0.5]", "not a point of linkage acro"),
+    ("contact acro.FOOT on ground on [0, 0.5] friction=-1", "must be at least 0"),
+    ("contact acro.FOOT on floor on [0, 0.5]", "expected 'ground'"),
+    ("contact acro.FOOT on ground [0, 0.5]", "expected 'on \\[A, B\\]'"),
+    ("flight arm on [0, 0.5]", "fixed base"),
+    ("flight bird on [0, 0.5]", "'bird' is not a linkage"),
+])
+def test_contact_and_flight_errors_change_nothing(line, message):
+    s = run_lines(Session(), ACRO + "linkage arm base=fixed\n  S revolute a=0.5\nend\n")
+    before = (set(s.scene.constraints), dict(s.scene.verbs))
+    with pytest.raises((StwError, SourceError), match=message):
+        s.execute(line)
+    assert (set(s.scene.constraints), dict(s.scene.verbs)) == before
+
+
+def test_flight_frees_every_joint_up_to_the_first_massive_link():
+    # A massless hip hangs the leg on the base: in the air neither can take a torque.
+    s = run_lines(Session(), """time 0 1 knots=8
+const g = 9.81
+linkage hopper base=tx:X,ty:Y
+  HIP revolute a=0 mass=0
+  LEG revolute a=0.8 mass=2
+  ARM revolute a=0.3 mass=0.5
+end
+flight hopper on [0.2, 0.6]
+""")
+    names = [str(r.expr) for r in s.scene.constraints["hopper_flight"].relations]
+    assert len(names) == 4 and "tau_ARM" not in " ".join(names)
+
+
+def test_contact_and_flight_remain_usable_as_constraint_names():
+    s = run_lines(Session(), "time 0 1 knots=8\ndof x\nconstraint flight: x = 1 @ 0.5\nconstraint contact: x' = 0 @ 0.5\n")
+    assert {"flight", "contact"} <= set(s.scene.constraints)

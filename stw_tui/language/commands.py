@@ -186,6 +186,23 @@ class BallisticCmd:
 
 
 @dataclass(frozen=True)
+class ContactCmd:
+    point: str                      # a linkage point, e.g. acro.FOOT
+    height: sp.Expr | None          # the ground's height (None: 0)
+    interval: Interval
+    friction: sp.Expr | None        # Coulomb coefficient (None: no friction cone)
+    x: sp.Expr | None               # where the point is planted (None: wherever it lands)
+    text: str = ""
+
+
+@dataclass(frozen=True)
+class FlightCmd:
+    linkage: str
+    interval: Interval
+    text: str = ""
+
+
+@dataclass(frozen=True)
 class LimitCmd:
     dof: str
     lo: sp.Expr
@@ -227,12 +244,15 @@ class HelpCmd:
 Command = (TimeCmd | ConstCmd | DofCmd | LetCmd | ConstraintCmd | ObjectiveCmd | KeyCmd | WindowCmd
            | UseCmd | WeightCmd | DampCmd | FilterCmd | ShakeCmd | RefineCmd | BackendCmd | SetCmd
            | IterateCmd | DeleteCmd | PrintCmd | HelpCmd | InstancesCmd | SlideCmd | HoldCmd
-           | BallisticCmd | LimitCmd)
+           | BallisticCmd | ContactCmd | FlightCmd | LimitCmd)
 
 COMMAND_NAMES = ("time", "const", "dof", "let", "constraint", "objective", "key", "window", "use",
                  "weight", "damp", "filter", "shake", "refine", "backend", "set", "iterate", "delete",
-                 "print", "help", "linkage", "instances", "slide", "hold", "ballistic", "limit")
-RESERVED = set(COMMAND_NAMES) | set(FUNCTIONS) | {"t", "pi", "all", "on", "when", "and", "or", "not"}
+                 "print", "help", "linkage", "instances", "slide", "hold", "ballistic", "contact", "flight", "limit")
+# `contact` and `flight` became verbs after sessions had named constraints so; a line's first word
+# is its command, so they stay free as names.
+RESERVED = (set(COMMAND_NAMES) - {"contact", "flight"}) | set(FUNCTIONS) | {"t", "pi", "all", "on", "when",
+                                                                          "and", "or", "not"}
 
 
 MAX_COUNT = 100_000_000    # other counts (multiplicity): larger is surely a typo
@@ -580,6 +600,27 @@ class CommandParser(ExpressionParser):
             raise self.unexpected("'on [A, B]'")
         self.advance()
         return BallisticCmd(point, self.interval(), self.text)
+
+    def p_contact(self):
+        point = self.name("a linkage point such as acro.FOOT").text
+        for word, expected in (("on", "'on ground'"), ("ground", "'ground' (the surface y = H)")):
+            if not self.token.is_word(word):
+                raise self.unexpected(expected)
+            self.advance()
+        height = self.options({"y": "expr"}).get("y")
+        if not self.token.is_word("on"):
+            raise self.unexpected("'on [A, B]'")
+        self.advance()
+        interval = self.interval()
+        opts = self.options({"friction": "expr", "x": "expr"})
+        return ContactCmd(point, height, interval, opts.get("friction"), opts.get("x"), self.text)
+
+    def p_flight(self):
+        linkage = self.name("a linkage name").text
+        if not self.token.is_word("on"):
+            raise self.unexpected("'on [A, B]'")
+        self.advance()
+        return FlightCmd(linkage, self.interval(), self.text)
 
     def p_limit(self):
         dof = self.dof_name()
