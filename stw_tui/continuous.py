@@ -82,12 +82,12 @@ def expression_values(scene, expr: sp.Basic, times: np.ndarray) -> np.ndarray:
 
 def condition_holds(scene, when: sp.Basic | None, times: np.ndarray) -> np.ndarray:
     """Where a ``when`` condition holds on the scene's curves (all True without one)."""
-    from .window import evaluate_condition_tree, relation_nodes
+    from .window import evaluate_condition_tree, numpy_filled, relation_nodes
 
     if when is None or when is sp.true:
         return np.ones(times.size, bool)
     leaves = {node: expression_values(scene, node.lhs - node.rhs, times) for node in relation_nodes(when)}
-    return evaluate_condition_tree(when, leaves, times.size)
+    return evaluate_condition_tree(when, leaves, numpy_filled(times.size))
 
 
 def dense_times(scene, exprs, a: float, b: float, instances: np.ndarray) -> np.ndarray:

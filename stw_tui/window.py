@@ -15,6 +15,7 @@ instances or control points; one runs over term groups (constraints and objectiv
 
 from __future__ import annotations
 
+import operator
 from dataclasses import dataclass, field
 from functools import lru_cache
 
@@ -32,10 +33,11 @@ from .symbols import dof_symbol
 
 EQ, GE, OBJ = "eq", "ge", "obj"
 HESSIAN_PLAN_AFTER = 4   # Hessians assembled by plain sparse products before a plan is made
+# The comparisons of a `when` condition, as operators: numpy arrays and torch tensors both take them.
 _RELATIONS = {
-    sp.StrictGreaterThan: np.greater, sp.GreaterThan: np.greater_equal,
-    sp.StrictLessThan: np.less, sp.LessThan: np.less_equal,
-    sp.Equality: np.equal, sp.Unequality: np.not_equal,
+    sp.StrictGreaterThan: operator.gt, sp.GreaterThan: operator.ge,
+    sp.StrictLessThan: operator.lt, sp.LessThan: operator.le,
+    sp.Equality: operator.eq, sp.Unequality: operator.ne,
 }
 
 
@@ -44,19 +46,29 @@ def relation_nodes(tree: sp.Basic) -> list[sp.Basic]:
     return [node for node in sp.preorder_traversal(tree) if isinstance(node, tuple(_RELATIONS))]
 
 
-def evaluate_condition_tree(node: sp.Basic, leaf_values: dict, n: int) -> np.ndarray:
-    """Where a boolean tree of relations holds, given each leaf's ``lhs - rhs`` at n times."""
-    if node is sp.true:
-        return np.ones(n, bool)
-    if node is sp.false:
-        return np.zeros(n, bool)
-    if isinstance(node, sp.And):
-        return np.logical_and.reduce([evaluate_condition_tree(a, leaf_values, n) for a in node.args])
-    if isinstance(node, sp.Or):
-        return np.logical_or.reduce([evaluate_condition_tree(a, leaf_values, n) for a in node.args])
+def evaluate_condition_tree(node: sp.Basic, leaf_values: dict, filled):
+    """Where a boolean tree of relations holds, given each leaf's ``lhs - rhs`` at n times.
+
+    Array-generic (numpy here, torch in the torch backend): leaves are compared with 0 by Python's
+    operators and combined with ``&``, ``|`` and ``~``; ``filled(flag)`` makes the n-long boolean
+    array that a literal true or false stands for.
+    """
+    if node is sp.true or node is sp.false:
+        return filled(node is sp.true)
+    if isinstance(node, (sp.And, sp.Or)):
+        parts = [evaluate_condition_tree(a, leaf_values, filled) for a in node.args]
+        out = parts[0]
+        for part in parts[1:]:
+            out = out & part if isinstance(node, sp.And) else out | part
+        return out
     if isinstance(node, sp.Not):
-        return ~evaluate_condition_tree(node.args[0], leaf_values, n)
+        return ~evaluate_condition_tree(node.args[0], leaf_values, filled)
     return _RELATIONS[type(node)](leaf_values[node], 0.0)
+
+
+def numpy_filled(n: int):
+    """``filled`` for :func:`evaluate_condition_tree` on numpy arrays of n times."""
+    return lambda flag: np.full(n, flag, dtype=bool)
 
 
 @dataclass(eq=False)
@@ -72,7 +84,7 @@ class Condition:
         for node, term, offset in self.leaves:
             x = slot_values[offset:offset + term.k * n].reshape(term.k, n).T
             leaf_values[node] = term.value(x, times, scene_params(term))
-        return evaluate_condition_tree(self.tree, leaf_values, n)
+        return evaluate_condition_tree(self.tree, leaf_values, numpy_filled(n))
 
 
 @dataclass(eq=False)
