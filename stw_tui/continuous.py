@@ -70,14 +70,8 @@ class DenseReport:
 
 
 def expression_values(scene, expr: sp.Basic, times: np.ndarray) -> np.ndarray:
-    """Values of an expression (DOF, t, constants, subexpressions) on the scene's curves."""
-    term = compile_term(scene.expand(expr), set(scene.dofs), set(scene.constants))
-    times = np.asarray(times, float)
-    if term.variables:
-        values = np.column_stack([scene.dofs[v.dof].curve.evaluate(times, v.order) for v in term.variables])
-    else:
-        values = np.zeros((times.size, 0))
-    return term.value(values, times, scene.constant_values(term.parameters))
+    """:meth:`Scene.evaluate <stw_tui.scene.Scene.evaluate>`, under the name older callers use."""
+    return scene.evaluate(expr, times)
 
 
 def condition_holds(scene, when: sp.Basic | None, times: np.ndarray) -> np.ndarray:
@@ -86,7 +80,7 @@ def condition_holds(scene, when: sp.Basic | None, times: np.ndarray) -> np.ndarr
 
     if when is None or when is sp.true:
         return np.ones(times.size, bool)
-    leaves = {node: expression_values(scene, node.lhs - node.rhs, times) for node in relation_nodes(when)}
+    leaves = {node: scene.evaluate(node.lhs - node.rhs, times) for node in relation_nodes(when)}
     return evaluate_condition_tree(when, leaves, numpy_filled(times.size))
 
 
@@ -159,7 +153,7 @@ def _relation_samples(scene, constraint) -> list[_Samples]:
     out = []
     for rel in constraint.relations:
         def score_at(times, expr=rel.expr, kind=rel.kind):
-            v = _score(expression_values(scene, expr, times), kind, constraint.weight)
+            v = _score(scene.evaluate(expr, times), kind, constraint.weight)
             if constraint.when is not None:   # a conditional constraint counts only where it applies
                 v = np.where(condition_holds(scene, constraint.when, times), v, -np.inf)
             return v
@@ -186,7 +180,7 @@ def _bound_samples(scene, dof) -> list[_Samples]:
                                    (dof.hi, (dof.hi or 0) - x, (dof.hi or 0) - coef)):
         if bound is not None:
             def score_at(times, expr=expr):
-                return _score(expression_values(scene, expr, times), "ge", 1.0)
+                return _score(scene.evaluate(expr, times), "ge", 1.0)
             dense = _densely(score_at, t_inst, t_base, exact=True)
             out.append(replace(dense, v_inst=np.maximum(0.0, -at_points)))
     return out

@@ -23,7 +23,6 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
-from .continuous import expression_values
 from .errors import StwError
 from .scene import Scene
 from .symbols import named_symbol
@@ -77,7 +76,7 @@ def motion_table(scene: Scene, times: np.ndarray, what=()) -> dict[str, np.ndarr
         for order, suffix in enumerate(("", "'", "''")):
             columns[name + suffix] = dof.curve.evaluate(times, order)
     for name in [*position_names(scene), *(n for n in check_what(scene, what) if n not in columns)]:
-        columns[name] = np.broadcast_to(expression_values(scene, named_symbol(name), times), times.shape)
+        columns[name] = np.broadcast_to(scene.evaluate(named_symbol(name), times), times.shape)
     return columns
 
 

@@ -16,7 +16,7 @@ from . import language as lang
 from . import limits
 from .backend import RunResult, Status, SolverState, create_backend, load_backend, run_iterations
 from .compiler import compile_term
-from .continuous import check_scene, condition_holds, expression_values, survey
+from .continuous import check_scene, condition_holds, survey
 from .errors import LimitError, SolveError, SourceError, StwError
 from .scene import DEFAULT_SETTINGS, Constraint, Dof, Objective, Relation, Scene, Window
 from .spline import DofCurve
@@ -504,7 +504,7 @@ def _print(scene: Scene, cmd):
     else:
         a, b = _interval(scene, cmd.interval, "interval") if cmd.interval else (scene.t0, scene.t1)
         times = np.linspace(a, b, 201)
-    result = expression_values(scene, cmd.expr, times)
+    result = scene.evaluate(cmd.expr, times)
     bad = np.flatnonzero(~np.isfinite(result))
     if bad.size:   # x^(1/3) of a negative x, log(0): say where, never print nan
         t = times[bad[0]]
@@ -714,9 +714,7 @@ def _check_start(scene: Scene, problem: WindowProblem) -> None:
     instead of letting the backend fail on NaN with a misleading message."""
     for group in problem.groups:
         term, times = group.term, group.times
-        values = np.column_stack([scene.dofs[v.dof].curve.evaluate(times, v.order) for v in term.variables]) \
-            if term.variables else np.zeros((times.size, 0))
-        f, grad, _ = term.full(values, times, scene.constant_values(term.parameters))
+        f, grad, _ = term.full(scene.term_inputs(term, times), times, scene.constant_values(term.parameters))
         bad = ~(np.isfinite(f) & np.all(np.isfinite(grad), axis=1))
         constraint = scene.constraints.get(group.source) if group.kind != "obj" else None
         if bad.any() and constraint is not None and constraint.when is not None:

@@ -94,7 +94,6 @@ dof E = 0.3*sin(2*t)
 let h = arm.tip.y
 """)
     t = np.array([0.3, 0.5, 0.8])
-    from stw_tui.continuous import expression_values
     from stw_tui.symbols import named_symbol
 
     def tip_y(times):   # forward kinematics by hand, from the DOF curves
@@ -103,8 +102,8 @@ let h = arm.tip.y
     step = 1e-4
     fd1 = (tip_y(t + step) - tip_y(t - step)) / (2 * step)
     fd2 = (tip_y(t + step) - 2 * tip_y(t) + tip_y(t - step)) / step**2
-    assert np.allclose(expression_values(s.scene, named_symbol("arm.tip.y'"), t), fd1, atol=1e-7)
-    assert np.allclose(expression_values(s.scene, named_symbol("h''"), t), fd2, atol=1e-5)
+    assert np.allclose(s.scene.evaluate(named_symbol("arm.tip.y'"), t), fd1, atol=1e-7)
+    assert np.allclose(s.scene.evaluate(named_symbol("h''"), t), fd2, atol=1e-5)
 
 
 PIN = """time 0 1 knots=20
