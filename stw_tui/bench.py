@@ -39,6 +39,7 @@ import scipy
 
 from .backend import available_backends, load_backend
 from .errors import StwError
+from .language import classify_line
 from .session import Session
 from .window import WindowProblem
 
@@ -81,8 +82,8 @@ def _iterate_lines(text: str) -> list[tuple[int, int]]:
     """(index, N) of every `iterate N` line of a session text."""
     found = []
     for i, line in enumerate(text.splitlines()):
-        words = line.split("#", 1)[0].split()
-        if words and words[0] == "iterate":
+        words = classify_line(line).words
+        if words[:1] == ("iterate",):
             found.append((i, int(words[1]) if len(words) > 1 and words[1].isdigit() else 1))
     return found
 

@@ -20,6 +20,7 @@ from dataclasses import dataclass, field
 from typing import TYPE_CHECKING, Any
 
 from .errors import StwError
+from .language import classify_line
 from .scene import Scene
 
 if TYPE_CHECKING:
@@ -70,8 +71,8 @@ class History:
             before: the session's state before the command.
             journal_text: what the journal keeps instead of ``text``, if anything.
         """
-        words = text.split("#", 1)[0].split()
-        if not words or words[0] in NOT_STEPS:
+        verb = classify_line(text).verb
+        if verb is None or verb in NOT_STEPS:
             return
         self.undo_steps.append(Step(journal_text or text, before))
         del self.undo_steps[:-self.limit]

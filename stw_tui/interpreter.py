@@ -637,7 +637,7 @@ def _verb(scene: Scene, cmd) -> str:
         _HANDLERS[type(command)](scene, command)
         members.append(command.name)
     scene.verbs[group] = (cmd.text, tuple(members))
-    return f"{cmd.text.split()[0]} {group}: " + "; ".join(lines)
+    return f"{lang.classify_line(cmd.text).verb} {group}: " + "; ".join(lines)
 
 
 def _limit(scene: Scene, cmd) -> str:

@@ -19,6 +19,7 @@ from . import interpreter, limits
 from .backend import RunResult, StepReport
 from .errors import SourceError, StwError
 from .history import History, State
+from .language import CommandLine, classify_line
 from .scene import Scene
 
 
@@ -132,12 +133,12 @@ class Session:
         """
         self._check_length(text, line)
         self._check_text(text, line)
-        stripped = text.split("#", 1)[0].strip()
+        kind = classify_line(text)
         if self._block is not None:
-            return self._continue_block(text, stripped, line)
-        if not stripped:
+            return self._continue_block(text, kind, line)
+        if kind.is_blank:
             return Outcome()
-        if stripped.split()[0] == "linkage":
+        if kind.verb == "linkage":
             self._block = [(line, text)]
             return Outcome(message="linkage block: enter joint rows, then `end`")
         return self._apply(text.rstrip(), line, on_report)
@@ -160,12 +161,12 @@ class Session:
             raise SourceError(f"character {text[exc.start]!r} is not valid text (a lone surrogate)",
                               line=line, column=exc.start + 1, expected="UTF-8 text") from None
 
-    def _continue_block(self, text: str, stripped: str, line: int | None) -> Outcome:
-        if stripped == "end":
+    def _continue_block(self, text: str, kind: CommandLine, line: int | None) -> Outcome:
+        if kind.words == ("end",):
             block, self._block = self._block, None
             joined = "\n".join(t.rstrip() for _, t in block) + "\n" + text.rstrip()
             return self._apply(joined, block[0][0], None, block=block)
-        if stripped:
+        if not kind.is_blank:
             self._block.append((line, text))
         return Outcome()
 

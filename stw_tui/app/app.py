@@ -18,6 +18,7 @@ from textual.containers import Horizontal
 from textual.widget import Widget
 from textual.widgets import Footer, TabbedContent, TabPane
 
+from ..language import classify_line
 from .console import Console
 from .dialogs import CompareScreen
 from .help_screen import HelpScreen, help_sections
@@ -235,7 +236,7 @@ class StwApp(App[int]):
 
     def on_command_requested(self, event: CommandRequested) -> None:
         event.stop()
-        if event.origin == "console" and event.line.split("#", 1)[0].split() == ["help"]:
+        if event.origin == "console" and classify_line(event.line).words == ("help",):
             self.repl.write_command(event.line)
             self.repl.write_note("opened the help screen (F1); `help COMMAND` prints one command here")
             self.action_help()
@@ -499,8 +500,8 @@ READ_ONLY_COMMANDS = frozenset({"print", "help"})
 
 def _changes_scene(line: str) -> bool:
     """Whether a command line (that succeeded) may have changed the scene."""
-    words = line.split("#", 1)[0].split()
-    return bool(words) and words[0] not in READ_ONLY_COMMANDS
+    verb = classify_line(line).verb
+    return verb is not None and verb not in READ_ONLY_COMMANDS
 
 
 def _was_stopped(outcome) -> bool:

@@ -20,6 +20,7 @@ from pathlib import Path
 from typing import TYPE_CHECKING, Any, Callable
 
 from ..errors import StwError
+from ..language import classify_line
 from .messages import CommandFinished, CommandStarted, IterationReported, TaskFinished
 from .values import SceneInfo, scene_info
 
@@ -44,7 +45,7 @@ class Job:
 
     @property
     def is_solve(self) -> bool:
-        return self.line.split("#", 1)[0].split()[:1] == ["iterate"]
+        return classify_line(self.line).verb == "iterate"
 
 
 class Script:
@@ -61,7 +62,7 @@ class Script:
         return self.position >= len(self.lines)
 
     def _is_command(self, index: int) -> bool:
-        return bool(self.lines[index].split("#", 1)[0].strip())
+        return not classify_line(self.lines[index]).is_blank
 
     def upcoming(self) -> tuple[int, str] | None:
         """The next command line (number, text), skipping comments and blank lines."""
