@@ -18,13 +18,14 @@ from .backend import RunResult, Status, SolverState, create_backend, load_backen
 from .compiler import compile_term
 from .continuous import check_scene, condition_holds, survey
 from .errors import LimitError, SolveError, SourceError, StwError
+from .outcome import Outcome, PrintResult
 from .scene import DEFAULT_SETTINGS, Constraint, Dof, Objective, Relation, Scene, Window
 from .spline import DofCurve
 from .symbols import dof_symbol, dof_symbols
 from .window import WindowProblem
 
 if TYPE_CHECKING:
-    from .session import Outcome, Session
+    from .session import Session
 
 _KINDS = {"dof": lang.NameKind.DOF, "const": lang.NameKind.CONST, "let": lang.NameKind.LET}
 
@@ -51,8 +52,7 @@ class WarmStart:
     state: SolverState
 
 
-def apply_line(session: "Session", scene: Scene, text: str, line: int | None, on_report) -> "Outcome":
-    from .session import Outcome
+def apply_line(session: "Session", scene: Scene, text: str, line: int | None, on_report) -> Outcome:
 
     command = lang.parse_command(text, SceneScope(scene), line=line)
     if command is None:
@@ -69,11 +69,10 @@ def apply_line(session: "Session", scene: Scene, text: str, line: int | None, on
     return Outcome(message=message or "")
 
 
-def apply_linkage(session: "Session", scene: Scene, block) -> "Outcome":
+def apply_linkage(session: "Session", scene: Scene, block) -> Outcome:
     """Add a linkage: its joint (and base) variables become DOF, its kinematics and generalized
     forces become derived subexpressions."""
     from .linkage import curve_dofs, derive, dof_names, parse_linkage
-    from .session import Outcome
 
     (header_line, header), rows = block[0], block[1:]
     spec = parse_linkage(header, [(ln, text) for ln, text in rows], header_line=header_line)
@@ -482,7 +481,6 @@ def _delete(scene: Scene, cmd) -> str:
 
 
 def _print_check(scene: Scene, name: str):
-    from .session import PrintResult
 
     report = check_scene(scene)
     if name not in report.checks:
@@ -495,7 +493,6 @@ def _print_check(scene: Scene, name: str):
 
 
 def _print(scene: Scene, cmd):
-    from .session import PrintResult
 
     if cmd.expr is None:
         return _print_check(scene, cmd.expr_text)
@@ -548,12 +545,11 @@ def _instances(scene: Scene, cmd) -> str:
     return f"{name}: {len(merged)} added instance(s)"
 
 
-def _iterate(session: "Session", scene: Scene, cmd, on_report) -> "Outcome":
+def _iterate(session: "Session", scene: Scene, cmd, on_report) -> Outcome:
     """Solve, check every constraint densely over the whole animation, and (adaptive) add
     instances where the check fails and solve again, at most ``rounds`` times. A re-solve that
     does not converge (too many instances for the curves' freedom, or a stop) is undone: adaptive
     refinement never leaves a motion worse than the plain solve."""
-    from .session import Outcome
 
     if cmd.n < 1:
         raise StwError("iterate needs a positive number of iterations")
@@ -655,11 +651,10 @@ def _limit(scene: Scene, cmd) -> str:
 MAX_SLIDE_POSITIONS = 1000
 
 
-def _slide(session: "Session", scene: Scene, cmd, on_report) -> "Outcome":
+def _slide(session: "Session", scene: Scene, cmd, on_report) -> Outcome:
     """Move a window along the time axis by ``by``, solving (an `iterate`) at each position, from
     where it is until its end reaches ``to`` (the last step is shortened to land there). Each
     solve sees only its window: the paper's cat that chases where the mouse is now."""
-    from .session import Outcome
 
     window = scene.windows.get(cmd.window)
     if window is None:

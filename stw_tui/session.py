@@ -20,6 +20,7 @@ from .backend import RunResult, StepReport
 from .errors import SourceError, StwError
 from .history import History, State
 from .language import CommandLine, classify_line
+from .outcome import Outcome, PrintResult
 from .scene import Scene
 
 
@@ -79,23 +80,6 @@ class Journal:
 
     def text(self) -> str:
         return "\n".join(self._render(e) for e in self.entries if e.ok is not None) + "\n"
-
-
-@dataclass
-class PrintResult:
-    expr: str
-    t: float | None
-    value: float | dict
-
-
-@dataclass
-class Outcome:
-    """What a command did: a message for the console, and any printed values or solver run."""
-
-    message: str = ""
-    prints: list[PrintResult] = field(default_factory=list)
-    run: RunResult | None = None
-    journal_text: str | None = None   # what replays this command, when that differs from the text
 
 
 ReportCallback = Callable[[StepReport], "bool | None"]
