@@ -415,14 +415,32 @@ class WindowProblem:
         masks = self._conditions(v)
         return MeritValues(objective, out[EQ], out[GE], masks[EQ], masks[GE])
 
+    def _local_terms(self, v: np.ndarray):
+        """Per group: the group, and its term's values, gradients and Hessian entries at its
+        instances (``CompiledTerm.full``) from slot values ``v``."""
+        for group in self.groups:
+            yield (group, *group.term.full(self._group_inputs(group, v), group.times, group.params))
+
+    def first_undefined(self, s: np.ndarray) -> tuple[TermGroup, int, str] | None:
+        """The first group and instance where a term's value or gradient is not a finite real
+        number at free values ``s`` (where its `when` holds), and which of the two; None: none."""
+        v = self._slot_values(s)
+        for group, f, grad, _ in self._local_terms(v):
+            bad = ~(np.isfinite(f) & np.all(np.isfinite(grad), axis=1))
+            if bad.any() and group.condition is not None:
+                bad &= group.condition.evaluate(v, group.times, self._params)
+            if bad.any():
+                i = int(np.flatnonzero(bad)[0])
+                return group, i, "its value" if not np.isfinite(f[i]) else "its derivative"
+        return None
+
     def evaluate(self, s: np.ndarray) -> Evaluation:
         """Values, gradients and (lazily) Hessians at free values ``s``."""
         v = self._slot_values(s)
         values = {kind: np.empty(self.row_counts[kind]) for kind in (EQ, GE, OBJ)}
         grads = {kind: [] for kind in (EQ, GE, OBJ)}
         hess = []
-        for group in self.groups:
-            f, grad, h = group.term.full(self._group_inputs(group, v), group.times, group.params)
+        for group, f, grad, h in self._local_terms(v):
             values[group.kind][group.row_offset:group.row_offset + group.n] = f
             scale = group.weights if group.kind != OBJ else np.ones(group.n)
             grads[group.kind].append((grad * scale[:, None]).T.ravel())

@@ -200,7 +200,7 @@ def test_a_solve_from_an_undefined_start_names_the_term_and_the_time(negative):
     from stw_tui.window import WindowProblem
 
     negative.execute("constraint cube: q = 1 @ 0.5 when x > 0")      # where it is undefined, it is off
-    _check_start(negative.scene, WindowProblem(negative.scene))
+    _check_start(WindowProblem(negative.scene))
 
 
 def test_numbers_no_double_holds_are_refused_where_they_arise():
