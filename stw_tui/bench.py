@@ -40,6 +40,7 @@ import scipy
 from .backend import available_backends, load_backend
 from .errors import StwError
 from .language import classify_line
+from .kinds import TermKind
 from .session import Session
 from .window import WindowProblem
 
@@ -150,8 +151,8 @@ def measure(name: str, setup: Session, n: int, backend: str, options: str, repea
                                   for _, result, _ in runs)
     return Measurement(
         session=name, config=config, free=problem.n_free,
-        instances=problem.row_counts["eq"] + problem.row_counts["ge"],
-        inequalities=problem.row_counts["ge"], iterations=len(reports), converged=run.converged,
+        instances=problem.row_counts[TermKind.EQ] + problem.row_counts[TermKind.GE],
+        inequalities=problem.row_counts[TermKind.GE], iterations=len(reports), converged=run.converged,
         ms_per_iteration=ms_per_iteration,
         phases={k: median(r.ms.get(k, 0.0) for r in timed) for k in PHASES
                 if any(k in r.ms for r in timed)},

@@ -14,9 +14,9 @@ from dataclasses import dataclass, replace
 import numpy as np
 import sympy as sp
 
-from .compiler import compile_term
 from .instances import (bound_extra_times, bound_times, dofs_used, exact_degree, interval_cuts,
                         on_own_side, relation_times, repeated_knots)
+from .kinds import TermKind
 from .symbols import dof_symbol
 
 DENSE_PER_SPAN = 8
@@ -100,7 +100,7 @@ def dense_times(scene, exprs, a: float, b: float, instances: np.ndarray) -> np.n
 def _score(values: np.ndarray, kind: str, weight: float) -> np.ndarray:
     """Signed violation: positive where violated; for an inequality, how near it is to failing."""
     scaled = weight * values
-    return np.abs(scaled) if kind == "eq" else -scaled
+    return np.abs(scaled) if kind == TermKind.EQ else -scaled
 
 
 @dataclass(frozen=True)
@@ -180,7 +180,7 @@ def _bound_samples(scene, dof) -> list[_Samples]:
                                    (dof.hi, (dof.hi or 0) - x, (dof.hi or 0) - coef)):
         if bound is not None:
             def score_at(times, expr=expr):
-                return _score(scene.evaluate(expr, times), "ge", 1.0)
+                return _score(scene.evaluate(expr, times), TermKind.GE, 1.0)
             dense = _densely(score_at, t_inst, t_base, exact=True)
             out.append(replace(dense, v_inst=np.maximum(0.0, -at_points)))
     return out

@@ -19,6 +19,7 @@ from .compiler import compile_term
 from .continuous import DenseReport, check_scene, survey
 from .errors import LimitError, SolveError, SourceError, StwError
 from .outcome import Outcome, PrintResult
+from .kinds import Capability, TermKind
 from .scene import DEFAULT_SETTINGS, Constraint, Dof, Objective, Relation, Scene, Window
 from .spline import DofCurve
 from .symbols import dof_symbol, dof_symbols
@@ -291,7 +292,7 @@ def _constraint(scene: Scene, cmd) -> str:
         if not _uses_dof(scene, rel.expr):
             raise StwError(f"a relation of '{cmd.name}' does not depend on any DOF")
         expr = -rel.expr if rel.kind == "le" else rel.expr
-        relations.append(Relation(expr, "eq" if rel.kind == "eq" else "ge"))
+        relations.append(Relation(expr, TermKind.EQ if rel.kind == "eq" else TermKind.GE))
         compile_term(scene.expand(expr), set(scene.dofs), set(scene.constants))
     at = _time_in_span(scene, scene.numeric(cmd.at, "time"), "time") if cmd.at is not None else None
     interval = _interval(scene, cmd.interval, "interval") if cmd.interval is not None else None
@@ -364,7 +365,7 @@ def _damp(scene: Scene, cmd) -> str:
     if amount < 0:
         raise StwError(f"damping must be >= 0, not {amount:g}")
     scene.dofs[cmd.dof].damp = amount
-    return f"damp {cmd.dof} = {amount:g}"
+    return f"damp {cmd.dof} = {amount:g}" + _unsupported_note(scene, None, {Capability.DAMPING})
 
 
 def _filter(scene: Scene, cmd) -> str:
@@ -419,7 +420,38 @@ def _backend(scene: Scene, cmd) -> str:
     create_backend(cls, options)  # validates names and values
     scene.backend, scene.backend_options = cmd.name, options
     shown = " ".join(f"{k}={v}" for k, v in options.items())
-    return f"backend {cmd.name} {shown}".rstrip()
+    return f"backend {cmd.name} {shown}".rstrip() + _unsupported_note(scene, cls)
+
+
+def _capabilities_asked(scene: Scene) -> dict[Capability, str]:
+    """The capabilities the scene's settings ask of a backend, each with what asks for it."""
+    def some(names: list[str]) -> str:
+        return ", ".join(names[:3]) + (f" and {len(names) - 3} more" if len(names) > 3 else "")
+
+    constraints = scene.constraints.values()
+    asked = {
+        Capability.DAMPING: [d.name for d in scene.dofs.values() if d.damp > 0],
+        Capability.CONDITIONAL: [c.name for c in constraints if c.when is not None],
+        Capability.INEQUALITIES: [c.name for c in constraints if any(r.kind is TermKind.GE for r in c.relations)]
+        + [f"{d.name}.bounds" for d in scene.dofs.values() if d.lo is not None or d.hi is not None],
+        Capability.WEIGHTS: [e.name for e in (*constraints, *scene.objectives.values()) if e.weight != 1.0],
+    }
+    return {capability: some(names) for capability, names in asked.items() if names}
+
+
+def _unsupported_note(scene: Scene, cls, only: set[Capability] | None = None) -> str:
+    """A warning line for each setting of the scene that backend ``cls`` (None: the scene's) does
+    not declare it honours (its ``capabilities``), e.g. `damp` under IPOPT; empty when it honours
+    them all, or when the scene's backend no longer loads (the next solve says so)."""
+    if cls is None:
+        try:
+            cls = load_backend(scene.backend)
+        except StwError:
+            return ""
+    missing = {capability: what for capability, what in _capabilities_asked(scene).items()
+               if capability not in cls.capabilities and (only is None or capability in only)}
+    return "".join(f"\nwarning: backend {cls.name} does not support {capability} ({what}); "
+                   "the solve ignores it" for capability, what in missing.items())
 
 
 def _set(scene: Scene, cmd) -> str:
@@ -743,7 +775,7 @@ def _check_start(problem: WindowProblem) -> None:
     found = problem.first_undefined(problem.initial())
     if found is not None:
         group, i, what = found
-        kind = "objective" if group.kind == "obj" else "constraint"
+        kind = "objective" if group.kind is TermKind.OBJ else "constraint"
         raise SolveError(f"{kind} {group.label}: {what} is not a finite real number at t={group.times[i]:.6g} "
                          f"on the current curves ({sp.sstr(group.term.expr)[:80]}); the scene is unchanged — "
                          "a keyframe, bounds (lo=, hi=) or a different start can keep it defined")

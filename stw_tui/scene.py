@@ -13,6 +13,7 @@ import numpy as np
 import sympy as sp
 
 from .errors import LimitError, StwError
+from .kinds import TermKind
 from .spline import DofCurve
 from .symbols import named_symbol
 
@@ -46,7 +47,7 @@ class Relation:
     """One relation of a constraint, normalized to ``expr = 0`` or ``expr >= 0``."""
 
     expr: sp.Expr
-    kind: str  # "eq" or "ge"
+    kind: TermKind   # EQ or GE
 
 
 @dataclass

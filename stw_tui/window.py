@@ -27,11 +27,12 @@ from .compiler import CompiledTerm, compile_term
 from .errors import StwError
 from .instances import bound_extra_times, bound_times, relation_times
 from .products import GRAM_PLAN_TERMS, GramPlan, ProductPlan
+from .kinds import TermKind
 from .scene import Scene
 from .spline import gauss_legendre_nodes
 from .symbols import dof_symbol
 
-EQ, GE, OBJ = "eq", "ge", "obj"
+EQ, GE, OBJ = TermKind.EQ, TermKind.GE, TermKind.OBJ
 HESSIAN_PLAN_AFTER = 4   # Hessians assembled by plain sparse products before a plan is made
 # The comparisons of a `when` condition, as operators: numpy arrays and torch tensors both take them.
 _RELATIONS = {
@@ -91,14 +92,14 @@ class Condition:
 class TermGroup:
     """One compiled expression evaluated at a set of instance times.
 
-    ``kind`` is "eq" (= 0), "ge" (>= 0) or "obj" (squared and integrated). Slot ``(a, i)`` — the
+    ``kind`` is EQ (= 0), GE (>= 0) or OBJ (squared and integrated). Slot ``(a, i)`` — the
     value of variable ``a`` at instance ``i`` — lives at ``slot_offset + a * n + i`` of the slot
     vector; the group's rows are ``row_offset .. row_offset + n`` among the rows of its kind.
     """
 
     label: str
     source: str
-    kind: str
+    kind: TermKind
     term: CompiledTerm
     times: np.ndarray
     weights: np.ndarray

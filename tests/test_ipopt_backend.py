@@ -125,3 +125,20 @@ def test_options_and_limited_memory(registered):
     assert session.runs[-1].converged, session.runs[-1].status
     t = np.linspace(0, 1, 11)
     assert np.max(np.abs(session.scene.dofs["x"].curve.evaluate(t) - (3 * t**2 - 2 * t**3))) < 1e-4
+
+
+def test_settings_the_chosen_backend_ignores_are_warned_about(registered):
+    """IPOPT declares no damping: `damp` under it, and choosing it for a damped scene, say so;
+    scipy honours damping and says nothing."""
+    from stw_tui.backend import Capability
+
+    assert Capability.DAMPING not in IpoptBackend.capabilities
+    s = Session()
+    s.run_text("dof x, y lo=0\nconstraint c: x = 1 @ 0 weight=2\n")
+    assert "warning" not in s.execute("damp x 0.2").message            # scipy: damping honoured
+    switched = s.execute("backend ipopt").message
+    assert switched.splitlines() == ["backend ipopt",
+                                     "warning: backend ipopt does not support damping (x); the solve ignores it"]
+    assert "does not support damping (x, y)" in s.execute("damp y 0.1").message
+    assert s.execute("damp x 0").message.endswith("does not support damping (y); the solve ignores it")
+    assert s.execute("backend scipy").message == "backend scipy"

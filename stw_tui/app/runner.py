@@ -21,7 +21,7 @@ from typing import TYPE_CHECKING, Any, Callable
 
 from ..errors import StwError
 from ..language import classify_line
-from .messages import CommandFinished, CommandStarted, IterationReported, TaskFinished
+from .messages import CommandFinished, CommandStarted, IterationReported, Origin, TaskFinished
 from .values import SceneInfo, scene_info
 
 if TYPE_CHECKING:
@@ -37,7 +37,7 @@ class Job:
 
     line: str
     number: int | None = None     # its line in the opened session file
-    origin: str = "console"       # console | panel | key | file | startup
+    origin: Origin = Origin.CONSOLE
     continuation: bool = False    # a row inside an open `linkage` block (set by the worker)
     # A read-only task instead of a command line (e.g. comparing backends): called with the
     # session in the worker, not journalled; its result comes back in a TaskFinished message.
@@ -82,7 +82,7 @@ class Script:
             index = self.position
             self.position += 1
             if self._is_command(index):
-                return comments, Job(self.lines[index], number=index + 1, origin="file")
+                return comments, Job(self.lines[index], number=index + 1, origin=Origin.FILE)
             if self.lines[index].strip():
                 comments.append(self.lines[index])
         return comments, None

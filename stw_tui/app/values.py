@@ -58,6 +58,7 @@ def equation_series(scene: "Scene", name: str, n: int = 161) -> tuple[list[Serie
     Raises:
         StwError: an expression that no longer compiles (e.g. a deleted name).
     """
+    from ..kinds import TermKind
     from ..symbols import named_symbol
 
     times = np.linspace(scene.t0, scene.t1, n)
@@ -66,7 +67,7 @@ def equation_series(scene: "Scene", name: str, n: int = 161) -> tuple[list[Serie
         scope = (c.at, c.at) if c.at is not None else c.interval
         out = []
         for i, rel in enumerate(c.relations, start=1):
-            label = f"{name}[{i}] {'= 0' if rel.kind == 'eq' else '>= 0'}"
+            label = f"{name}[{i}] {'= 0' if rel.kind == TermKind.EQ else '>= 0'}"
             out.append(Series(label, times.tolist(), scene.evaluate(rel.expr, times).tolist()))
         return out, scope
     if name in scene.objectives:
