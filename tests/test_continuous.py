@@ -9,6 +9,7 @@ import numpy as np
 import pytest
 from scipy.interpolate import BSpline
 
+import catalogue
 from conftest import ROOT, SESSIONS, run_lines
 from stw_tui.continuous import check_scene
 from stw_tui.instances import exact_times
@@ -130,11 +131,11 @@ def _held(report, tol):
     return {name for name, c in report.checks.items() if c.dense <= tol}
 
 
-@pytest.mark.parametrize("name", ["particle_jet", "point_mass_2d", "cat_mouse"])
-def test_random_windows_keep_what_holds(name):
+@pytest.mark.parametrize("problem", catalogue.problems(*catalogue.QUICK), ids=str)
+def test_random_windows_keep_what_holds(problem):
     rng = np.random.default_rng(11)
     s = Session()
-    s.run_file(SESSIONS / f"{name}.stw")
+    s.run_file(problem.path)
     scene = s.scene
     objective = next(iter(scene.objectives))
     for k in range(3):
@@ -149,7 +150,7 @@ def test_random_windows_keep_what_holds(name):
         after = check_scene(s.scene)
         assert s.runs[-1].converged
         broken = {n for n in before if after.checks[n].dense > tol}
-        assert not broken, (name, k, {n: after.checks[n] for n in broken})
+        assert not broken, (problem.name, k, {n: after.checks[n] for n in broken})
         s.execute("use all")
 
 
