@@ -21,6 +21,7 @@ from typing import Any, Callable, ClassVar
 import numpy as np
 
 from .errors import SolveError, StwError
+from .kinds import Capability, TermKind
 
 INTERFACE_VERSION = 1
 ENTRY_POINT_GROUP = "stw_tui.backends"
@@ -79,9 +80,9 @@ class SolverState:
 
     @classmethod
     def start(cls, problem) -> "SolverState":
-        return cls(s=problem.initial(), lam_eq=np.zeros(problem.row_counts["eq"]),
-                   lam_ge=np.zeros(problem.row_counts["ge"]),
-                   working_set=np.zeros(problem.row_counts["ge"], bool))
+        return cls(s=problem.initial(), lam_eq=np.zeros(problem.row_counts[TermKind.EQ]),
+                   lam_ge=np.zeros(problem.row_counts[TermKind.GE]),
+                   working_set=np.zeros(problem.row_counts[TermKind.GE], bool))
 
 
 @dataclass(frozen=True)
@@ -122,7 +123,7 @@ class Backend(ABC):
     name: ClassVar[str]
     interface_version: ClassVar[int] = INTERFACE_VERSION
     options: ClassVar[tuple[BackendOption, ...]] = ()
-    capabilities: ClassVar[frozenset[str]] = frozenset()
+    capabilities: ClassVar[frozenset[Capability]] = frozenset()
 
     def __init__(self, **options: Any):
         known = {o.name: o for o in self.options}

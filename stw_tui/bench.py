@@ -39,6 +39,8 @@ import scipy
 
 from .backend import available_backends, load_backend
 from .errors import StwError
+from .language import classify_line
+from .kinds import TermKind
 from .session import Session
 from .window import WindowProblem
 
@@ -81,8 +83,8 @@ def _iterate_lines(text: str) -> list[tuple[int, int]]:
     """(index, N) of every `iterate N` line of a session text."""
     found = []
     for i, line in enumerate(text.splitlines()):
-        words = line.split("#", 1)[0].split()
-        if words and words[0] == "iterate":
+        words = classify_line(line).words
+        if words[:1] == ("iterate",):
             found.append((i, int(words[1]) if len(words) > 1 and words[1].isdigit() else 1))
     return found
 
@@ -149,8 +151,8 @@ def measure(name: str, setup: Session, n: int, backend: str, options: str, repea
                                   for _, result, _ in runs)
     return Measurement(
         session=name, config=config, free=problem.n_free,
-        instances=problem.row_counts["eq"] + problem.row_counts["ge"],
-        inequalities=problem.row_counts["ge"], iterations=len(reports), converged=run.converged,
+        instances=problem.row_counts[TermKind.EQ] + problem.row_counts[TermKind.GE],
+        inequalities=problem.row_counts[TermKind.GE], iterations=len(reports), converged=run.converged,
         ms_per_iteration=ms_per_iteration,
         phases={k: median(r.ms.get(k, 0.0) for r in timed) for k in PHASES
                 if any(k in r.ms for r in timed)},

@@ -14,9 +14,9 @@ from dataclasses import dataclass, replace
 import numpy as np
 import sympy as sp
 
-from .compiler import compile_term
 from .instances import (bound_extra_times, bound_times, dofs_used, exact_degree, interval_cuts,
                         on_own_side, relation_times, repeated_knots)
+from .kinds import TermKind
 from .symbols import dof_symbol
 
 DENSE_PER_SPAN = 8
@@ -70,24 +70,18 @@ class DenseReport:
 
 
 def expression_values(scene, expr: sp.Basic, times: np.ndarray) -> np.ndarray:
-    """Values of an expression (DOF, t, constants, subexpressions) on the scene's curves."""
-    term = compile_term(scene.expand(expr), set(scene.dofs), set(scene.constants))
-    times = np.asarray(times, float)
-    if term.variables:
-        values = np.column_stack([scene.dofs[v.dof].curve.evaluate(times, v.order) for v in term.variables])
-    else:
-        values = np.zeros((times.size, 0))
-    return term.value(values, times, scene.constant_values(term.parameters))
+    """:meth:`Scene.evaluate <stw_tui.scene.Scene.evaluate>`, under the name older callers use."""
+    return scene.evaluate(expr, times)
 
 
 def condition_holds(scene, when: sp.Basic | None, times: np.ndarray) -> np.ndarray:
     """Where a ``when`` condition holds on the scene's curves (all True without one)."""
-    from .window import evaluate_condition_tree, relation_nodes
+    from .window import evaluate_condition_tree, numpy_filled, relation_nodes
 
     if when is None or when is sp.true:
         return np.ones(times.size, bool)
-    leaves = {node: expression_values(scene, node.lhs - node.rhs, times) for node in relation_nodes(when)}
-    return evaluate_condition_tree(when, leaves, times.size)
+    leaves = {node: scene.evaluate(node.lhs - node.rhs, times) for node in relation_nodes(when)}
+    return evaluate_condition_tree(when, leaves, numpy_filled(times.size))
 
 
 def dense_times(scene, exprs, a: float, b: float, instances: np.ndarray) -> np.ndarray:
@@ -106,7 +100,7 @@ def dense_times(scene, exprs, a: float, b: float, instances: np.ndarray) -> np.n
 def _score(values: np.ndarray, kind: str, weight: float) -> np.ndarray:
     """Signed violation: positive where violated; for an inequality, how near it is to failing."""
     scaled = weight * values
-    return np.abs(scaled) if kind == "eq" else -scaled
+    return np.abs(scaled) if kind == TermKind.EQ else -scaled
 
 
 @dataclass(frozen=True)
@@ -159,7 +153,7 @@ def _relation_samples(scene, constraint) -> list[_Samples]:
     out = []
     for rel in constraint.relations:
         def score_at(times, expr=rel.expr, kind=rel.kind):
-            v = _score(expression_values(scene, expr, times), kind, constraint.weight)
+            v = _score(scene.evaluate(expr, times), kind, constraint.weight)
             if constraint.when is not None:   # a conditional constraint counts only where it applies
                 v = np.where(condition_holds(scene, constraint.when, times), v, -np.inf)
             return v
@@ -186,7 +180,7 @@ def _bound_samples(scene, dof) -> list[_Samples]:
                                    (dof.hi, (dof.hi or 0) - x, (dof.hi or 0) - coef)):
         if bound is not None:
             def score_at(times, expr=expr):
-                return _score(expression_values(scene, expr, times), "ge", 1.0)
+                return _score(scene.evaluate(expr, times), TermKind.GE, 1.0)
             dense = _densely(score_at, t_inst, t_base, exact=True)
             out.append(replace(dense, v_inst=np.maximum(0.0, -at_points)))
     return out

@@ -23,13 +23,13 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
-from .continuous import expression_values
 from .errors import StwError
+from .outcome import Outcome
 from .scene import Scene
 from .symbols import named_symbol
 
 if TYPE_CHECKING:
-    from .session import Outcome, Session
+    from .session import Session
 
 DEFAULT_FPS = 30
 FORMAT_NAME = "stw-motion"
@@ -77,7 +77,7 @@ def motion_table(scene: Scene, times: np.ndarray, what=()) -> dict[str, np.ndarr
         for order, suffix in enumerate(("", "'", "''")):
             columns[name + suffix] = dof.curve.evaluate(times, order)
     for name in [*position_names(scene), *(n for n in check_what(scene, what) if n not in columns)]:
-        columns[name] = np.broadcast_to(expression_values(scene, named_symbol(name), times), times.shape)
+        columns[name] = np.broadcast_to(scene.evaluate(named_symbol(name), times), times.shape)
     return columns
 
 
@@ -141,9 +141,8 @@ def export_text(session: "Session", fmt: str, fps: int, what=()) -> str:
     raise StwError(f"unknown export format '{fmt}' (csv or json)")
 
 
-def export(session: "Session", scene: Scene, cmd) -> "Outcome":
+def export(session: "Session", scene: Scene, cmd) -> Outcome:
     """`export FORMAT FILE [fps=N] [what=NAME,…]`: not a step, and journalled as a comment."""
-    from .session import Outcome
 
     text = export_text(session, cmd.format, cmd.fps, cmd.what)
     target = write_text(cmd.path, text)
@@ -152,9 +151,8 @@ def export(session: "Session", scene: Scene, cmd) -> "Outcome":
                    journal_text=f"# {cmd.text or 'export'}")
 
 
-def save(session: "Session", scene: Scene, cmd) -> "Outcome":
+def save(session: "Session", scene: Scene, cmd) -> Outcome:
     """`save FILE`: the session so far, replayable; not a step, and journalled as a comment."""
-    from .session import Outcome
 
     text = session.journal.text()
     target = write_text(cmd.path, text)

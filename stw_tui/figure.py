@@ -11,7 +11,6 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from .compiler import compile_term
 from .scene import Scene
 from .symbols import named_symbol
 
@@ -33,12 +32,7 @@ class Figure:
 
 
 def _value(scene: Scene, name: str, t: float) -> float:
-    if name in scene.dofs:
-        return float(scene.dofs[name].curve.evaluate(np.array([t]))[0])
-    expr = scene.expand(named_symbol(name))
-    term = compile_term(expr, set(scene.dofs), set(scene.constants))
-    values = np.array([[scene.dofs[v.dof].curve.evaluate(np.array([t]), v.order)[0] for v in term.variables]])
-    return float(term.value(values.reshape(1, term.k), np.array([t]), scene.constant_values(term.parameters))[0])
+    return float(scene.evaluate(named_symbol(name), np.array([t]))[0])
 
 
 def point_pairs(scene: Scene) -> list[tuple[str, str, str]]:

@@ -20,10 +20,12 @@ from dataclasses import dataclass, field
 from typing import TYPE_CHECKING, Any
 
 from .errors import StwError
+from .language import classify_line
+from .outcome import Outcome
 from .scene import Scene
 
 if TYPE_CHECKING:
-    from .session import Outcome, Session
+    from .session import Session
 
 HISTORY_LIMIT = 200
 # First words of commands that never change the scene (or manage the history themselves).
@@ -70,8 +72,8 @@ class History:
             before: the session's state before the command.
             journal_text: what the journal keeps instead of ``text``, if anything.
         """
-        words = text.split("#", 1)[0].split()
-        if not words or words[0] in NOT_STEPS:
+        verb = classify_line(text).verb
+        if verb is None or verb in NOT_STEPS:
             return
         self.undo_steps.append(Step(journal_text or text, before))
         del self.undo_steps[:-self.limit]
@@ -102,8 +104,7 @@ def become(session: "Session", scene: Scene, state: State) -> None:
 
 
 # --- handlers: (session, scene copy, command) -> Outcome -------------------------------------
-def undo(session: "Session", scene: Scene, cmd) -> "Outcome":
-    from .session import Outcome
+def undo(session: "Session", scene: Scene, cmd) -> Outcome:
 
     history = session.history
     if not history.undo_steps:
@@ -116,8 +117,7 @@ def undo(session: "Session", scene: Scene, cmd) -> "Outcome":
                            f"({left} more step{'s' if left != 1 else ''} to undo)")
 
 
-def redo(session: "Session", scene: Scene, cmd) -> "Outcome":
-    from .session import Outcome
+def redo(session: "Session", scene: Scene, cmd) -> Outcome:
 
     history = session.history
     if not history.redo_steps:
@@ -137,25 +137,22 @@ def _snapshot_state(session: "Session", name: str) -> State:
     return history.snapshots[name]
 
 
-def snapshot(session: "Session", scene: Scene, cmd) -> "Outcome":
+def snapshot(session: "Session", scene: Scene, cmd) -> Outcome:
     """Keep the scene (not a step: the scene does not change)."""
-    from .session import Outcome
 
     replaced = cmd.name in session.history.snapshots
     session.history.snapshots[cmd.name] = State.of(session)
     return Outcome(message=f"snapshot {cmd.name} {'replaced' if replaced else 'kept'}")
 
 
-def restore(session: "Session", scene: Scene, cmd) -> "Outcome":
+def restore(session: "Session", scene: Scene, cmd) -> Outcome:
     """Make the scene a snapshot's (a step: `undo` takes it back)."""
-    from .session import Outcome
 
     become(session, scene, _snapshot_state(session, cmd.name))
     return Outcome(message=f"restored snapshot {cmd.name}")
 
 
-def list_snapshots(session: "Session", scene: Scene, cmd) -> "Outcome":
-    from .session import Outcome
+def list_snapshots(session: "Session", scene: Scene, cmd) -> Outcome:
     from .snapshots import measure
 
     snaps = session.history.snapshots
@@ -168,8 +165,7 @@ def list_snapshots(session: "Session", scene: Scene, cmd) -> "Outcome":
     return Outcome(message="\n".join(lines))
 
 
-def diff(session: "Session", scene: Scene, cmd) -> "Outcome":
-    from .session import Outcome
+def diff(session: "Session", scene: Scene, cmd) -> Outcome:
     from .snapshots import describe_diff, diff_scenes, measure
 
     old = _snapshot_state(session, cmd.name).scene

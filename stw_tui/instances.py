@@ -23,6 +23,7 @@ from functools import lru_cache
 import numpy as np
 import sympy as sp
 
+from .kinds import TermKind
 from .symbols import TIME, dof_symbols
 
 # Two times closer than this (relative to the span) are one instance.
@@ -62,7 +63,7 @@ def _exact_degree(expr: sp.Expr, dof_names: frozenset[str], kind: str) -> int | 
     if TIME in rest.free_symbols:
         if not rest.is_polynomial(TIME) or sp.degree(rest, TIME) > 3 - r:
             return None
-    if kind != "eq" and r < 2:
+    if kind != TermKind.EQ and r < 2:
         return None
     return r
 

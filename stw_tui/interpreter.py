@@ -16,15 +16,17 @@ from . import language as lang
 from . import limits
 from .backend import RunResult, Status, SolverState, create_backend, load_backend, run_iterations
 from .compiler import compile_term
-from .continuous import check_scene, condition_holds, expression_values, survey
+from .continuous import DenseReport, check_scene, survey
 from .errors import LimitError, SolveError, SourceError, StwError
+from .outcome import Outcome, PrintResult
+from .kinds import Capability, TermKind
 from .scene import DEFAULT_SETTINGS, Constraint, Dof, Objective, Relation, Scene, Window
 from .spline import DofCurve
 from .symbols import dof_symbol, dof_symbols
 from .window import WindowProblem
 
 if TYPE_CHECKING:
-    from .session import Outcome, Session
+    from .session import Session
 
 _KINDS = {"dof": lang.NameKind.DOF, "const": lang.NameKind.CONST, "let": lang.NameKind.LET}
 
@@ -51,8 +53,7 @@ class WarmStart:
     state: SolverState
 
 
-def apply_line(session: "Session", scene: Scene, text: str, line: int | None, on_report) -> "Outcome":
-    from .session import Outcome
+def apply_line(session: "Session", scene: Scene, text: str, line: int | None, on_report) -> Outcome:
 
     command = lang.parse_command(text, SceneScope(scene), line=line)
     if command is None:
@@ -69,11 +70,10 @@ def apply_line(session: "Session", scene: Scene, text: str, line: int | None, on
     return Outcome(message=message or "")
 
 
-def apply_linkage(session: "Session", scene: Scene, block) -> "Outcome":
+def apply_linkage(session: "Session", scene: Scene, block) -> Outcome:
     """Add a linkage: its joint (and base) variables become DOF, its kinematics and generalized
     forces become derived subexpressions."""
     from .linkage import curve_dofs, derive, dof_names, parse_linkage
-    from .session import Outcome
 
     (header_line, header), rows = block[0], block[1:]
     spec = parse_linkage(header, [(ln, text) for ln, text in rows], header_line=header_line)
@@ -207,10 +207,7 @@ def _const(scene: Scene, cmd) -> str:
 
 def _dof(scene: Scene, cmd) -> str:
     f = _evaluate_curve_expr(scene, cmd.init) if cmd.init is not None else None
-    lo = scene.numeric(cmd.lo, "lo") if cmd.lo is not None else None
-    hi = scene.numeric(cmd.hi, "hi") if cmd.hi is not None else None
-    if lo is not None and hi is not None and not lo < hi:
-        raise StwError(f"bounds lo={lo:g} hi={hi:g} are empty")
+    lo, hi = _bounds(scene, cmd.lo, cmd.hi)
     if cmd.knots is not None and cmd.knots < 1:
         raise StwError("knots must be at least 1")
     limits.check("dofs", len(scene.dofs) + len(set(cmd.names) - set(scene.dofs)), "the DOF count")
@@ -231,6 +228,16 @@ def _dof(scene: Scene, cmd) -> str:
         if cmd.hi is not None:
             dof.hi = hi
     return f"dof {', '.join(cmd.names)}"
+
+
+def _bounds(scene: Scene, lo_expr, hi_expr) -> tuple[float | None, float | None]:
+    """A DOF's lower and upper bound, as `dof … lo= hi=` and `limit DOF LO HI` give them (None:
+    not given); an empty range is refused."""
+    lo = scene.numeric(lo_expr, "lo") if lo_expr is not None else None
+    hi = scene.numeric(hi_expr, "hi") if hi_expr is not None else None
+    if lo is not None and hi is not None and not lo < hi:
+        raise StwError(f"bounds lo={lo:g} hi={hi:g} are empty: the lower limit must be below the upper")
+    return lo, hi
 
 
 def _let(scene: Scene, cmd) -> str:
@@ -285,7 +292,7 @@ def _constraint(scene: Scene, cmd) -> str:
         if not _uses_dof(scene, rel.expr):
             raise StwError(f"a relation of '{cmd.name}' does not depend on any DOF")
         expr = -rel.expr if rel.kind == "le" else rel.expr
-        relations.append(Relation(expr, "eq" if rel.kind == "eq" else "ge"))
+        relations.append(Relation(expr, TermKind.EQ if rel.kind == "eq" else TermKind.GE))
         compile_term(scene.expand(expr), set(scene.dofs), set(scene.constants))
     at = _time_in_span(scene, scene.numeric(cmd.at, "time"), "time") if cmd.at is not None else None
     interval = _interval(scene, cmd.interval, "interval") if cmd.interval is not None else None
@@ -358,7 +365,7 @@ def _damp(scene: Scene, cmd) -> str:
     if amount < 0:
         raise StwError(f"damping must be >= 0, not {amount:g}")
     scene.dofs[cmd.dof].damp = amount
-    return f"damp {cmd.dof} = {amount:g}"
+    return f"damp {cmd.dof} = {amount:g}" + _unsupported_note(scene, None, {Capability.DAMPING})
 
 
 def _filter(scene: Scene, cmd) -> str:
@@ -413,7 +420,38 @@ def _backend(scene: Scene, cmd) -> str:
     create_backend(cls, options)  # validates names and values
     scene.backend, scene.backend_options = cmd.name, options
     shown = " ".join(f"{k}={v}" for k, v in options.items())
-    return f"backend {cmd.name} {shown}".rstrip()
+    return f"backend {cmd.name} {shown}".rstrip() + _unsupported_note(scene, cls)
+
+
+def _capabilities_asked(scene: Scene) -> dict[Capability, str]:
+    """The capabilities the scene's settings ask of a backend, each with what asks for it."""
+    def some(names: list[str]) -> str:
+        return ", ".join(names[:3]) + (f" and {len(names) - 3} more" if len(names) > 3 else "")
+
+    constraints = scene.constraints.values()
+    asked = {
+        Capability.DAMPING: [d.name for d in scene.dofs.values() if d.damp > 0],
+        Capability.CONDITIONAL: [c.name for c in constraints if c.when is not None],
+        Capability.INEQUALITIES: [c.name for c in constraints if any(r.kind is TermKind.GE for r in c.relations)]
+        + [f"{d.name}.bounds" for d in scene.dofs.values() if d.lo is not None or d.hi is not None],
+        Capability.WEIGHTS: [e.name for e in (*constraints, *scene.objectives.values()) if e.weight != 1.0],
+    }
+    return {capability: some(names) for capability, names in asked.items() if names}
+
+
+def _unsupported_note(scene: Scene, cls, only: set[Capability] | None = None) -> str:
+    """A warning line for each setting of the scene that backend ``cls`` (None: the scene's) does
+    not declare it honours (its ``capabilities``), e.g. `damp` under IPOPT; empty when it honours
+    them all, or when the scene's backend no longer loads (the next solve says so)."""
+    if cls is None:
+        try:
+            cls = load_backend(scene.backend)
+        except StwError:
+            return ""
+    missing = {capability: what for capability, what in _capabilities_asked(scene).items()
+               if capability not in cls.capabilities and (only is None or capability in only)}
+    return "".join(f"\nwarning: backend {cls.name} does not support {capability} ({what}); "
+                   "the solve ignores it" for capability, what in missing.items())
 
 
 def _set(scene: Scene, cmd) -> str:
@@ -482,7 +520,6 @@ def _delete(scene: Scene, cmd) -> str:
 
 
 def _print_check(scene: Scene, name: str):
-    from .session import PrintResult
 
     report = check_scene(scene)
     if name not in report.checks:
@@ -495,7 +532,6 @@ def _print_check(scene: Scene, name: str):
 
 
 def _print(scene: Scene, cmd):
-    from .session import PrintResult
 
     if cmd.expr is None:
         return _print_check(scene, cmd.expr_text)
@@ -504,7 +540,7 @@ def _print(scene: Scene, cmd):
     else:
         a, b = _interval(scene, cmd.interval, "interval") if cmd.interval else (scene.t0, scene.t1)
         times = np.linspace(a, b, 201)
-    result = expression_values(scene, cmd.expr, times)
+    result = scene.evaluate(cmd.expr, times)
     bad = np.flatnonzero(~np.isfinite(result))
     if bad.size:   # x^(1/3) of a negative x, log(0): say where, never print nan
         t = times[bad[0]]
@@ -548,23 +584,69 @@ def _instances(scene: Scene, cmd) -> str:
     return f"{name}: {len(merged)} added instance(s)"
 
 
-def _iterate(session: "Session", scene: Scene, cmd, on_report) -> "Outcome":
+@dataclass
+class SolveReport:
+    """What one `iterate` did, as data: the merged run, the last window problem, and the dense
+    check of the motion it left, with the instances it added."""
+
+    run: RunResult
+    problem: WindowProblem
+    backend: str
+    dense: DenseReport
+    tol: float                       # the scene's dense_tol
+    added: dict[str, int]            # instances added per constraint by adaptive re-solves
+    resolves: int
+    undone: str                      # "; undid a re-solve …" (empty when none was undone)
+    journal_text: str | None         # what replays it, when it was stopped
+
+    def dense_lines(self) -> list[str]:
+        """The lines after the solve's own: the dense check, what was added, what to try."""
+        lines = [f"dense violation {self.dense.dense_violation:.2e} over the whole animation"]
+        if self.added:
+            lines[0] += (f"; added {sum(self.added.values())} instance(s) where it failed ("
+                         + ", ".join(f"{n} {k}" for n, k in self.added.items())
+                         + f"), {self.resolves} re-solve(s)")
+        lines[0] += self.undone
+        if self.dense.failing(self.tol):
+            lines.append(f"between the instances it fails dense_tol {self.tol:.0e}: "
+                         f"{self.dense.describe_failures(self.tol)} — refine the knots there, or `set dense_tol`")
+        last = self.run.reports[-1] if self.run.reports else None
+        if self.run.status is Status.INFEASIBLE and last is not None and last.message:
+            lines.append(last.message)    # names the constraints in conflict
+        elif self.run.status is Status.STALLED:
+            lines.append("— try `shake`, a keyframe, damping, or a smaller window")
+        return lines
+
+    def message(self) -> str:
+        """The console message of the `iterate`."""
+        last = self.run.reports[-1] if self.run.reports else None
+        text = f"{self.problem.summary()}\n{len(self.run.reports)} iteration(s) with {self.backend}: {self.run.status.value}"
+        if last is not None:
+            text += (f"; objective {last.objective:.6g}, max violation {last.max_violation:.2e}, "
+                     f"KKT {last.kkt_residual:.2e}")
+        return "\n".join([text, *self.dense_lines()])
+
+
+def _iterate(session: "Session", scene: Scene, cmd, on_report) -> Outcome:
+    if cmd.n < 1:
+        raise StwError("iterate needs a positive number of iterations")
+    solved = _solve_adaptive(session, scene, cmd.n, cmd.adapt, on_report)
+    return Outcome(message=solved.message(), run=solved.run, journal_text=solved.journal_text)
+
+
+def _solve_adaptive(session: "Session", scene: Scene, n: int, adapt: int | None, on_report) -> SolveReport:
     """Solve, check every constraint densely over the whole animation, and (adaptive) add
     instances where the check fails and solve again, at most ``rounds`` times. A re-solve that
     does not converge (too many instances for the curves' freedom, or a stop) is undone: adaptive
     refinement never leaves a motion worse than the plain solve."""
-    from .session import Outcome
-
-    if cmd.n < 1:
-        raise StwError("iterate needs a positive number of iterations")
     settings = scene.settings
-    rounds = cmd.adapt if cmd.adapt is not None else (int(settings["adaptive_rounds"]) if settings["adaptive"] else 0)
+    rounds = adapt if adapt is not None else (int(settings["adaptive_rounds"]) if settings["adaptive"] else 0)
     backend = create_backend(load_backend(scene.backend), scene.backend_options)
     tol = settings["dense_tol"]
     problem = WindowProblem(scene)
-    result = _solve(session, scene, problem, backend, cmd.n, on_report)
+    result = _solve(session, scene, problem, backend, n, on_report)
     runs = [result]
-    journal = [f"iterate {len(result.reports) if result.status is Status.STOPPED else cmd.n} adapt=0"]
+    journal = [f"iterate {len(result.reports) if result.status is Status.STOPPED else n} adapt=0"]
     added: dict[str, int] = {}
     undone = ""
     stopped = result.status is Status.STOPPED
@@ -582,7 +664,7 @@ def _iterate(session: "Session", scene: Scene, cmd, on_report) -> "Outcome":
             scene.extra_instances[name] = tuple(sorted(set(scene.extra_instances.get(name, ())) | set(times.tolist())))
             lines.append(f"instances {name} add " + ", ".join(repr(float(t)) for t in times))
         trial_problem = WindowProblem(scene)
-        trial = _solve(session, scene, trial_problem, backend, cmd.n, on_report)
+        trial = _solve(session, scene, trial_problem, backend, n, on_report)
         if trial.status is not Status.CONVERGED:
             scene.with_coefficients(saved[0])
             scene.extra_instances, session.warm = saved[1], saved[2]
@@ -593,31 +675,13 @@ def _iterate(session: "Session", scene: Scene, cmd, on_report) -> "Outcome":
             break
         problem, result, report = trial_problem, trial, None
         runs.append(trial)
-        journal += lines + [f"iterate {cmd.n} adapt=0"]
+        journal += lines + [f"iterate {n} adapt=0"]
         for name, times in new.items():
             added[name] = added.get(name, 0) + times.size
-    result = _merged(runs)
     report = report or check_scene(scene)   # an undone round restored the surveyed scene
-    last = result.reports[-1] if result.reports else None
-    text = f"{problem.summary()}\n{len(result.reports)} iteration(s) with {backend.name}: {result.status.value}"
-    if last is not None:
-        text += (f"; objective {last.objective:.6g}, max violation {last.max_violation:.2e}, "
-                 f"KKT {last.kkt_residual:.2e}")
-    text += f"\ndense violation {report.dense_violation:.2e} over the whole animation"
-    if added:
-        text += (f"; added {sum(added.values())} instance(s) where it failed ("
-                 + ", ".join(f"{n} {k}" for n, k in added.items()) + f"), {len(runs) - 1} re-solve(s)")
-    text += undone
-    if report.failing(tol):
-        text += (f"\nbetween the instances it fails dense_tol {tol:.0e}: {report.describe_failures(tol)}"
-                 " — refine the knots there, or `set dense_tol`")
-    if result.status is Status.INFEASIBLE and last is not None and last.message:
-        text += f"\n{last.message}"    # names the constraints in conflict
-    elif result.status is Status.STALLED:
-        text += "\n— try `shake`, a keyframe, damping, or a smaller window"
     # A stopped solve is journalled as what it kept, so a replay reaches the same scene.
-    journal_text = "\n".join(journal) if stopped else None
-    return Outcome(message=text, run=result, journal_text=journal_text)
+    return SolveReport(_merged(runs), problem, backend.name, report, tol, added, len(runs) - 1, undone,
+                       "\n".join(journal) if stopped else None)
 
 
 def _verb(scene: Scene, cmd) -> str:
@@ -643,13 +707,11 @@ def _verb(scene: Scene, cmd) -> str:
         _HANDLERS[type(command)](scene, command)
         members.append(command.name)
     scene.verbs[group] = (cmd.text, tuple(members))
-    return f"{cmd.text.split()[0]} {group}: " + "; ".join(lines)
+    return f"{lang.classify_line(cmd.text).verb} {group}: " + "; ".join(lines)
 
 
 def _limit(scene: Scene, cmd) -> str:
-    lo, hi = scene.numeric(cmd.lo, "lower limit"), scene.numeric(cmd.hi, "upper limit")
-    if not lo < hi:
-        raise StwError(f"limit {cmd.dof} {lo:g} {hi:g}: the lower limit must be below the upper")
+    lo, hi = _bounds(scene, cmd.lo, cmd.hi)
     dof = scene.dofs[cmd.dof]
     dof.lo, dof.hi = lo, hi
     values = dof.curve.evaluate(np.linspace(scene.t0, scene.t1, 2001))
@@ -661,11 +723,10 @@ def _limit(scene: Scene, cmd) -> str:
 MAX_SLIDE_POSITIONS = 1000
 
 
-def _slide(session: "Session", scene: Scene, cmd, on_report) -> "Outcome":
+def _slide(session: "Session", scene: Scene, cmd, on_report) -> Outcome:
     """Move a window along the time axis by ``by``, solving (an `iterate`) at each position, from
     where it is until its end reaches ``to`` (the last step is shortened to land there). Each
     solve sees only its window: the paper's cat that chases where the mouse is now."""
-    from .session import Outcome
 
     window = scene.windows.get(cmd.window)
     if window is None:
@@ -689,57 +750,47 @@ def _slide(session: "Session", scene: Scene, cmd, on_report) -> "Outcome":
     if len(ends) > MAX_SLIDE_POSITIONS:
         raise StwError(f"slide would solve at {len(ends)} positions (at most {MAX_SLIDE_POSITIONS}); "
                        "take a larger step")
-    width, lines, runs, journal, outcome = b - a, [], [], [], None
+    width, lines, runs, journal = b - a, [], [], []
     for e in ends:
         interval = (e - width, e)
         scene.windows[cmd.window] = replace(window, interval=interval)
         scene.active_window = cmd.window
-        outcome = _iterate(session, scene, lang.IterateCmd(cmd.n), on_report)
-        runs.append(outcome.run)
+        solved = _solve_adaptive(session, scene, cmd.n, None, on_report)
+        runs.append(solved.run)
         journal += [f"window {cmd.window}" + (f" dofs={','.join(window.dofs)}" if window.dofs else "")
                     + f" [{interval[0]!r}, {interval[1]!r}]",
-                    outcome.journal_text or f"iterate {cmd.n}"]
-        last = outcome.run.reports[-1] if outcome.run.reports else None
-        lines.append(f"[{interval[0]:.4g}, {interval[1]:.4g}]: {len(outcome.run.reports)} iteration(s), "
-                     f"{outcome.run.status.value}" + (f", objective {last.objective:.6g}" if last else ""))
-        if outcome.run.status is Status.STOPPED:
+                    solved.journal_text or f"iterate {cmd.n}"]
+        last = solved.run.reports[-1] if solved.run.reports else None
+        lines.append(f"[{interval[0]:.4g}, {interval[1]:.4g}]: {len(solved.run.reports)} iteration(s), "
+                     f"{solved.run.status.value}" + (f", objective {last.objective:.6g}" if last else ""))
+        if solved.run.status is Status.STOPPED:
             break
     done = sum(r.converged for r in runs)
     stopped = runs[-1].status is Status.STOPPED
     head = (f"slid window {cmd.window} over {len(runs)} of {len(ends)} position(s) by {by:g}; "
             f"converged at {done} of {len(runs)}" + (" (stopped)" if stopped else ""))
-    tail = outcome.message.split("\n", 2)[2] if outcome.message.count("\n") >= 2 else ""
-    text = "\n".join([head, *lines] + ([tail] if tail else []))
+    text = "\n".join([head, *lines, *solved.dense_lines()])
     # A stopped slide is journalled as the positions it solved, so a replay reaches the same scene.
     return Outcome(message=text, run=_merged(runs), journal_text="\n".join(journal) if stopped else None)
 
 
-def _check_start(scene: Scene, problem: WindowProblem) -> None:
+def _check_start(problem: WindowProblem) -> None:
     """Refuse to solve from curves where a term or its derivatives is not a finite real number
     (sqrt or log of a negative value, x^(1/3) of a negative x): name the term and the time,
     instead of letting the backend fail on NaN with a misleading message."""
-    for group in problem.groups:
-        term, times = group.term, group.times
-        values = np.column_stack([scene.dofs[v.dof].curve.evaluate(times, v.order) for v in term.variables]) \
-            if term.variables else np.zeros((times.size, 0))
-        f, grad, _ = term.full(values, times, scene.constant_values(term.parameters))
-        bad = ~(np.isfinite(f) & np.all(np.isfinite(grad), axis=1))
-        constraint = scene.constraints.get(group.source) if group.kind != "obj" else None
-        if bad.any() and constraint is not None and constraint.when is not None:
-            bad &= condition_holds(scene, constraint.when, times)
-        if bad.any():
-            i = int(np.flatnonzero(bad)[0])
-            what = "its value" if not np.isfinite(f[i]) else "its derivative"
-            kind = "objective" if group.kind == "obj" else "constraint"
-            raise SolveError(f"{kind} {group.label}: {what} is not a finite real number at t={times[i]:.6g} "
-                             f"on the current curves ({sp.sstr(term.expr)[:80]}); the scene is unchanged — "
-                             "a keyframe, bounds (lo=, hi=) or a different start can keep it defined")
+    found = problem.first_undefined(problem.initial())
+    if found is not None:
+        group, i, what = found
+        kind = "objective" if group.kind is TermKind.OBJ else "constraint"
+        raise SolveError(f"{kind} {group.label}: {what} is not a finite real number at t={group.times[i]:.6g} "
+                         f"on the current curves ({sp.sstr(group.term.expr)[:80]}); the scene is unchanged — "
+                         "a keyframe, bounds (lo=, hi=) or a different start can keep it defined")
 
 
 def _solve(session: "Session", scene: Scene, problem: WindowProblem, backend, n: int, on_report) -> RunResult:
     """Run the backend on one window problem from the scene's curves (and the last solve's
     multipliers when its rows are the same), and put the result in the scene."""
-    _check_start(scene, problem)
+    _check_start(problem)
     signature = (scene.active_window, tuple(problem.free), tuple(g.label for g in problem.groups),
                  tuple(g.n for g in problem.groups))
     start = SolverState.start(problem)

@@ -13,6 +13,7 @@ import numpy as np
 import sympy as sp
 
 from .errors import LimitError, StwError
+from .kinds import TermKind
 from .spline import DofCurve
 from .symbols import named_symbol
 
@@ -46,7 +47,7 @@ class Relation:
     """One relation of a constraint, normalized to ``expr = 0`` or ``expr >= 0``."""
 
     expr: sp.Expr
-    kind: str  # "eq" or "ge"
+    kind: TermKind   # EQ or GE
 
 
 @dataclass
@@ -249,6 +250,26 @@ class Scene:
             if w.dofs and name in w.dofs:
                 users.append(w.name)
         return users
+
+    def evaluate(self, expr: sp.Basic, times) -> np.ndarray:
+        """Values of an expression (DOF and their derivatives, t, constants, subexpressions) on
+        the scene's curves at ``times``: what `print`, the plots, figures and the dense check show.
+
+        Raises:
+            StwError: the expression names something the scene no longer defines.
+        """
+        from .compiler import compile_term
+
+        term = compile_term(self.expand(expr), set(self.dofs), set(self.constants))
+        times = np.asarray(times, float)
+        return term.value(self.term_inputs(term, times), times, self.constant_values(term.parameters))
+
+    def term_inputs(self, term, times: np.ndarray) -> np.ndarray:
+        """The (n, k) values of a compiled term's variables (DOF and their derivatives) on the
+        scene's curves at n times."""
+        if not term.variables:
+            return np.zeros((times.size, 0))
+        return np.column_stack([self.dofs[v.dof].curve.evaluate(times, v.order) for v in term.variables])
 
     # --- curves ------------------------------------------------------------------------------
     def coefficient_vector(self) -> np.ndarray:

@@ -19,6 +19,8 @@ from . import interpreter, limits
 from .backend import RunResult, StepReport
 from .errors import SourceError, StwError
 from .history import History, State
+from .language import CommandLine, classify_line
+from .outcome import Outcome, PrintResult
 from .scene import Scene
 
 
@@ -80,23 +82,6 @@ class Journal:
         return "\n".join(self._render(e) for e in self.entries if e.ok is not None) + "\n"
 
 
-@dataclass
-class PrintResult:
-    expr: str
-    t: float | None
-    value: float | dict
-
-
-@dataclass
-class Outcome:
-    """What a command did: a message for the console, and any printed values or solver run."""
-
-    message: str = ""
-    prints: list[PrintResult] = field(default_factory=list)
-    run: RunResult | None = None
-    journal_text: str | None = None   # what replays this command, when that differs from the text
-
-
 ReportCallback = Callable[[StepReport], "bool | None"]
 
 
@@ -132,12 +117,12 @@ class Session:
         """
         self._check_length(text, line)
         self._check_text(text, line)
-        stripped = text.split("#", 1)[0].strip()
+        kind = classify_line(text)
         if self._block is not None:
-            return self._continue_block(text, stripped, line)
-        if not stripped:
+            return self._continue_block(text, kind, line)
+        if kind.is_blank:
             return Outcome()
-        if stripped.split()[0] == "linkage":
+        if kind.verb == "linkage":
             self._block = [(line, text)]
             return Outcome(message="linkage block: enter joint rows, then `end`")
         return self._apply(text.rstrip(), line, on_report)
@@ -160,12 +145,12 @@ class Session:
             raise SourceError(f"character {text[exc.start]!r} is not valid text (a lone surrogate)",
                               line=line, column=exc.start + 1, expected="UTF-8 text") from None
 
-    def _continue_block(self, text: str, stripped: str, line: int | None) -> Outcome:
-        if stripped == "end":
+    def _continue_block(self, text: str, kind: CommandLine, line: int | None) -> Outcome:
+        if kind.words == ("end",):
             block, self._block = self._block, None
             joined = "\n".join(t.rstrip() for _, t in block) + "\n" + text.rstrip()
             return self._apply(joined, block[0][0], None, block=block)
-        if stripped:
+        if not kind.is_blank:
             self._block.append((line, text))
         return Outcome()
 

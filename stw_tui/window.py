@@ -15,6 +15,7 @@ instances or control points; one runs over term groups (constraints and objectiv
 
 from __future__ import annotations
 
+import operator
 from dataclasses import dataclass, field
 from functools import lru_cache
 
@@ -26,16 +27,18 @@ from .compiler import CompiledTerm, compile_term
 from .errors import StwError
 from .instances import bound_extra_times, bound_times, relation_times
 from .products import GRAM_PLAN_TERMS, GramPlan, ProductPlan
+from .kinds import TermKind
 from .scene import Scene
 from .spline import gauss_legendre_nodes
 from .symbols import dof_symbol
 
-EQ, GE, OBJ = "eq", "ge", "obj"
+EQ, GE, OBJ = TermKind.EQ, TermKind.GE, TermKind.OBJ
 HESSIAN_PLAN_AFTER = 4   # Hessians assembled by plain sparse products before a plan is made
+# The comparisons of a `when` condition, as operators: numpy arrays and torch tensors both take them.
 _RELATIONS = {
-    sp.StrictGreaterThan: np.greater, sp.GreaterThan: np.greater_equal,
-    sp.StrictLessThan: np.less, sp.LessThan: np.less_equal,
-    sp.Equality: np.equal, sp.Unequality: np.not_equal,
+    sp.StrictGreaterThan: operator.gt, sp.GreaterThan: operator.ge,
+    sp.StrictLessThan: operator.lt, sp.LessThan: operator.le,
+    sp.Equality: operator.eq, sp.Unequality: operator.ne,
 }
 
 
@@ -44,19 +47,29 @@ def relation_nodes(tree: sp.Basic) -> list[sp.Basic]:
     return [node for node in sp.preorder_traversal(tree) if isinstance(node, tuple(_RELATIONS))]
 
 
-def evaluate_condition_tree(node: sp.Basic, leaf_values: dict, n: int) -> np.ndarray:
-    """Where a boolean tree of relations holds, given each leaf's ``lhs - rhs`` at n times."""
-    if node is sp.true:
-        return np.ones(n, bool)
-    if node is sp.false:
-        return np.zeros(n, bool)
-    if isinstance(node, sp.And):
-        return np.logical_and.reduce([evaluate_condition_tree(a, leaf_values, n) for a in node.args])
-    if isinstance(node, sp.Or):
-        return np.logical_or.reduce([evaluate_condition_tree(a, leaf_values, n) for a in node.args])
+def evaluate_condition_tree(node: sp.Basic, leaf_values: dict, filled):
+    """Where a boolean tree of relations holds, given each leaf's ``lhs - rhs`` at n times.
+
+    Array-generic (numpy here, torch in the torch backend): leaves are compared with 0 by Python's
+    operators and combined with ``&``, ``|`` and ``~``; ``filled(flag)`` makes the n-long boolean
+    array that a literal true or false stands for.
+    """
+    if node is sp.true or node is sp.false:
+        return filled(node is sp.true)
+    if isinstance(node, (sp.And, sp.Or)):
+        parts = [evaluate_condition_tree(a, leaf_values, filled) for a in node.args]
+        out = parts[0]
+        for part in parts[1:]:
+            out = out & part if isinstance(node, sp.And) else out | part
+        return out
     if isinstance(node, sp.Not):
-        return ~evaluate_condition_tree(node.args[0], leaf_values, n)
+        return ~evaluate_condition_tree(node.args[0], leaf_values, filled)
     return _RELATIONS[type(node)](leaf_values[node], 0.0)
+
+
+def numpy_filled(n: int):
+    """``filled`` for :func:`evaluate_condition_tree` on numpy arrays of n times."""
+    return lambda flag: np.full(n, flag, dtype=bool)
 
 
 @dataclass(eq=False)
@@ -72,21 +85,21 @@ class Condition:
         for node, term, offset in self.leaves:
             x = slot_values[offset:offset + term.k * n].reshape(term.k, n).T
             leaf_values[node] = term.value(x, times, scene_params(term))
-        return evaluate_condition_tree(self.tree, leaf_values, n)
+        return evaluate_condition_tree(self.tree, leaf_values, numpy_filled(n))
 
 
 @dataclass(eq=False)
 class TermGroup:
     """One compiled expression evaluated at a set of instance times.
 
-    ``kind`` is "eq" (= 0), "ge" (>= 0) or "obj" (squared and integrated). Slot ``(a, i)`` — the
+    ``kind`` is EQ (= 0), GE (>= 0) or OBJ (squared and integrated). Slot ``(a, i)`` — the
     value of variable ``a`` at instance ``i`` — lives at ``slot_offset + a * n + i`` of the slot
     vector; the group's rows are ``row_offset .. row_offset + n`` among the rows of its kind.
     """
 
     label: str
     source: str
-    kind: str
+    kind: TermKind
     term: CompiledTerm
     times: np.ndarray
     weights: np.ndarray
@@ -403,14 +416,32 @@ class WindowProblem:
         masks = self._conditions(v)
         return MeritValues(objective, out[EQ], out[GE], masks[EQ], masks[GE])
 
+    def _local_terms(self, v: np.ndarray):
+        """Per group: the group, and its term's values, gradients and Hessian entries at its
+        instances (``CompiledTerm.full``) from slot values ``v``."""
+        for group in self.groups:
+            yield (group, *group.term.full(self._group_inputs(group, v), group.times, group.params))
+
+    def first_undefined(self, s: np.ndarray) -> tuple[TermGroup, int, str] | None:
+        """The first group and instance where a term's value or gradient is not a finite real
+        number at free values ``s`` (where its `when` holds), and which of the two; None: none."""
+        v = self._slot_values(s)
+        for group, f, grad, _ in self._local_terms(v):
+            bad = ~(np.isfinite(f) & np.all(np.isfinite(grad), axis=1))
+            if bad.any() and group.condition is not None:
+                bad &= group.condition.evaluate(v, group.times, self._params)
+            if bad.any():
+                i = int(np.flatnonzero(bad)[0])
+                return group, i, "its value" if not np.isfinite(f[i]) else "its derivative"
+        return None
+
     def evaluate(self, s: np.ndarray) -> Evaluation:
         """Values, gradients and (lazily) Hessians at free values ``s``."""
         v = self._slot_values(s)
         values = {kind: np.empty(self.row_counts[kind]) for kind in (EQ, GE, OBJ)}
         grads = {kind: [] for kind in (EQ, GE, OBJ)}
         hess = []
-        for group in self.groups:
-            f, grad, h = group.term.full(self._group_inputs(group, v), group.times, group.params)
+        for group, f, grad, h in self._local_terms(v):
             values[group.kind][group.row_offset:group.row_offset + group.n] = f
             scale = group.weights if group.kind != OBJ else np.ones(group.n)
             grads[group.kind].append((grad * scale[:, None]).T.ravel())

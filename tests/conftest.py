@@ -1,6 +1,9 @@
+from importlib import metadata
 from pathlib import Path
 
 import pytest
+
+import catalogue
 
 ROOT = Path(__file__).resolve().parent.parent
 SESSIONS = ROOT / "sessions"
@@ -17,3 +20,38 @@ def run_lines(session, text: str):
     """Execute a block of session text on ``session`` and return it."""
     session.run_text(text)
     return session
+
+
+@pytest.fixture
+def registered(monkeypatch):
+    """Make `backend NAME` work for every in-tree backend whose library is installed, whether or
+    not the distribution's entry points are installed yet (a checkout installed before the
+    backend existed)."""
+    import importlib.util
+
+    import stw_tui.backend as backend_module
+
+    if importlib.util.find_spec("stw_scipy") is None:   # the backend packages, from the checkout
+        monkeypatch.syspath_prepend(str(ROOT / "backends"))
+    real = backend_module.available_backends
+
+    def with_in_tree():
+        found = dict(real())
+        for name in catalogue.installed_backends():
+            found.setdefault(name, metadata.EntryPoint(name, catalogue.IN_TREE[name][0],
+                                                       backend_module.ENTRY_POINT_GROUP))
+        return found
+
+    monkeypatch.setattr(backend_module, "available_backends", with_in_tree)
+
+
+@pytest.fixture(params=catalogue.problems(), ids=str)
+def any_problem(request) -> catalogue.Problem:
+    """Each problem of the catalogue in turn."""
+    return request.param
+
+
+@pytest.fixture(params=catalogue.installed_backends())
+def any_backend(request, registered) -> str:
+    """Each installed backend's name in turn (registered, so `backend NAME` works)."""
+    return request.param

@@ -171,21 +171,24 @@ def grammar_line(rng: random.Random) -> list[str]:
     return [f"linkage {rng.choice(['arm', '__import__', 'x', 'leg'])} base=fixed", *rows, "end"]
 
 
-def session_units(root: Path = ROOT / "sessions") -> list[list[str]]:
-    """The lines of the real sessions, a `linkage` block kept as one unit."""
+def session_units() -> list[list[str]]:
+    """The lines of the bundled sessions (the test catalogue's), a `linkage` block kept as one unit."""
+    import catalogue
+    from stw_tui.language import classify_line
+
     units: list[list[str]] = []
-    for path in sorted(root.glob("*.stw")):
+    for problem in catalogue.BUNDLED.values():
         block: list[str] | None = None
-        for line in path.read_text(encoding="utf-8").splitlines():
-            body = line.split("#", 1)[0].strip()
+        for line in problem.text.splitlines():
+            kind = classify_line(line)
             if block is not None:
                 block.append(line)
-                if body == "end":
+                if kind.words == ("end",):
                     units.append(block)
                     block = None
-            elif body.startswith("linkage"):
+            elif kind.verb == "linkage":
                 block = [line]
-            elif body:
+            elif not kind.is_blank:
                 units.append([line.replace("iterate 150", "iterate 2").replace("iterate 10", "iterate 2")])
     return units
 

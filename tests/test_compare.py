@@ -7,14 +7,15 @@ import sys
 import numpy as np
 import pytest
 
+import catalogue
 from conftest import SESSIONS
 from stw_tui.compare import compare
 from stw_tui.errors import StwError
 
 
-@pytest.mark.parametrize("session", ["particle_jet", "point_mass_2d", "cat_mouse"])
-def test_linear_solvers_reach_the_same_motion(session):
-    rows = compare(SESSIONS / f"{session}.stw", ["scipy", "scipy:solver=minres", "scipy:solver=cg"])
+@pytest.mark.parametrize("problem", catalogue.problems(*catalogue.QUICK), ids=str)
+def test_linear_solvers_reach_the_same_motion(problem):
+    rows = compare(problem.path, ["scipy", "scipy:solver=minres", "scipy:solver=cg"])
     assert [r["backend"] for r in rows] == ["scipy", "scipy solver=minres", "scipy solver=cg"]
     assert rows[0]["max_motion_difference"] == 0.0
     for r in rows:

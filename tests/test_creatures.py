@@ -3,19 +3,14 @@
 import numpy as np
 import pytest
 
+import catalogue
 from conftest import SESSIONS
 from stw_tui.continuous import check_scene
 from stw_tui.errors import SourceError, StwError
 from stw_tui.figure import scene_figure
 from stw_tui.session import Session
 
-ARM = """time 0 1 knots=8
-const g = 9.81
-linkage arm base=fixed
-  SHOULDER revolute a=0.35 mass=2.0
-  ELBOW    revolute a=0.30 mass=1.5
-end
-"""
+ARM = catalogue.problem("analytic_arm2").text
 
 
 def test_linkage_block_defines_dof_and_subexpressions():

@@ -9,7 +9,6 @@ import pytest
 
 from conftest import SESSIONS, run_lines
 from stw_tui import cli
-from stw_tui.continuous import expression_values
 from stw_tui.errors import SourceError, StwError
 from stw_tui.session import Session
 from stw_tui.spline import DofCurve
@@ -65,7 +64,7 @@ def test_csv_reads_back_as_the_scenes_own_values(arm, tmp_path):
     positions = [n for n in table if n.startswith("arm.")]
     assert {"arm.SHOULDER.x", "arm.ELBOW.y", "arm.WRIST.x", "arm.tip.x", "arm.tip.y", "arm.com.x"} <= set(positions)
     for name in positions:
-        expected = np.broadcast_to(expression_values(scene, named_symbol(name), t), t.shape)
+        expected = np.broadcast_to(scene.evaluate(named_symbol(name), t), t.shape)
         assert np.max(np.abs(table[name] - expected)) <= 1e-12, name
 
 
@@ -169,7 +168,7 @@ def test_headless_export_matches_the_console(tmp_path, capsys):
         t = np.array(doc["columns"]["t"])
         assert np.max(np.abs(np.array(doc["columns"][name + "'"]) - dof.curve.evaluate(t, 1))) <= 1e-12
     t = np.array(doc["columns"]["t"])
-    assert np.array_equal(np.array(doc["columns"]["f"]), expression_values(s.scene, named_symbol("f"), t))
+    assert np.array_equal(np.array(doc["columns"]["f"]), s.scene.evaluate(named_symbol("f"), t))
     assert cli.main(["export", str(tmp_path / "missing.stw"), "-o", str(out)]) == 1
 
 
@@ -208,7 +207,7 @@ def test_what_adds_subexpressions_as_columns(arm, tmp_path):
     t = table["t"]
     assert list(table).count("arm.tip.x") == 1
     for name in ("tau_ELBOW", "arm.tip.x'"):
-        expected = expression_values(arm.scene, named_symbol(name), t)
+        expected = arm.scene.evaluate(named_symbol(name), t)
         assert np.max(np.abs(table[name] - expected)) <= 1e-12 * max(1, np.max(np.abs(expected))), name
     # the hand's velocity, by the chain rule on the exported joint angles and velocities
     angles = np.cumsum([table["SHOULDER"], table["ELBOW"], table["WRIST"]], axis=0)

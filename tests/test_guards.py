@@ -200,7 +200,7 @@ def test_a_solve_from_an_undefined_start_names_the_term_and_the_time(negative):
     from stw_tui.window import WindowProblem
 
     negative.execute("constraint cube: q = 1 @ 0.5 when x > 0")      # where it is undefined, it is off
-    _check_start(negative.scene, WindowProblem(negative.scene))
+    _check_start(WindowProblem(negative.scene))
 
 
 def test_numbers_no_double_holds_are_refused_where_they_arise():
@@ -436,7 +436,6 @@ def test_linkage_names_follow_the_language_rules(block, words):
 def test_a_front_end_drawing_outside_a_command_is_bound_only_by_the_ceilings(plain, monkeypatch):
     from dataclasses import replace
 
-    from stw_tui.continuous import expression_values
     from stw_tui.symbols import named_symbol
 
     small = replace(limits.LIMITS["expression_size"], default=100)    # the same at 2^14 takes 9 s
@@ -446,7 +445,7 @@ def test_a_front_end_drawing_outside_a_command_is_bound_only_by_the_ceilings(pla
     for i in range(6):                                # 2^6 leaves: over the (lowered) default
         plain.execute(f"let a{i + 1} = sin(a{i}) + cos(a{i})")
     plain.execute("print a6 @ 0.5")
-    values = expression_values(plain.scene, named_symbol("a6"), np.array([0.5]))   # as the TUI plots
+    values = plain.scene.evaluate(named_symbol("a6"), np.array([0.5]))   # as the TUI plots
     assert np.isfinite(values).all()
     with pytest.raises(LimitError, match="expression_size = 100"):
         Session().run_text("\n".join(line for line in plain.journal.replayable()

@@ -5,29 +5,14 @@ import dataclasses
 import numpy as np
 import pytest
 
+import catalogue
 from conftest import run_lines
 from stw_tui.errors import StwError
 from stw_tui.history import History
 from stw_tui.session import Session
 
-TWO_D = """
-time 0 2 knots=16 samples=32
-const m = 1, g = 9.81
-dof x, y = 0.5
-let fy = m*y'' + m*g
-constraint start: x = 0, y = 0.5, x' = 1, y' = -3 @ 0
-constraint goal:  x = 2, y = 0.5, x' = 0, y' = 0 @ 2
-objective thrust: x'', fy
-"""
-
-ARM = """
-time 0 1 knots=8
-const g = 9.81
-linkage arm base=fixed
-  SHOULDER revolute a=0.35 mass=2.0
-  ELBOW    revolute a=0.30 mass=1.5
-end
-constraint reach: arm.tip.x = 0.4, arm.tip.y = 0.3 @ 1
+TWO_D = catalogue.problem("analytic_point_mass").text
+ARM = catalogue.problem("analytic_arm2").text + """constraint reach: arm.tip.x = 0.4, arm.tip.y = 0.3 @ 1
 objective effort: tau_SHOULDER, tau_ELBOW
 """
 

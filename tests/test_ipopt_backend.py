@@ -1,47 +1,25 @@
 """The ipopt backend (IPOPT through CasADi) reaches the SciPy backend's optima."""
 
-import sys
-from importlib import metadata
-
 import numpy as np
 import pytest
 
 casadi = pytest.importorskip("casadi")
 
-from conftest import ROOT, SESSIONS  # noqa: E402
-import stw_tui.backend as backend_module  # noqa: E402
+import catalogue  # noqa: E402
 from stw_tui.backend import SolverState, load_backend, run_iterations  # noqa: E402
 from stw_tui.session import Session  # noqa: E402
 from stw_tui.window import WindowProblem  # noqa: E402
 
-try:
-    import stw_ipopt  # noqa: F401  (installed: the distribution ships it)
-except ModuleNotFoundError:  # a checkout installed before stw_ipopt existed
-    sys.path.insert(0, str(ROOT / "backends"))
-from stw_ipopt import IpoptBackend  # noqa: E402
-
-
-@pytest.fixture
-def registered(monkeypatch):
-    """Make `backend ipopt` work whether or not the entry point is installed yet."""
-    real = backend_module.available_backends
-
-    def with_ipopt():
-        found = dict(real())
-        found.setdefault("ipopt", metadata.EntryPoint("ipopt", "stw_ipopt:IpoptBackend",
-                                                      backend_module.ENTRY_POINT_GROUP))
-        return found
-
-    monkeypatch.setattr(backend_module, "available_backends", with_ipopt)
+IpoptBackend = catalogue.backend_package("stw_ipopt").IpoptBackend
 
 
 def _coefficients(session):
     return session.scene.coefficient_vector()
 
 
-@pytest.mark.parametrize("name", ["particle_jet", "point_mass_2d"])
-def test_session_reaches_the_scipy_motion(registered, name):
-    text = (SESSIONS / f"{name}.stw").read_text()
+@pytest.mark.parametrize("problem", catalogue.problems("particle_jet", "point_mass_2d"), ids=str)
+def test_session_reaches_the_scipy_motion(registered, problem):
+    text = problem.text
     ref, got = Session(), Session()
     ref.run_text(text)
     got.run_text("backend ipopt\n" + text)
@@ -49,17 +27,7 @@ def test_session_reaches_the_scipy_motion(registered, name):
     assert np.abs(_coefficients(got) - _coefficients(ref)).max() <= 1e-6
 
 
-PARTICLE = """
-time 0 1 knots=12
-const m = 1, g = 9.81
-dof x
-let f = m*x'' + m*g
-constraint start: x = 0, x' = 0 @ 0
-constraint end:   x = 1, x' = 0 @ 1
-objective fuel: f
-backend ipopt
-iterate 20
-"""
+PARTICLE = catalogue.problem("analytic_particle").text + "backend ipopt\niterate 20\n"
 
 
 def test_particle_optimum_is_the_cubic(registered):
@@ -72,15 +40,7 @@ def test_particle_optimum_is_the_cubic(registered):
     assert s.runs[-1].reports[-1].objective == pytest.approx(12 + 9.81**2, rel=1e-7)
 
 
-DOUBLE_INTEGRATOR = """
-time 0 1 knots=10 samples=240
-dof x
-constraint start: x = 0, x' = 1 @ 0
-constraint end:   x = 0, x' = -1 @ 1
-constraint bound: x <= 1/9 on [0, 1]
-objective effort: x'' weight=0.5
-{backend}iterate 100
-"""
+DOUBLE_INTEGRATOR = catalogue.problem("analytic_double_integrator").text + "{backend}iterate 100\n"
 
 
 def test_double_integrator_matches_scipy(registered):
@@ -97,10 +57,7 @@ def test_double_integrator_matches_scipy(registered):
 
 
 def test_driver_reports_every_ipopt_iteration_and_multipliers(registered):
-    lines = (SESSIONS / "point_mass_2d.stw").read_text().splitlines()
-    cut = next(i for i, line in enumerate(lines) if line.startswith("iterate"))
-    session = Session()
-    session.run_text("\n".join(lines[:cut]))
+    session = catalogue.problem("point_mass_2d").setup()
     problem = WindowProblem(session.scene)
     start = SolverState.start(problem)
     result = run_iterations(load_backend("ipopt")(), problem, start, 500, session.scene.settings)
@@ -125,3 +82,20 @@ def test_options_and_limited_memory(registered):
     assert session.runs[-1].converged, session.runs[-1].status
     t = np.linspace(0, 1, 11)
     assert np.max(np.abs(session.scene.dofs["x"].curve.evaluate(t) - (3 * t**2 - 2 * t**3))) < 1e-4
+
+
+def test_settings_the_chosen_backend_ignores_are_warned_about(registered):
+    """IPOPT declares no damping: `damp` under it, and choosing it for a damped scene, say so;
+    scipy honours damping and says nothing."""
+    from stw_tui.backend import Capability
+
+    assert Capability.DAMPING not in IpoptBackend.capabilities
+    s = Session()
+    s.run_text("dof x, y lo=0\nconstraint c: x = 1 @ 0 weight=2\n")
+    assert "warning" not in s.execute("damp x 0.2").message            # scipy: damping honoured
+    switched = s.execute("backend ipopt").message
+    assert switched.splitlines() == ["backend ipopt",
+                                     "warning: backend ipopt does not support damping (x); the solve ignores it"]
+    assert "does not support damping (x, y)" in s.execute("damp y 0.1").message
+    assert s.execute("damp x 0").message.endswith("does not support damping (y); the solve ignores it")
+    assert s.execute("backend scipy").message == "backend scipy"

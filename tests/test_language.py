@@ -586,3 +586,20 @@ def test_help_unknown_topic():
     assert "nosuch" in str(info.value)
     with pytest.raises(StwError, match="did you mean constraint"):
         help_text("constrant")
+
+
+@pytest.mark.parametrize("text, verb, words", [
+    ("iterate 20   # solve", "iterate", ("iterate", "20")),
+    ("  linkage arm base=fixed", "linkage", ("linkage", "arm", "base=fixed")),
+    ("end", "end", ("end",)),
+    ("   # only a comment", None, ()),
+    ("", None, ()),
+    ("iterate# no space before the comment", "iterate", ("iterate",)),
+    ('save "a file" # with a comment', "save", ("save", '"a', 'file"')),
+    ("dof \u00e9 ?? unparsable", "dof", ("dof", "\u00e9", "??", "unparsable")),   # never raises
+])
+def test_classify_line_reads_the_words_before_a_comment(text, verb, words):
+    from stw_tui.language import classify_line
+
+    line = classify_line(text)
+    assert (line.verb, line.words, line.is_blank) == (verb, words, verb is None)

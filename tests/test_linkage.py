@@ -463,7 +463,6 @@ def test_centroidal_base_places_the_centre_of_mass_and_keeps_the_base_forces():
     # link and 0.125 along the second from the foot; and by Newton's second law the force on the
     # free base (the ground reaction) is the total mass times the centre of mass's acceleration
     # plus its weight, whatever the joints do.
-    from stw_tui.continuous import expression_values
     from stw_tui.session import Session
 
     s = Session()
@@ -486,7 +485,7 @@ dof CY = 0.5 + 2*t - 4.9*t^2
     f, w = val["FOOT"], val["FOOT"] + val["WAIST"]
     foot_x = val["CX"] - 0.375 * np.cos(f) - 0.125 * np.cos(w)
     foot_y = val["CY"] - 0.375 * np.sin(f) - 0.125 * np.sin(w)
-    at = lambda name: expression_values(sc, named_symbol(name), times)
+    at = lambda name: sc.evaluate(named_symbol(name), times)
     np.testing.assert_allclose(at("X"), foot_x, atol=1e-12)
     np.testing.assert_allclose(at("Y"), foot_y, atol=1e-12)
     np.testing.assert_allclose(at("acro.com.x"), val["CX"], atol=1e-12)

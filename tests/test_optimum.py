@@ -3,27 +3,18 @@
 import numpy as np
 import pytest
 
+import catalogue
 from conftest import SESSIONS, run_lines
 from stw_tui.session import Session
 
-PARTICLE = """
-time 0 1 knots={knots}
-const m = 1, g = 9.81
-dof x
-let f = m*x'' + m*g
-constraint start: x = 0, x' = 0 @ 0
-constraint end:   x = 1, x' = 0 @ 1
-objective fuel: f
-backend scipy solver={solver}
-iterate 20
-"""
+PARTICLE = catalogue.problem("analytic_particle").text + "backend scipy solver={solver}\niterate 20\n"
 
 
 @pytest.mark.parametrize("solver", ["direct", "minres", "cg"])
 def test_particle_optimum_is_the_cubic(solver):
     # Euler-Lagrange of ∫(m x'' + m g)^2 gives x'''' = 0: the cubic through the boundary
     # conditions, x = 3t^2 - 2t^3, which lies in the spline space, so it is reached exactly.
-    s = run_lines(Session(), PARTICLE.format(knots=12, solver=solver))
+    s = run_lines(Session(), PARTICLE.format(solver=solver))
     t = np.linspace(0, 1, 101)
     curve = s.scene.dofs["x"].curve
     assert np.max(np.abs(curve.evaluate(t) - (3 * t**2 - 2 * t**3))) < 1e-8
@@ -33,19 +24,11 @@ def test_particle_optimum_is_the_cubic(solver):
     assert s.runs[-1].reports[-1].objective == pytest.approx(12 + 9.81**2, rel=1e-8)  # bounded by tol_violation=1e-8
 
 
-DOUBLE_INTEGRATOR = """
-time 0 1 knots={knots} samples={samples}
-dof x
-constraint start: x = 0, x' = 1 @ 0
-constraint end:   x = 0, x' = -1 @ 1
-constraint bound: x <= 1/9 on [0, 1]
-objective effort: x'' weight=0.5
-iterate 40
-"""
+DOUBLE_INTEGRATOR = catalogue.problem("analytic_double_integrator").text.replace("knots=10", "knots={knots}")
 
 
 def _double_integrator(knots):
-    s = run_lines(Session(), DOUBLE_INTEGRATOR.format(knots=knots, samples=240))
+    s = run_lines(Session(), DOUBLE_INTEGRATOR.format(knots=knots) + "iterate 40\n")
     assert s.runs[-1].converged, s.runs[-1].status
     return s.runs[-1].reports[-1].objective, s
 

@@ -65,3 +65,12 @@ def test_listing_backends_imports_none_of_them(tmp_path):
             "print(names, [m for m in ('stw_descent', 'stw_broken', 'stw_torch', 'torch') if m in sys.modules])\n")
     out = subprocess.run([sys.executable, "-c", code], env=env, capture_output=True, text=True, check=True)
     assert "'descent'" in out.stdout and out.stdout.strip().endswith("[]")
+
+
+def test_installed_backends_declare_capabilities_as_the_enum():
+    """Capabilities are Capability members, not bare strings (the interpreter reads them)."""
+    from stw_tui.backend import Capability, available_backends, load_backend
+
+    for name in available_backends():
+        declared = load_backend(name).capabilities
+        assert declared and all(isinstance(c, Capability) for c in declared), name

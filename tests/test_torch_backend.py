@@ -2,57 +2,30 @@
 
 import subprocess
 import sys
-from importlib import metadata
 
 import numpy as np
 import pytest
 
 torch = pytest.importorskip("torch")
 
+import catalogue  # noqa: E402
 from conftest import ROOT, SESSIONS  # noqa: E402
-import stw_tui.backend as backend_module  # noqa: E402
 from stw_tui.backend import SolverState, run_iterations  # noqa: E402
 from stw_tui.errors import SolveError  # noqa: E402
 from stw_tui.session import Session  # noqa: E402
 from stw_tui.window import WindowProblem  # noqa: E402
 from stw_scipy import ScipyBackend  # noqa: E402
 
-try:
-    import stw_torch  # noqa: F401  (installed: the distribution ships it)
-except ModuleNotFoundError:  # a checkout installed before stw_torch existed
-    sys.path.insert(0, str(ROOT / "backends"))
-from stw_torch import TorchBackend  # noqa: E402
+TorchBackend = catalogue.backend_package("stw_torch").TorchBackend
 from stw_torch.evaluate import TorchProblem  # noqa: E402
 
-SESSION_NAMES = ["particle_jet", "point_mass_2d", "cat_mouse"]
-
-
-@pytest.fixture
-def registered(monkeypatch):
-    """Make `backend torch` work whether or not the entry point is installed yet."""
-    real = backend_module.available_backends
-
-    def with_torch():
-        found = dict(real())
-        found.setdefault("torch", metadata.EntryPoint("torch", "stw_torch:TorchBackend",
-                                                      backend_module.ENTRY_POINT_GROUP))
-        return found
-
-    monkeypatch.setattr(backend_module, "available_backends", with_torch)
-
-
-def _up_to_first_iterate(name: str) -> Session:
-    lines = (SESSIONS / f"{name}.stw").read_text().splitlines()
-    cut = next(i for i, line in enumerate(lines) if line.startswith("iterate"))
-    session = Session()
-    session.run_text("\n".join(lines[:cut]))
-    return session
+QUICK = catalogue.problems(*catalogue.QUICK)
 
 
 @pytest.mark.parametrize("linear", ["scipy", "torch"])
-@pytest.mark.parametrize("name", SESSION_NAMES)
-def test_first_step_equals_scipy(name, linear):
-    session = _up_to_first_iterate(name)
+@pytest.mark.parametrize("problem", QUICK, ids=str)
+def test_first_step_equals_scipy(problem, linear):
+    session = problem.setup()
     problem = WindowProblem(session.scene)
     start = SolverState.start(problem)
     ref = run_iterations(ScipyBackend(), problem, start, 1, session.scene.settings)
@@ -70,9 +43,9 @@ def test_first_step_equals_scipy(name, linear):
 
 
 @pytest.mark.parametrize("linear", ["scipy", "torch"])
-@pytest.mark.parametrize("name", SESSION_NAMES)
-def test_session_converges_to_the_same_motion(registered, name, linear):
-    text = (SESSIONS / f"{name}.stw").read_text()
+@pytest.mark.parametrize("problem", QUICK, ids=str)
+def test_session_converges_to_the_same_motion(registered, problem, linear):
+    text = problem.text
     ref, got = Session(), Session()
     ref.run_text(text)
     got.run_text(f"backend torch device=cpu linear={linear}\n" + text)

@@ -3,19 +3,12 @@
 import numpy as np
 import pytest
 
+import catalogue
 from conftest import SESSIONS, run_lines
 from stw_tui.errors import SolveError, SourceError, StwError
 from stw_tui.session import Session
 
-TWO_D = """
-time 0 2 knots=16 samples=32
-const m = 1, g = 9.81
-dof x, y = 0.5
-let fy = m*y'' + m*g
-constraint start: x = 0, y = 0.5, x' = 1, y' = -3 @ 0
-constraint goal:  x = 2, y = 0.5, x' = 0, y' = 0 @ 2
-objective thrust: x'', fy
-"""
+TWO_D = catalogue.problem("analytic_point_mass").text
 
 
 def test_window_leaves_everything_outside_bit_for_bit():
@@ -46,11 +39,9 @@ def test_refinement_leaves_the_motion_unchanged():
     assert s.runs[-1].reports[-1].max_violation < 1e-8
 
 
-@pytest.mark.parametrize("name", ["particle_jet", "point_mass_2d", "cat_mouse"])
-def test_replay_is_deterministic(name):
-    a, b = Session(), Session()
-    a.run_file(SESSIONS / f"{name}.stw")
-    b.run_file(SESSIONS / f"{name}.stw")
+@pytest.mark.parametrize("problem", catalogue.problems(*catalogue.QUICK), ids=str)
+def test_replay_is_deterministic(problem):
+    a, b = problem.run(), problem.run()
     assert np.array_equal(a.scene.coefficient_vector(), b.scene.coefficient_vector())
     assert [r.objective for run in a.runs for r in run.reports] == \
         [r.objective for run in b.runs for r in run.reports]

@@ -39,7 +39,7 @@ import casadi
 import numpy as np
 import scipy.sparse as sps
 
-from stw_tui.backend import Backend, BackendOption, SolverState, StepReport
+from stw_tui.backend import Backend, BackendOption, Capability, SolverState, StepReport
 from stw_tui.errors import StwError
 from stw_tui.sqp.termination import is_converged, kkt_residual
 
@@ -186,7 +186,7 @@ class IpoptBackend(Backend):
         BackendOption("hessian", str, "exact", "exact (the problem's Lagrangian Hessian) or "
                       "limited_memory (L-BFGS; IPOPT's limited-memory mode)", ("exact", "limited_memory")),
     )
-    capabilities = frozenset({"inequalities", "conditional", "weights"})
+    capabilities = frozenset({Capability.INEQUALITIES, Capability.CONDITIONAL, Capability.WEIGHTS})
 
     def init(self, problem, state: SolverState, settings: dict[str, float]) -> _Inner:
         ev = problem.evaluate(np.asarray(state.s, float))

@@ -14,7 +14,7 @@ options (``help``, the TUI's backend panel) costs nothing.
 from __future__ import annotations
 
 from stw_scipy.sqp import ScipyBackend
-from stw_tui.backend import BackendOption
+from stw_tui.backend import BackendOption, Capability
 from stw_tui.errors import StwError
 from stw_tui.sqp import SQPBackend, SQPInner
 
@@ -31,7 +31,7 @@ class TorchBackend(SQPBackend):
                       ("auto", "scipy", "torch")),
         *ScipyBackend.options,
     )
-    capabilities = SQPBackend.capabilities | {"autograd", "gpu"}
+    capabilities = SQPBackend.capabilities | {Capability.AUTOGRAD, Capability.GPU}
 
     def algebra(self, problem):
         import torch

@@ -24,19 +24,12 @@ from dataclasses import dataclass, field
 
 import numpy as np
 import scipy.sparse as sps
-import sympy as sp
 import torch
 
 from stw_tui.errors import StwError
-from stw_tui.window import EQ, GE, OBJ, MeritValues
+from stw_tui.window import EQ, GE, OBJ, MeritValues, evaluate_condition_tree
 
 from .lower import LoweredTerm, lower
-
-_TORCH_RELATIONS = {
-    sp.StrictGreaterThan: torch.gt, sp.GreaterThan: torch.ge, sp.StrictLessThan: torch.lt,
-    sp.LessThan: torch.le, sp.Equality: torch.eq, sp.Unequality: torch.ne,
-}
-
 
 def _csr_tensor(crow, col, values, shape) -> torch.Tensor:
     with warnings.catch_warnings():
@@ -323,25 +316,12 @@ class TorchProblem:
         for g in self.groups:
             if g.condition is None:
                 continue
+            def filled(flag, n=g.n):
+                return torch.full((n,), flag, dtype=torch.bool, device=self.device)
             leaf = {node: term(self._block(v, g, term.k, offset), g.times, params)
                     for node, term, offset, params in g.leaves}
-            masks[g.kind][g.row:g.row + g.n] = self._truth(g.condition.tree, leaf, g.n)
+            masks[g.kind][g.row:g.row + g.n] = evaluate_condition_tree(g.condition.tree, leaf, filled)
         return masks
-
-    def _truth(self, node, leaf, n) -> torch.Tensor:
-        if node is sp.true:
-            return torch.ones(n, dtype=torch.bool, device=self.device)
-        if node is sp.false:
-            return torch.zeros(n, dtype=torch.bool, device=self.device)
-        if isinstance(node, (sp.And, sp.Or)):
-            parts = [self._truth(a, leaf, n) for a in node.args]
-            out = parts[0]
-            for part in parts[1:]:
-                out = out & part if isinstance(node, sp.And) else out | part
-            return out
-        if isinstance(node, sp.Not):
-            return ~self._truth(node.args[0], leaf, n)
-        return _TORCH_RELATIONS[type(node)](leaf[node], 0.0)
 
     def merit_values(self, s: np.ndarray) -> MeritValues:
         """Objective and weighted constraint values only (no derivatives), for the line search."""

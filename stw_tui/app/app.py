@@ -18,12 +18,13 @@ from textual.containers import Horizontal
 from textual.widget import Widget
 from textual.widgets import Footer, TabbedContent, TabPane
 
+from ..language import classify_line
 from .console import Console
 from .dialogs import CompareScreen
 from .help_screen import HelpScreen, help_sections
 from .palette import SceneCommands, app_commands
 from .messages import (CommandFinished, CommandRequested, CommandStarted, IterationReported, ItemChosen,
-                       TaskFinished)
+                       Origin, TaskFinished)
 from .panels import ConstantsPanel, DofPanel, EquationsPanel, OptimizationPanel, TimePanel, WindowsPanel
 from .plots import ConvergencePlot, DofPlot, ExpressionPlot, FigurePlot, ScenePlot
 from .runner import Job, Runner, Script
@@ -178,7 +179,7 @@ class StwApp(App[int]):
                              "F1 help, F2 panels, F3 plots, F5 iterate, F4 stops, Esc back here, Ctrl+P palette, "
                              "Ctrl+Q quits.")
         self.status_line.show(state="loading")
-        self.runner.submit(Job("", origin="startup"))   # loads the core and measures the scene, off the UI thread
+        self.runner.submit(Job("", origin=Origin.STARTUP))   # loads the core and measures the scene, off the UI thread
         if self.session_path is not None:
             self._open(self.session_path)
 
@@ -197,9 +198,9 @@ class StwApp(App[int]):
         self._feed_script()
 
     # --- running commands --------------------------------------------------------------------
-    def submit(self, line: str, origin: str = "console", number: int | None = None) -> None:
+    def submit(self, line: str, origin: Origin = Origin.CONSOLE, number: int | None = None) -> None:
         """Run one command line through the session, after any running or queued ones."""
-        if self.runner.submit(Job(line, number=number, origin=origin)) and origin != "file":
+        if self.runner.submit(Job(line, number=number, origin=origin)) and origin != Origin.FILE:
             self.repl.write_note(f"queued until the running command ends: {line}")
 
     def _feed_script(self) -> None:
@@ -235,7 +236,7 @@ class StwApp(App[int]):
 
     def on_command_requested(self, event: CommandRequested) -> None:
         event.stop()
-        if event.origin == "console" and event.line.split("#", 1)[0].split() == ["help"]:
+        if event.origin == Origin.CONSOLE and classify_line(event.line).words == ("help",):
             self.repl.write_command(event.line)
             self.repl.write_note("opened the help screen (F1); `help COMMAND` prints one command here")
             self.action_help()
@@ -244,7 +245,7 @@ class StwApp(App[int]):
 
     def on_command_started(self, event: CommandStarted) -> None:
         job = event.job
-        if job.origin != "startup" and job.line.strip():
+        if job.origin != Origin.STARTUP and job.line.strip():
             self.repl.write_command(job.line, job.number, job.origin, job.continuation)
         if job.is_solve:
             self.query_one(ConvergencePlot).set_reports([])
@@ -282,7 +283,7 @@ class StwApp(App[int]):
         job, outcome, error = event.job, event.outcome, event.error
         if error is not None:
             self.repl.write_error(error)
-            if job.origin == "file" and self.script is not None:
+            if job.origin == Origin.FILE and self.script is not None:
                 self.script.running = False   # pause the replay; F6/F7 go on after the fix
                 self.repl.write_note("replay paused: fix it at the console, then F6/F7 to go on")
         elif outcome is not None:
@@ -292,7 +293,7 @@ class StwApp(App[int]):
                 self.query_one(ConvergencePlot).set_reports(outcome.run.reports)
             elif _changes_scene(job.line):
                 self.status_line.show(stale=True)   # the last solve's numbers no longer hold
-            if job.origin == "file" and _was_stopped(outcome) and self.script is not None:
+            if job.origin == Origin.FILE and _was_stopped(outcome) and self.script is not None:
                 # The lines after a stopped solve assume it ran to the end: do not run them.
                 self.script.running = False
                 self.repl.write_note(f"replay halted: the solve at line {job.number} was stopped "
@@ -311,7 +312,7 @@ class StwApp(App[int]):
     def on_task_finished(self, event: TaskFinished) -> None:
         if event.error is not None:
             self.repl.write_error(event.error)
-        elif event.job.origin == "compare":
+        elif event.job.origin == Origin.COMPARE:
             self._show_compare(event.result)
         self.runner.finished()
         self._feed_script()
@@ -419,13 +420,13 @@ class StwApp(App[int]):
 
     def action_undo(self) -> None:
         """Ctrl+Z: the console's `undo` (journalled like any command)."""
-        self.submit("undo", origin="key")
+        self.submit("undo", origin=Origin.KEY)
 
     def action_redo(self) -> None:
-        self.submit("redo", origin="key")
+        self.submit("redo", origin=Origin.KEY)
 
     def action_iterate(self) -> None:
-        self.submit(f"iterate {self.query_one(OptimizationPanel).iterations}", origin="key")
+        self.submit(f"iterate {self.query_one(OptimizationPanel).iterations}", origin=Origin.KEY)
 
     def action_compare(self) -> None:
         """Solve copies of the scene with each installed backend (`iterate N` each, N from the Opt
@@ -438,7 +439,7 @@ class StwApp(App[int]):
 
             return n, compare_scene(session.scene, n, backends, label="session")
 
-        waiting = self.runner.submit(Job("", origin="compare", task=task))
+        waiting = self.runner.submit(Job("", origin=Origin.COMPARE, task=task))
         note = " (after the running command)" if waiting else ""
         self.repl.write_note(f"comparing {', '.join(backends)}: up to {n} iteration(s) each{note}…")
         self._show_state()
@@ -473,7 +474,7 @@ class StwApp(App[int]):
             self.repl.write_note("stopping at the next iteration boundary…")
         if self.script is not None and self.script.running:
             self.script.running = False
-            if not (stopped and self.runner.current.origin == "file"):   # else the solve's end says it
+            if not (stopped and self.runner.current.origin == Origin.FILE):   # else the solve's end says it
                 self.repl.write_note("replay paused: F6 next line, F7 the rest")
         elif not stopped:
             self.repl.write_note("nothing to stop")
@@ -499,8 +500,8 @@ READ_ONLY_COMMANDS = frozenset({"print", "help"})
 
 def _changes_scene(line: str) -> bool:
     """Whether a command line (that succeeded) may have changed the scene."""
-    words = line.split("#", 1)[0].split()
-    return bool(words) and words[0] not in READ_ONLY_COMMANDS
+    verb = classify_line(line).verb
+    return verb is not None and verb not in READ_ONLY_COMMANDS
 
 
 def _was_stopped(outcome) -> bool:

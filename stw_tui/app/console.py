@@ -12,7 +12,7 @@ from textual.widgets import Input, Label, RichLog
 
 from ..errors import SourceError
 from .completion import History, complete
-from .messages import CommandRequested
+from .messages import CommandRequested, Origin
 
 if TYPE_CHECKING:
     from ..scene import Scene
@@ -89,20 +89,20 @@ class Console(Vertical):
         line = event.value
         self.input.history.add(line)
         self.input.value = ""
-        self.post_message(CommandRequested(line, origin="console"))
+        self.post_message(CommandRequested(line, origin=Origin.CONSOLE))
 
     def set_prompt(self, continuation: bool) -> None:
         self.query_one("#prompt", Label).update(CONTINUATION if continuation else PROMPT)
 
     # --- writing (Text objects, never markup: user text contains [brackets]) -----------------
-    def write_command(self, line: str, number: int | None = None, origin: str = "console",
+    def write_command(self, line: str, number: int | None = None, origin: Origin = Origin.CONSOLE,
                       continuation: bool = False) -> None:
         if number is not None:
             prefix = f"{number:>3}| "
         elif continuation:
             prefix = CONTINUATION
         else:
-            prefix = PROMPT if origin == "console" else f"{origin}> "
+            prefix = PROMPT if origin == Origin.CONSOLE else f"{origin}> "
         self.log_widget.write(Text.assemble((prefix, "dim"), (line, "bold")))
 
     def write_result(self, text: str) -> None:

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import enum
 from dataclasses import dataclass
 from typing import TYPE_CHECKING, Any
 
@@ -13,12 +14,23 @@ if TYPE_CHECKING:
     from .values import SceneInfo
 
 
+class Origin(enum.StrEnum):
+    """Where a command line or task came from (the console shows it as a prompt, e.g. `key>`)."""
+
+    CONSOLE = "console"   # typed
+    PANEL = "panel"       # a panel's control
+    KEY = "key"           # a key binding (F5, Ctrl+Z)
+    FILE = "file"         # the opened session file
+    STARTUP = "startup"   # the empty job that loads the core when the app starts
+    COMPARE = "compare"   # the backend comparison task
+
+
 @dataclass
 class CommandRequested(Message):
     """A widget asks for one command line to be run through the session (and shown in the console)."""
 
     line: str
-    origin: str = "panel"    # console | panel | key
+    origin: Origin = Origin.PANEL
 
 
 @dataclass

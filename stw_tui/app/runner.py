@@ -20,7 +20,8 @@ from pathlib import Path
 from typing import TYPE_CHECKING, Any, Callable
 
 from ..errors import StwError
-from .messages import CommandFinished, CommandStarted, IterationReported, TaskFinished
+from ..language import classify_line
+from .messages import CommandFinished, CommandStarted, IterationReported, Origin, TaskFinished
 from .values import SceneInfo, scene_info
 
 if TYPE_CHECKING:
@@ -36,7 +37,7 @@ class Job:
 
     line: str
     number: int | None = None     # its line in the opened session file
-    origin: str = "console"       # console | panel | key | file | startup
+    origin: Origin = Origin.CONSOLE
     continuation: bool = False    # a row inside an open `linkage` block (set by the worker)
     # A read-only task instead of a command line (e.g. comparing backends): called with the
     # session in the worker, not journalled; its result comes back in a TaskFinished message.
@@ -44,7 +45,7 @@ class Job:
 
     @property
     def is_solve(self) -> bool:
-        return self.line.split("#", 1)[0].split()[:1] == ["iterate"]
+        return classify_line(self.line).verb == "iterate"
 
 
 class Script:
@@ -61,7 +62,7 @@ class Script:
         return self.position >= len(self.lines)
 
     def _is_command(self, index: int) -> bool:
-        return bool(self.lines[index].split("#", 1)[0].strip())
+        return not classify_line(self.lines[index]).is_blank
 
     def upcoming(self) -> tuple[int, str] | None:
         """The next command line (number, text), skipping comments and blank lines."""
@@ -81,7 +82,7 @@ class Script:
             index = self.position
             self.position += 1
             if self._is_command(index):
-                return comments, Job(self.lines[index], number=index + 1, origin="file")
+                return comments, Job(self.lines[index], number=index + 1, origin=Origin.FILE)
             if self.lines[index].strip():
                 comments.append(self.lines[index])
         return comments, None

@@ -45,12 +45,6 @@ def dof_series(scene: "Scene", name: str, order: int, n: int = 161) -> Series:
     return Series(f"{name}{chr(39) * order}", times.tolist(), values.tolist())
 
 
-def _evaluate(scene: "Scene", expr, times: np.ndarray) -> np.ndarray:
-    from ..continuous import expression_values
-
-    return expression_values(scene, expr, times)
-
-
 def equation_names(scene: "Scene") -> list[str]:
     """Names whose values can be plotted over time: constraints, objectives, subexpressions."""
     return [*scene.constraints, *scene.objectives, *scene.lets]
@@ -64,6 +58,7 @@ def equation_series(scene: "Scene", name: str, n: int = 161) -> tuple[list[Serie
     Raises:
         StwError: an expression that no longer compiles (e.g. a deleted name).
     """
+    from ..kinds import TermKind
     from ..symbols import named_symbol
 
     times = np.linspace(scene.t0, scene.t1, n)
@@ -72,14 +67,14 @@ def equation_series(scene: "Scene", name: str, n: int = 161) -> tuple[list[Serie
         scope = (c.at, c.at) if c.at is not None else c.interval
         out = []
         for i, rel in enumerate(c.relations, start=1):
-            label = f"{name}[{i}] {'= 0' if rel.kind == 'eq' else '>= 0'}"
-            out.append(Series(label, times.tolist(), _evaluate(scene, rel.expr, times).tolist()))
+            label = f"{name}[{i}] {'= 0' if rel.kind == TermKind.EQ else '>= 0'}"
+            out.append(Series(label, times.tolist(), scene.evaluate(rel.expr, times).tolist()))
         return out, scope
     if name in scene.objectives:
         o = scene.objectives[name]
-        return [Series(f"{name}[{i}]", times.tolist(), _evaluate(scene, e, times).tolist())
+        return [Series(f"{name}[{i}]", times.tolist(), scene.evaluate(e, times).tolist())
                 for i, e in enumerate(o.exprs, start=1)], o.interval
-    return [Series(name, times.tolist(), _evaluate(scene, named_symbol(name), times).tolist())], None
+    return [Series(name, times.tolist(), scene.evaluate(named_symbol(name), times).tolist())], None
 
 
 def equation_violations(scene: "Scene") -> dict[str, float]:

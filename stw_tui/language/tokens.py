@@ -63,3 +63,29 @@ def tokenize(text: str, *, line: int | None = None, column_offset: int = 0) -> l
 def strip_comment(text: str) -> str:
     """The line without its trailing comment and whitespace."""
     return text.split("#", 1)[0].rstrip()
+
+
+@dataclass(frozen=True)
+class CommandLine:
+    """What a line of the session language is, told from its words alone: it never fails, so
+    callers may classify lines that do not parse (a journal being replayed, a script's next line).
+
+    ``words`` are the whitespace-separated words before any comment; ``verb`` is the first.
+    """
+
+    words: tuple[str, ...]
+
+    @property
+    def verb(self) -> str | None:
+        """The command word (`iterate`, `linkage`, `end` …); None for a blank or comment line."""
+        return self.words[0] if self.words else None
+
+    @property
+    def is_blank(self) -> bool:
+        """Nothing but white space and a comment: nothing to run."""
+        return not self.words
+
+
+def classify_line(text: str) -> CommandLine:
+    """The :class:`CommandLine` of one line of text."""
+    return CommandLine(tuple(strip_comment(text).split()))

@@ -39,7 +39,7 @@ from typing import Any
 
 import numpy as np
 
-from ..backend import Backend, BackendOption, SolverState, StepReport
+from ..backend import Backend, BackendOption, Capability, SolverState, StepReport
 from ..errors import StwError
 from .algebra import LinearAlgebra, SingularSystem
 from .qp import KKT_EPS, QPResult, solve_qp
@@ -132,7 +132,8 @@ class SQPBackend(Backend):
     """The shared SQP. Subclasses implement :meth:`algebra` (and may override :meth:`evaluator`)."""
 
     options = SQP_OPTIONS
-    capabilities = frozenset({"inequalities", "conditional", "damping", "weights", "elastic"})
+    capabilities = frozenset({Capability.INEQUALITIES, Capability.CONDITIONAL, Capability.DAMPING,
+                              Capability.WEIGHTS, Capability.ELASTIC})
 
     # --- what a backend supplies ------------------------------------------------------------
     def algebra(self, problem) -> LinearAlgebra:

@@ -1,0 +1,34 @@
+"""Every problem of the test catalogue on every installed backend (tests/catalogue.py)."""
+
+import numpy as np
+import pytest
+
+import catalogue
+from stw_tui.backend import SolverState, create_backend, load_backend, run_iterations
+from stw_tui.window import WindowProblem
+
+
+def test_the_catalogue_holds_every_bundled_session_and_the_analytic_problems():
+    bundled = sorted(p.stem for p in catalogue.SESSIONS.glob("*.stw"))
+    assert [p.name for p in catalogue.problems() if p.path is not None] == bundled
+    assert set(catalogue.QUICK) <= set(bundled)
+    assert all(p.known for p in catalogue.ANALYTIC.values())
+    assert catalogue.installed_backends()[0] == "scipy"
+
+
+def test_one_iteration_from_each_problem_on_each_backend(any_problem, any_backend):
+    """From the scene before its first `iterate`, one iteration of any backend takes a finite
+    step, and what it reports (objective, largest violation) is what the core's own evaluation of
+    the window problem finds at the point it returns."""
+    session = any_problem.setup()
+    if not (session.scene.constraints or session.scene.objectives):
+        return   # nothing to solve (a linkage alone)
+    problem = WindowProblem(session.scene)
+    options = dict(w.split("=") for w in catalogue.BACKEND_LINES[any_backend].split()[2:])
+    backend = create_backend(load_backend(any_backend), options)
+    result = run_iterations(backend, problem, SolverState.start(problem), 1, session.scene.settings)
+    assert len(result.reports) == 1 and np.all(np.isfinite(result.state.s))
+    assert result.state.s.shape == (problem.n_free,)
+    report, ev = result.reports[0], problem.evaluate(result.state.s)
+    assert report.objective == pytest.approx(ev.objective, rel=1e-9, abs=1e-12)
+    assert report.max_violation == pytest.approx(ev.max_violation(), rel=1e-6, abs=1e-12)
