@@ -12,6 +12,7 @@ their sympy expressions) and :class:`SolverState` / :class:`StepReport`.
 from __future__ import annotations
 
 import enum
+import math
 import time
 from abc import ABC, abstractmethod
 from dataclasses import dataclass, field, replace
@@ -36,6 +37,8 @@ class BackendOption:
     default: Any
     help: str
     choices: tuple | None = None
+    minimum: float | None = None    # the smallest value allowed (numbers only)
+    exclusive: bool = False         # the minimum itself is not allowed (a tolerance of 0)
 
     def parse(self, raw: str | Any) -> Any:
         """Convert a raw string to the option's type, with a clear error."""
@@ -48,6 +51,11 @@ class BackendOption:
                 value = self.type(raw)
         except (TypeError, ValueError):
             raise StwError(f"option {self.name}: '{raw}' is not a valid {self.type.__name__}") from None
+        if self.type in (int, float) and not math.isfinite(value):
+            raise StwError(f"option {self.name}: '{raw}' is not a finite number")
+        if self.minimum is not None and (value < self.minimum or (self.exclusive and value == self.minimum)):
+            least = f"above {self.minimum:g}" if self.exclusive else f"at least {self.minimum:g}"
+            raise StwError(f"option {self.name}: '{raw}' must be {least}")
         if self.choices is not None and value not in self.choices:
             raise StwError(f"option {self.name}: '{raw}' is not one of {', '.join(map(str, self.choices))}")
         return value

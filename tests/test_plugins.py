@@ -5,6 +5,8 @@ import subprocess
 import sys
 import textwrap
 
+import pytest
+
 PLUGIN = textwrap.dedent('''
     """A tiny out-of-tree backend: steepest descent on the objective, no constraints."""
     import numpy as np
@@ -74,3 +76,23 @@ def test_installed_backends_declare_capabilities_as_the_enum():
     for name in available_backends():
         declared = load_backend(name).capabilities
         assert declared and all(isinstance(c, Capability) for c in declared), name
+
+
+@pytest.mark.parametrize("line, message", [
+    ("backend ipopt tol=0", "option tol: '0' must be above 0"),
+    ("backend ipopt tol=-1e-8", "must be above 0"),
+    ("backend ipopt max_iter=0", "option max_iter: '0' must be at least 1"),
+    ("backend scipy lin_tol=nan", "is not a finite number"),
+    ("backend scipy trust=-0.5", "option trust: '-0.5' must be at least 0"),
+    ("backend scipy trust=inf", "is not a finite number"),
+])
+def test_backend_options_out_of_range_are_refused_and_change_nothing(line, message):
+    pytest.importorskip("casadi")
+    from stw_tui.errors import StwError
+    from stw_tui.session import Session
+
+    s = Session()
+    s.run_text("time 0 1 knots=8\ndof x\nbackend scipy lin_tol=1e-10\n")
+    with pytest.raises(StwError, match=message):
+        s.execute(line)
+    assert (s.scene.backend, s.scene.backend_options) == ("scipy", {"lin_tol": "1e-10"})

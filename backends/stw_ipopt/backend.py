@@ -179,10 +179,10 @@ class IpoptBackend(Backend):
 
     name = "ipopt"
     options = (
-        BackendOption("tol", float, 1e-8, "IPOPT's overall convergence tolerance"),
-        BackendOption("max_iter", int, 500, "IPOPT's iteration limit"),
+        BackendOption("tol", float, 1e-8, "IPOPT's overall convergence tolerance", minimum=0.0, exclusive=True),
+        BackendOption("max_iter", int, 500, "IPOPT's iteration limit", minimum=1),
         BackendOption("print_level", int, 0, "IPOPT's output verbosity (0: silent; higher "
-                      "levels write over the TUI)"),
+                      "levels write over the TUI)", minimum=0),
         BackendOption("hessian", str, "exact", "exact (the problem's Lagrangian Hessian) or "
                       "limited_memory (L-BFGS; IPOPT's limited-memory mode)", ("exact", "limited_memory")),
     )

@@ -15,8 +15,9 @@ from .linear import SOLVERS, SparseAlgebra
 LINEAR_OPTIONS = (
     BackendOption("solver", str, "direct", "linear solver for the KKT system (with inequality "
                   "instances, the interior-point systems are always factorized)", SOLVERS),
-    BackendOption("lin_tol", float, 1e-12, "relative tolerance of the iterative solvers"),
-    BackendOption("lin_maxiter", int, 1000, "iteration limit of the iterative solvers"),
+    BackendOption("lin_tol", float, 1e-12, "relative tolerance of the iterative solvers", minimum=0.0,
+                  exclusive=True),
+    BackendOption("lin_maxiter", int, 1000, "iteration limit of the iterative solvers", minimum=1),
 )
 
 

@@ -60,17 +60,18 @@ CONFLICT_FRACTION = 0.1  # a group with this share of the least-violation multip
 SQP_OPTIONS = (
     BackendOption("trust", float, 0.5, "initial step limit: largest change of any control point "
                   "in one iteration, times max(1, largest control point); it adapts by the merit's "
-                  "ratio test (0: no limit)"),
+                  "ratio test (0: no limit)", minimum=0.0),
     BackendOption("growth", float, 0.0, "largest factor by which one step may multiply the "
-                  "objective (above max(1, violation)); 0: no bound"),
+                  "objective (above max(1, violation)); 0: no bound", minimum=0.0),
     BackendOption("max_step", float, 0.0, "a fixed cap on the change of any control point in one "
-                  "iteration (0: no cap)"),
+                  "iteration (0: no cap)", minimum=0.0),
     BackendOption("hessian", str, "auto", "Hessian of the Lagrangian: exact (Newton), "
                   "gauss_newton (objective residuals only: positive semidefinite), or auto "
                   "(Gauss-Newton until nearly feasible, then exact)", ("auto", "exact", "gauss_newton")),
-    BackendOption("prox", float, 1e-6, "initial proximal (Levenberg-Marquardt) weight; it adapts"),
+    BackendOption("prox", float, 1e-6, "initial proximal (Levenberg-Marquardt) weight; it adapts",
+                  minimum=0.0),
     BackendOption("newton_switch", float, 1e-2, "max violation below which `auto` uses the "
-                  "exact Hessian"),
+                  "exact Hessian", minimum=0.0),
 )
 
 
