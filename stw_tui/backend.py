@@ -216,6 +216,9 @@ class RunResult:
         return self.status is Status.CONVERGED
 
 
+ITERATION_BUDGET = "iterations"   # the settings key run_iterations adds: how many iterations it may run
+
+
 def run_iterations(backend: Backend, problem, start: SolverState, n: int, settings: dict[str, float],
                    on_report: Callable[[StepReport], bool | None] | None = None) -> RunResult:
     """Run up to ``n`` iterations of ``backend`` on ``problem``.
@@ -229,7 +232,8 @@ def run_iterations(backend: Backend, problem, start: SolverState, n: int, settin
     reports: list[StepReport] = []
     status = Status.MAX_ITERATIONS
     try:
-        inner = backend.init(problem, start, settings)
+        # The budget travels with the settings: a backend that solves in one call (IPOPT) stops there.
+        inner = backend.init(problem, start, {**settings, ITERATION_BUDGET: n})
         state = start
         for k in range(1, n + 1):
             inner, report = backend.step(problem, inner, k)

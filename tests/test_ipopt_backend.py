@@ -99,3 +99,23 @@ def test_settings_the_chosen_backend_ignores_are_warned_about(registered):
     assert "does not support damping (x, y)" in s.execute("damp y 0.1").message
     assert s.execute("damp x 0").message.endswith("does not support damping (y); the solve ignores it")
     assert s.execute("backend scipy").message == "backend scipy"
+
+
+def test_iterate_n_runs_n_ipopt_iterations_and_a_further_iterate_goes_on(registered):
+    # IPOPT solves in one call; `iterate 3` hands it max_iter = 3, so three iterations are run
+    # (not the whole solve with three of them shown), and the run ends at the iteration limit,
+    # not as stalled. A further iterate restarts IPOPT from there and converges to the optimal
+    # value of a single long run.
+    text = ("time 0 1 knots=12\ndof x = 1.4 + 0.1*t\nconstraint c: sin(x) <= 0.5 on [0, 1]\n"
+            "objective o: x''\nbackend ipopt\n")
+    whole = Session()
+    whole.run_text(text + "iterate 200\n")
+    assert whole.runs[-1].converged and len(whole.runs[-1].reports) > 5
+    s = Session()
+    s.run_text(text + "iterate 3\n")
+    first = s.runs[-1]
+    assert len(first.reports) == 3 and first.status.name == "MAX_ITERATIONS", first.status
+    assert "Maximum_Iterations_Exceeded" in first.reports[-1].message
+    s.execute("iterate 200")
+    assert s.runs[-1].converged     # the optimum is a family (any straight x below asin(0.5)): compare values
+    assert s.runs[-1].reports[-1].objective == pytest.approx(whole.runs[-1].reports[-1].objective, abs=1e-8)

@@ -21,9 +21,10 @@ iteration. Intermediate reports carry IPOPT's iterate *of that iteration* (so th
 the table fills); the last one carries IPOPT's final solution and multipliers, with
 ``converged=True`` when the final point passes stw's own convergence tests (the same
 ``tol_violation`` / ``tol_kkt`` tests as every backend, stw_tui.sqp.termination) and
-``stalled=True`` otherwise; IPOPT's own verdict is in the message. If the driver's iteration
-budget ends first, the state is that intermediate iterate, and a further ``iterate`` restarts
-IPOPT from it. The whole solve's time is charged to the first report (``ms["ipopt"]``).
+``stalled=True`` otherwise; IPOPT's own verdict is in the message. IPOPT's ``max_iter`` is the
+driver's iteration budget (``iterate N``) when that is smaller, so ``iterate 3`` runs three IPOPT
+iterations, and ends as "iteration limit reached" (not stalled); a further ``iterate`` restarts
+IPOPT from where it stopped. The whole solve's time is charged to the first report (``ms["ipopt"]``).
 
 Conditional rows (``when``): the masks are fixed at the start point — rows whose condition fails
 there are left out of the NLP for the whole solve (IPOPT needs a fixed constraint set). A
@@ -39,7 +40,7 @@ import casadi
 import numpy as np
 import scipy.sparse as sps
 
-from stw_tui.backend import Backend, BackendOption, Capability, SolverState, StepReport
+from stw_tui.backend import ITERATION_BUDGET, Backend, BackendOption, Capability, SolverState, StepReport
 from stw_tui.errors import StwError
 from stw_tui.sqp.termination import is_converged, kkt_residual
 
@@ -172,6 +173,7 @@ class _Inner:
     evaluations: int = 0
     next: int = 0
     final: SolverState | None = None
+    budget_ended: bool = False      # IPOPT stopped at the driver's budget, not its own verdict
 
 
 class IpoptBackend(Backend):
@@ -226,7 +228,7 @@ class IpoptBackend(Backend):
         report = StepReport(iteration=iteration, objective=float(ev.objective), max_violation=violation,
                             kkt_residual=kkt, step_length=float(rec.alpha), linear_iterations=0,
                             active=int(np.count_nonzero(state.lam_ge < 0)), ms=ms,
-                            converged=converged, stalled=not converged,
+                            converged=converged, stalled=not (converged or inner.budget_ended),
                             message=f"IPOPT: {inner.message} ({len(inner.records)} iterations, "
                                     f"{inner.evaluations} evaluations)")
         return inner, report
@@ -298,7 +300,9 @@ class IpoptBackend(Backend):
         x = casadi.MX.sym("s", n)
         p = casadi.MX.sym("p", 0)
         nlp = {"x": x, "p": p, "f": F(x, p), "g": Gf(x, p)}
-        ipopt_opts = {"tol": self.config["tol"], "max_iter": self.config["max_iter"],
+        budget = int(inner.settings.get(ITERATION_BUDGET, self.config["max_iter"]))
+        max_iter = min(self.config["max_iter"], budget)
+        ipopt_opts = {"tol": self.config["tol"], "max_iter": max_iter,
                       "constr_viol_tol": float(inner.settings["tol_violation"]) or 1e-12,
                       "print_level": self.config["print_level"], "sb": "yes"}
         opts = {"ipopt": ipopt_opts, "print_time": False, "grad_f": GF, "jac_g": JG,
@@ -319,6 +323,7 @@ class IpoptBackend(Backend):
         stats = solver.stats()
         inner.success = bool(stats.get("success", False))
         inner.message = str(stats.get("return_status", ""))
+        inner.budget_ended = inner.message == "Maximum_Iterations_Exceeded" and max_iter == budget
         s_final = np.asarray(sol["x"], float).ravel()
         lg = np.asarray(sol["lam_g"], float).ravel()
         lam_eq, lam_ge = np.zeros(full_eq), np.zeros(full_ge)
