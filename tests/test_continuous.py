@@ -345,3 +345,24 @@ iterate 30
     check = check_scene(s.scene).checks["x.bounds"]
     assert check.dense <= 1e-9 and check.instances <= 1e-9
     assert not s.scene.extra_instances                                   # nothing had to be added
+
+
+def test_condition_tree_is_evaluated_like_its_boolean_formula():
+    """The one `when` evaluator (numpy here, torch in the torch backend) against the formula
+    written out with numpy's own operators."""
+    import sympy as sp
+
+    from stw_tui.window import evaluate_condition_tree, numpy_filled, relation_nodes
+
+    x, y = sp.symbols("x y", real=True)
+    tree = sp.Or(sp.And(x > 0, sp.Not(sp.And(y <= 1, x < 2))), sp.Eq(x, y), sp.Ne(y, 2) & (x < -1))
+    assert tree.has(sp.Not)   # sympy keeps a negated conjunction as it is
+    rng = np.random.default_rng(3)
+    xs, ys = rng.integers(-3, 4, 200).astype(float), rng.integers(-3, 4, 200).astype(float)
+    leaves = {node: {x: xs, y: ys}[node.lhs] - (ys if node.rhs == y else float(node.rhs))
+              for node in relation_nodes(tree)}
+    want = ((xs > 0) & ~((ys <= 1) & (xs < 2))) | (xs == ys) | ((ys != 2) & (xs < -1))
+    got = evaluate_condition_tree(tree, leaves, numpy_filled(xs.size))
+    assert got.dtype == bool and np.array_equal(got, want) and want.any() and not want.all()
+    assert evaluate_condition_tree(sp.true, {}, numpy_filled(4)).tolist() == [True] * 4
+    assert evaluate_condition_tree(sp.false, {}, numpy_filled(4)).tolist() == [False] * 4

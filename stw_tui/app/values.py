@@ -13,6 +13,8 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
+from ..kinds import TermKind
+
 if TYPE_CHECKING:
     from ..scene import Scene
 
@@ -58,7 +60,6 @@ def equation_series(scene: "Scene", name: str, n: int = 161) -> tuple[list[Serie
     Raises:
         StwError: an expression that no longer compiles (e.g. a deleted name).
     """
-    from ..kinds import TermKind
     from ..symbols import named_symbol
 
     times = np.linspace(scene.t0, scene.t1, n)
