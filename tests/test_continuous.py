@@ -366,3 +366,37 @@ def test_condition_tree_is_evaluated_like_its_boolean_formula():
     assert got.dtype == bool and np.array_equal(got, want) and want.any() and not want.all()
     assert evaluate_condition_tree(sp.true, {}, numpy_filled(4)).tolist() == [True] * 4
     assert evaluate_condition_tree(sp.false, {}, numpy_filled(4)).tolist() == [False] * 4
+
+
+def test_a_nonlinear_ode_holds_between_instances_only_to_the_discretization_error_which_refining_shrinks_as_h2():
+    # A pendulum collocated on the knots (th'' + g sin th = 0, one instance per knot, plus the
+    # start): the spline has exactly as many control points as rows, so the instances hold to
+    # round-off, but th'' + g sin(th) of a cubic spline cannot vanish between them. That gap is
+    # discretization error, not a solver failure: halving the knot spacing divides the dense
+    # violation by ~4 (h²), and the motion converges to the true pendulum (scipy's solve_ivp,
+    # an independent integrator) at the same rate. Adding instances cannot help (the rows would
+    # outnumber the control points); refining the knots does. This is why the acrobat's flight
+    # torque and planted foot, nonlinear in its DOF, keep a dense violation far above 1e-6.
+    from scipy.integrate import solve_ivp
+
+    g, t = 9.81, np.linspace(0, 2, 401)
+    exact = solve_ivp(lambda _, y: [y[1], -g * np.sin(y[0])], (0, 2), [1.0, 0.0], t_eval=t,
+                      rtol=1e-12, atol=1e-12).y[0]
+    dense, error = [], []
+    for knots in (16, 32, 64):
+        s = Session()
+        s.run_text(f"""time 0 2 knots={knots} samples={knots}
+dof th = 1
+constraint start: th = 1, th' = 0 @ 0
+constraint swing: th'' + {g}*sin(th) = 0 on [0, 2]
+set adaptive off
+iterate 30
+""")
+        assert s.runs[-1].converged and s.runs[-1].reports[-1].max_violation <= 1e-10
+        dense.append(check_scene(s.scene).checks["swing"].dense)
+        error.append(np.abs(s.scene.dofs["th"].curve.evaluate(t) - exact).max())
+    assert dense[-1] > 1e-3                                        # far above any dense_tol
+    for coarse, fine in zip(dense, dense[1:]):
+        assert 3.5 <= coarse / fine <= 4.5, dense
+    for coarse, fine in zip(error, error[1:]):
+        assert 3.0 <= coarse / fine <= 5.0, error
