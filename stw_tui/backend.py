@@ -217,13 +217,16 @@ class RunResult:
 
 
 ITERATION_BUDGET = "iterations"   # the settings key run_iterations adds: how many iterations it may run
+CANCELLED = "cancelled"           # ... and this one: a callable, True once the user asked to stop
 
 
 def run_iterations(backend: Backend, problem, start: SolverState, n: int, settings: dict[str, float],
                    on_report: Callable[[StepReport], bool | None] | None = None) -> RunResult:
     """Run up to ``n`` iterations of ``backend`` on ``problem``.
 
-    ``on_report`` is called after every iteration; returning False stops at that boundary.
+    ``on_report`` is called after every iteration; returning False stops at that boundary. It may
+    carry ``on_report.cancelled()`` (the TUI's stop flag): a backend that iterates inside one call
+    (IPOPT) polls it between its own iterations, through ``settings[CANCELLED]``.
     Raises:
         SolveError: the backend raised or produced non-finite values; nothing is returned, so the
             caller's scene is untouched.
@@ -233,7 +236,8 @@ def run_iterations(backend: Backend, problem, start: SolverState, n: int, settin
     status = Status.MAX_ITERATIONS
     try:
         # The budget travels with the settings: a backend that solves in one call (IPOPT) stops there.
-        inner = backend.init(problem, start, {**settings, ITERATION_BUDGET: n})
+        cancelled = getattr(on_report, "cancelled", None) or (lambda: False)
+        inner = backend.init(problem, start, {**settings, ITERATION_BUDGET: n, CANCELLED: cancelled})
         state = start
         for k in range(1, n + 1):
             inner, report = backend.step(problem, inner, k)

@@ -119,3 +119,26 @@ def test_iterate_n_runs_n_ipopt_iterations_and_a_further_iterate_goes_on(registe
     s.execute("iterate 200")
     assert s.runs[-1].converged     # the optimum is a family (any straight x below asin(0.5)): compare values
     assert s.runs[-1].reports[-1].objective == pytest.approx(whole.runs[-1].reports[-1].objective, abs=1e-8)
+
+
+def test_a_stop_request_ends_ipopt_between_its_iterations(registered):
+    # The TUI's stop flag rides on the report callback (on_report.cancelled); IPOPT, which runs
+    # its whole solve inside one step, polls it in its iteration callback. Here the flag goes
+    # up at IPOPT's 3rd iteration: the run stops there, with that iterate, instead of finishing.
+    text = ("time 0 1 knots=12\ndof x = 1.4 + 0.1*t\nconstraint c: sin(x) <= 0.5 on [0, 1]\n"
+            "objective o: x''\n")
+    session = Session()
+    session.run_text(text)
+    problem = WindowProblem(session.scene)
+    polls = []
+
+    def on_report(report):
+        return False                    # the flag is up: stop at the first boundary
+
+    on_report.cancelled = lambda: polls.append(1) or len(polls) >= 3
+    result = run_iterations(IpoptBackend(), problem, SolverState.start(problem), 200,
+                            session.scene.settings, on_report)
+    assert result.status.name == "STOPPED" and len(result.reports) == 1
+    assert len(polls) == 3 and "User_Requested_Stop" in result.reports[0].message
+    whole = run_iterations(IpoptBackend(), problem, SolverState.start(problem), 200, session.scene.settings)
+    assert whole.converged and np.abs(result.state.s - whole.state.s).max() > 1e-6   # it did stop early

@@ -24,7 +24,8 @@ the table fills); the last one carries IPOPT's final solution and multipliers, w
 ``stalled=True`` otherwise; IPOPT's own verdict is in the message. IPOPT's ``max_iter`` is the
 driver's iteration budget (``iterate N``) when that is smaller, so ``iterate 3`` runs three IPOPT
 iterations, and ends as "iteration limit reached" (not stalled); a further ``iterate`` restarts
-IPOPT from where it stopped. The whole solve's time is charged to the first report (``ms["ipopt"]``).
+IPOPT from where it stopped. A stop from the TUI (``settings["cancelled"]``) is polled in IPOPT's
+iteration callback, which then ends the solve; the run stops at the iterate IPOPT reached. The whole solve's time is charged to the first report (``ms["ipopt"]``).
 
 Conditional rows (``when``): the masks are fixed at the start point — rows whose condition fails
 there are left out of the NLP for the whole solve (IPOPT needs a fixed constraint set). A
@@ -40,7 +41,7 @@ import casadi
 import numpy as np
 import scipy.sparse as sps
 
-from stw_tui.backend import ITERATION_BUDGET, Backend, BackendOption, Capability, SolverState, StepReport
+from stw_tui.backend import CANCELLED, ITERATION_BUDGET, Backend, BackendOption, Capability, SolverState, StepReport
 from stw_tui.errors import StwError
 from stw_tui.sqp.termination import is_converged, kkt_residual
 
@@ -174,6 +175,7 @@ class _Inner:
     next: int = 0
     final: SolverState | None = None
     budget_ended: bool = False      # IPOPT stopped at the driver's budget, not its own verdict
+    user_stopped: bool = False      # ... or because the user asked to stop
 
 
 class IpoptBackend(Backend):
@@ -228,7 +230,7 @@ class IpoptBackend(Backend):
         report = StepReport(iteration=iteration, objective=float(ev.objective), max_violation=violation,
                             kkt_residual=kkt, step_length=float(rec.alpha), linear_iterations=0,
                             active=int(np.count_nonzero(state.lam_ge < 0)), ms=ms,
-                            converged=converged, stalled=not (converged or inner.budget_ended),
+                            converged=converged, stalled=not (converged or inner.budget_ended or inner.user_stopped),
                             message=f"IPOPT: {inner.message} ({len(inner.records)} iterations, "
                                     f"{inner.evaluations} evaluations)")
         return inner, report
@@ -289,9 +291,11 @@ class IpoptBackend(Backend):
 
         records_x: list[np.ndarray] = []
 
+        cancelled = inner.settings.get(CANCELLED) or (lambda: False)
+
         def on_iteration(x, f_, g_, lam_x, lam_g, lam_p):
             records_x.append(np.asarray(x, float).ravel().copy())
-            return [0]
+            return [1 if cancelled() else 0]     # nonzero: IPOPT stops (User_Requested_Stop)
 
         IC = _Fn("stw_iter", [sx, dense(1, 1), dense(m, 1), sx, dense(m, 1), sp0], [dense(1, 1)],
                  on_iteration)
@@ -339,6 +343,9 @@ class IpoptBackend(Backend):
         if not inner.records:
             inner.records = [_Record(float("nan"), 0.0, float(inf_du[-1]) if inf_du else 0.0,
                                      0.0, s_final)]
+        inner.user_stopped = inner.message == "User_Requested_Stop"
+        if inner.user_stopped:          # stopped from the TUI: hand out where it got to, at once
+            inner.records = inner.records[-1:]
         inner.evaluations = cache.count
         inner.solved = True
         inner.seconds = time.perf_counter() - t0

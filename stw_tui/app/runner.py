@@ -174,6 +174,7 @@ class Runner:
             self.reports.append(report)
             self._post(IterationReported(report))
             return not self.stop_requested.is_set()
+        on_report.cancelled = self.stop_requested.is_set   # polled inside one-call backends (IPOPT)
 
         outcome, error = None, None
         try:
