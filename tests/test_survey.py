@@ -7,12 +7,17 @@ are told apart here from the motion itself (the sign of θ's first excursion), n
 survey's own descriptors.
 """
 
+import json
 import os
 import signal
+import subprocess
+import sys
 
 import numpy as np
 import pytest
+from conftest import ROOT
 
+from stw_tui.errors import SourceError, StwError
 from stw_tui.session import Session
 from stw_tui.survey import SurveyPlan, plan_tasks
 from stw_tui.survey_engines import PoolEngine, SerialEngine, run_survey
@@ -102,6 +107,59 @@ def test_starts_that_do_not_converge_are_counted_apart(pendulum):
     assert "3 not converged" in table.summary()
 
 
+def test_console_survey_adopt_undo_and_replay():
+    session = Session()
+    session.run_text(PENDULUM + "set scheduler serial\n")
+    before = session.scene.coefficient_vector().copy()
+    outcome = session.execute("survey 12 seed=1 amplitude=3")
+    assert "2 distinct optima" in outcome.message
+    np.testing.assert_array_equal(session.scene.coefficient_vector(), before)   # a survey changes nothing
+    second = session.survey.optima[1].best
+    session.execute("adopt 2")
+    now = session.scene.coefficient_vector().copy()
+    theta = session.scene.dofs["th"].curve.evaluate(np.linspace(0, 2.5, 201))
+    np.testing.assert_allclose(theta, second.motion[0], atol=1e-9)
+    journal = session.journal.replayable()
+    assert journal[-1] == "\n".join(second.lines) and journal[-2].startswith("# survey 12")
+    replay = Session()
+    replay.run_text("\n".join(journal))
+    np.testing.assert_array_equal(replay.scene.coefficient_vector(), now)
+    session.execute("undo")
+    np.testing.assert_array_equal(session.scene.coefficient_vector(), before)
+    session.execute("adopt 1")     # the scene is the surveyed one again
+    session.execute("key 1 th=1")
+    with pytest.raises(StwError, match="changed since the survey"):
+        session.execute("adopt 2")
+
+
+@pytest.mark.parametrize("line, message", [
+    ("survey 0", "at least one start"),
+    ("survey 3 from=nowhere", "a start comes from"),
+    ("survey 3 seed=1 seed=2", "given twice"),
+    ("survey 3 speed=2", "unknown survey option"),
+    ("survey 3 workers=0", "at least 1"),
+    ("set scheduler tcp://host", "not a scheduler address"),
+    ("set scheduler tcp://host:8786 now", "unexpected 'now'"),
+])
+def test_bad_survey_lines_say_where(line, message):
+    session = Session()
+    session.run_text(PENDULUM)
+    with pytest.raises(SourceError, match=message):
+        session.execute(line)
+
+
+def test_bad_survey_plans_leave_the_scene(pendulum):
+    session = Session()
+    session.run_text(PENDULUM)
+    for line, message in [("survey 2 window=nope", "no window named"), ("adopt 1", "no survey"),
+                          ("survey 2 from=sketch", "keyframes"), ("survey 2 amplitude=-1", "amplitude")]:
+        with pytest.raises(StwError, match=message):
+            session.execute(line)
+    assert session.scene.scheduler == ""
+    session.execute("set scheduler tcp://10.0.0.5:8786")
+    assert session.scene.scheduler == "tcp://10.0.0.5:8786"
+
+
 def test_sketch_and_random_starts_are_session_lines(pendulum):
     session = Session()
     session.run_text(PENDULUM + "key 1.2 th=-1\n")
@@ -161,3 +219,18 @@ def test_dask_survives_a_killed_worker(pendulum, serial_table):
     assert any("was lost" in note for note in table.notes)
     assert len(table.results) == PLAN.n
     assert table_rows(table) == table_rows(serial_table)
+
+
+def test_cli_survey_json(tmp_path):
+    path = tmp_path / "pendulum.stw"
+    path.write_text(PENDULUM)
+    env = {**os.environ, "PYTHONPATH": os.pathsep.join([str(ROOT), str(ROOT / "backends"),
+                                                        os.environ.get("PYTHONPATH", "")])}
+    done = subprocess.run([sys.executable, "-m", "stw_tui.cli", "survey", str(path), "6", "seed=1",
+                           "amplitude=3", "--scheduler", "serial", "--json"],
+                          capture_output=True, text=True, env=env, timeout=300)
+    assert done.returncode == 0, done.stderr
+    table = json.loads(done.stdout)
+    assert table["done"] == 6 and table["optima"] and table["optima"][0]["rank"] == 1
+    assert sum(o["count"] for o in table["optima"]) + len(table["unconverged"]) + len(table["failed"]) == 6
+    assert "[6/6]" in done.stderr      # the progress line
