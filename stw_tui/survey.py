@@ -82,6 +82,7 @@ class StartResult:
     seconds: float = 0.0
     dofs: tuple[str, ...] = ()
     motion: np.ndarray | None = None   # (len(dofs), SAMPLES) DOF values
+    curves: dict = field(default_factory=dict)   # DOF -> (knots, control points), to show or play it
     descriptors: dict = field(default_factory=dict)
     error: str = ""
     worker: str = ""
@@ -240,12 +241,24 @@ def _measure(session, result: StartResult) -> None:
     result.iterations = len(run.reports)
     result.dofs = tuple(scene.dofs)
     result.motion = motion_of(scene)
+    result.curves = {name: (np.asarray(d.curve.knots), np.asarray(d.curve.coef)) for name, d in scene.dofs.items()}
     result.descriptors = describe(scene)
 
 
 def motion_of(scene) -> np.ndarray:
     times = np.linspace(scene.t0, scene.t1, SAMPLES)
     return np.array([dof.curve.evaluate(times) for dof in scene.dofs.values()])
+
+
+def preview_scene(scene, result: StartResult):
+    """A copy of ``scene`` with the curves a start reached (to draw or play, not to solve)."""
+    from .spline import DofCurve
+
+    preview = scene.copy()
+    for name, (knots, coef) in result.curves.items():
+        if name in preview.dofs:
+            preview.dofs[name].curve = DofCurve(np.array(knots), np.array(coef))
+    return preview
 
 
 # --- grouping into optima --------------------------------------------------------------------
@@ -366,10 +379,13 @@ class SurveyTable:
 
 
 def describe_text(descriptors: dict) -> str:
-    """'SHOULDER -2.1..0.4, ELBOW 0..2.5; multi-turn WRIST; release overhand'."""
+    """'SHOULDER -2.1..0.4, ELBOW 0..2.5; multi-turn WRIST; first moves SHOULDER- ELBOW+; release overhand'."""
     parts = [", ".join(f"{n} {lo:.3g}..{hi:.3g}" for n, (lo, hi) in descriptors.get("ranges", {}).items())]
     if descriptors.get("multi_turn"):
         parts.append("multi-turn " + ",".join(descriptors["multi_turn"]))
+    first = [f"{n}{'+' if sign > 0 else '-'}" for n, sign in descriptors.get("first_move", {}).items() if sign]
+    if first:
+        parts.append("first moves " + " ".join(first))
     if descriptors.get("release"):
         parts.append("release " + descriptors["release"])
     return "; ".join(p for p in parts if p)

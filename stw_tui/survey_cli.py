@@ -46,8 +46,17 @@ def run_survey_command(args) -> int:
     except StwError as exc:
         print(f"\nstw survey: {exc}", file=sys.stderr)
         return 1
+    finally:
+        _close_clusters()
     if args.json:
         print(json.dumps({"session": str(args.session), **session.survey.as_dict()}))
     else:
         print(outcome.message)
     return 0
+
+
+def _close_clusters() -> None:
+    """Close an embedded Dask cluster now, while the interpreter can still talk to it."""
+    engines = sys.modules.get("stw_tui.survey_engines")
+    if engines is not None:
+        engines.close_local_clusters()

@@ -19,6 +19,7 @@ import atexit
 import logging
 import multiprocessing
 import os
+import signal
 import time
 from concurrent.futures import FIRST_COMPLETED, ProcessPoolExecutor, wait
 from concurrent.futures.process import BrokenProcessPool
@@ -129,9 +130,11 @@ class PoolEngine:
 
 # One embedded cluster per worker count, kept for the next survey and closed at exit.
 _CLUSTERS: dict[int, object] = {}
+_WORKER_PIDS: list[int] = []     # of the embedded clusters' worker processes
 
 
-def _close_clusters() -> None:
+def close_local_clusters() -> None:
+    """Close the embedded clusters (at exit, or when a command is done with them)."""
     for client in _CLUSTERS.values():
         try:
             cluster = client.cluster
@@ -140,6 +143,18 @@ def _close_clusters() -> None:
         except Exception:  # closing at exit: nothing left to report to
             pass
     _CLUSTERS.clear()
+    _WORKER_PIDS.clear()
+
+
+def kill_local_workers() -> None:
+    """End the embedded clusters' worker processes at once (the TUI quits with os._exit, which
+    runs no atexit handler and would leave them behind)."""
+    for pid in _WORKER_PIDS:
+        try:
+            os.kill(pid, signal.SIGTERM)
+        except OSError:   # already gone
+            pass
+    _WORKER_PIDS.clear()
 
 
 class DaskEngine:
@@ -174,8 +189,10 @@ class DaskEngine:
                 raise StwError(f"could not start a Dask LocalCluster of {self.workers} worker(s): "
                                f"{type(exc).__name__}: {exc}") from exc
             if not _CLUSTERS:
-                atexit.register(_close_clusters)
+                atexit.register(close_local_clusters)
             _CLUSTERS[self.workers] = Client(cluster, set_as_default=False)
+            _CLUSTERS[self.workers].run(_quiet_worker)   # no worker output over the TUI
+            _WORKER_PIDS.extend(_CLUSTERS[self.workers].run(os.getpid).values())
         return _CLUSTERS[self.workers]
 
     def run(self, tasks: list[StartTask], on_result: OnResult, on_note: OnNote, cancelled: Cancelled) -> None:
