@@ -59,3 +59,31 @@ def test_gallery_fills_in_plays_and_adopts():
             await scenario(pilot)
 
     asyncio.run(main())
+
+
+def test_f4_cancels_the_starts_left():
+    session = Session()
+    session.run_text(PENDULUM)
+    app = create_app(session=session)
+
+    async def scenario(pilot):
+        await support.settle(pilot)
+        await support.submit(pilot, "survey 500 seed=1 amplitude=3")
+        for _ in range(3000):                         # until the first start is back
+            await pilot.pause(0.02)
+            if isinstance(app.screen, GalleryScreen):
+                break
+        assert isinstance(app.screen, GalleryScreen)
+        # F4, as the binding runs it: pilot.press would wait for the busy worker to go idle
+        app.action_stop()
+        await support.settle(pilot, timeout=120)
+        survey = app.session.survey
+        assert survey.cancelled and 1 <= len(survey.results) < 500
+        assert "cancelled" in support.log_text(app)
+        assert app.session.journal.replayable()[-1].startswith("# survey 500")
+
+    async def main():
+        async with app.run_test(size=(120, 40)) as pilot:
+            await scenario(pilot)
+
+    asyncio.run(main())
