@@ -234,3 +234,25 @@ def test_cli_survey_json(tmp_path):
     assert table["done"] == 6 and table["optima"] and table["optima"][0]["rank"] == 1
     assert sum(o["count"] for o in table["optima"]) + len(table["unconverged"]) + len(table["failed"]) == 6
     assert "[6/6]" in done.stderr      # the progress line
+
+
+def _result(index, objective, motion, converged=True):
+    from stw_tui.survey import StartResult
+
+    return StartResult(index, index, (), "converged" if converged else "iteration limit reached",
+                       converged=converged, objective=objective, dofs=("x",), motion=np.asarray([motion], float))
+
+
+def test_grouping_rules_objective_and_motion_tolerances_and_order():
+    from stw_tui.survey import MOTION_TOL, OBJECTIVE_RTOL, group
+
+    base = np.linspace(0, 1, 201)
+    results = [_result(0, 10.0, base),
+               _result(1, 10.0 * (1 + OBJECTIVE_RTOL / 2), base + MOTION_TOL / 2),   # the same optimum
+               _result(2, 10.0, base + 0.5),                   # same objective, another motion
+               _result(3, 10.0 * (1 + 10 * OBJECTIVE_RTOL), base),   # same motion, another objective
+               _result(4, 9.0, base, converged=False)]          # never grouped, however good
+    optima = group(results)
+    assert [[m.index for m in o.members] for o in optima] == [[0, 1], [2], [3]]
+    shuffled = group(results[::-1])
+    assert [[m.index for m in o.members] for o in shuffled] == [[0, 1], [2], [3]]
