@@ -202,7 +202,7 @@ class DaskEngine:
         try:
             futures = client.map(solve_start, tasks, pure=False)
             index = {f.key: t for f, t in zip(futures, tasks)}
-            workers = set(client.scheduler_info()["workers"])
+            workers = set(client.ncores())   # asked of the scheduler (scheduler_info() is a cache)
             finished = as_completed(futures, loop=client.loop)
             while not finished.is_empty():
                 if cancelled():
@@ -217,8 +217,11 @@ class DaskEngine:
                     task = index[future.key]
                     if future.status == "finished":
                         on_result(future.result())
-                    else:
-                        on_result(_lost(task, f"Dask gave up on it: {future.exception()!r}"))
+                    elif future.status in ("error", "cancelled"):
+                        why = future.exception() if future.status == "error" else "cancelled"
+                        on_result(_lost(task, f"Dask gave up on it: {why!r}"))
+                    else:   # its result died with a worker before it was gathered: Dask recomputes it
+                        finished.add(future)
         finally:
             if self.address:
                 client.close()
@@ -226,7 +229,7 @@ class DaskEngine:
     @staticmethod
     def _watch(client, known: set, on_note: OnNote) -> set:
         """Report workers that left the cluster (Dask reschedules their tasks on the others)."""
-        now = set(client.scheduler_info()["workers"])
+        now = set(client.ncores())
         for address in sorted(known - now):
             on_note(f"Dask worker {address} was lost; its starts go to the remaining workers")
         return now
