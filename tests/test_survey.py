@@ -150,9 +150,10 @@ def test_bad_survey_lines_say_where(line, message):
 
 def test_bad_survey_plans_leave_the_scene(pendulum):
     session = Session()
-    session.run_text(PENDULUM)
+    session.run_text(PENDULUM + "window late [1, 2]\nuse all\n")
     for line, message in [("survey 2 window=nope", "no window named"), ("adopt 1", "no survey"),
-                          ("survey 2 from=sketch", "keyframes"), ("survey 2 amplitude=-1", "amplitude")]:
+                          ("survey 2 from=sketch", "keyframes"), ("survey 2 amplitude=-1", "amplitude"),
+                          ("survey 2 window=late", "frees only")]:
         with pytest.raises(StwError, match=message):
             session.execute(line)
     assert session.scene.scheduler == ""
