@@ -16,6 +16,7 @@ Tasks are plain text (:class:`~stw_tui.survey.StartTask`), so any engine can run
 from __future__ import annotations
 
 import atexit
+import importlib.util
 import logging
 import multiprocessing
 import os
@@ -37,11 +38,8 @@ Cancelled = Callable[[], bool]
 
 
 def dask_available() -> bool:
-    try:
-        import distributed  # noqa: F401
-    except ImportError:
-        return False
-    return True
+    """Whether dask.distributed is installed (found, not imported: importing it takes a second)."""
+    return importlib.util.find_spec("distributed") is not None
 
 
 def _lost(task: StartTask, why: str) -> StartResult:
