@@ -12,7 +12,7 @@ from pathlib import Path
 from .backend import StepReport
 from .errors import SourceError, StwError
 
-SUBCOMMANDS = ("run", "bench", "backends", "compare", "export")
+SUBCOMMANDS = ("run", "bench", "backends", "compare", "export", "survey")
 
 # The TUI comes first: it is what `stw` with no command opens.
 USAGE = """
@@ -156,6 +156,14 @@ def _export(args: argparse.Namespace) -> int:
     return 0
 
 
+def _survey(args: argparse.Namespace) -> int:
+    """Replay a session headless, survey its scene's local optima (stw_tui/survey.py) with a
+    progress line on stderr, and print the table (or its JSON)."""
+    from .survey_cli import run_survey_command
+
+    return run_survey_command(args)
+
+
 def build_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(
         prog="stw", usage=USAGE, description="Spacetime Windows for the terminal.",
@@ -186,6 +194,15 @@ def build_parser() -> argparse.ArgumentParser:
     export.add_argument("--fps", type=int, default=30, help="frames per second (default 30)")
     export.add_argument("--what", help="subexpressions to add as columns, e.g. tau_ELBOW,arm.tip.x'")
     export.set_defaults(func=_export)
+    survey = sub.add_parser("survey", help="replay a session, then survey the local optima of its scene",
+                            description="Options after N are those of the console's `survey` (help survey).")
+    survey.add_argument("session", type=Path)
+    survey.add_argument("n", metavar="N", help="the number of starts")
+    survey.add_argument("options", nargs="*", metavar="OPTION=VALUE",
+                        help="seed=S from=shake|sketch|random amplitude=A window=W workers=K iterate=M")
+    survey.add_argument("--scheduler", metavar="ADDR", help="an existing Dask cluster, tcp://HOST:PORT (or pool, serial)")
+    survey.add_argument("--json", action="store_true", help="print the table as one JSON object")
+    survey.set_defaults(func=_survey)
     backends = sub.add_parser("backends", help="list installed solver backends and their options")
     backends.set_defaults(func=_backends)
     return parser

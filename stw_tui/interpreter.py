@@ -60,7 +60,10 @@ def apply_line(session: "Session", scene: Scene, text: str, line: int | None, on
         return Outcome()
     from .session_commands import SESSION_HANDLERS   # undo, snapshots, export: they act on the session
     if type(command) in SESSION_HANDLERS:
-        return SESSION_HANDLERS[type(command)](session, scene, command)
+        session_handler = SESSION_HANDLERS[type(command)]
+        if getattr(session_handler, "reports_progress", False):   # survey, adopt
+            return session_handler(session, scene, command, on_report)
+        return session_handler(session, scene, command)
     handler = _HANDLERS[type(command)]
     if handler in (_iterate, _slide):    # solves: they need the session and report progress
         return handler(session, scene, command, on_report)

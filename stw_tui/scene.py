@@ -110,6 +110,8 @@ class Scene:
     verbs: dict[str, tuple[str, tuple[str, ...]]] = field(default_factory=dict)
     # Limits changed with `set limit NAME VALUE` (see stw_tui.limits; the others are the defaults).
     limits: dict[str, int] = field(default_factory=dict)
+    # Where `survey` sends its starts: a Dask scheduler (tcp://HOST:PORT), or "" for this machine.
+    scheduler: str = ""
 
     def copy(self) -> "Scene":
         """A copy that commands may change freely. Sympy expressions, curves and linkage specs

@@ -96,6 +96,7 @@ class Session:
         self.warm: interpreter.WarmStart | None = None
         self._block: list[tuple[int | None, str]] | None = None   # lines of an open `linkage` block
         self.history = History()    # undo, redo and named snapshots (history.py)
+        self.survey = None          # the last survey's table, for `adopt` (survey_session.py)
 
     # --- commands ----------------------------------------------------------------------------
     @property

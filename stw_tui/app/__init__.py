@@ -59,10 +59,26 @@ def run_app(session_path: str | Path | None = None, step: bool = False,
 
         session = Session(journal_path=journal)
     app = create_app(session_path, step=step, session=session, settings_path=settings_file())
+    _start_resource_tracker()
     app.run()
     code = app.return_code or 0
     if exit_process:
+        engines = sys.modules.get("stw_tui.survey_engines")
+        if engines is not None:   # a survey's Dask workers would outlive os._exit
+            engines.kill_local_workers()
         sys.stdout.flush()
         sys.stderr.flush()
         os._exit(code)
     return code
+
+
+def _start_resource_tracker() -> None:
+    """Start multiprocessing's resource tracker while stderr is still the terminal: started later
+    from inside Textual (by a survey's process pool or Dask cluster) it passes Textual's stderr,
+    which has no file descriptor, and the pool fails with "bad value(s) in fds_to_keep"."""
+    from multiprocessing import resource_tracker
+
+    try:
+        resource_tracker.ensure_running()
+    except Exception:  # surveys then report their own error; the TUI must start regardless
+        pass

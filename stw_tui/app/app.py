@@ -23,8 +23,9 @@ from .console import Console
 from .dialogs import CompareScreen
 from .help_screen import HelpScreen, help_sections
 from .palette import SceneCommands, app_commands
+from .gallery import GalleryScreen, OptimumChosen
 from .messages import (CommandFinished, CommandRequested, CommandStarted, IterationReported, ItemChosen,
-                       Origin, TaskFinished)
+                       Origin, SurveyProgressed, TaskFinished)
 from .panels import ConstantsPanel, DofPanel, EquationsPanel, OptimizationPanel, TimePanel, WindowsPanel
 from .plots import ConvergencePlot, DofPlot, ExpressionPlot, FigurePlot, ScenePlot
 from .runner import Job, Runner, Script
@@ -279,8 +280,51 @@ class StwApp(App[int]):
                     else:
                         self._stale.add(widget.id)
 
+    # --- surveys -----------------------------------------------------------------------------
+    def on_survey_progressed(self, event: SurveyProgressed) -> None:
+        """Fill the gallery in as the starts come back (opened by the survey's first result)."""
+        if isinstance(self.screen, GalleryScreen):
+            self.screen.show(event.table)
+        elif len(self.screen_stack) == 1 and len(event.table.results) <= 1:
+            self.push_screen(GalleryScreen(event.table))
+        self.status_line.show(state=f"survey {len(event.table.results)}/{event.table.plan.n}")
+
+    def action_gallery(self) -> None:
+        """Open the last survey's gallery."""
+        survey = self.session.survey if self.session is not None else None
+        if survey is None:
+            self.repl.write_note("no survey yet: `survey N` runs one")
+        elif not isinstance(self.screen, GalleryScreen):
+            self.push_screen(GalleryScreen(survey))
+
+    def on_optimum_chosen(self, event: OptimumChosen) -> None:
+        """Adopt an optimum (the `adopt K` command), or play it in the figure player."""
+        if event.action == "adopt":
+            self.submit(f"adopt {event.rank}", origin="panel")
+            return
+        from ..survey import preview_scene
+
+        survey = self.session.survey if self.session is not None else None
+        table = survey if survey is not None else getattr(self.screen, "table", None)
+        if table is None or event.rank > len(table.optima):
+            return
+        best = table.optima[event.rank - 1].best
+        figure = self.query_one(FigurePlot)
+        self._stale.discard(figure.id)   # showing its tab must not put the scene back over the preview
+        self.query_one("#plots", TabbedContent).active = "tab-figure"
+        preview = preview_scene(self.session.scene, best)
+        figure.set_scene(preview)
+        figure.t = preview.t0
+        if not figure.playing:
+            figure.action_play()
+        self.repl.write_note(f"playing optimum {event.rank} (objective {best.objective:.7g}); "
+                             f"`adopt {event.rank}` makes it the scene")
+
     def on_command_finished(self, event: CommandFinished) -> None:
         job, outcome, error = event.job, event.outcome, event.error
+        if error is None and isinstance(self.screen, GalleryScreen) and self.session.survey is not None \
+                and classify_line(job.line).verb == "survey":
+            self.screen.show(self.session.survey)
         if error is not None:
             self.repl.write_error(error)
             if job.origin == Origin.FILE and self.script is not None:
@@ -392,6 +436,8 @@ class StwApp(App[int]):
     def check_action(self, action: str, parameters: tuple) -> bool | None:
         if action in ("step", "run_rest"):
             return self.script is not None and not self.script.done
+        if action == "gallery":
+            return self.session is not None and self.session.survey is not None
         return True
 
     def _cycle_tabs(self, tabs_id: str, kind: type[Widget]) -> None:

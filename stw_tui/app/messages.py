@@ -76,3 +76,13 @@ class ItemChosen(Message):
 
     kind: str     # "dof" or "equation"
     name: str
+
+
+@dataclass
+class SurveyProgressed(Message):
+    """A survey's table so far (a copy the worker no longer changes); later ones replace earlier."""
+
+    table: Any
+
+    def can_replace(self, message: Message) -> bool:
+        return isinstance(message, SurveyProgressed)

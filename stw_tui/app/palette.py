@@ -32,6 +32,7 @@ APP_ACTIONS = (
     ("Step", "F6: run the session's next line", "step"),
     ("Run rest", "F7: run the rest of the session", "run_rest"),
     ("Compare backends", "solve copies of the scene with each installed backend", "compare"),
+    ("Survey gallery", "the optima of the last `survey N`: Enter plays one, a adopts it", "gallery"),
     ("Console", "Esc: back to the console", "escape"),
 )
 

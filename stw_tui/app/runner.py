@@ -21,7 +21,7 @@ from typing import TYPE_CHECKING, Any, Callable
 
 from ..errors import StwError
 from ..language import classify_line
-from .messages import CommandFinished, CommandStarted, IterationReported, Origin, TaskFinished
+from .messages import CommandFinished, CommandStarted, IterationReported, Origin, SurveyProgressed, TaskFinished
 from .values import SceneInfo, scene_info
 
 if TYPE_CHECKING:
@@ -45,7 +45,8 @@ class Job:
 
     @property
     def is_solve(self) -> bool:
-        return classify_line(self.line).verb == "iterate"
+        """A solve that F4 stops: `iterate`, and `survey` and `adopt` (their starts are solves)."""
+        return classify_line(self.line).verb in ("iterate", "survey", "adopt")
 
 
 class Script:
@@ -171,6 +172,9 @@ class Runner:
         self._post(CommandStarted(job))
 
         def on_report(report: "StepReport") -> bool:
+            if hasattr(report, "results"):   # a survey's table so far: the gallery shows it
+                self._post(SurveyProgressed(survey_snapshot(report)))
+                return not self.stop_requested.is_set()
             self.reports.append(report)
             self._post(IterationReported(report))
             return not self.stop_requested.is_set()
@@ -196,3 +200,10 @@ class Runner:
         except Exception as exc:  # shown in the console, like a command's error
             error = exc
         self._post(TaskFinished(job, result, error))
+
+
+def survey_snapshot(table):
+    """A copy of a survey table that the worker thread no longer changes."""
+    from dataclasses import replace
+
+    return replace(table, results=list(table.results), notes=list(table.notes))

@@ -107,7 +107,8 @@ COMMAND_HELP: dict[str, CommandHelp] = {
                        "(least violation weight), frame (player time), samples, dense_tol (largest "
                        "violation allowed between instances), adaptive on|off (add instances where "
                        "the continuous-time check fails, and re-solve), adaptive_rounds. "
-                       "`set limit NAME N` changes a limit (`help limits` lists them).",
+                       "`set limit NAME N` changes a limit (`help limits` lists them); "
+                       "`set scheduler tcp://HOST:PORT` sends surveys to a Dask cluster.",
                        "set dense_tol 1e-7"),
     "iterate": CommandHelp("iterate [N] [adapt=R]",
                            "Run up to N SQP iterations on the current window (stops early on convergence). "
@@ -199,4 +200,19 @@ COMMAND_HELP.update({
     "save": CommandHelp("save FILE",
                         "Write the session so far as a replayable .stw file (the journal's lines that "
                         "succeeded). The scene does not change.", "save throw.stw"),
+    "survey": CommandHelp("survey N [seed=S] [from=shake|sketch|random] [amplitude=A] [window=W] [workers=K] "
+                          "[iterate=M]",
+                          "Solve N starts made from the scene (shaken curves, the default; jittered keyframes; "
+                          "or random curves, each with amplitude A, default 0.5) with up to M iterations each "
+                          "(default 100) in window W (default the one in use; one without an interval), and list the distinct local "
+                          "optima they reach, best first, with how many starts reached each; starts that fail "
+                          "or do not converge are counted apart. The same seed gives the same survey. Starts "
+                          "run on Dask (K worker processes, default one per core), or on a local process pool "
+                          "without it; `set scheduler tcp://HOST:PORT` sends them to an existing Dask cluster "
+                          "(`set scheduler local`: back to this machine; `pool`: a process pool even with Dask; "
+                          "`serial`: one start after another in this process). The scene does not change.",
+                          "survey 40 seed=1 amplitude=0.8 window=all"),
+    "adopt": CommandHelp("adopt K",
+                         "Make optimum K of the last survey the scene: its start is applied and solved again "
+                         "(the journal keeps those lines; `undo` takes it back).", "adopt 2"),
 })

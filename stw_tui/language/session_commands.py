@@ -13,9 +13,11 @@ import re
 from dataclasses import dataclass
 
 from ..errors import SourceError
+from .survey_commands import SURVEY_PARSERS, AdoptCmd, SchedulerCmd, SurveyCmd, parse_scheduler_command
 
 __all__ = ["UndoCmd", "RedoCmd", "SnapshotCmd", "RestoreCmd", "SnapshotsCmd", "DiffCmd", "ExportCmd",
-           "SaveCmd", "SESSION_PARSERS", "FILE_COMMANDS", "EXPORT_FORMATS", "parse_file_command"]
+           "SaveCmd", "SurveyCmd", "AdoptCmd", "SchedulerCmd", "SESSION_PARSERS", "FILE_COMMANDS",
+           "EXPORT_FORMATS", "parse_file_command"]
 
 EXPORT_FORMATS = ("csv", "json")
 MAX_FPS = 10_000
@@ -100,7 +102,8 @@ def _p_file(p):   # reached only by a line like `export# …`: parse_file_comman
 
 
 SESSION_PARSERS = {"undo": _p_undo, "redo": _p_redo, "snapshot": _p_snapshot, "restore": _p_restore,
-                   "snapshots": _p_snapshots, "diff": _p_diff, "export": _p_file, "save": _p_file}
+                   "snapshots": _p_snapshots, "diff": _p_diff, "export": _p_file, "save": _p_file,
+                   **SURVEY_PARSERS}
 FILE_COMMANDS = ("export", "save")
 
 
@@ -145,6 +148,9 @@ def parse_file_command(text: str, line: int | None = None):
     Raises:
         SourceError: with line, column and what was expected.
     """
+    scheduler = parse_scheduler_command(text, line)   # an address is not a token either
+    if scheduler is not None:
+        return scheduler
     first = text.split(None, 1)[:1]
     if not first or first[0] not in FILE_COMMANDS:
         return None

@@ -1,0 +1,105 @@
+"""The survey gallery: the distinct local optima of a survey, filled in as its starts come back.
+
+One row per optimum (rank, objective, dense violation, how many starts reached it, descriptors),
+a progress bar while the survey runs, and what did not converge under it. Enter plays the
+optimum under the cursor in the figure player, `a` adopts it (the `adopt K` command), Esc closes;
+F4 (the app's key) cancels the starts still outstanding. The screen only shows: choosing an
+optimum posts :class:`OptimumChosen` and the app acts on it.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+from textual.app import ComposeResult
+from textual.binding import Binding
+from textual.containers import Vertical
+from textual.message import Message
+from textual.screen import ModalScreen
+from textual.widgets import DataTable, Label, ProgressBar
+
+GALLERY_COLUMNS = ("rank", "objective", "dense viol", "count", "descriptors")
+
+
+@dataclass
+class OptimumChosen(Message):
+    """The user chose optimum ``rank`` (from 1) of the survey shown: to ``play`` or ``adopt``."""
+
+    rank: int
+    action: str
+
+
+class GalleryScreen(ModalScreen[None]):
+    """The optima of a survey (a :class:`~stw_tui.survey.SurveyTable`), updated with :meth:`show`."""
+
+    BINDINGS = [Binding("escape", "close", "Close"), Binding("a", "adopt", "Adopt"),
+                Binding("enter", "play", "Play", show=False)]
+
+    def __init__(self, table=None):
+        super().__init__()
+        self.table = table
+
+    def compose(self) -> ComposeResult:
+        with Vertical(id="gallery"):
+            yield Label("Survey", id="gallery-title")
+            yield ProgressBar(id="gallery-progress", show_eta=False)
+            yield DataTable(id="gallery-table", cursor_type="row", zebra_stripes=True)
+            yield Label("", id="gallery-notes")
+            yield Label("Enter plays · a adopts · F4 cancels the starts left · Esc closes", id="gallery-hint")
+
+    def on_mount(self) -> None:
+        table = self.query_one(DataTable)
+        table.add_columns(*GALLERY_COLUMNS)
+        table.focus()
+        if self.table is not None:
+            self.show(self.table)
+
+    def show(self, survey) -> None:
+        """Show ``survey`` (the table so far, or the finished one); the cursor stays on its row."""
+        from ..survey import describe_text
+
+        self.table = survey
+        optima = survey.optima
+        bar = self.query_one(ProgressBar)
+        bar.update(total=survey.plan.n, progress=len(survey.results))
+        self.query_one("#gallery-title", Label).update(survey.summary())
+        grid = self.query_one(DataTable)
+        row = grid.cursor_row
+        grid.clear()
+        for rank, optimum in enumerate(optima, start=1):
+            best = optimum.best
+            grid.add_row(str(rank), f"{best.objective:.7g}", f"{best.dense_violation:.1e}", str(optimum.count),
+                         describe_text(best.descriptors), key=str(rank))
+        if grid.row_count:
+            grid.move_cursor(row=min(row, grid.row_count - 1))
+        others = [f"start {r.index}: {r.status}" + (f" ({r.error[:60]})" if r.error else "")
+                  for r in (survey.unconverged + survey.failed)[:3]]
+        self.query_one("#gallery-notes", Label).update("\n".join(others + survey.notes[-2:]))
+
+    @property
+    def selected(self) -> int | None:
+        grid = self.query_one(DataTable)
+        if not grid.row_count:
+            return None
+        return int(grid.coordinate_to_cell_key(grid.cursor_coordinate).row_key.value)
+
+    def on_data_table_row_selected(self, event: DataTable.RowSelected) -> None:
+        event.stop()
+        self.action_play()
+
+    def _choose(self, action: str) -> None:
+        rank = self.selected
+        if rank is None:
+            self.app.notify("no optimum yet", severity="warning")
+            return
+        self.app.post_message(OptimumChosen(rank, action))
+        self.dismiss(None)
+
+    def action_play(self) -> None:
+        self._choose("play")
+
+    def action_adopt(self) -> None:
+        self._choose("adopt")
+
+    def action_close(self) -> None:
+        self.dismiss(None)

@@ -1,0 +1,259 @@
+"""Surveys of local optima (stw_tui/survey.py, survey_engines.py, survey_session.py).
+
+The problem is a pendulum swing-up: θ'' = u − g sin θ from hanging at rest (θ = 0) to upright at
+rest (θ = π) in 2.5 s, minimizing ∫u². Two local optima are known from the physics: swing straight
+up (θ first moves positive), or pump back first (θ first moves negative) and use gravity. They
+are told apart here from the motion itself (the sign of θ's first excursion), not from the
+survey's own descriptors.
+"""
+
+import json
+import os
+import signal
+import subprocess
+import sys
+
+import numpy as np
+import pytest
+from conftest import ROOT
+
+from stw_tui.errors import SourceError, StwError
+from stw_tui.session import Session
+from stw_tui.survey import SurveyPlan, plan_tasks
+from stw_tui.survey_engines import PoolEngine, SerialEngine, run_survey
+
+PENDULUM = """time 0 2.5 knots=10
+const g = 9.81
+dof th
+let u = th'' + g*sin(th)
+constraint start: th = 0, th' = 0 @ 0
+constraint top: th = pi, th' = 0 @ 2.5
+objective effort: u
+"""
+PLAN = SurveyPlan(12, seed=1, amplitude=3.0, iterations=100)
+
+
+@pytest.fixture(scope="module")
+def pendulum() -> Session:
+    session = Session()
+    session.run_text(PENDULUM)
+    return session
+
+
+@pytest.fixture(scope="module")
+def serial_table(pendulum):
+    return run_survey(pendulum, PLAN, SerialEngine())
+
+
+def first_excursion(theta: np.ndarray, threshold: float = 0.05) -> int:
+    """The sign of θ's first move away from where it starts."""
+    away = theta - theta[0]
+    return int(np.sign(away[np.flatnonzero(np.abs(away) > threshold)[0]]))
+
+
+def table_rows(table) -> list[tuple]:
+    """What two surveys must agree on: per optimum its objective, its starts and their lines."""
+    return [(round(o.best.objective, 6), tuple(m.index for m in o.members), o.best.lines)
+            for o in table.optima] + [("unconverged", tuple(r.index for r in table.unconverged)),
+                                      ("failed", tuple(r.index for r in table.failed))]
+
+
+def test_pendulum_survey_finds_a_straight_and_a_pumping_swing_up(serial_table):
+    optima = serial_table.optima
+    assert len(optima) > 1
+    assert sum(o.count for o in optima) + len(serial_table.unconverged) + len(serial_table.failed) == PLAN.n
+    signs = {first_excursion(o.best.motion[0]) for o in optima}
+    assert signs == {1, -1}
+    for o in optima:   # each is a true swing-up: hanging at rest to upright at rest
+        theta = o.best.motion[0]
+        assert theta[0] == pytest.approx(0, abs=1e-6) and theta[-1] == pytest.approx(np.pi, abs=1e-6)
+        assert o.best.dense_violation < 1e-6
+    objectives = [o.best.objective for o in optima]
+    assert objectives == sorted(objectives)
+    # distinct optima really differ, in the objective and in the motion
+    assert abs(objectives[1] - objectives[0]) > 1e-3 * objectives[0]
+    assert np.abs(optima[0].best.motion - optima[1].best.motion).max() > 0.1
+    # pumping first uses gravity and costs less than swinging straight up
+    pump = next(o for o in optima if first_excursion(o.best.motion[0]) < 0)
+    straight = next(o for o in optima if first_excursion(o.best.motion[0]) > 0)
+    assert pump.best.objective < straight.best.objective
+    assert pump.best.descriptors["first_move"]["th"] == -1
+
+
+def test_same_seed_same_survey_and_another_seed_other_starts(pendulum, serial_table):
+    again = run_survey(pendulum, PLAN, SerialEngine())
+    assert table_rows(again) == table_rows(serial_table)
+    for a, b in zip(again.results, serial_table.results):
+        np.testing.assert_array_equal(a.motion, b.motion)
+    other = plan_tasks(pendulum, SurveyPlan(12, seed=2, amplitude=3.0))
+    assert [t.lines for t in other] != [r.lines for r in serial_table.results]
+    # the first starts of a longer survey are those of a shorter one
+    longer = plan_tasks(pendulum, SurveyPlan(20, seed=1, amplitude=3.0, iterations=100))
+    assert [t.lines for t in longer[:12]] == [r.lines for r in serial_table.results]
+
+
+def test_a_task_is_session_text_not_a_scene(tmp_path):
+    session = Session()
+    session.run_text(PENDULUM + f"print th @ 1\nexport csv {tmp_path / 'x.csv'}\n")
+    task = plan_tasks(session, SurveyPlan(1, seed=3))[0]
+    assert isinstance(task.base_text, str) and "print" not in task.base_text and "export" not in task.base_text
+    assert task.lines[0].startswith("shake amplitude=0.5 seed=") and task.lines[-1] == "iterate 100"
+
+
+def test_starts_that_do_not_converge_are_counted_apart(pendulum):
+    table = run_survey(pendulum, SurveyPlan(3, seed=1, amplitude=3.0, iterations=2), SerialEngine())
+    assert not table.optima and len(table.unconverged) == 3
+    assert all(r.status == "iteration limit reached" for r in table.unconverged)
+    assert "3 not converged" in table.summary()
+
+
+def test_console_survey_adopt_undo_and_replay():
+    session = Session()
+    session.run_text(PENDULUM + "set scheduler serial\n")
+    before = session.scene.coefficient_vector().copy()
+    outcome = session.execute("survey 12 seed=1 amplitude=3")
+    assert "2 distinct optima" in outcome.message
+    np.testing.assert_array_equal(session.scene.coefficient_vector(), before)   # a survey changes nothing
+    second = session.survey.optima[1].best
+    session.execute("adopt 2")
+    now = session.scene.coefficient_vector().copy()
+    theta = session.scene.dofs["th"].curve.evaluate(np.linspace(0, 2.5, 201))
+    np.testing.assert_allclose(theta, second.motion[0], atol=1e-9)
+    journal = session.journal.replayable()
+    assert journal[-1] == "\n".join(second.lines) and journal[-2].startswith("# survey 12")
+    replay = Session()
+    replay.run_text("\n".join(journal))
+    np.testing.assert_array_equal(replay.scene.coefficient_vector(), now)
+    session.execute("undo")
+    np.testing.assert_array_equal(session.scene.coefficient_vector(), before)
+    session.execute("adopt 1")     # the scene is the surveyed one again
+    session.execute("key 1 th=1")
+    with pytest.raises(StwError, match="changed since the survey"):
+        session.execute("adopt 2")
+
+
+@pytest.mark.parametrize("line, message", [
+    ("survey 0", "at least one start"),
+    ("survey 3 from=nowhere", "a start comes from"),
+    ("survey 3 seed=1 seed=2", "given twice"),
+    ("survey 3 speed=2", "unknown survey option"),
+    ("survey 3 workers=0", "at least 1"),
+    ("set scheduler tcp://host", "not a scheduler address"),
+    ("set scheduler tcp://host:8786 now", "unexpected 'now'"),
+])
+def test_bad_survey_lines_say_where(line, message):
+    session = Session()
+    session.run_text(PENDULUM)
+    with pytest.raises(SourceError, match=message):
+        session.execute(line)
+
+
+def test_bad_survey_plans_leave_the_scene(pendulum):
+    session = Session()
+    session.run_text(PENDULUM + "window late [1, 2]\nuse all\n")
+    for line, message in [("survey 2 window=nope", "no window named"), ("adopt 1", "no survey"),
+                          ("survey 2 from=sketch", "keyframes"), ("survey 2 amplitude=-1", "amplitude"),
+                          ("survey 2 window=late", "frees only")]:
+        with pytest.raises(StwError, match=message):
+            session.execute(line)
+    assert session.scene.scheduler == ""
+    session.execute("set scheduler tcp://10.0.0.5:8786")
+    assert session.scene.scheduler == "tcp://10.0.0.5:8786"
+
+
+def test_sketch_and_random_starts_are_session_lines(pendulum):
+    session = Session()
+    session.run_text(PENDULUM + "key 1.2 th=-1\n")
+    sketch = plan_tasks(session, SurveyPlan(2, seed=4, source="sketch", amplitude=0.3))
+    assert all(t.lines[0].startswith("key 1.2 th=") for t in sketch)
+    random = plan_tasks(session, SurveyPlan(2, seed=4, source="random"))
+    assert all(t.lines[0].startswith("dof th = ") for t in random)
+    table = run_survey(session, SurveyPlan(2, seed=4, source="random", amplitude=2.0), SerialEngine())
+    assert len(table.results) == 2 and not table.failed
+
+
+def _kill_one(pids) -> None:
+    os.kill(pids[0], signal.SIGKILL)
+
+
+def test_pool_gives_the_serial_table_and_survives_a_killed_worker(pendulum, serial_table):
+    engine = PoolEngine(2)
+    killed = []
+
+    def on_progress(table, result):
+        if result is not None and not killed and engine.processes:
+            killed.append(engine.processes[0])
+            _kill_one(engine.processes)
+
+    table = run_survey(pendulum, PLAN, engine, on_progress=on_progress)
+    assert killed
+    assert any("worker process died" in note for note in table.notes)
+    assert len(table.results) == PLAN.n
+    assert table_rows(table) == table_rows(serial_table)
+
+
+def test_dask_local_cluster_gives_the_pool_table(pendulum, serial_table):
+    pytest.importorskip("distributed")
+    from stw_tui.survey_engines import DaskEngine
+
+    table = run_survey(pendulum, PLAN, DaskEngine(2))
+    assert table_rows(table) == table_rows(serial_table)   # the pool gives it too (the test above)
+    assert "Dask LocalCluster" in table.engine
+
+
+def test_dask_survives_a_killed_worker(pendulum, serial_table):
+    pytest.importorskip("distributed")
+    from stw_tui.survey_engines import DaskEngine
+
+    engine = DaskEngine(2)
+    client = engine.client()
+    killed = []
+
+    def on_progress(table, result):
+        if result is not None and not killed:
+            pids = sorted(client.run(os.getpid).values())
+            killed.append(pids[0])
+            _kill_one(pids)
+
+    table = run_survey(pendulum, PLAN, engine, on_progress=on_progress)
+    assert killed
+    assert any("was lost" in note for note in table.notes)
+    assert len(table.results) == PLAN.n
+    assert table_rows(table) == table_rows(serial_table)
+
+
+def test_cli_survey_json(tmp_path):
+    path = tmp_path / "pendulum.stw"
+    path.write_text(PENDULUM)
+    env = {**os.environ, "PYTHONPATH": os.pathsep.join([str(ROOT), str(ROOT / "backends"),
+                                                        os.environ.get("PYTHONPATH", "")])}
+    done = subprocess.run([sys.executable, "-m", "stw_tui.cli", "survey", str(path), "6", "seed=1",
+                           "amplitude=3", "--scheduler", "serial", "--json"],
+                          capture_output=True, text=True, env=env, timeout=300)
+    assert done.returncode == 0, done.stderr
+    table = json.loads(done.stdout)
+    assert table["done"] == 6 and table["optima"] and table["optima"][0]["rank"] == 1
+    assert sum(o["count"] for o in table["optima"]) + len(table["unconverged"]) + len(table["failed"]) == 6
+    assert "[6/6]" in done.stderr      # the progress line
+
+
+def _result(index, objective, motion, converged=True):
+    from stw_tui.survey import StartResult
+
+    return StartResult(index, index, (), "converged" if converged else "iteration limit reached",
+                       converged=converged, objective=objective, dofs=("x",), motion=np.asarray([motion], float))
+
+
+def test_grouping_rules_objective_and_motion_tolerances_and_order():
+    from stw_tui.survey import MOTION_TOL, OBJECTIVE_RTOL, group
+
+    base = np.linspace(0, 1, 201)
+    results = [_result(0, 10.0, base),
+               _result(1, 10.0 * (1 + OBJECTIVE_RTOL / 2), base + MOTION_TOL / 2),   # the same optimum
+               _result(2, 10.0, base + 0.5),                   # same objective, another motion
+               _result(3, 10.0 * (1 + 10 * OBJECTIVE_RTOL), base),   # same motion, another objective
+               _result(4, 9.0, base, converged=False)]          # never grouped, however good
+    optima = group(results)
+    assert [[m.index for m in o.members] for o in optima] == [[0, 1], [2], [3]]
+    shuffled = group(results[::-1])
+    assert [[m.index for m in o.members] for o in shuffled] == [[0, 1], [2], [3]]

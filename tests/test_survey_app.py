@@ -1,0 +1,89 @@
+"""Pilot test of the survey gallery (stw_tui/app/gallery.py): it fills in as a survey runs, Enter
+plays an optimum in the figure player, `a` adopts it through the `adopt K` command."""
+
+from __future__ import annotations
+
+import asyncio
+
+import numpy as np
+import test_app_support as support
+
+from stw_tui.app import create_app
+from stw_tui.app.gallery import GalleryScreen
+from stw_tui.session import Session
+
+PENDULUM = """time 0 2.5 knots=10
+const g = 9.81
+dof th
+let u = th'' + g*sin(th)
+constraint start: th = 0, th' = 0 @ 0
+constraint top: th = pi, th' = 0 @ 2.5
+objective effort: u
+set scheduler serial
+"""
+
+
+def test_gallery_fills_in_plays_and_adopts():
+    session = Session()
+    session.run_text(PENDULUM)
+    app = create_app(session=session)
+
+    async def scenario(pilot):
+        await support.settle(pilot)
+        await support.submit(pilot, "survey 12 seed=1 amplitude=3")
+        await support.settle(pilot, timeout=120)
+        screen = app.screen
+        assert isinstance(screen, GalleryScreen), support.log_text(app)
+        grid = screen.query_one("#gallery-table")
+        optima = app.session.survey.optima
+        assert grid.row_count == len(optima) >= 2
+        assert screen.query_one("#gallery-progress").progress == 12
+        await pilot.press("down", "enter")           # play optimum 2
+        await pilot.pause()
+        assert not isinstance(app.screen, GalleryScreen)
+        figure = app.query_one("#figure-plot")
+        assert figure.playing and "playing optimum 2" in support.log_text(app)
+        np.testing.assert_allclose(figure.scene.dofs["th"].curve.evaluate(np.linspace(0, 2.5, 201)),
+                                   optima[1].best.motion[0], atol=1e-12)
+        figure.action_play()                          # pause it
+        app.action_gallery()
+        await pilot.pause()
+        assert isinstance(app.screen, GalleryScreen)
+        await pilot.press("a")                        # adopt the optimum under the cursor (1)
+        await support.settle(pilot, timeout=60)
+        assert app.session.journal.replayable()[-1] == "\n".join(optima[0].best.lines)
+        assert "adopted optimum 1" in support.log_text(app)
+
+    async def main():
+        async with app.run_test(size=(120, 40)) as pilot:
+            await scenario(pilot)
+
+    asyncio.run(main())
+
+
+def test_f4_cancels_the_starts_left():
+    session = Session()
+    session.run_text(PENDULUM)
+    app = create_app(session=session)
+
+    async def scenario(pilot):
+        await support.settle(pilot)
+        await support.submit(pilot, "survey 500 seed=1 amplitude=3")
+        for _ in range(3000):                         # until the first start is back
+            await pilot.pause(0.02)
+            if isinstance(app.screen, GalleryScreen):
+                break
+        assert isinstance(app.screen, GalleryScreen)
+        # F4, as the binding runs it: pilot.press would wait for the busy worker to go idle
+        app.action_stop()
+        await support.settle(pilot, timeout=120)
+        survey = app.session.survey
+        assert survey.cancelled and 1 <= len(survey.results) < 500
+        assert "cancelled" in support.log_text(app)
+        assert app.session.journal.replayable()[-1].startswith("# survey 500")
+
+    async def main():
+        async with app.run_test(size=(120, 40)) as pilot:
+            await scenario(pilot)
+
+    asyncio.run(main())
