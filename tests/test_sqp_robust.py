@@ -246,3 +246,79 @@ def test_an_elastic_qp_with_a_large_weight_keeps_its_best_acceptable_iterate():
     np.testing.assert_allclose(y[violated], rho * np.sign(row_e[violated]), rtol=1e-3)
     np.testing.assert_allclose(z[row_i < -1e-4], rho, rtol=1e-3)
     assert np.all(np.abs(z[row_i > 1e-4]) <= 1e-3 * rho)
+
+
+def _algebras():
+    from stw_scipy.linear import SparseAlgebra
+
+    found = [SparseAlgebra()]
+    try:
+        import torch
+        from stw_torch.linalg import DenseAlgebra
+    except ModuleNotFoundError:
+        return found
+    return found + [DenseAlgebra(torch.device("cpu"))]
+
+
+@pytest.mark.parametrize("la", _algebras(), ids=lambda la: type(la).__name__)
+def test_dependent_binding_rows_share_their_force_without_drift(la):
+    # min ½dᵀHd + gᵀd with d₀ = 0 twice: as an equality row, and as a bound d₀ >= 0 that binds
+    # (g₀ > 0). Only y - z = -g₀ is determined. Solved again and again from the last multipliers,
+    # as the SQP does, the interior-point method's leftover slack w ≈ μ/z turned into a multiplier
+    # change of w/ε each time (basketball.stw: `limit ELBOW 0 2.5` with `ELBOW = 0 @ 0`; its
+    # multiplier grew from 1 to 3500 in 300 steps, and the merit weight with it).
+    import scipy.sparse as sps
+    from stw_tui.sqp.qp import solve_qp
+
+    H = la.matrix(sps.csr_array(np.diag([2.0, 1e4])))
+    g = la.vector([30.0, -3e4])
+    Ae, ce = la.matrix(sps.csr_array([[1.0, 0.0]])), la.vector([0.0])
+    Ai, ci = la.matrix(sps.csr_array([[1.0, 0.0], [0.0, 1.0]])), la.vector([0.0, 2.0])
+    y, z = la.zeros(1), la.zeros(2)
+    seen = []
+    for _ in range(30):
+        qp = solve_qp(la, H, g, Ae, ce, Ai, ci, y0=y, z0=z, working=z > 0)
+        y, z = qp.y, qp.z
+        seen.append(float(y[0]))
+    d = la.numpy(qp.d)
+    assert d == pytest.approx([0.0, 3.0], abs=1e-12)      # the QP's solution: d₁ = 3e4/1e4
+    assert float(y[0] - z[0]) == pytest.approx(-30.0, abs=1e-9)   # stationarity in d₀
+    assert float(z[0]) >= 0 and float(z[1]) == 0.0
+    # The multipliers settle (they drifted by 0.033 each solve, 1.0 in all, before).
+    assert abs(seen[-1] - seen[-2]) <= 1e-12 * 30 and max(seen) - min(seen) <= 1e-5 * 30
+
+
+@pytest.mark.parametrize("la", _algebras(), ids=lambda la: type(la).__name__)
+def test_positive_definite_agrees_with_the_eigenvalues(la):
+    import scipy.sparse as sps
+
+    rng = np.random.default_rng(11)
+    for k in range(40):
+        n = int(rng.integers(1, 25))
+        B = sps.random_array((n, n), density=0.3, rng=rng).toarray()
+        M = B @ B.T + np.diag(rng.random(n))                    # positive definite
+        shift = np.linalg.eigvalsh(M).min() * (1 + (-1) ** k * 10 ** rng.uniform(-6, 0))
+        M -= shift * np.eye(n)                                   # just above or just below zero
+        want = np.linalg.eigvalsh(M).min() > 0
+        assert la.positive_definite(la.matrix(sps.csr_array(M))) == want
+
+
+def test_convexify_shifts_just_enough_for_the_null_space_of_the_binding_rows():
+    import scipy.sparse as sps
+    from stw_scipy.linear import SparseAlgebra
+    from stw_tui.sqp.curvature import convexify
+
+    la = SparseAlgebra()
+    H = sps.csr_array(np.diag([1.0, -1.0, -100.0]))
+    # On the null space of the row x₂ (span(e₀, e₁)) the least eigenvalue is -1: the shift must
+    # exceed 1, and the bisections keep it within 10^(1/8) of that (the -100 along e₂ is the
+    # row's business, not the model's).
+    model, shift = convexify(la, H, sps.csr_array([[0.0, 0.0, 1.0]]))
+    assert 1.0 < shift <= 10 ** (1 / 8) * 1.001
+    assert np.linalg.eigvalsh(model.toarray()[:2, :2]).min() > 0
+    # With a binding row on x₁ too, the model is convex on what is left (e₀): no shift.
+    model, shift = convexify(la, H, sps.csr_array([[0.0, 0.0, 1.0], [0.0, 1.0, 0.0]]))
+    assert shift == 0.0 and model is H
+    # Without rows, the whole space: it would take 100, more than the largest shift tried
+    # (SHIFT_MAX = 0.1 of the largest |H_ii|), which is what comes back.
+    assert convexify(la, H, None)[1] == pytest.approx(10.0)

@@ -234,5 +234,16 @@ class SparseAlgebra(LinearAlgebra):
     def max_abs_diagonal(self, m):
         return float(np.abs(m.diagonal()).max(initial=0.0))
 
+    def positive_definite(self, m):
+        # LDLᵀ in SuperLU's clothes: a symmetric ordering and the diagonal always taken as pivot
+        # (SuperLU leaves it only for an exact zero, which perm_r != perm_c then shows). All
+        # pivots positive <=> all leading minors positive <=> positive definite (Sylvester).
+        try:
+            lu = spla.splu(sps.csc_array(m), permc_spec="MMD_AT_PLUS_A", diag_pivot_thresh=0.0,
+                           options={"SymmetricMode": True})
+        except RuntimeError:   # an exactly zero pivot
+            return False
+        return bool(np.array_equal(lu.perm_r, lu.perm_c) and np.all(lu.U.diagonal() > 0))
+
     def kkt(self, H, A, e, exact=False):
         return SparseKKT(kkt_matrix(H, A, e, self._layouts), "direct" if exact else self.method, self.rtol, self.maxiter)

@@ -88,6 +88,9 @@ class DenseAlgebra(LinearAlgebra):
     def max_abs_diagonal(self, m):
         return float(m.diagonal().abs().max()) if m.numel() else 0.0
 
+    def positive_definite(self, m):
+        return int(torch.linalg.cholesky_ex(m).info) == 0
+
     def kkt(self, H, A, e, exact=False):
         return DenseKKT(H, A, e)
 

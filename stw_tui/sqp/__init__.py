@@ -2,6 +2,7 @@
 
 * :mod:`.algebra` — the linear-algebra interface a backend implements (vectors, matrices, KKT solves);
 * :mod:`.qp` — the QP subproblem (a KKT solve, or Mehrotra's interior-point method; hard or elastic);
+* :mod:`.curvature` — the least shift that makes an exact model convex where the QP needs it;
 * :mod:`.solver` — :class:`SQPBackend`, the SQP step with its elastic mode, step limit, merit
   acceptance test and infeasibility diagnosis;
 * :mod:`.termination` — the convergence test every backend (IPOPT included) applies.

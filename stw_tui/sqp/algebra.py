@@ -117,6 +117,11 @@ class LinearAlgebra(ABC):
         are too ill-conditioned for unpreconditioned Krylov methods). Raises SingularSystem.
         """
 
+    @abstractmethod
+    def positive_definite(self, m: Matrix) -> bool:
+        """Whether the symmetric matrix ``m`` is positive definite (a Cholesky-type factorization
+        without pivoting meets only positive pivots)."""
+
     def identity(self, n: int) -> Matrix:
         return self.diagonal_matrix(np.ones(n))
 

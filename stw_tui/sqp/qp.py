@@ -21,7 +21,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from .algebra import KKTSystem, LinearAlgebra, Matrix, Vector
+from .algebra import KKTSystem, LinearAlgebra, Matrix, SingularSystem, Vector
 
 STEP_TO_BOUNDARY = 0.995   # fraction of the way to a bound an interior-point step may go
 KKT_EPS = 1e-10            # small negative (2,2) block: redundant (densely sampled) constraint rows get bounded multipliers
@@ -29,6 +29,8 @@ IPM_TOL = 1e-11            # relative residuals and complementarity at which the
 IPM_MAX = 100              # interior-point iteration limit (hitting it is reported, never silent)
 IPM_ACCEPTABLE = 1e-6      # when the method stalls short of IPM_TOL, its best iterate is used if it got this far
 IPM_STALL = 20             # iterations without halving the best error: stalled (round-off, or an infeasible QP)
+POLISH_TOL = 1e-9          # relative: how negative a binding row's multiplier may come out of a working-set solve ...
+FEASIBLE_TOL = 1e-12       # ... and how far its step may leave another inequality row's linearization (rounding)
 
 
 @dataclass
@@ -47,13 +49,19 @@ class QPResult:
 
 def solve_qp(la: LinearAlgebra, H: Matrix, g: Vector, Ae: Matrix, ce: Vector, Ai: Matrix, ci: Vector,
              y0: Vector | None = None, elastic: float | None = None, tol: float = IPM_TOL,
-             max_ipm: int = IPM_MAX) -> QPResult:
+             max_ipm: int = IPM_MAX, z0: Vector | None = None, working: Vector | None = None) -> QPResult:
     """Solve the QP (hard, or elastic with weight ρ = ``elastic``).
 
     The hard equality rows are stabilized around the previous multipliers ``y0`` (a proximal
     method of multipliers): A_e d + c_e = ε (y - y0). Redundant rows — a constraint sampled more
     densely than its spline can vary — then get bounded multipliers, and the constraints are
     still met exactly once the multipliers settle.
+
+    A hard QP with inequality rows is first tried on the ``working`` rows (a backend bool vector:
+    those that bound at the last step), then solved by the interior-point method, whose
+    solution is made exact on the rows it found binding (:func:`_on_working_set`): binding rows
+    become equality rows, stabilized around ``z0`` (the previous inequality multipliers, >= 0)
+    like the others.
 
     Raises:
         SingularSystem: a KKT matrix could not be factorized.
@@ -64,10 +72,65 @@ def solve_qp(la: LinearAlgebra, H: Matrix, g: Vector, Ae: Matrix, ce: Vector, Ai
         system = la.kkt(H, Ae, KKT_EPS)
         x = system.solve(la.concat([-g, -ce - KKT_EPS * y0]))
         return QPResult(x[:n], x[n:], la.zeros(0), system.iterations, 0, system.fallbacks, system=system)
-    return _interior_point(la, H, g, Ae, ce, Ai, ci, y0, elastic, tol, max_ipm)
+    z0 = la.zeros(mi) if z0 is None else z0
+    if elastic is None and working is not None:
+        guess = _on_working_set(la, H, g, Ae, ce, Ai, ci, y0, z0, working)
+        if guess is not None:
+            return guess
+    result, w = _interior_point(la, H, g, Ae, ce, Ai, ci, y0, elastic, tol, max_ipm)
+    if elastic is None and not result.capped:
+        polished = _on_working_set(la, H, g, Ae, ce, Ai, ci, y0, z0, result.z > w)
+        if polished is not None:
+            polished.linear_iterations += result.linear_iterations
+            polished.ipm_iterations, polished.fallbacks = result.ipm_iterations, result.fallbacks + polished.fallbacks
+            result = polished
+    return result
 
 
-def _interior_point(la, H, g, Ae, ce, Ai, ci, y0, rho, tol, max_ipm) -> QPResult:
+def _on_working_set(la, H, g, Ae, ce, Ai, ci, y0, z0, binding) -> QPResult | None:
+    """The QP's solution if the inequality rows ``binding`` (a backend bool vector) are the ones
+    that bind: one KKT factorization with them as equality rows, every row stabilized around its
+    previous multiplier; None when a binding row comes out with a negative multiplier or
+    another inequality row is left violated.
+
+    Tried first with the previous step's working set: near a solution the binding rows settle,
+    and the step is then exactly Newton's on them (the interior-point method, which explores
+    other sets, also finds far stationary points of a QP whose model is convex only on the
+    null space of its binding rows). Tried after the interior-point method on the rows it
+    found binding (z > w), to make its solution exact: it stops with slacks w ≈ μ/z > 0, and
+    where a binding row and equality rows are linearly dependent (a DOF held at its bound by a
+    constraint: `limit ELBOW 0 2.5` with `ELBOW = 0 @ 0`), that slack is an equality residual
+    that the proximal term turns into a multiplier change of w/ε, again each step: the
+    dependent rows' multipliers drift apart without bound, inflate the merit weight, and make
+    the steps depend on rounding.
+    """
+    n, me = g.shape[0], ce.shape[0]
+    A = la.stack_rows([Ae, la.rows(Ai, np.flatnonzero(la.numpy(binding)))])
+    c = la.concat([ce, ci[binding]])
+    center = la.concat([y0, -z0[binding]])   # a binding row's equality multiplier is -z
+    try:
+        system = la.kkt(H, A, KKT_EPS, exact=True)
+    except SingularSystem:
+        return None
+    rhs = la.concat([-g, -c])
+    x = system.solve(rhs - la.concat([la.zeros(n), KKT_EPS * center]))
+    # Once more around the multipliers just found (the same factorization): the rows are then
+    # met up to ε times rounding, not up to ε times the multipliers' change since the last step.
+    x = system.solve(rhs - la.concat([la.zeros(n), KKT_EPS * x[n:]]))
+    d, y, z_bound = x[:n], x[n:n + me], -x[n + me:]
+    z = la.zeros(ci.shape[0])
+    z[binding] = z_bound
+    slack = (la.matvec(Ai, d) + ci)[~binding]
+    scale_z = 1.0 + la.max_abs(z_bound)
+    scale_c = 1.0 + max(la.max_abs(ce), la.max_abs(ci))
+    if not (np.all(np.isfinite(la.numpy(x)))
+            and (z_bound.shape[0] == 0 or float(z_bound.min()) >= -POLISH_TOL * scale_z)
+            and (slack.shape[0] == 0 or float(slack.min()) >= -FEASIBLE_TOL * scale_c)):
+        return None
+    return QPResult(d, y, la.maximum(z, 0.0), system.iterations, 0, system.fallbacks)
+
+
+def _interior_point(la, H, g, Ae, ce, Ai, ci, y0, rho, tol, max_ipm) -> tuple[QPResult, Vector]:
     n, me, mi = g.shape[0], ce.shape[0], ci.shape[0]
     elastic = rho is not None
     d = la.zeros(n)
@@ -86,7 +149,7 @@ def _interior_point(la, H, g, Ae, ce, Ai, ci, y0, rho, tol, max_ipm) -> QPResult
     # The best iterate so far, by its largest scaled residual: near the solution round-off can
     # throw the iterates off again (large elastic weights), and an infeasible hard QP never
     # converges; both stall, and the best iterate is what there is to return.
-    best, best_error, since_best = (d, y, z), np.inf, 0
+    best, best_error, since_best = (d, y, z, w), np.inf, 0
     k = 0
     for k in range(1, max_ipm + 1):
         r_d = la.matvec(H, d) + g + la.rmatvec(Ae, y) - la.rmatvec(Ai, z)
@@ -112,7 +175,7 @@ def _interior_point(la, H, g, Ae, ce, Ai, ci, y0, rho, tol, max_ipm) -> QPResult
             if since_best >= IPM_STALL:
                 break
         if error < best_error:
-            best, best_error = (d, y, z), error
+            best, best_error = (d, y, z, w), error
         q_inv = z / w if not elastic else 1.0 / (w / z + t / s)
         e = KKT_EPS + (u / a + v / b if elastic else 0.0) + la.zeros(me)
         system = la.kkt(la.add(H, la.gram(Ai, q_inv)), Ae, e, exact=True)
@@ -155,8 +218,8 @@ def _interior_point(la, H, g, Ae, ce, Ai, ci, y0, rho, tol, max_ipm) -> QPResult
         y = y + ad * dy
         z = z + ad * dual[0][1]
     if not converged and best_error <= IPM_ACCEPTABLE:
-        (d, y, z), converged = best, True
-    return QPResult(d, y, z, linear_its, k, fallbacks, capped=not converged, elastic=rho)
+        (d, y, z, w), converged = best, True
+    return QPResult(d, y, z, linear_its, k, fallbacks, capped=not converged, elastic=rho), w
 
 
 def _max_step(v: Vector, dv: Vector, cap: float = 1.0) -> float:

@@ -15,6 +15,15 @@ Robustness, in the order a step meets it:
   the step comes from the elastic QP instead: every row relaxed by
   nonnegative slacks that cost ρ each (SNOPT's elastic mode). It is always feasible, and its
   step decreases the ℓ1 merit with weight ρ.
+* **Curvature control.** An exact (Newton) model is shifted by the least δI (of a geometric
+  series, refined by bisection) that makes it positive definite on the null space of the
+  equality rows and the binding inequality rows (IPOPT's inertia correction, tested through a
+  Cholesky factorization of H + ρAᵀA): the QP then steps away from saddles of the reduced
+  Lagrangian instead of toward them. Where the model is convex only there, a step that restores
+  feasibility may climb the objective; the merit weight is raised to what such a step needs.
+* **Working set.** The QP is first solved with the rows that bound at the last step as equality
+  rows (one KKT solve: Newton's step once they settle), and by the interior-point method only
+  when that guess fails; its solution is then made exact on the rows it found binding.
 * **Step limit** (option `trust`). A trust radius bounds the largest change of any control point; it adapts by
   the ratio of the merit's actual to predicted decrease, so near the optimum full (Newton) steps
   are taken and fast local convergence is kept. A refused step is retried with a heavier proximal
@@ -42,6 +51,7 @@ import numpy as np
 from ..backend import Backend, BackendOption, Capability, SolverState, StepReport
 from ..errors import StwError
 from .algebra import LinearAlgebra, SingularSystem
+from .curvature import convexify
 from .qp import KKT_EPS, QPResult, solve_qp
 from .termination import is_converged, kkt_residual
 
@@ -84,6 +94,7 @@ class SQPInner:
     settings: dict
     evaluator: Any            # evaluates the window problem (the problem itself, or a lowering)
     algebra: LinearAlgebra
+    shift: float = 0.0        # the last curvature shift δ an exact model needed (see _convexify)
 
 
 @dataclass
@@ -98,6 +109,8 @@ class _Linearization:
     Ai: Any
     ci: Any
     y0: Any
+    z0: Any                   # the previous inequality multipliers (>= 0) of the live rows
+    working: Any              # the live rows that bound at the last step (backend bool vector)
 
 
 @dataclass
@@ -179,6 +192,7 @@ class SQPBackend(Backend):
         trial, sub, rho, capped = _Trial(0.0, np.zeros(ev.s.size)), None, st.merit_weight, False
         models: dict[str, Any] = {}   # the model Hessian of each mode: only the proximal term changes
         damping = 2.0 * inner.evaluator.damping
+        shift = inner.shift
         for mode, prox, backtrack in attempts:
             clock = time.perf_counter()
             if mode not in models:
@@ -187,6 +201,8 @@ class SQPBackend(Backend):
                     ev.lagrangian_hessian(st.lam_eq * ev.active_eq, st.lam_ge * ev.active_ge))
             H_model = models[mode]
             H = la.add(H_model, la.diagonal_matrix(damping + prox))
+            if mode == "exact":
+                H, shift = self._convexify(la, H, ev, lin, st, inner.shift)
             ms["assemble"] += _lap(clock)
 
             clock = time.perf_counter()
@@ -199,7 +215,8 @@ class SQPBackend(Backend):
                 rho = sub.qp.elastic
             else:
                 rho = max(float(settings.get("merit", 1.0)),
-                          1.5 * float(np.abs(np.concatenate([sub.lam_eq, sub.lam_ge])).max(initial=0.0)))
+                          1.5 * float(np.abs(np.concatenate([sub.lam_eq, sub.lam_ge])).max(initial=0.0)),
+                          self._descent_weight(la, ev, lin, sub))
             d = sub.d
             biggest = float(np.abs(d).max(initial=0.0))
             limit = min(radius, self.config["max_step"] or np.inf)
@@ -258,7 +275,7 @@ class SQPBackend(Backend):
                             message=message, fallbacks=counts.fallbacks, qp_capped=counts.capped,
                             elastic=counts.elastic, infeasible=infeasible,
                             conflicts=conflicts if infeasible else ())
-        return replace(inner, state=new_state, ev=new_ev), report
+        return replace(inner, state=new_state, ev=new_ev, shift=shift), report
 
     # --- pieces of a step ---------------------------------------------------------------------
     def _hessian_modes(self, ev) -> tuple[str, ...]:
@@ -270,6 +287,17 @@ class SQPBackend(Backend):
         if ev.max_violation() > self.config["newton_switch"]:
             return ("gauss_newton",)
         return ("exact", "gauss_newton")
+
+    @staticmethod
+    def _convexify(la: LinearAlgebra, H, ev, lin: _Linearization, st: SolverState, last: float):
+        """:func:`~.curvature.convexify` on the null space of the equality rows and of the
+        binding inequality rows: those of the last working set, and those violated now."""
+        binding = st.working_set[lin.ge_rows] | (ev.c_ge[lin.ge_rows] <= 0.0)
+        rows = [lin.Ae] if lin.eq_rows.size else []
+        if binding.any():
+            rows.append(la.rows(lin.Ai, np.flatnonzero(binding)))
+        A = None if not rows else la.stack_rows(rows) if len(rows) > 1 else rows[0]
+        return convexify(la, H, A, last)
 
     def _initial_radius(self, s: np.ndarray) -> float:
         trust = self.config["trust"]
@@ -299,7 +327,8 @@ class SQPBackend(Backend):
         return _Linearization(eq_rows, ge_rows, la.vector(ev.gradient),
                               la.rows(la.jacobian(ev, "eq"), eq_rows), la.vector(ev.c_eq[eq_rows]),
                               la.rows(la.jacobian(ev, "ge"), ge_rows), la.vector(ev.c_ge[ge_rows]),
-                              la.vector(st.lam_eq[eq_rows]))
+                              la.vector(st.lam_eq[eq_rows]), la.vector(-st.lam_ge[ge_rows]),
+                              la.vector(st.working_set[ge_rows].astype(float)) > 0.5)
 
     def _subproblem(self, la, H, ev, lin: _Linearization, rho_elastic: float, settings,
                     counts: _Counts) -> tuple[_Subproblem | None, float]:
@@ -325,13 +354,15 @@ class SQPBackend(Backend):
 
     def _qp(self, la: LinearAlgebra, H, ev, lin: _Linearization, elastic: float | None,
             counts: _Counts) -> _Subproblem | None:
-        """Solve the QP, raising a diagonal shift until the step is a descent step."""
+        """Solve the QP, raising a diagonal shift while its KKT systems are singular or (elastic QP:
+        no equality rows to restrict the model to) its step meets negative curvature."""
         n = ev.s.size
         reg, qp, Hr = 0.0, None, H
         for _attempt in range(8):
             Hr = la.add(H, la.diagonal_matrix(np.full(n, reg))) if reg else H
             try:
-                qp = solve_qp(la, Hr, lin.g, lin.Ae, lin.ce, lin.Ai, lin.ci, y0=lin.y0, elastic=elastic)
+                qp = solve_qp(la, Hr, lin.g, lin.Ae, lin.ce, lin.Ai, lin.ci, y0=lin.y0, elastic=elastic,
+                              z0=lin.z0, working=lin.working)
             except SingularSystem:
                 qp = None
                 reg = max(10 * reg, 1e-8)
@@ -343,6 +374,11 @@ class SQPBackend(Backend):
                 qp = None
                 reg = max(10 * reg, 1e-8)
                 continue
+            if elastic is None:
+                # A hard QP's model is convex where it counts, on the null space of its binding
+                # rows (_convexify); along a step that also restores feasibility, dᵀHd < 0 is
+                # no sign of trouble, and a shift there would cost Newton's local convergence.
+                break
             curvature = la.dot(qp.d, la.matvec(Hr, qp.d))
             if curvature >= -1e-12 * la.dot(qp.d, qp.d) or la.max_abs(qp.d) == 0.0:
                 break
@@ -396,9 +432,9 @@ class SQPBackend(Backend):
             np.abs(c_eq + tau * (sub.lin_eq - c_eq)).sum()
             + np.maximum(0.0, -(c_ge + tau * (sub.lin_ge - c_ge))).sum())
         slope = g_d - rho * (tau * viol0 if sub.qp.elastic is None else viol0 - viol_after)
-        slope = min(slope, 0.0)   # not a descent direction for this ρ: ask only for simple decrease
         if not np.any(d) or abs(slope) <= 1e-15 * (1.0 + abs(phi0)):
             return _Trial(1.0, d, 1.0)
+        slope = min(slope, 0.0)   # not a descent direction for this ρ: ask only for simple decrease
         factor = self.config["growth"]
         growth = factor * max(ev.objective, OBJECTIVE_FLOOR, viol0) if factor > 0 else np.inf
 
@@ -426,6 +462,22 @@ class SQPBackend(Backend):
                 return _Trial(alpha, d, ratio)
             alpha *= 0.5
         return _Trial(0.0, d)
+
+    @staticmethod
+    def _descent_weight(la, ev, lin: _Linearization, sub: _Subproblem) -> float:
+        """The least merit weight for which a hard QP's step descends the ℓ1 merit by at least
+        half the model's decrease (Nocedal & Wright, Numerical Optimization, (18.36)):
+        (∇Rᵀd + ½ max(dᵀHd, 0)) / (½ ‖c‖₁).
+
+        The multipliers bound it when the model is convex along d; where it is convex only on
+        the null space of the binding rows (_convexify), a step that restores feasibility can
+        climb the objective, and the merit must weigh the violation it removes enough for that."""
+        viol = np.abs(ev.c_eq[lin.eq_rows]).sum() + np.maximum(0.0, -ev.c_ge[lin.ge_rows]).sum()
+        if viol <= 0.0:
+            return 0.0
+        d = la.vector(sub.d)
+        rise = float(ev.gradient @ sub.d) + 0.5 * max(la.dot(d, la.matvec(sub.H, d)), 0.0)
+        return max(rise, 0.0) / (0.5 * viol)
 
     @staticmethod
     def _second_order_correction(la, ev, lin: _Linearization, sub: _Subproblem, d, trial):
