@@ -55,7 +55,7 @@ from .session import Session
 from .window import WindowProblem
 
 WIDTH = 80
-LABEL, VALUE, TARGET = 33, 11, 10          # column widths; the verdict gets the rest
+LABEL, VALUE, TARGET = 34, 11, 9           # column widths; the verdict gets the rest
 SAME_OPTIMUM = 1e-6                        # relative objective difference of "the same optimum"
 ANCHOR_ACCURACY = 1e-4                     # relative objective difference of "equal accuracy"
 # --quick: the sessions that converge in seconds (basketball's full solve takes minutes, and
@@ -143,25 +143,25 @@ def session_figures(sources: list[tuple[str, str]], repeat: int, out) -> list[Fi
         started = time.perf_counter()
         scipy = _measure(case, "scipy", "solver=direct", repeat)
         if isinstance(scipy, str):
-            figures.append(Figure(f"{name}: time / ipopt", None, "x", 0.5, scipy))
+            figures.append(Figure(f"{name}: time/ipopt", None, "x", 0.5, scipy))
             continue
         if name == "basketball":
             figures.append(Figure("basketball: scipy ms/it", scipy.ms_per_iteration, "ms", 20.0))
         ipopt = _measure(case, "ipopt", "", repeat) if "ipopt" not in missing else "ipopt missing"
         if isinstance(ipopt, str):
-            figures.append(Figure(f"{name}: time / ipopt", None, "x", 0.5, ipopt))
+            figures.append(Figure(f"{name}: time/ipopt", None, "x", 0.5, ipopt))
         else:
             same = (scipy.converged and ipopt.converged and abs(scipy.objective - ipopt.objective)
                     <= SAME_OPTIMUM * max(1.0, abs(ipopt.objective)))
             why = "other optimum" if scipy.converged and ipopt.converged else "not converged"
-            figures.append(Figure(f"{name}: time / ipopt", scipy.seconds / ipopt.seconds,
+            figures.append(Figure(f"{name}: time/ipopt", scipy.seconds / ipopt.seconds,
                                   "x", 0.5, why, counted=same))
         torch = _measure(case, "torch", "device=cpu", repeat) if "torch" not in missing else "torch missing"
         if isinstance(torch, str):
-            figures.append(Figure(f"{name}: torch / scipy per it", None, "x", 1.5, torch))
+            figures.append(Figure(f"{name}: torch/scipy per it", None, "x", 1.5, torch))
         else:
             firsts.append((torch.first_seconds, name))
-            figures.append(Figure(f"{name}: torch / scipy per it",
+            figures.append(Figure(f"{name}: torch/scipy per it",
                                   torch.ms_per_iteration / scipy.ms_per_iteration, "x", 1.5))
         print(f"  {case.name}: {time.perf_counter() - started:.1f} s"[:WIDTH], file=out, flush=True)
     if firsts:
