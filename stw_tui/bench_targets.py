@@ -10,10 +10,10 @@ What each figure is (medians of ``repeat`` runs unless said otherwise):
 * ``arm_throw first solve: ms/it``: scipy's median per-iteration time on the arm's first solve
   (the paper's arm problem); ``basketball``'s on its one solve (``--quick``: its first 3
   iterations).
-* ``S: time / ipopt``: the time to converge of scipy over IPOPT's on the scene before session
+* ``S: time/ipopt``: the time to converge of scipy over IPOPT's on the scene before session
   S's last `iterate` (bench.py's case); it counts only where both converge to the same optimum
   (objectives within ``SAME_OPTIMUM``), else the verdict says why.
-* ``S: torch / scipy per it``: the torch backend on the CPU against scipy, per iteration, same
+* ``S: torch/scipy per it``: the torch backend on the CPU against scipy, per iteration, same
   case; ``torch: slowest first iterate``: the longest first `iterate 1` of the torch backend over
   the sessions (the first one pays torch's import, as a user's first iterate does).
 * ``pendulum: time / SLSQP``: the swing-up θ'' = u − g sin θ over 20 knot spans, stw's `iterate`
@@ -332,7 +332,8 @@ def run_targets(quick: bool, anchors: bool, repeat: int, out=None) -> list[Figur
     paths = {p.stem: p for p in bundled_sessions()}
     texts = {name: p.read_text(encoding="utf-8") for name, p in paths.items()}
     names = [n for n in QUICK_SESSIONS if n in texts] if quick else sorted(texts)
-    print(f"sessions: {', '.join(names)}"[:WIDTH], file=out, flush=True)
+    for line in textwrap.wrap(f"sessions: {', '.join(names)}", WIDTH):
+        print(line, file=out, flush=True)
     figures = []
     if "arm_throw" in texts:
         figures.append(arm_first_solve_figure(texts["arm_throw"], repeat))
