@@ -14,13 +14,15 @@ What each figure is (medians of ``repeat`` runs unless said otherwise):
   S's last `iterate` (bench.py's case); it counts only where both converge to the same optimum
   (objectives within ``SAME_OPTIMUM``), else the verdict says why.
 * ``S: torch/scipy per it``: the torch backend on the CPU against scipy, per iteration, same
-  case; ``torch: slowest first iterate``: the longest first `iterate 1` of the torch backend over
-  the sessions (the first one pays torch's import, as a user's first iterate does).
+  case; ``torch first iterate (S)``: the longest untimed warm-up `iterate 1` of the torch backend
+  over the sessions, on a fresh copy of the scene (torch itself is imported before, when the
+  backend is loaded; the warm-up pays the session's lowering and term caches, as a user's first
+  `iterate` does).
 * ``pendulum: time / SLSQP``: the swing-up θ'' = u − g sin θ over 20 knot spans, stw's `iterate`
   against ``scipy.optimize.minimize(method="SLSQP")`` with an analytic gradient on the identical
   B-spline and quadrature, written directly in numpy (slsqp_solve). Counted when the objectives
-  agree within 1e-4 relative. crocoddyl
-  FDDP is measured with ``--anchors`` only when it is installed.
+  agree within 1e-4 relative. crocoddyl FDDP (``--anchors``) is not measured yet: its row only
+  says whether crocoddyl is installed.
 * ``window in 100 s / in 10 s``: the whole `iterate` of the same 1 s window in a 100 s and a 10 s
   animation of the same knot density.
 * ``cold start``: wall time of ``stw run`` on the arm's text up to its first `iterate`, followed
