@@ -68,6 +68,7 @@ class Measurement:
     linear_iterations: float = 0.0     # median linear-solver iterations per SQP iteration
     fallbacks: int = 0                 # iterative KKT solves replaced by a factorization (one run)
     runs: int = 1                      # timed runs behind the medians
+    first_seconds: float = 0.0         # the untimed warm-up `iterate 1` (imports, term caches)
 
 
 def configurations() -> list[tuple[str, str]]:
@@ -123,7 +124,9 @@ def measure(name: str, setup: Session, n: int, backend: str, options: str, repea
     one run is always timed. Raises StwError (SolveError) when the backend fails.
     """
     config = f"{backend} {options}".strip()
-    _fresh(setup, config).execute("iterate 1")      # untimed: imports and compiled-term caches
+    warm_start = time.perf_counter()
+    _fresh(setup, config).execute("iterate 1")      # not in the medians: imports, compiled-term caches
+    first_seconds = time.perf_counter() - warm_start
     runs = []
     for _ in range(max(1, repeat)):
         session = _fresh(setup, config)
@@ -160,7 +163,7 @@ def measure(name: str, setup: Session, n: int, backend: str, options: str, repea
         violation=reports[-1].max_violation if reports else float("nan"), motion=motion,
         linear_iterations=median(r.linear_iterations for r in every),
         fallbacks=sum(r.fallbacks for r in reports),
-        runs=len(runs))
+        runs=len(runs), first_seconds=first_seconds)
 
 
 def synthetic_session(dofs: int = SMALL[0], knots: int = SMALL[1], *, window: bool = False) -> str:
@@ -304,7 +307,8 @@ def bundled_sessions() -> list[Path]:
 
 
 def run_bench(args) -> int:
-    """Entry point of `stw bench`: prints the machine, the table and the scaling summary."""
+    """The per-configuration table and, for the bundled sessions, the scaling summary (`stw bench
+    --sessions ...` or `--detail`; plain `stw bench` prints the targets, bench_targets.py)."""
     repeat = max(1, int(getattr(args, "repeat", 3) or 1))
     sessions = getattr(args, "sessions", None)
     synthetic = getattr(args, "synthetic", None)

@@ -131,7 +131,7 @@ def _compare(args: argparse.Namespace) -> int:
 
 
 def _bench(args: argparse.Namespace) -> int:
-    from .bench import run_bench
+    from .bench_targets import run_bench
 
     return run_bench(args)
 
@@ -176,9 +176,13 @@ def build_parser() -> argparse.ArgumentParser:
     run.add_argument("--samples", type=int, default=21, help="DOF samples in the JSON output")
     run.add_argument("--journal", type=Path, help="append the journal of this run to a file")
     run.set_defaults(func=_run)
-    bench = sub.add_parser("bench", help="time iterations of the bundled sessions per linear solver")
+    bench = sub.add_parser("bench", help="time the solvers against their speed targets (--detail: per solver)")
     bench.add_argument("--sessions", nargs="*", type=Path, help="session files (default: sessions/*.stw)")
     bench.add_argument("--repeat", type=int, default=3, help="repetitions per measurement")
+    bench.add_argument("--quick", action="store_true", help="fewer sessions, one run each (< 2 min)")
+    bench.add_argument("--anchors", action="store_true", help="also time crocoddyl, when installed")
+    bench.add_argument("--detail", action="store_true",
+                       help="the per-backend, per-solver table instead of the targets")
     bench.set_defaults(func=_bench)
     comp = sub.add_parser("compare", help="solve a session's first problem with several backends")
     comp.add_argument("session", type=Path)

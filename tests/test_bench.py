@@ -56,3 +56,104 @@ def test_split_at_first_and_last_iterate():
     assert bench.split_at_first_iterate(text) == ("time 0 1\ndof x", 5)
     assert bench.split_at_last_iterate(text) == ("time 0 1\ndof x\niterate 5   # first\nwindow w [0, 0.5]", 7)
     assert bench.split_at_last_iterate("dof x\n# iterate 3") is None
+
+
+# --- the issue-10 target table (bench_targets.py) -------------------------------------------------
+
+from stw_tui import bench_targets as targets
+from stw_tui.bench_targets import Figure
+
+
+def _figures() -> list[Figure]:
+    return [Figure("arm_throw first solve: ms/it", 8.7, "ms", 4.0),            # missed
+            Figure("point_mass_2d: torch / scipy per it", 1.2, "x", 1.5),     # met
+            Figure("a label far longer than the label column could ever hold", 0.3, "x", 0.5),
+            Figure("arm_overhand: time / ipopt", 0.4, "x", 0.5, "other optimum", counted=False),
+            Figure("10k points: torch cuda / scipy", None, "x", 0.1,
+                   "no CUDA device, and a note longer than the verdict column"),
+            Figure("cold start: stw run arm, 1 it", 123456.0, "s", 1.0)]
+
+
+def test_target_table_has_a_row_per_figure_within_80_columns():
+    lines = targets.format_table(_figures())
+    assert all(len(line) <= 80 for line in lines), max(lines, key=len)
+    assert lines[0].split() == ["figure", "measured", "target", "verdict"]
+    rows = lines[2:-1]
+    assert len(rows) == len(_figures())
+    assert "8.7 ms" in rows[0] and "≤ 4 ms" in rows[0]
+    assert "1.20x" in rows[1] and "≤ 1.5x" in rows[1]
+    assert lines[-1] == "2 of 4 judged targets met; 2 not judged"   # 8.7 ms and 123456 s miss
+
+
+def test_a_missed_target_is_shown_missed_and_an_unjudged_one_says_why():
+    rows = targets.format_table(_figures())[2:-1]
+    verdicts = [row[targets.LABEL + targets.VALUE + targets.TARGET + 3:] for row in rows]
+    assert verdicts[:4] == ["missed", "met", "met", "other optimum"]
+    assert verdicts[4].startswith("no CUDA device") and verdicts[5] == "missed"
+    values = [row[targets.LABEL + 1:targets.LABEL + 1 + targets.VALUE].strip() for row in rows]
+    assert values[3] == "0.40x" and values[4] == "-"                # not measured: no figure
+    assert Figure("x", 4.0, "ms", 4.0).verdict() == "met"            # the limit itself is met
+    assert Figure("x", 4.0 + 1e-9, "ms", 4.0).verdict() == "missed"
+
+
+def test_quick_mode_measures_the_quick_sessions_and_fits_80_columns(monkeypatch, capsys):
+    seen = {}
+
+    def fake_sessions(sources, repeat, out):
+        seen["sessions"], seen["repeat"] = [name for name, _ in sources], repeat
+        return [Figure("acrobat: time / ipopt", 0.9, "x", 0.5)]     # a missed target
+
+    monkeypatch.setattr(targets, "session_figures", fake_sessions)
+    monkeypatch.setattr(targets, "arm_first_solve_figure", lambda text, repeat: Figure("arm", 3.0, "ms", 4.0))
+    monkeypatch.setattr(targets, "basketball_quick_figure", lambda text: Figure("ball", 30.0, "ms", 20.0))
+    monkeypatch.setattr(targets, "pendulum_figures", lambda repeat, anchors: [])
+    monkeypatch.setattr(targets, "window_figure", lambda repeat: Figure("window", 1.0, "x", 1.1))
+    monkeypatch.setattr(targets, "cold_start_figures", lambda text, repeat: [])
+    monkeypatch.setattr(targets, "gpu_figure", lambda: Figure("gpu", None, "x", 0.1, "no CUDA device"))
+    figures = targets.run_targets(quick=True, anchors=False, repeat=5)
+    out = capsys.readouterr().out
+    assert seen == {"sessions": list(targets.QUICK_SESSIONS), "repeat": 1}
+    assert {p.stem for p in bench.bundled_sessions()} >= set(targets.QUICK_SESSIONS)
+    assert "basketball" not in targets.QUICK_SESSIONS                  # its full solve takes minutes
+    assert [f.label for f in figures] == ["arm", "ball", "acrobat: time / ipopt", "window", "gpu"]
+    assert all(len(line) <= 80 for line in out.splitlines())
+    table = out[out.index("figure "):].splitlines()
+    assert next(r for r in table if r.startswith("acrobat")).endswith("missed")
+    assert next(r for r in table if r.startswith("ball")).endswith("missed")
+    assert next(r for r in table if r.startswith("arm ")).endswith("met")
+    assert "2 of 4 judged targets met; 1 not judged" in out
+
+
+def test_slsqp_in_numpy_reaches_stws_pendulum_optimum():
+    # two independent derivations of the same problem: stw's compiled terms and SQP, and the
+    # objective and gradient written by hand in numpy (SLSQP); the optimum must agree
+    case = bench.prepare("pendulum", targets.PENDULUM)
+    _, objective = targets.slsqp_solve(case.setup.scene.copy())
+    case.setup.execute("iterate 50")
+    assert case.setup.runs[-1].converged
+    stw = case.setup.runs[-1].reports[-1].objective
+    assert abs(objective - stw) <= 1e-6 * stw
+
+
+def test_the_window_is_the_same_in_the_10_and_100_second_animations():
+    sizes = []
+    for span in (10, 100):
+        case = bench.prepare(f"w{span}", targets.window_session(span))
+        assert case.name == f"w{span}@focus"
+        problem = WindowProblem(case.setup.scene)
+        sizes.append((problem.n_free, problem.row_counts["eq"]))
+    assert sizes[0] == sizes[1] and sizes[0][0] > 0
+
+
+def test_stw_bench_prints_the_targets_unless_sessions_or_detail_are_asked(monkeypatch):
+    calls = []
+    monkeypatch.setattr(targets, "run_targets", lambda quick, anchors, repeat: calls.append(
+        ("targets", quick, anchors, repeat)))
+    monkeypatch.setattr(bench, "run_bench", lambda args: calls.append(("detail",)) or 0)
+    from stw_tui.cli import build_parser
+
+    for argv in (["bench", "--quick"], ["bench", "--anchors", "--repeat", "2"], ["bench", "--detail"],
+                 ["bench", "--sessions", "x.stw"]):
+        args = build_parser().parse_args(argv)
+        assert args.func(args) == 0
+    assert calls == [("targets", True, False, 3), ("targets", False, True, 2), ("detail",), ("detail",)]
