@@ -4,7 +4,7 @@ copy the command works on, and the parsed command, and returns an Outcome."""
 
 from __future__ import annotations
 
-from . import export, history
+from . import export, history, show
 from .language import session_commands as cmds
 
 SESSION_HANDLERS = {
@@ -16,4 +16,6 @@ SESSION_HANDLERS = {
     cmds.DiffCmd: history.diff,
     cmds.ExportCmd: export.export,
     cmds.SaveCmd: export.save,
+    cmds.ShowCmd: show.show,
+    cmds.CseCmd: show.cse,
 }

@@ -495,7 +495,7 @@ class StwApp(App[int]):
         self.exit()
 
 
-READ_ONLY_COMMANDS = frozenset({"print", "help"})
+READ_ONLY_COMMANDS = frozenset({"print", "help", "show", "cse"})
 
 
 def _changes_scene(line: str) -> bool:

@@ -171,8 +171,8 @@ COMMAND_HELP.update({
     "undo": CommandHelp("undo",
                         "Take back the last command that changed the scene (a solve included), exactly: "
                         "control points, constants, constraints, windows, weights and settings return "
-                        "bit for bit. `print`, `help`, `snapshot`, `snapshots`, `diff`, `export` and `save` "
-                        "change nothing and are not undone.", "undo"),
+                        "bit for bit. `print`, `show`, `cse`, `help`, `snapshot`, `snapshots`, `diff`, "
+                        "`export` and `save` change nothing and are not undone.", "undo"),
     "redo": CommandHelp("redo", "Do again what `undo` took back (until another command changes the scene).",
                         "redo"),
     "snapshot": CommandHelp("snapshot NAME",
@@ -196,6 +196,18 @@ COMMAND_HELP.update({
                           "tau_JOINT, arm.tip.x'); json adds the control points, knots "
                           "and the session text. Quote a path with spaces. The scene does not change.",
                           "export csv throw.csv fps=60"),
+    "show": CommandHelp("show NAME | show EXPR [@ T]",
+                        "What a name is, as the compiler sees it: a constraint's relations as written, "
+                        "with every subexpression substituted (as compiled) and simplified when small, "
+                        "with its scope, instance count and weight; an objective's terms; a DOF's knots, "
+                        "control points and bounds; a subexpression's definition; a motion verb's line "
+                        "and the constraints it expands into. `show EXPR` prints any expression "
+                        "expanded and simplified (`@ T` adds its value). The scene does not change.",
+                        "show tau_WRIST"),
+    "cse": CommandHelp("cse NAME | cse EXPR",
+                       "The common subexpressions (x0, x1, …) the compiler shares when it compiles a "
+                       "constraint's relations, an objective's terms, a subexpression or an expression, "
+                       "and each term written with them.", "cse tau_ELBOW"),
     "save": CommandHelp("save FILE",
                         "Write the session so far as a replayable .stw file (the journal's lines that "
                         "succeeded). The scene does not change.", "save throw.stw"),

@@ -1,5 +1,6 @@
 """Commands on the session rather than the scene: history (`undo`, `redo`), named snapshots
-(`snapshot`, `restore`, `snapshots`, `diff`) and files (`export`, `save`).
+(`snapshot`, `restore`, `snapshots`, `diff`), the symbolic console (`show`, `cse`), which only
+reads the scene, and files (`export`, `save`).
 
 The history and snapshot commands are parsed like every other command (see
 :mod:`.commands`). `export` and `save` take a file path, which is not a token of the language
@@ -12,10 +13,10 @@ from __future__ import annotations
 import re
 from dataclasses import dataclass
 
-from ..errors import SourceError
+from ..errors import SourceError, printable
 
 __all__ = ["UndoCmd", "RedoCmd", "SnapshotCmd", "RestoreCmd", "SnapshotsCmd", "DiffCmd", "ExportCmd",
-           "SaveCmd", "SESSION_PARSERS", "FILE_COMMANDS", "EXPORT_FORMATS", "parse_file_command"]
+           "SaveCmd", "ShowCmd", "CseCmd", "SESSION_PARSERS", "FILE_COMMANDS", "EXPORT_FORMATS", "parse_file_command"]
 
 EXPORT_FORMATS = ("csv", "json")
 MAX_FPS = 10_000
@@ -69,6 +70,27 @@ class SaveCmd:
     text: str = ""
 
 
+@dataclass(frozen=True)
+class ShowCmd:
+    """`show NAME` (what a definition is) or `show EXPR [@ T]` (its symbolic form, and value)."""
+
+    name: str | None                # a constraint, objective, verb group, DOF, …; None: an expression
+    expr: object = None             # sp.Expr of `show EXPR`
+    expr_text: str = ""
+    at: object = None               # sp.Expr of `@ T`, or None
+    text: str = ""
+
+
+@dataclass(frozen=True)
+class CseCmd:
+    """`cse NAME|EXPR`: the common subexpressions the compiler shares in a term."""
+
+    name: str | None
+    expr: object = None
+    expr_text: str = ""
+    text: str = ""
+
+
 # --- parsers of the token-based commands (called with the CommandParser) ----------------------
 def _p_undo(p):
     return UndoCmd(p.text)
@@ -94,13 +116,42 @@ def _p_diff(p):
     return DiffCmd(p.name("a snapshot name").text, p.text)
 
 
+def _name_or_expression(p):
+    """(name, expr, expr_text): a lone name (a constraint, objective, verb, DOF, subexpression…)
+    is kept as a name; anything else is read as an expression, as `print` reads it."""
+    from .tokens import END, NAME
+
+    first = p.token
+    if first.kind == NAME and p.tokens[p.pos + 1].kind == END:
+        p.advance()
+        return first.text, None, first.text
+    start = p.token.column
+    expr = p.expression()
+    return None, expr, printable(p.source[start - 1:p.token.column - 1].strip())
+
+
+def _p_show(p):
+    name, expr, expr_text = _name_or_expression(p)
+    at = None
+    if name is None and p.token.is_op("@"):
+        p.advance()
+        at = p.number_expr()
+    return ShowCmd(name, expr, expr_text, at, p.text)
+
+
+def _p_cse(p):
+    name, expr, expr_text = _name_or_expression(p)
+    return CseCmd(name, expr, expr_text, p.text)
+
+
 def _p_file(p):   # reached only by a line like `export# …`: parse_file_command reads the others
     raise p.error("export and save need a file path after them", p.token,
                   expected="`export csv|json FILE` or `save FILE`")
 
 
 SESSION_PARSERS = {"undo": _p_undo, "redo": _p_redo, "snapshot": _p_snapshot, "restore": _p_restore,
-                   "snapshots": _p_snapshots, "diff": _p_diff, "export": _p_file, "save": _p_file}
+                   "snapshots": _p_snapshots, "diff": _p_diff, "export": _p_file, "save": _p_file,
+                   "show": _p_show, "cse": _p_cse}
 FILE_COMMANDS = ("export", "save")
 
 
