@@ -181,10 +181,12 @@ def build_parser() -> argparse.ArgumentParser:
     comp.set_defaults(func=_compare)
     export = sub.add_parser("export", help="replay a session headless and export its motion")
     export.add_argument("session", type=Path)
-    export.add_argument("--format", choices=("csv", "json"), default="csv", help="file format (default csv)")
+    export.add_argument("--format", choices=("csv", "json", "bvh"), default="csv",
+                        help="file format (default csv)")
     export.add_argument("-o", "--output", type=Path, required=True, help="the file to write")
     export.add_argument("--fps", type=int, default=30, help="frames per second (default 30)")
-    export.add_argument("--what", help="subexpressions to add as columns, e.g. tau_ELBOW,arm.tip.x'")
+    export.add_argument("--what", help="subexpressions to add as columns, e.g. tau_ELBOW,arm.tip.x' "
+                        "(bvh: the linkage to export)")
     export.set_defaults(func=_export)
     backends = sub.add_parser("backends", help="list installed solver backends and their options")
     backends.set_defaults(func=_backends)

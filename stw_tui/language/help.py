@@ -189,12 +189,15 @@ COMMAND_HELP.update({
                         "largest difference of the curve over the animation), other definitions that "
                         "changed, and the objective and violation before and after.",
                         "diff before_release"),
-    "export": CommandHelp("export csv|json FILE [fps=N] [what=NAME,…]",
+    "export": CommandHelp("export csv|json|bvh FILE [fps=N] [what=NAME,…]",
                           "Write the motion sampled at N frames per second (default 30): per frame the "
                           "time, every DOF with its first and second derivatives, and every linkage "
                           "joint, tip and centre of mass position, and each subexpression NAME (a let, "
                           "tau_JOINT, arm.tip.x'); json adds the control points, knots "
-                          "and the session text. Quote a path with spaces. The scene does not change.",
+                          "and the session text; bvh writes a linkage's skeleton (from its DH rows) "
+                          "and per frame its base translation and joint angles in degrees, for "
+                          "Blender (what=LINKAGE chooses one). Quote a path with spaces. The scene does "
+                          "not change.",
                           "export csv throw.csv fps=60"),
     "show": CommandHelp("show NAME | show EXPR [@ T]",
                         "What a name is, as the compiler sees it: a constraint's relations as written, "

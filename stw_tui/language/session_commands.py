@@ -18,7 +18,7 @@ from ..errors import SourceError, printable
 __all__ = ["UndoCmd", "RedoCmd", "SnapshotCmd", "RestoreCmd", "SnapshotsCmd", "DiffCmd", "ExportCmd",
            "SaveCmd", "ShowCmd", "CseCmd", "SESSION_PARSERS", "FILE_COMMANDS", "EXPORT_FORMATS", "parse_file_command"]
 
-EXPORT_FORMATS = ("csv", "json")
+EXPORT_FORMATS = ("csv", "json", "bvh")
 MAX_FPS = 10_000
 
 
@@ -146,7 +146,7 @@ def _p_cse(p):
 
 def _p_file(p):   # reached only by a line like `export# …`: parse_file_command reads the others
     raise p.error("export and save need a file path after them", p.token,
-                  expected="`export csv|json FILE` or `save FILE`")
+                  expected="`export csv|json|bvh FILE` or `save FILE`")
 
 
 SESSION_PARSERS = {"undo": _p_undo, "redo": _p_redo, "snapshot": _p_snapshot, "restore": _p_restore,
