@@ -96,6 +96,7 @@ class Session:
         self.warm: interpreter.WarmStart | None = None
         self._block: list[tuple[int | None, str]] | None = None   # lines of an open `linkage` block
         self.history = History()    # undo, redo and named snapshots (history.py)
+        self.checkpoints = None     # autosave.Checkpoints: solves are checkpointed beside the journal
 
     # --- commands ----------------------------------------------------------------------------
     @property
@@ -201,6 +202,8 @@ class Session:
         self.prints.extend(outcome.prints)
         if outcome.run is not None:
             self.runs.append(outcome.run)
+            if self.checkpoints is not None and outcome.journal_text is None:   # not a stopped solve
+                self.checkpoints.record(self)
         return outcome
 
     def _settle_failed(self, entry: JournalEntry, message: str) -> None:

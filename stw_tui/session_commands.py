@@ -4,7 +4,7 @@ copy the command works on, and the parsed command, and returns an Outcome."""
 
 from __future__ import annotations
 
-from . import export, history, show
+from . import autosave, export, history, show
 from .language import session_commands as cmds
 
 SESSION_HANDLERS = {
@@ -18,4 +18,5 @@ SESSION_HANDLERS = {
     cmds.SaveCmd: export.save,
     cmds.ShowCmd: show.show,
     cmds.CseCmd: show.cse,
+    cmds.JournalCmd: autosave.journal_info,
 }

@@ -495,7 +495,7 @@ class StwApp(App[int]):
         self.exit()
 
 
-READ_ONLY_COMMANDS = frozenset({"print", "help", "show", "cse"})
+READ_ONLY_COMMANDS = frozenset({"print", "help", "show", "cse", "journal"})
 
 
 def _changes_scene(line: str) -> bool:

@@ -211,6 +211,10 @@ COMMAND_HELP.update({
                        "The common subexpressions (x0, x1, …) the compiler shares when it compiles a "
                        "constraint's relations, an objective's terms, a subexpression or an expression, "
                        "and each term written with them.", "cse tau_ELBOW"),
+    "journal": CommandHelp("journal",
+                           "Where this session is journalled (every command, fsynced before it is "
+                           "acknowledged), its checkpoints, and the directory of autosaved sessions; "
+                           "`stw --resume [JOURNAL]` reopens one without solving again.", "journal"),
     "save": CommandHelp("save FILE",
                         "Write the session so far as a replayable .stw file (the journal's lines that "
                         "succeeded). The scene does not change.", "save throw.stw"),

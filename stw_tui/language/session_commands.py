@@ -16,7 +16,7 @@ from dataclasses import dataclass
 from ..errors import SourceError, printable
 
 __all__ = ["UndoCmd", "RedoCmd", "SnapshotCmd", "RestoreCmd", "SnapshotsCmd", "DiffCmd", "ExportCmd",
-           "SaveCmd", "ShowCmd", "CseCmd", "SESSION_PARSERS", "FILE_COMMANDS", "EXPORT_FORMATS", "parse_file_command"]
+           "SaveCmd", "ShowCmd", "CseCmd", "JournalCmd", "SESSION_PARSERS", "FILE_COMMANDS", "EXPORT_FORMATS", "parse_file_command"]
 
 EXPORT_FORMATS = ("csv", "json", "bvh")
 MAX_FPS = 10_000
@@ -91,6 +91,13 @@ class CseCmd:
     text: str = ""
 
 
+@dataclass(frozen=True)
+class JournalCmd:
+    """`journal`: where this session's journal (and its checkpoints) are kept."""
+
+    text: str = ""
+
+
 # --- parsers of the token-based commands (called with the CommandParser) ----------------------
 def _p_undo(p):
     return UndoCmd(p.text)
@@ -144,6 +151,10 @@ def _p_cse(p):
     return CseCmd(name, expr, expr_text, p.text)
 
 
+def _p_journal(p):
+    return JournalCmd(p.text)
+
+
 def _p_file(p):   # reached only by a line like `export# …`: parse_file_command reads the others
     raise p.error("export and save need a file path after them", p.token,
                   expected="`export csv|json|bvh FILE` or `save FILE`")
@@ -151,7 +162,7 @@ def _p_file(p):   # reached only by a line like `export# …`: parse_file_comman
 
 SESSION_PARSERS = {"undo": _p_undo, "redo": _p_redo, "snapshot": _p_snapshot, "restore": _p_restore,
                    "snapshots": _p_snapshots, "diff": _p_diff, "export": _p_file, "save": _p_file,
-                   "show": _p_show, "cse": _p_cse}
+                   "show": _p_show, "cse": _p_cse, "journal": _p_journal}
 FILE_COMMANDS = ("export", "save")
 
 
