@@ -4,7 +4,8 @@
 with every subexpression substituted), its scope, instance count and weight; an objective's
 terms; a DOF's knots, control points and bounds; a subexpression's definition; a motion verb's
 line and the constraints it expanded into. `show EXPR` prints any expression's expanded form (and
-its value at T); `cse` the common subexpressions the compiler shares when it compiles a term.
+its value at T), `show diff(EXPR, VAR)` its partial derivative by a DOF quantity (x, x', x''), t
+or a constant; `cse` the common subexpressions the compiler shares when it compiles a term.
 
 These commands only read the scene (never a step of the history) and never evaluate text as
 code: expressions come from the language's parser.
@@ -172,13 +173,19 @@ def show(session: "Session", scene: Scene, cmd) -> Outcome:
     """`show NAME` or `show EXPR [@ T]`: read-only."""
     if cmd.name is not None:
         return Outcome(message="\n".join(describe(scene, cmd.name)))
-    lines = [f"{cmd.expr_text} =", render(simplified(scene.expand(cmd.expr)))]
+    expr = scene.expand(cmd.expr)
+    if cmd.wrt is not None:
+        if cmd.wrt.name.rstrip("'") in scene.lets or cmd.wrt.name.rstrip("'") in scene.derived:
+            raise StwError(f"diff by '{cmd.wrt.name}': differentiate by a DOF quantity, t or a constant, "
+                           "not a subexpression")
+        expr = sp.diff(expr, cmd.wrt)
+    lines = [f"{cmd.expr_text} =", render(simplified(expr))]
     prints = []
     if cmd.at is not None:
         t = scene.numeric(cmd.at, "time")
         if not scene.t0 - 1e-12 <= t <= scene.t1 + 1e-12:
             raise StwError(f"time {t:g} is outside the animation span [{scene.t0:g}, {scene.t1:g}]")
-        value = float(scene.evaluate(cmd.expr, np.array([min(max(t, scene.t0), scene.t1)]))[0])
+        value = float(scene.evaluate(expr, np.array([min(max(t, scene.t0), scene.t1)]))[0])
         if not np.isfinite(value):
             raise StwError(f"{cmd.expr_text} is not a finite real number at t={t:g}")
         lines.append(f"  @ {t:g} = {value:.10g}")

@@ -123,3 +123,21 @@ def test_show_is_read_only_not_a_step_and_bad_names_are_refused(arm):
     with pytest.raises(StwError, match="outside the animation span"):
         arm.execute("show BX @ 7")
     assert "show NAME" in arm.execute("help show").message
+
+
+def test_show_diff_is_the_partial_derivative_of_the_expanded_expression(arm):
+    text = show(arm, "show diff(tau_ELBOW, ELBOW'') @ 0.4")
+    assert text.splitlines()[0] == "diff(tau_ELBOW, ELBOW'') ="
+    # The coefficient of ELBOW'' in tau_ELBOW is the mass-matrix entry M[ELBOW, ELBOW], here
+    # derived by hand for rods: I_c + m_2 (a_2/2)^2 + (I_3c + m_3 (a_3/2)^2) + m_3 a_2^2
+    # + 2 m_3 a_2 (a_3/2) cos(WRIST), with I_c = m a^2/12.
+    m2, a2, m3, a3 = 1.5, 0.30, 0.5, 0.15
+    wrist = arm.scene.dofs["WRIST"].curve.evaluate(np.array([0.4]))[0]
+    expected = (m2 * a2**2 / 3 + m3 * a3**2 / 3 + m3 * a2**2 + m3 * a2 * a3 * np.cos(wrist))
+    value = float(text.splitlines()[-1].split("= ")[1])
+    assert value == pytest.approx(expected, rel=1e-9)
+    assert "0.0225*cos(WRIST)" in text           # m3 a2 a3, simplified
+    with pytest.raises(SourceError, match="one variable"):
+        arm.execute("show diff(tau_ELBOW, 2*ELBOW)")
+    with pytest.raises(StwError, match="not a subexpression"):
+        arm.execute("show diff(tau_ELBOW, lift)")

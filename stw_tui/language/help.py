@@ -199,14 +199,15 @@ COMMAND_HELP.update({
                           "Blender (what=LINKAGE chooses one). Quote a path with spaces. The scene does "
                           "not change.",
                           "export csv throw.csv fps=60"),
-    "show": CommandHelp("show NAME | show EXPR [@ T]",
+    "show": CommandHelp("show NAME | show EXPR [@ T] | show diff(EXPR, VAR) [@ T]",
                         "What a name is, as the compiler sees it: a constraint's relations as written, "
                         "with every subexpression substituted (as compiled) and simplified when small, "
                         "with its scope, instance count and weight; an objective's terms; a DOF's knots, "
                         "control points and bounds; a subexpression's definition; a motion verb's line "
                         "and the constraints it expands into. `show EXPR` prints any expression "
-                        "expanded and simplified (`@ T` adds its value). The scene does not change.",
-                        "show tau_WRIST"),
+                        "expanded and simplified (`@ T` adds its value); diff(EXPR, VAR) its partial "
+                        "derivative by VAR (x, x', x'', t or a constant). The scene does not change.",
+                        "show diff(f, ELBOW'')"),
     "cse": CommandHelp("cse NAME | cse EXPR",
                        "The common subexpressions (x0, x1, …) the compiler shares when it compiles a "
                        "constraint's relations, an objective's terms, a subexpression or an expression, "

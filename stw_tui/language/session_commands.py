@@ -79,6 +79,7 @@ class ShowCmd:
     expr_text: str = ""
     at: object = None               # sp.Expr of `@ T`, or None
     text: str = ""
+    wrt: object = None              # `show diff(EXPR, VAR)`: the symbol (x, x', x'', t, a constant)
 
 
 @dataclass(frozen=True)
@@ -137,7 +138,35 @@ def _name_or_expression(p):
     return None, expr, printable(p.source[start - 1:p.token.column - 1].strip())
 
 
+def _diff_call(p):
+    """`diff(EXPR, VAR)`: (expr, VAR's symbol, text), VAR one DOF quantity (x, x', x''), t or a
+    constant; or None when the line is not such a call."""
+    from .tokens import NAME
+
+    if not (p.token.kind == NAME and p.token.text == "diff" and p.tokens[p.pos + 1].is_op("(")):
+        return None
+    start = p.token.column
+    p.advance()
+    p.advance()
+    expr = p.expression()
+    p.expect_op(",", "',' and the variable to differentiate by")
+    var_token = p.token
+    var = p.expression()
+    if not var.is_Symbol:
+        raise p.error("diff differentiates by one variable", var_token,
+                      expected="a DOF, its velocity or acceleration (x, x', x''), t or a constant")
+    p.expect_op(")", "')'")
+    return expr, var, printable(p.source[start - 1:p.token.column - 1].strip())
+
+
 def _p_show(p):
+    call = _diff_call(p)
+    if call is not None:
+        at = None
+        if p.token.is_op("@"):
+            p.advance()
+            at = p.number_expr()
+        return ShowCmd(None, call[0], call[2], at, p.text, call[1])
     name, expr, expr_text = _name_or_expression(p)
     at = None
     if name is None and p.token.is_op("@"):
