@@ -242,3 +242,8 @@ def journal_info(session: "Session", scene, cmd):
         lines.append(f"checkpoints: {session.checkpoints.path}")
     lines.append(f"autosaved sessions: {state_dir()} (`stw --resume` reopens the last)")
     return Outcome(message="\n".join(lines), journal_text=f"# {cmd.text or 'journal'}")
+
+
+def kept_note(journal: Path) -> str:
+    """What quitting says: where the session is kept, and how to reopen it."""
+    return f"stw: this session is kept in {journal}; `stw --resume {journal}` reopens it"

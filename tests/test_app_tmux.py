@@ -137,3 +137,46 @@ def test_key_latency_while_basketball_solves():
         print(f"F3 plot switch while solving: {percentiles(switch)} (still solving at the end: {solving})")
     finally:
         tmux(*base, "kill-server")
+
+
+@pytest.mark.skipif(not Path("/proc/self/stat").exists(), reason="reads process states in /proc")
+def test_autosave_survives_kill_9_and_resume_reopens_it_without_solving(tmp_path):
+    """`stw SESSION` journals to $XDG_STATE_HOME/stw with checkpoints; after a real SIGKILL,
+    resuming rebuilds the replayed scene without solving, and `stw --resume` opens the TUI on it."""
+    import signal
+
+    from stw_tui import autosave
+    from stw_tui.session import Session
+
+    state = tmp_path / "state"
+    name = f"stw-test-{uuid.uuid4().hex[:8]}"
+    base = start(name, f"env XDG_STATE_HOME={state} {STW} sessions/particle_jet.stw")
+    try:
+        screen = wait_for(base, name, "end of particle_jet.stw")
+        assert "end of particle_jet.stw" in screen, screen
+        pid = int(tmux(*base, "display-message", "-p", "-t", name, "#{pane_pid}").strip())
+        os.kill(pid, signal.SIGKILL)
+        deadline = time.monotonic() + 10
+        while running(pid) and time.monotonic() < deadline:
+            time.sleep(0.05)
+    finally:
+        tmux(*base, "kill-server")
+    journals = list((state / "stw").glob("particle_jet-*.stw"))
+    assert len(journals) == 1, journals
+    resumed, restored, solved = autosave.resume(journals[0])
+    assert restored >= 1 and solved == 0
+    uninterrupted = Session()
+    uninterrupted.run_file(ROOT / "sessions" / "particle_jet.stw")
+    assert (resumed.scene.coefficient_vector() == uninterrupted.scene.coefficient_vector()).all()
+    name = f"stw-test-{uuid.uuid4().hex[:8]}"
+    base = start(name, f"env XDG_STATE_HOME={state} {STW} --resume")
+    try:
+        screen = wait_for(base, name, "stw>")
+        assert "stw>" in screen and "backend scipy" in screen, screen
+        tmux(*base, "send-keys", "-t", name, "C-q")
+        deadline = time.monotonic() + 10
+        while name in tmux(*base, "list-sessions") and time.monotonic() < deadline:
+            time.sleep(0.2)
+        assert name not in tmux(*base, "list-sessions"), "stw --resume did not quit on Ctrl+Q"
+    finally:
+        tmux(*base, "kill-server")

@@ -172,3 +172,5 @@ def test_stw_autosaves_by_default_and_resume_opens_the_last_journal(tmp_path, mo
     same_scene(opened["session"], original)
     assert opened["session"].journal.path == journal
     assert cli.main(["--resume", str(tmp_path / "missing.stw")]) == 1
+    note = autosave.kept_note(journal)
+    assert str(journal) in note and f"stw --resume {journal}" in note

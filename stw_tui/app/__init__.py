@@ -64,6 +64,10 @@ def run_app(session_path: str | Path | None = None, step: bool = False,
     app = create_app(session_path, step=step, session=session, settings_path=settings_file())
     app.run()
     code = app.return_code or 0
+    if session is not None and session.journal.path is not None:   # the screen is restored: say it
+        from ..autosave import kept_note
+
+        print(kept_note(session.journal.path), file=sys.stderr)
     if exit_process:
         sys.stdout.flush()
         sys.stderr.flush()
