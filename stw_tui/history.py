@@ -30,7 +30,7 @@ if TYPE_CHECKING:
 HISTORY_LIMIT = 200
 # First words of commands that never change the scene (or manage the history themselves).
 NOT_STEPS = frozenset({"undo", "redo", "print", "help", "snapshot", "snapshots", "diff", "export", "save",
-                       "show", "cse", "journal"})
+                       "show", "cse", "journal", "reject"})
 
 
 @dataclass(frozen=True)

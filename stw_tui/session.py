@@ -18,7 +18,7 @@ import numpy as np
 from . import interpreter, limits
 from .backend import RunResult, StepReport
 from .errors import SourceError, StwError
-from .history import History, State
+from .history import NOT_STEPS, History, State
 from .language import CommandLine, classify_line
 from .outcome import Outcome, PrintResult
 from .scene import Scene
@@ -97,6 +97,7 @@ class Session:
         self._block: list[tuple[int | None, str]] | None = None   # lines of an open `linkage` block
         self.history = History()    # undo, redo and named snapshots (history.py)
         self.checkpoints = None     # autosave.Checkpoints: solves are checkpointed beside the journal
+        self.proposal: State | None = None   # a solve's result under `set preview on` (preview.py)
 
     # --- commands ----------------------------------------------------------------------------
     @property
@@ -197,8 +198,15 @@ class Session:
         except StwError as exc:
             self.warm = before.warm
             raise StwError(f"line {line}: {exc}" if line is not None else str(exc)) from exc.__cause__
+        if outcome.run is not None and scene.settings.get("preview"):
+            from .preview import propose
+
+            self.runs.append(outcome.run)
+            return propose(self, scene, before, outcome)
         self.scene = scene
         self.history.settled(text, before, outcome.journal_text)
+        if self.proposal is not None and classify_line(text).verb not in NOT_STEPS:
+            self.proposal = None    # proposed from a scene that is no longer the scene
         self.prints.extend(outcome.prints)
         if outcome.run is not None:
             self.runs.append(outcome.run)

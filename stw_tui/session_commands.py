@@ -4,7 +4,7 @@ copy the command works on, and the parsed command, and returns an Outcome."""
 
 from __future__ import annotations
 
-from . import autosave, export, history, show
+from . import autosave, export, history, preview, show
 from .language import session_commands as cmds
 
 SESSION_HANDLERS = {
@@ -19,4 +19,6 @@ SESSION_HANDLERS = {
     cmds.ShowCmd: show.show,
     cmds.CseCmd: show.cse,
     cmds.JournalCmd: autosave.journal_info,
+    cmds.AcceptCmd: preview.accept,
+    cmds.RejectCmd: preview.reject,
 }

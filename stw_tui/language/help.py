@@ -216,6 +216,13 @@ COMMAND_HELP.update({
                            "Where this session is journalled (every command, fsynced before it is "
                            "acknowledged), its checkpoints, and the directory of autosaved sessions; "
                            "`stw --resume [JOURNAL]` reopens one without solving again.", "journal"),
+    "accept": CommandHelp("accept",
+                          "With `set preview on`, a solve leaves the scene as it was and proposes its "
+                          "result, with the objective and violation of both; `accept` makes the "
+                          "proposal the scene (a step: `undo` takes it back). A command that changes "
+                          "the scene drops the proposal.", "accept"),
+    "reject": CommandHelp("reject", "Drop the proposal of the last solve under `set preview on`; the scene "
+                          "stays as it was.", "reject"),
     "save": CommandHelp("save FILE",
                         "Write the session so far as a replayable .stw file (the journal's lines that "
                         "succeeded). The scene does not change.", "save throw.stw"),

@@ -16,7 +16,7 @@ from dataclasses import dataclass
 from ..errors import SourceError, printable
 
 __all__ = ["UndoCmd", "RedoCmd", "SnapshotCmd", "RestoreCmd", "SnapshotsCmd", "DiffCmd", "ExportCmd",
-           "SaveCmd", "ShowCmd", "CseCmd", "JournalCmd", "SESSION_PARSERS", "FILE_COMMANDS", "EXPORT_FORMATS", "parse_file_command"]
+           "SaveCmd", "ShowCmd", "CseCmd", "JournalCmd", "AcceptCmd", "RejectCmd", "SESSION_PARSERS", "FILE_COMMANDS", "EXPORT_FORMATS", "parse_file_command"]
 
 EXPORT_FORMATS = ("csv", "json", "bvh")
 MAX_FPS = 10_000
@@ -95,6 +95,20 @@ class CseCmd:
 @dataclass(frozen=True)
 class JournalCmd:
     """`journal`: where this session's journal (and its checkpoints) are kept."""
+
+    text: str = ""
+
+
+@dataclass(frozen=True)
+class AcceptCmd:
+    """`accept`: the proposed motion (`set preview on`) becomes the scene."""
+
+    text: str = ""
+
+
+@dataclass(frozen=True)
+class RejectCmd:
+    """`reject`: drop the proposed motion."""
 
     text: str = ""
 
@@ -184,6 +198,14 @@ def _p_journal(p):
     return JournalCmd(p.text)
 
 
+def _p_accept(p):
+    return AcceptCmd(p.text)
+
+
+def _p_reject(p):
+    return RejectCmd(p.text)
+
+
 def _p_file(p):   # reached only by a line like `export# …`: parse_file_command reads the others
     raise p.error("export and save need a file path after them", p.token,
                   expected="`export csv|json|bvh FILE` or `save FILE`")
@@ -191,7 +213,8 @@ def _p_file(p):   # reached only by a line like `export# …`: parse_file_comman
 
 SESSION_PARSERS = {"undo": _p_undo, "redo": _p_redo, "snapshot": _p_snapshot, "restore": _p_restore,
                    "snapshots": _p_snapshots, "diff": _p_diff, "export": _p_file, "save": _p_file,
-                   "show": _p_show, "cse": _p_cse, "journal": _p_journal}
+                   "show": _p_show, "cse": _p_cse, "journal": _p_journal,
+                   "accept": _p_accept, "reject": _p_reject}
 FILE_COMMANDS = ("export", "save")
 
 
