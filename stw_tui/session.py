@@ -127,7 +127,34 @@ class Session:
         if kind.verb == "linkage":
             self._block = [(line, text)]
             return Outcome(message="linkage block: enter joint rows, then `end`")
+        if kind.verb == "open":
+            return self._open(text, line, on_report)
         return self._apply(text.rstrip(), line, on_report)
+
+    def _open(self, text: str, line: int | None, on_report) -> Outcome:
+        """`open FILE`: run the file's lines as if typed, each journalled (and undoable) on its
+        own; the `open` line itself is not journalled, so a replay never reads the file again.
+        Stops at the first failing line, keeping the lines before it."""
+        from .language.session_commands import parse_file_command
+
+        path = Path(parse_file_command(text, line).path).expanduser()
+        try:
+            content = path.read_text(encoding="utf-8")
+        except (OSError, UnicodeDecodeError) as exc:
+            raise StwError(f"cannot open {path}: {exc}") from exc
+        if self._block is not None:
+            raise StwError("finish the open `linkage` block first")
+        count = 0
+        try:
+            for number, source in enumerate(content.splitlines(), start=1):
+                self.execute(source, line=number, on_report=on_report)
+                count += not classify_line(source).is_blank
+            if self._block is not None:
+                self._block = None
+                raise SourceError("`linkage` block is not closed", line=None, expected="a line `end`")
+        except StwError as exc:
+            raise StwError(f"{path}: {exc} ({count} line(s) before it were applied)") from exc
+        return Outcome(message=f"opened {path}: {count} line(s) applied")
 
     def _check_length(self, text: str, line: int | None) -> None:
         """Refuse an over-long line before anything reads it (a 1 MB line must fail at once)."""

@@ -174,3 +174,30 @@ def test_stw_autosaves_by_default_and_resume_opens_the_last_journal(tmp_path, mo
     assert cli.main(["--resume", str(tmp_path / "missing.stw")]) == 1
     note = autosave.kept_note(journal)
     assert str(journal) in note and f"stw --resume {journal}" in note
+
+
+def test_open_runs_a_saved_session_line_by_line_and_journals_its_lines(tmp_path):
+    saved = tmp_path / "my session.stw"
+    first = Session()
+    first.run_text(SCENE)
+    first.execute(f'save "{saved}"')
+    s = Session(journal_path=tmp_path / "j.stw")
+    outcome = s.execute(f'open "{saved}"')
+    assert outcome.message.startswith(f"opened {saved}: ")
+    same_scene(s, first)
+    # The journal holds the file's lines, not `open`: replaying it needs no file.
+    saved.unlink()
+    journal = (tmp_path / "j.stw").read_text()
+    assert "open" not in journal and "iterate 30" in journal
+    replay = Session()
+    replay.run_text(journal)
+    same_scene(replay, first)
+    s.execute("undo")          # each line is its own step: undo takes back the last solve only
+    assert len(s.history.undo_steps) > 3
+    bad = tmp_path / "bad.stw"
+    bad.write_text("dof z\nconstraint c: nosuch = 1 @ 0\ndof w\n")
+    with pytest.raises(Exception, match=r"bad.stw: .*line 2.*\(1 line\(s\) before it were applied\)"):
+        s.execute(f"open {bad}")
+    assert "z" in s.scene.dofs and "w" not in s.scene.dofs
+    with pytest.raises(Exception, match="cannot open"):
+        s.execute(f"open {tmp_path / 'missing.stw'}")

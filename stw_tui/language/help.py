@@ -223,6 +223,10 @@ COMMAND_HELP.update({
                           "the scene drops the proposal.", "accept"),
     "reject": CommandHelp("reject", "Drop the proposal of the last solve under `set preview on`; the scene "
                           "stays as it was.", "reject"),
+    "open": CommandHelp("open FILE",
+                        "Run a session file's lines as if typed: each is journalled and undoable on its "
+                        "own (a replay never reads FILE again). Stops at the first line that fails.",
+                        "open throw.stw"),
     "save": CommandHelp("save FILE",
                         "Write the session so far as a replayable .stw file (the journal's lines that "
                         "succeeded). The scene does not change.", "save throw.stw"),

@@ -16,7 +16,7 @@ from dataclasses import dataclass
 from ..errors import SourceError, printable
 
 __all__ = ["UndoCmd", "RedoCmd", "SnapshotCmd", "RestoreCmd", "SnapshotsCmd", "DiffCmd", "ExportCmd",
-           "SaveCmd", "ShowCmd", "CseCmd", "JournalCmd", "AcceptCmd", "RejectCmd", "SESSION_PARSERS", "FILE_COMMANDS", "EXPORT_FORMATS", "parse_file_command"]
+           "SaveCmd", "ShowCmd", "CseCmd", "JournalCmd", "AcceptCmd", "RejectCmd", "OpenCmd", "SESSION_PARSERS", "FILE_COMMANDS", "EXPORT_FORMATS", "parse_file_command"]
 
 EXPORT_FORMATS = ("csv", "json", "bvh")
 MAX_FPS = 10_000
@@ -96,6 +96,14 @@ class CseCmd:
 class JournalCmd:
     """`journal`: where this session's journal (and its checkpoints) are kept."""
 
+    text: str = ""
+
+
+@dataclass(frozen=True)
+class OpenCmd:
+    """`open FILE`: run a session file's lines as if typed (the session does it, see Session.execute)."""
+
+    path: str
     text: str = ""
 
 
@@ -212,10 +220,10 @@ def _p_file(p):   # reached only by a line like `export# …`: parse_file_comman
 
 
 SESSION_PARSERS = {"undo": _p_undo, "redo": _p_redo, "snapshot": _p_snapshot, "restore": _p_restore,
-                   "snapshots": _p_snapshots, "diff": _p_diff, "export": _p_file, "save": _p_file,
+                   "snapshots": _p_snapshots, "diff": _p_diff, "export": _p_file, "save": _p_file, "open": _p_file,
                    "show": _p_show, "cse": _p_cse, "journal": _p_journal,
                    "accept": _p_accept, "reject": _p_reject}
-FILE_COMMANDS = ("export", "save")
+FILE_COMMANDS = ("export", "save", "open")
 
 
 # --- commands with a file path ---------------------------------------------------------------
@@ -254,7 +262,8 @@ def _path(word: str, column: int, text: str, line: int | None) -> str:
 
 
 def parse_file_command(text: str, line: int | None = None):
-    """Parse `export FORMAT FILE [fps=N] [what=NAME,…]` or `save FILE`; None for any other command.
+    """Parse `export FORMAT FILE [fps=N] [what=NAME,…]`, `save FILE` or `open FILE`; None for any
+    other command.
 
     Raises:
         SourceError: with line, column and what was expected.
@@ -266,13 +275,13 @@ def parse_file_command(text: str, line: int | None = None):
     command_text = text.strip()
     (word, column, _), rest = words[0], words[1:]
     end = len(text.rstrip()) + 1
-    if word == "save":
+    if word in ("save", "open"):
         if not rest:
-            raise _error("save needs a file", text, line, end, expected="a file path")
+            raise _error(f"{word} needs a file", text, line, end, expected="a file path")
         if len(rest) > 1:
             raise _error(f"unexpected '{rest[1][0]}' after the file", text, line, rest[1][1],
                          expected="end of line (quote a path with spaces)")
-        return SaveCmd(_path(rest[0][0], rest[0][1], text, line), command_text)
+        return (SaveCmd if word == "save" else OpenCmd)(_path(rest[0][0], rest[0][1], text, line), command_text)
     if not rest or rest[0][0] not in EXPORT_FORMATS:
         at = rest[0][1] if rest else end
         got = f"unknown export format '{rest[0][0]}'" if rest else "export needs a format"
