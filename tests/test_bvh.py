@@ -5,7 +5,6 @@ joint and tip positions against stw's symbolic forward kinematics to 1e-6."""
 import math
 import subprocess
 import sys
-from pathlib import Path
 
 import numpy as np
 import pytest

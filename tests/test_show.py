@@ -66,7 +66,8 @@ def test_show_an_objective_and_a_derived_force_print_their_expanded_form(arm):
     simplified_line = derived.split("simplified:\n", 1)[1].strip()
     names = sorted({s.name for s in arm.scene.derived["tau_WRIST"].free_symbols})
     symbols = {n: sp.Symbol(n, real=True) for n in names}
-    printed = sp.sympify(simplified_line.replace("'", "_p"), locals={n.replace("'", "_p"): s for n, s in symbols.items()})
+    printed = sp.sympify(simplified_line.replace("'", "_p"),   # stw's own output, read back
+                         locals={n.replace("'", "_p"): s for n, s in symbols.items()})
     rng = np.random.default_rng(1)
     for _ in range(5):
         point = {symbols[n]: rng.normal() for n in names}
@@ -77,7 +78,8 @@ def test_show_an_objective_and_a_derived_force_print_their_expanded_form(arm):
 def test_show_a_dof_gives_its_knots_control_points_and_bounds(arm):
     text = show(arm, "show BY").splitlines()
     curve = arm.scene.dofs["BY"].curve
-    assert text[0] == f"dof BY: cubic B-spline on [0, 1.5], 24 span(s), {curve.n_coef} control points, lo=-2 (on its control points, so everywhere)"
+    assert text[0] == (f"dof BY: cubic B-spline on [0, 1.5], 24 span(s), {curve.n_coef} control points, "
+                       "lo=-2 (on its control points, so everywhere)")
     assert text[1].startswith("  knots: 0 (x4), 0.0625, ") and text[1].endswith("1.5 (x4)")
     values = [float(v) for v in text[2].split(": ", 1)[1].split(", ")]
     np.testing.assert_allclose(values, curve.coef, rtol=1e-5, atol=1e-9)
