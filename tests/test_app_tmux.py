@@ -19,6 +19,12 @@ pytestmark = pytest.mark.skipif(shutil.which("tmux") is None or not STW.exists()
                                 reason="needs tmux and the installed `stw` script")
 
 
+@pytest.fixture(autouse=True)
+def private_state_dir(tmp_path, monkeypatch):
+    """`stw` autosaves its journal to $XDG_STATE_HOME/stw: keep the tests' out of the user's."""
+    monkeypatch.setenv("XDG_STATE_HOME", str(tmp_path / "xdg-state"))
+
+
 def tmux(*args: str) -> str:
     return subprocess.run(["tmux", *args], capture_output=True, text=True, check=False).stdout
 
