@@ -178,6 +178,9 @@ class StwApp(App[int]):
         self.repl.write_note("stw — Spacetime Windows. Type a command (`help` lists them); "
                              "F1 help, F2 panels, F3 plots, F5 iterate, F4 stops, Esc back here, Ctrl+P palette, "
                              "Ctrl+Q quits.")
+        journal = self.runner.session.journal.path if self.runner.session is not None else None
+        if journal is not None:   # autosaved (stw_tui/autosave.py): say where, once
+            self.repl.write_note(f"journal: {journal} (`journal` says more; `stw --resume` reopens it)")
         self.status_line.show(state="loading")
         self.runner.submit(Job("", origin=Origin.STARTUP))   # loads the core and measures the scene, off the UI thread
         if self.session_path is not None:
