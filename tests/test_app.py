@@ -666,9 +666,16 @@ def test_an_autosaved_session_says_where_its_journal_is_and_preview_accept_work_
         await support.settle(pilot)
         assert (app.session.scene.coefficient_vector() == before).all()
         assert "`accept` takes the result" in support.log_text(app)
-        await support.submit(pilot, "accept")
+        await support.submit(pilot, "iterate 20")
+        await support.settle(pilot)
+        await pilot.press("f10")                        # reject
+        await support.settle(pilot)
+        assert (app.session.scene.coefficient_vector() == before).all() and app.session.proposal is None
+        await support.submit(pilot, "iterate 20")
+        await support.settle(pilot)
+        await pilot.press("f9")                         # accept
         await support.settle(pilot)
         assert not (app.session.scene.coefficient_vector() == before).all()
-        assert journal.read_text().splitlines()[-2:] == ["iterate 20", "accept"]
+        assert journal.read_text().splitlines()[-5:] == ["iterate 20", "iterate 20", "reject", "iterate 20", "accept"]
 
     run(scenario, app)

@@ -92,6 +92,8 @@ class StwApp(App[int]):
         Binding("escape", "escape", "Console", show=False),
         Binding("ctrl+z", "undo", "Undo", show=False),
         Binding("ctrl+y", "redo", "Redo", show=False),
+        Binding("f9", "accept", "Accept the proposal", show=False),    # `set preview on`
+        Binding("f10", "reject", "Reject the proposal", show=False),
         Binding("ctrl+q", "quit", "Quit", priority=True),
     ]
 
@@ -427,6 +429,13 @@ class StwApp(App[int]):
 
     def action_redo(self) -> None:
         self.submit("redo", origin=Origin.KEY)
+
+    def action_accept(self) -> None:
+        """F9: the console's `accept` of a solve's proposal under `set preview on`."""
+        self.submit("accept", origin=Origin.KEY)
+
+    def action_reject(self) -> None:
+        self.submit("reject", origin=Origin.KEY)
 
     def action_iterate(self) -> None:
         self.submit(f"iterate {self.query_one(OptimizationPanel).iterations}", origin=Origin.KEY)
