@@ -219,8 +219,8 @@ COMMAND_HELP.update({
     "accept": CommandHelp("accept",
                           "With `set preview on`, a solve leaves the scene as it was and proposes its "
                           "result, with the objective and violation of both; `accept` makes the "
-                          "proposal the scene (a step: `undo` takes it back; F9 in the TUI, F10 rejects). A command that changes "
-                          "the scene drops the proposal.", "accept"),
+                          "proposal the scene (a step: `undo` takes it back; F9 in the TUI, F10 "
+                          "rejects). A command that changes the scene drops the proposal.", "accept"),
     "reject": CommandHelp("reject", "Drop the proposal of the last solve under `set preview on`; the scene "
                           "stays as it was.", "reject"),
     "open": CommandHelp("open FILE",
