@@ -17,6 +17,7 @@ SUBCOMMANDS = ("run", "bench", "backends", "compare", "export", "survey")
 # The TUI comes first: it is what `stw` with no command opens.
 USAGE = """
   stw [SESSION.stw] [--step] [--journal FILE]  open the TUI (and replay SESSION)
+  stw --resume [JOURNAL] [--resolve]           reopen an autosaved session
   stw COMMAND ...                              headless (the commands below)"""
 
 
@@ -193,10 +194,12 @@ def build_parser() -> argparse.ArgumentParser:
     comp.set_defaults(func=_compare)
     export = sub.add_parser("export", help="replay a session headless and export its motion")
     export.add_argument("session", type=Path)
-    export.add_argument("--format", choices=("csv", "json"), default="csv", help="file format (default csv)")
+    export.add_argument("--format", choices=("csv", "json", "bvh"), default="csv",
+                        help="file format (default csv)")
     export.add_argument("-o", "--output", type=Path, required=True, help="the file to write")
     export.add_argument("--fps", type=int, default=30, help="frames per second (default 30)")
-    export.add_argument("--what", help="subexpressions to add as columns, e.g. tau_ELBOW,arm.tip.x'")
+    export.add_argument("--what", help="subexpressions to add as columns, e.g. tau_ELBOW,arm.tip.x' "
+                        "(bvh: the linkage to export)")
     export.set_defaults(func=_export)
     survey = sub.add_parser("survey", help="replay a session, then survey the local optima of its scene",
                             description="Options after N are those of the console's `survey` (help survey).")
@@ -224,7 +227,11 @@ def _launch_tui(argv: list[str]) -> int:
     parser = argparse.ArgumentParser(prog="stw", description="Open the Spacetime Windows TUI.")
     parser.add_argument("session", nargs="?", type=Path, help="a .stw session to open and replay")
     parser.add_argument("--step", action="store_true", help="step through the session line by line")
-    parser.add_argument("--journal", type=Path, help="append the journal of this session to a file")
+    parser.add_argument("--journal", type=Path, help="append the journal of this session to a file "
+                        "(default: a new one in the state directory, see `journal` in the console)")
+    parser.add_argument("--resume", nargs="?", const="", metavar="JOURNAL",
+                        help="reopen the last autosaved journal (or JOURNAL) and restore its checkpointed state")
+    parser.add_argument("--resolve", action="store_true", help="with --resume: solve everything again")
     args = parser.parse_args(argv)
     try:
         from .app import run_app
@@ -237,7 +244,41 @@ def _launch_tui(argv: list[str]) -> int:
     if _journal_is_the_session(args.journal, args.session):
         print(JOURNAL_ON_ITSELF.format(args.journal), file=sys.stderr)
         return 2
-    return run_app(args.session, step=args.step, journal=args.journal)
+    if args.resume is not None:
+        return _resume_tui(args, run_app)
+    return run_app(args.session, step=args.step, journal=args.journal or _autosave_journal(args.session))
+
+
+def _autosave_journal(session: Path | None) -> Path | None:
+    """A new journal in the state directory (None, with a warning, when it cannot be made)."""
+    from .autosave import new_journal_path, state_dir
+
+    try:
+        return new_journal_path(session)
+    except OSError as exc:
+        print(f"stw: not autosaving: cannot use {state_dir()} ({exc})", file=sys.stderr)
+        return None
+
+
+def _resume_tui(args: argparse.Namespace, run_app) -> int:
+    """`stw --resume [JOURNAL] [--resolve]`: replay the journal (checkpointed solves are not solved
+    again), then open the TUI on it, appending to the same journal."""
+    from .autosave import latest_journal, resume, state_dir
+
+    if args.session is not None or args.journal is not None:
+        print("stw: --resume reopens a journal; give no session file or --journal with it", file=sys.stderr)
+        return 2
+    path = Path(args.resume) if args.resume else latest_journal()
+    if path is None:
+        print(f"stw: no autosaved session in {state_dir()} to resume", file=sys.stderr)
+        return 2
+    try:
+        session, restored, solved = resume(path, resolve=args.resolve)
+    except (SourceError, StwError) as exc:
+        print(f"stw: cannot resume {path}: {exc}", file=sys.stderr)
+        return 1
+    print(f"stw: resumed {path}: {restored} solve(s) from checkpoints, {solved} solved again", file=sys.stderr)
+    return run_app(None, session=session)
 
 
 if __name__ == "__main__":

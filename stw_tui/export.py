@@ -1,6 +1,7 @@
-"""Exporting a scene's motion: CSV (one row per frame) and JSON (the same, plus the curves and the
-session text), from the console (`export csv|json FILE [fps=N] [what=NAME,…]`) or headless
-(`stw export SESSION --format csv|json -o FILE`).
+"""Exporting a scene's motion: CSV (one row per frame), JSON (the same, plus the curves and the
+session text) and BVH (a linkage's skeleton and joint angles, :mod:`.bvh`), from the console
+(`export csv|json|bvh FILE [fps=N] [what=NAME,…]`) or headless
+(`stw export SESSION --format csv|json|bvh -o FILE`).
 
 Columns: ``t``; every DOF ``X`` with ``X'`` and ``X''``; and every linkage's joint, tip and centre
 of mass positions (``arm.ELBOW.x``, ``arm.tip.y``, ``arm.com.z``), evaluated from the derived
@@ -138,7 +139,11 @@ def export_text(session: "Session", fmt: str, fps: int, what=()) -> str:
         return csv_text(scene, fps, what)
     if fmt == "json":
         return json.dumps(json_document(scene, fps, session.journal.text(), what), indent=1) + "\n"
-    raise StwError(f"unknown export format '{fmt}' (csv or json)")
+    if fmt == "bvh":
+        from .bvh import bvh_text
+
+        return bvh_text(scene, frame_times(scene, fps), fps, what)
+    raise StwError(f"unknown export format '{fmt}' (csv, json or bvh)")
 
 
 def export(session: "Session", scene: Scene, cmd) -> Outcome:

@@ -9,7 +9,7 @@ next solve are exactly what they would have been without the undone command.
 
 `undo` and `redo` are commands like the others: they are journalled, and replaying the journal
 undoes the same steps. A step is one command that succeeded and may change the scene; commands
-that only read it (`print`, `help`, `snapshots`, `diff`, `export`, `save`) and `snapshot` are not
+that only read it (`print`, `show`, `cse`, `help`, `snapshots`, `diff`, `export`, `save`) and `snapshot` are not
 steps, and neither is a command that failed.
 """
 
@@ -30,7 +30,7 @@ if TYPE_CHECKING:
 HISTORY_LIMIT = 200
 # First words of commands that never change the scene (or manage the history themselves).
 NOT_STEPS = frozenset({"undo", "redo", "print", "help", "snapshot", "snapshots", "diff", "export", "save",
-                       "survey"})
+                       "survey", "show", "cse", "journal", "reject"})
 
 
 @dataclass(frozen=True)

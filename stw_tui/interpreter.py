@@ -471,12 +471,12 @@ def _set(scene: Scene, cmd) -> str:
             raise StwError("samples must be at least 1")
         scene.samples = value
         return f"samples = {value}"
-    if cmd.option == "adaptive":
+    if cmd.option in ("adaptive", "preview"):
         words = {"on": 1.0, "off": 0.0, "1": 1.0, "0": 0.0, "yes": 1.0, "no": 0.0}
         if cmd.value.lower() not in words:
-            raise StwError(f"adaptive is on or off, not '{cmd.value}'")
-        scene.settings["adaptive"] = words[cmd.value.lower()]
-        return f"adaptive {'on' if scene.settings['adaptive'] else 'off'}"
+            raise StwError(f"{cmd.option} is on or off, not '{cmd.value}'")
+        scene.settings[cmd.option] = words[cmd.value.lower()]
+        return f"{cmd.option} {'on' if scene.settings[cmd.option] else 'off'}"
     if cmd.option == "adaptive_rounds" and not cmd.value.isdigit():
         raise StwError(f"adaptive_rounds must be a whole number, not '{cmd.value}'")
     if cmd.option not in DEFAULT_SETTINGS:

@@ -18,7 +18,7 @@ import numpy as np
 from . import interpreter, limits
 from .backend import RunResult, StepReport
 from .errors import SourceError, StwError
-from .history import History, State
+from .history import NOT_STEPS, History, State
 from .language import CommandLine, classify_line
 from .outcome import Outcome, PrintResult
 from .scene import Scene
@@ -97,6 +97,8 @@ class Session:
         self._block: list[tuple[int | None, str]] | None = None   # lines of an open `linkage` block
         self.history = History()    # undo, redo and named snapshots (history.py)
         self.survey = None          # the last survey's table, for `adopt` (survey_session.py)
+        self.checkpoints = None     # autosave.Checkpoints: solves are checkpointed beside the journal
+        self.proposal: State | None = None   # a solve's result under `set preview on` (preview.py)
 
     # --- commands ----------------------------------------------------------------------------
     @property
@@ -126,7 +128,34 @@ class Session:
         if kind.verb == "linkage":
             self._block = [(line, text)]
             return Outcome(message="linkage block: enter joint rows, then `end`")
+        if kind.verb == "open":
+            return self._open(text, line, on_report)
         return self._apply(text.rstrip(), line, on_report)
+
+    def _open(self, text: str, line: int | None, on_report) -> Outcome:
+        """`open FILE`: run the file's lines as if typed, each journalled (and undoable) on its
+        own; the `open` line itself is not journalled, so a replay never reads the file again.
+        Stops at the first failing line, keeping the lines before it."""
+        from .language.session_commands import parse_file_command
+
+        path = Path(parse_file_command(text, line).path).expanduser()
+        try:
+            content = path.read_text(encoding="utf-8")
+        except (OSError, UnicodeDecodeError) as exc:
+            raise StwError(f"cannot open {path}: {exc}") from exc
+        if self._block is not None:
+            raise StwError("finish the open `linkage` block first")
+        count = 0
+        try:
+            for number, source in enumerate(content.splitlines(), start=1):
+                self.execute(source, line=number, on_report=on_report)
+                count += not classify_line(source).is_blank
+            if self._block is not None:
+                self._block = None
+                raise SourceError("`linkage` block is not closed", line=None, expected="a line `end`")
+        except StwError as exc:
+            raise StwError(f"{path}: {exc} ({count} line(s) before it were applied)") from exc
+        return Outcome(message=f"opened {path}: {count} line(s) applied")
 
     def _check_length(self, text: str, line: int | None) -> None:
         """Refuse an over-long line before anything reads it (a 1 MB line must fail at once)."""
@@ -197,11 +226,20 @@ class Session:
         except StwError as exc:
             self.warm = before.warm
             raise StwError(f"line {line}: {exc}" if line is not None else str(exc)) from exc.__cause__
+        if outcome.run is not None and scene.settings.get("preview"):
+            from .preview import propose
+
+            self.runs.append(outcome.run)
+            return propose(self, scene, before, outcome)
         self.scene = scene
         self.history.settled(text, before, outcome.journal_text)
+        if self.proposal is not None and classify_line(text).verb not in NOT_STEPS:
+            self.proposal = None    # proposed from a scene that is no longer the scene
         self.prints.extend(outcome.prints)
         if outcome.run is not None:
             self.runs.append(outcome.run)
+            if self.checkpoints is not None and outcome.journal_text is None:   # not a stopped solve
+                self.checkpoints.record(self)
         return outcome
 
     def _settle_failed(self, entry: JournalEntry, message: str) -> None:

@@ -4,7 +4,7 @@ copy the command works on, and the parsed command, and returns an Outcome."""
 
 from __future__ import annotations
 
-from . import export, history, survey_session
+from . import autosave, export, history, preview, show, survey_session
 from .language import session_commands as cmds
 
 SESSION_HANDLERS = {
@@ -19,4 +19,9 @@ SESSION_HANDLERS = {
     cmds.SurveyCmd: survey_session.survey,
     cmds.AdoptCmd: survey_session.adopt,
     cmds.SchedulerCmd: survey_session.set_scheduler,
+    cmds.ShowCmd: show.show,
+    cmds.CseCmd: show.cse,
+    cmds.JournalCmd: autosave.journal_info,
+    cmds.AcceptCmd: preview.accept,
+    cmds.RejectCmd: preview.reject,
 }

@@ -646,3 +646,36 @@ def test_ctrl_z_and_ctrl_y_undo_and_redo_through_the_journal():
         assert app.session.journal.replayable()[-2:] == ["undo", "redo"]
 
     run(scenario, app)
+
+
+def test_an_autosaved_session_says_where_its_journal_is_and_preview_accept_work_from_the_console(tmp_path):
+    from stw_tui.autosave import Checkpoints
+
+    journal = tmp_path / "j.stw"
+    session = jet_without_iterate()
+    session.journal.path = journal
+    session.checkpoints = Checkpoints(journal)
+    app = create_app(session=session)
+
+    async def scenario(pilot):
+        assert f"journal: {journal}" in support.log_text(app)
+        await support.submit(pilot, "set preview on")
+        await support.settle(pilot)
+        before = app.session.scene.coefficient_vector().copy()
+        await support.submit(pilot, "iterate 20")
+        await support.settle(pilot)
+        assert (app.session.scene.coefficient_vector() == before).all()
+        assert "`accept` takes the result" in support.log_text(app)
+        await support.submit(pilot, "iterate 20")
+        await support.settle(pilot)
+        await pilot.press("f10")                        # reject
+        await support.settle(pilot)
+        assert (app.session.scene.coefficient_vector() == before).all() and app.session.proposal is None
+        await support.submit(pilot, "iterate 20")
+        await support.settle(pilot)
+        await pilot.press("f9")                         # accept
+        await support.settle(pilot)
+        assert not (app.session.scene.coefficient_vector() == before).all()
+        assert journal.read_text().splitlines()[-5:] == ["iterate 20", "iterate 20", "reject", "iterate 20", "accept"]
+
+    run(scenario, app)

@@ -19,6 +19,12 @@ pytestmark = pytest.mark.skipif(shutil.which("tmux") is None or not STW.exists()
                                 reason="needs tmux and the installed `stw` script")
 
 
+@pytest.fixture(autouse=True)
+def private_state_dir(tmp_path, monkeypatch):
+    """`stw` autosaves its journal to $XDG_STATE_HOME/stw: keep the tests' out of the user's."""
+    monkeypatch.setenv("XDG_STATE_HOME", str(tmp_path / "xdg-state"))
+
+
 def tmux(*args: str) -> str:
     return subprocess.run(["tmux", *args], capture_output=True, text=True, check=False).stdout
 
@@ -135,5 +141,48 @@ def test_key_latency_while_basketball_solves():
         solving = "solving" in capture()
         print(f"\nconsole echo while solving: {percentiles(echo)}")
         print(f"F3 plot switch while solving: {percentiles(switch)} (still solving at the end: {solving})")
+    finally:
+        tmux(*base, "kill-server")
+
+
+@pytest.mark.skipif(not Path("/proc/self/stat").exists(), reason="reads process states in /proc")
+def test_autosave_survives_kill_9_and_resume_reopens_it_without_solving(tmp_path):
+    """`stw SESSION` journals to $XDG_STATE_HOME/stw with checkpoints; after a real SIGKILL,
+    resuming rebuilds the replayed scene without solving, and `stw --resume` opens the TUI on it."""
+    import signal
+
+    from stw_tui import autosave
+    from stw_tui.session import Session
+
+    state = tmp_path / "state"
+    name = f"stw-test-{uuid.uuid4().hex[:8]}"
+    base = start(name, f"env XDG_STATE_HOME={state} {STW} sessions/particle_jet.stw")
+    try:
+        screen = wait_for(base, name, "end of particle_jet.stw")
+        assert "end of particle_jet.stw" in screen, screen
+        pid = int(tmux(*base, "display-message", "-p", "-t", name, "#{pane_pid}").strip())
+        os.kill(pid, signal.SIGKILL)
+        deadline = time.monotonic() + 10
+        while running(pid) and time.monotonic() < deadline:
+            time.sleep(0.05)
+    finally:
+        tmux(*base, "kill-server")
+    journals = list((state / "stw").glob("particle_jet-*.stw"))
+    assert len(journals) == 1, journals
+    resumed, restored, solved = autosave.resume(journals[0])
+    assert restored >= 1 and solved == 0
+    uninterrupted = Session()
+    uninterrupted.run_file(ROOT / "sessions" / "particle_jet.stw")
+    assert (resumed.scene.coefficient_vector() == uninterrupted.scene.coefficient_vector()).all()
+    name = f"stw-test-{uuid.uuid4().hex[:8]}"
+    base = start(name, f"env XDG_STATE_HOME={state} {STW} --resume")
+    try:
+        screen = wait_for(base, name, "stw>")
+        assert "stw>" in screen and "backend scipy" in screen, screen
+        tmux(*base, "send-keys", "-t", name, "C-q")
+        deadline = time.monotonic() + 10
+        while name in tmux(*base, "list-sessions") and time.monotonic() < deadline:
+            time.sleep(0.2)
+        assert name not in tmux(*base, "list-sessions"), "stw --resume did not quit on Ctrl+Q"
     finally:
         tmux(*base, "kill-server")

@@ -41,27 +41,34 @@ def create_app(session_path: str | Path | None = None, step: bool = False, sessi
 
 
 def run_app(session_path: str | Path | None = None, step: bool = False,
-            journal: str | Path | None = None, exit_process: bool = True) -> int:
+            journal: str | Path | None = None, exit_process: bool = True, session: "Session | None" = None) -> int:
     """Run the TUI until the user quits, then end the process (or return its exit code).
 
     Args:
         session_path, step: as for :func:`create_app`.
         journal: a file the session's journal is appended to as commands are applied (each entry
-            is written and closed at once, so nothing is pending at exit).
+            is written and closed at once, so nothing is pending at exit); solves are
+            checkpointed beside it (stw_tui/autosave.py).
+        session: drive this session (a resumed one, see stw_tui/autosave.py) instead of a new one.
         exit_process: end the process with ``os._exit`` once the screen is restored, so Ctrl+Q
             takes well under a second: an interpreter that has loaded sympy and scipy spends about
             a second finalizing them, and a solve abandoned by Ctrl+Q (a daemon thread) is not
             waited for. False: return the exit code instead (for callers that go on).
     """
-    session = None
-    if journal is not None:
+    if session is None and journal is not None:
+        from ..autosave import Checkpoints
         from ..session import Session
 
         session = Session(journal_path=journal)
+        session.checkpoints = Checkpoints(Path(journal))
     app = create_app(session_path, step=step, session=session, settings_path=settings_file())
     _start_resource_tracker()
     app.run()
     code = app.return_code or 0
+    if session is not None and session.journal.path is not None:   # the screen is restored: say it
+        from ..autosave import kept_note
+
+        print(kept_note(session.journal.path), file=sys.stderr)
     if exit_process:
         engines = sys.modules.get("stw_tui.survey_engines")
         if engines is not None:   # a survey's Dask workers would outlive os._exit

@@ -93,6 +93,8 @@ class StwApp(App[int]):
         Binding("escape", "escape", "Console", show=False),
         Binding("ctrl+z", "undo", "Undo", show=False),
         Binding("ctrl+y", "redo", "Redo", show=False),
+        Binding("f9", "accept", "Accept the proposal", show=False),    # `set preview on`
+        Binding("f10", "reject", "Reject the proposal", show=False),
         Binding("ctrl+q", "quit", "Quit", priority=True),
     ]
 
@@ -179,6 +181,9 @@ class StwApp(App[int]):
         self.repl.write_note("stw — Spacetime Windows. Type a command (`help` lists them); "
                              "F1 help, F2 panels, F3 plots, F5 iterate, F4 stops, Esc back here, Ctrl+P palette, "
                              "Ctrl+Q quits.")
+        journal = self.runner.session.journal.path if self.runner.session is not None else None
+        if journal is not None:   # autosaved (stw_tui/autosave.py): say where, once
+            self.repl.write_note(f"journal: {journal} (`journal` says more; `stw --resume` reopens it)")
         self.status_line.show(state="loading")
         self.runner.submit(Job("", origin=Origin.STARTUP))   # loads the core and measures the scene, off the UI thread
         if self.session_path is not None:
@@ -471,6 +476,13 @@ class StwApp(App[int]):
     def action_redo(self) -> None:
         self.submit("redo", origin=Origin.KEY)
 
+    def action_accept(self) -> None:
+        """F9: the console's `accept` of a solve's proposal under `set preview on`."""
+        self.submit("accept", origin=Origin.KEY)
+
+    def action_reject(self) -> None:
+        self.submit("reject", origin=Origin.KEY)
+
     def action_iterate(self) -> None:
         self.submit(f"iterate {self.query_one(OptimizationPanel).iterations}", origin=Origin.KEY)
 
@@ -541,7 +553,7 @@ class StwApp(App[int]):
         self.exit()
 
 
-READ_ONLY_COMMANDS = frozenset({"print", "help"})
+READ_ONLY_COMMANDS = frozenset({"print", "help", "show", "cse", "journal"})
 
 
 def _changes_scene(line: str) -> bool:

@@ -172,8 +172,8 @@ COMMAND_HELP.update({
     "undo": CommandHelp("undo",
                         "Take back the last command that changed the scene (a solve included), exactly: "
                         "control points, constants, constraints, windows, weights and settings return "
-                        "bit for bit. `print`, `help`, `snapshot`, `snapshots`, `diff`, `export` and `save` "
-                        "change nothing and are not undone.", "undo"),
+                        "bit for bit. `print`, `show`, `cse`, `help`, `snapshot`, `snapshots`, `diff`, "
+                        "`export` and `save` change nothing and are not undone.", "undo"),
     "redo": CommandHelp("redo", "Do again what `undo` took back (until another command changes the scene).",
                         "redo"),
     "snapshot": CommandHelp("snapshot NAME",
@@ -190,13 +190,44 @@ COMMAND_HELP.update({
                         "largest difference of the curve over the animation), other definitions that "
                         "changed, and the objective and violation before and after.",
                         "diff before_release"),
-    "export": CommandHelp("export csv|json FILE [fps=N] [what=NAME,…]",
+    "export": CommandHelp("export csv|json|bvh FILE [fps=N] [what=NAME,…]",
                           "Write the motion sampled at N frames per second (default 30): per frame the "
                           "time, every DOF with its first and second derivatives, and every linkage "
                           "joint, tip and centre of mass position, and each subexpression NAME (a let, "
                           "tau_JOINT, arm.tip.x'); json adds the control points, knots "
-                          "and the session text. Quote a path with spaces. The scene does not change.",
+                          "and the session text; bvh writes a linkage's skeleton (from its DH rows) "
+                          "and per frame its base translation and joint angles in degrees, for "
+                          "Blender (what=LINKAGE chooses one). Quote a path with spaces. The scene does "
+                          "not change.",
                           "export csv throw.csv fps=60"),
+    "show": CommandHelp("show NAME | show EXPR [@ T] | show diff(EXPR, VAR) [@ T]",
+                        "What a name is, as the compiler sees it: a constraint's relations as written, "
+                        "with every subexpression substituted (as compiled) and simplified when small, "
+                        "with its scope, instance count and weight; an objective's terms; a DOF's knots, "
+                        "control points and bounds; a subexpression's definition; a motion verb's line "
+                        "and the constraints it expands into. `show EXPR` prints any expression "
+                        "expanded and simplified (`@ T` adds its value); diff(EXPR, VAR) its partial "
+                        "derivative by VAR (x, x', x'', t or a constant). The scene does not change.",
+                        "show diff(f, ELBOW'')"),
+    "cse": CommandHelp("cse NAME | cse EXPR",
+                       "The common subexpressions (x0, x1, …) the compiler shares when it compiles a "
+                       "constraint's relations, an objective's terms, a subexpression or an expression, "
+                       "and each term written with them.", "cse tau_ELBOW"),
+    "journal": CommandHelp("journal",
+                           "Where this session is journalled (every command, fsynced before it is "
+                           "acknowledged), its checkpoints, and the directory of autosaved sessions; "
+                           "`stw --resume [JOURNAL]` reopens one without solving again.", "journal"),
+    "accept": CommandHelp("accept",
+                          "With `set preview on`, a solve leaves the scene as it was and proposes its "
+                          "result, with the objective and violation of both; `accept` makes the "
+                          "proposal the scene (a step: `undo` takes it back; F9 in the TUI, F10 "
+                          "rejects). A command that changes the scene drops the proposal.", "accept"),
+    "reject": CommandHelp("reject", "Drop the proposal of the last solve under `set preview on`; the scene "
+                          "stays as it was.", "reject"),
+    "open": CommandHelp("open FILE",
+                        "Run a session file's lines as if typed: each is journalled and undoable on its "
+                        "own (a replay never reads FILE again). Stops at the first line that fails.",
+                        "open throw.stw"),
     "save": CommandHelp("save FILE",
                         "Write the session so far as a replayable .stw file (the journal's lines that "
                         "succeeded). The scene does not change.", "save throw.stw"),

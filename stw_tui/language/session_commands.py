@@ -1,5 +1,6 @@
 """Commands on the session rather than the scene: history (`undo`, `redo`), named snapshots
-(`snapshot`, `restore`, `snapshots`, `diff`) and files (`export`, `save`).
+(`snapshot`, `restore`, `snapshots`, `diff`), the symbolic console (`show`, `cse`), which only
+reads the scene, and files (`export`, `save`).
 
 The history and snapshot commands are parsed like every other command (see
 :mod:`.commands`). `export` and `save` take a file path, which is not a token of the language
@@ -12,14 +13,15 @@ from __future__ import annotations
 import re
 from dataclasses import dataclass
 
-from ..errors import SourceError
+from ..errors import SourceError, printable
 from .survey_commands import SURVEY_PARSERS, AdoptCmd, SchedulerCmd, SurveyCmd, parse_scheduler_command
 
 __all__ = ["UndoCmd", "RedoCmd", "SnapshotCmd", "RestoreCmd", "SnapshotsCmd", "DiffCmd", "ExportCmd",
-           "SaveCmd", "SurveyCmd", "AdoptCmd", "SchedulerCmd", "SESSION_PARSERS", "FILE_COMMANDS",
-           "EXPORT_FORMATS", "parse_file_command"]
+           "SaveCmd", "ShowCmd", "CseCmd", "JournalCmd", "AcceptCmd", "RejectCmd", "OpenCmd", "SurveyCmd",
+           "AdoptCmd", "SchedulerCmd", "SESSION_PARSERS", "FILE_COMMANDS", "EXPORT_FORMATS",
+           "parse_file_command"]
 
-EXPORT_FORMATS = ("csv", "json")
+EXPORT_FORMATS = ("csv", "json", "bvh")
 MAX_FPS = 10_000
 
 
@@ -71,6 +73,57 @@ class SaveCmd:
     text: str = ""
 
 
+@dataclass(frozen=True)
+class ShowCmd:
+    """`show NAME` (what a definition is) or `show EXPR [@ T]` (its symbolic form, and value)."""
+
+    name: str | None                # a constraint, objective, verb group, DOF, …; None: an expression
+    expr: object = None             # sp.Expr of `show EXPR`
+    expr_text: str = ""
+    at: object = None               # sp.Expr of `@ T`, or None
+    text: str = ""
+    wrt: object = None              # `show diff(EXPR, VAR)`: the symbol (x, x', x'', t, a constant)
+
+
+@dataclass(frozen=True)
+class CseCmd:
+    """`cse NAME|EXPR`: the common subexpressions the compiler shares in a term."""
+
+    name: str | None
+    expr: object = None
+    expr_text: str = ""
+    text: str = ""
+
+
+@dataclass(frozen=True)
+class JournalCmd:
+    """`journal`: where this session's journal (and its checkpoints) are kept."""
+
+    text: str = ""
+
+
+@dataclass(frozen=True)
+class OpenCmd:
+    """`open FILE`: run a session file's lines as if typed (the session does it, see Session.execute)."""
+
+    path: str
+    text: str = ""
+
+
+@dataclass(frozen=True)
+class AcceptCmd:
+    """`accept`: the proposed motion (`set preview on`) becomes the scene."""
+
+    text: str = ""
+
+
+@dataclass(frozen=True)
+class RejectCmd:
+    """`reject`: drop the proposed motion."""
+
+    text: str = ""
+
+
 # --- parsers of the token-based commands (called with the CommandParser) ----------------------
 def _p_undo(p):
     return UndoCmd(p.text)
@@ -96,15 +149,84 @@ def _p_diff(p):
     return DiffCmd(p.name("a snapshot name").text, p.text)
 
 
+def _name_or_expression(p):
+    """(name, expr, expr_text): a lone name (a constraint, objective, verb, DOF, subexpression…)
+    is kept as a name; anything else is read as an expression, as `print` reads it."""
+    from .tokens import END, NAME
+
+    first = p.token
+    if first.kind == NAME and p.tokens[p.pos + 1].kind == END:
+        p.advance()
+        return first.text, None, first.text
+    start = p.token.column
+    expr = p.expression()
+    return None, expr, printable(p.source[start - 1:p.token.column - 1].strip())
+
+
+def _diff_call(p):
+    """`diff(EXPR, VAR)`: (expr, VAR's symbol, text), VAR one DOF quantity (x, x', x''), t or a
+    constant; or None when the line is not such a call."""
+    from .tokens import NAME
+
+    if not (p.token.kind == NAME and p.token.text == "diff" and p.tokens[p.pos + 1].is_op("(")):
+        return None
+    start = p.token.column
+    p.advance()
+    p.advance()
+    expr = p.expression()
+    p.expect_op(",", "',' and the variable to differentiate by")
+    var_token = p.token
+    var = p.expression()
+    if not var.is_Symbol:
+        raise p.error("diff differentiates by one variable", var_token,
+                      expected="a DOF, its velocity or acceleration (x, x', x''), t or a constant")
+    p.expect_op(")", "')'")
+    return expr, var, printable(p.source[start - 1:p.token.column - 1].strip())
+
+
+def _p_show(p):
+    call = _diff_call(p)
+    if call is not None:
+        at = None
+        if p.token.is_op("@"):
+            p.advance()
+            at = p.number_expr()
+        return ShowCmd(None, call[0], call[2], at, p.text, call[1])
+    name, expr, expr_text = _name_or_expression(p)
+    at = None
+    if name is None and p.token.is_op("@"):
+        p.advance()
+        at = p.number_expr()
+    return ShowCmd(name, expr, expr_text, at, p.text)
+
+
+def _p_cse(p):
+    name, expr, expr_text = _name_or_expression(p)
+    return CseCmd(name, expr, expr_text, p.text)
+
+
+def _p_journal(p):
+    return JournalCmd(p.text)
+
+
+def _p_accept(p):
+    return AcceptCmd(p.text)
+
+
+def _p_reject(p):
+    return RejectCmd(p.text)
+
+
 def _p_file(p):   # reached only by a line like `export# …`: parse_file_command reads the others
     raise p.error("export and save need a file path after them", p.token,
-                  expected="`export csv|json FILE` or `save FILE`")
+                  expected="`export csv|json|bvh FILE` or `save FILE`")
 
 
 SESSION_PARSERS = {"undo": _p_undo, "redo": _p_redo, "snapshot": _p_snapshot, "restore": _p_restore,
                    "snapshots": _p_snapshots, "diff": _p_diff, "export": _p_file, "save": _p_file,
-                   **SURVEY_PARSERS}
-FILE_COMMANDS = ("export", "save")
+                   "open": _p_file, "show": _p_show, "cse": _p_cse, "journal": _p_journal,
+                   "accept": _p_accept, "reject": _p_reject, **SURVEY_PARSERS}
+FILE_COMMANDS = ("export", "save", "open")
 
 
 # --- commands with a file path ---------------------------------------------------------------
@@ -143,7 +265,8 @@ def _path(word: str, column: int, text: str, line: int | None) -> str:
 
 
 def parse_file_command(text: str, line: int | None = None):
-    """Parse `export FORMAT FILE [fps=N] [what=NAME,…]` or `save FILE`; None for any other command.
+    """Parse `export FORMAT FILE [fps=N] [what=NAME,…]`, `save FILE` or `open FILE`; None for any
+    other command.
 
     Raises:
         SourceError: with line, column and what was expected.
@@ -156,15 +279,15 @@ def parse_file_command(text: str, line: int | None = None):
         return None
     words = _words(text, line)
     command_text = text.strip()
-    (word, column, _), rest = words[0], words[1:]
+    (word, _, _), rest = words[0], words[1:]
     end = len(text.rstrip()) + 1
-    if word == "save":
+    if word in ("save", "open"):
         if not rest:
-            raise _error("save needs a file", text, line, end, expected="a file path")
+            raise _error(f"{word} needs a file", text, line, end, expected="a file path")
         if len(rest) > 1:
             raise _error(f"unexpected '{rest[1][0]}' after the file", text, line, rest[1][1],
                          expected="end of line (quote a path with spaces)")
-        return SaveCmd(_path(rest[0][0], rest[0][1], text, line), command_text)
+        return (SaveCmd if word == "save" else OpenCmd)(_path(rest[0][0], rest[0][1], text, line), command_text)
     if not rest or rest[0][0] not in EXPORT_FORMATS:
         at = rest[0][1] if rest else end
         got = f"unknown export format '{rest[0][0]}'" if rest else "export needs a format"
