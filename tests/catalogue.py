@@ -94,6 +94,29 @@ constraint bound: x <= 1/9 on [0, 1]
 objective effort: x'' weight=0.5
 """, known="Bryson & Ho's state-constrained double integrator: with l = 1/9 the optimal ∫½u² is "
            "4/(9l) = 4, the bound active on [3l, 1 - 3l] = [1/3, 2/3]"),
+    Problem("analytic_pendulum_swing_up", """time 0 2.5 knots=10
+const g = 9.81
+dof th
+let u = th'' + g*sin(th)
+constraint start: th = 0, th' = 0 @ 0
+constraint top: th = pi, th' = 0 @ 2.5
+objective effort: u
+""", known="a torque-limited swing-up has more than one local optimum: straight up, or pumping back first"),
+    Problem("analytic_landing", """time 0 1 knots=8
+const g = 9.81
+dof x, y
+constraint start: x = 0, y = 0, x' = 1, y' = 3 @ 0
+constraint land: x^2 + y^2 = 1 @ 1
+objective fuel: y'' + g, x''
+""", known="a thrown point mass that lands on the unit circle at t = 1 with least thrust"),
+    Problem("analytic_arm3", """time 0 1.5 knots=24 samples=24
+const g = 9.81
+linkage arm base=fixed
+  SHOULDER revolute a=0.35 mass=2.0
+  ELBOW    revolute a=0.30 mass=1.5
+  WRIST    revolute a=0.15 mass=0.5
+end
+""", known="all angles 0: the tip at x = 0.8"),
 )}
 
 PROBLEMS = {**BUNDLED, **ANALYTIC}

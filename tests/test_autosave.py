@@ -12,17 +12,12 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+import catalogue
 from stw_tui import autosave, interpreter
 from stw_tui.autosave import Checkpoints, resume
 from stw_tui.session import Session
 
-SCENE = """time 0 1 knots=8
-const g = 9.81
-dof x, y
-constraint start: x = 0, y = 0, x' = 1, y' = 3 @ 0
-constraint land: x^2 + y^2 = 1 @ 1
-objective fuel: y'' + g, x''
-iterate 30
+SCENE = catalogue.problem("analytic_landing").text + """iterate 30
 key 0.5 x=0.3
 iterate 30
 window early [0, 0.5]

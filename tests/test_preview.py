@@ -5,17 +5,12 @@ the same decisions."""
 import numpy as np
 import pytest
 
+import catalogue
 from conftest import run_lines
 from stw_tui.errors import StwError
 from stw_tui.session import Session
 
-SCENE = """time 0 1 knots=8
-const g = 9.81
-dof x, y
-constraint start: x = 0, y = 0, x' = 1, y' = 3 @ 0
-constraint land: x^2 + y^2 = 1 @ 1
-objective fuel: y'' + g, x''
-"""
+SCENE = catalogue.problem("analytic_landing").text
 
 
 def test_preview_proposes_and_accept_gives_the_solve_without_preview():

@@ -6,19 +6,13 @@ import numpy as np
 import pytest
 import sympy as sp
 
+import catalogue
 from conftest import run_lines
 from stw_tui.errors import SourceError, StwError
 from stw_tui.session import Session
 from stw_tui.show import common_subexpressions
 
-ARM = """time 0 1.5 knots=24 samples=24
-const g = 9.81
-linkage arm base=fixed
-  SHOULDER revolute a=0.35 mass=2.0
-  ELBOW    revolute a=0.30 mass=1.5
-  WRIST    revolute a=0.15 mass=0.5
-end
-dof BX, BY = 0.5*t lo=-2
+ARM = catalogue.problem("analytic_arm3").text + """dof BX, BY = 0.5*t lo=-2
 hold B at arm.tip on [0, 0.55]
 ballistic B on [0.55, 1.5]
 let lift = BY'' + g

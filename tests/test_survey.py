@@ -15,6 +15,7 @@ import sys
 
 import numpy as np
 import pytest
+import catalogue
 from conftest import ROOT
 
 from stw_tui.errors import SourceError, StwError
@@ -22,14 +23,7 @@ from stw_tui.session import Session
 from stw_tui.survey import SurveyPlan, plan_tasks
 from stw_tui.survey_engines import PoolEngine, SerialEngine, run_survey
 
-PENDULUM = """time 0 2.5 knots=10
-const g = 9.81
-dof th
-let u = th'' + g*sin(th)
-constraint start: th = 0, th' = 0 @ 0
-constraint top: th = pi, th' = 0 @ 2.5
-objective effort: u
-"""
+PENDULUM = catalogue.problem("analytic_pendulum_swing_up").text
 PLAN = SurveyPlan(12, seed=1, amplitude=3.0, iterations=100)
 
 

@@ -8,18 +8,12 @@ import asyncio
 import numpy as np
 import test_app_support as support
 
+import catalogue
 from stw_tui.app import create_app
 from stw_tui.app.gallery import GalleryScreen
 from stw_tui.session import Session
 
-PENDULUM = """time 0 2.5 knots=10
-const g = 9.81
-dof th
-let u = th'' + g*sin(th)
-constraint start: th = 0, th' = 0 @ 0
-constraint top: th = pi, th' = 0 @ 2.5
-objective effort: u
-set scheduler serial
+PENDULUM = catalogue.problem("analytic_pendulum_swing_up").text + """set scheduler serial
 """
 
 

@@ -4,18 +4,12 @@ hand, solve to the same motion, and are removed as one group."""
 import numpy as np
 import pytest
 
+import catalogue
 from conftest import run_lines
 from stw_tui.errors import SourceError, StwError
 from stw_tui.session import Session
 
-ARM = """time 0 1.5 knots=24 samples=24
-const g = 9.81
-linkage arm base=fixed
-  SHOULDER revolute a=0.35 mass=2.0
-  ELBOW    revolute a=0.30 mass=1.5
-  WRIST    revolute a=0.15 mass=0.5
-end
-dof BX, BY
+ARM = catalogue.problem("analytic_arm3").text + """dof BX, BY
 limit SHOULDER -2.6 3.2
 limit ELBOW 0 2.5
 limit WRIST -1.2 1.2
