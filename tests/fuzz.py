@@ -14,9 +14,10 @@ an exception other than ``StwError`` (an escape), an ``StwError`` that is only t
 "internal error", a failed line that changed the scene, and lines slower than 2 s (``iterate``
 apart: it reports progress and can be stopped).
 
-    python tests/fuzz.py --lines 100000 [--seed 1] [--show 10]
+    python tests/fuzz.py --lines 100000 [--seed 1] [--show 10] [--progress 1000]
 
-prints those counts, the slowest lines and the peak memory. ``tests/test_fuzz.py`` runs a few
+prints those counts, the slowest lines and the peak memory, with a progress line (counts so far,
+time left) on stderr every 1000 lines. ``tests/test_fuzz.py`` runs a few
 thousand lines of it in CI.
 """
 
@@ -269,8 +270,9 @@ class Findings:
         return "\n".join(out)
 
 
-def run(n_lines: int, seed: int = 1, batch: int = 40) -> Findings:
-    """Fuzz ``n_lines`` lines, ``batch`` lines to a fresh prelude scene, and return the findings."""
+def run(n_lines: int, seed: int = 1, batch: int = 40, progress=None, every: int = 1000) -> Findings:
+    """Fuzz ``n_lines`` lines, ``batch`` lines to a fresh prelude scene, and return the findings;
+    ``progress(found)`` is called every ``every`` lines (a long campaign shows where it is)."""
     rng = random.Random(seed)
     units = session_units()
     found = Findings()
@@ -281,6 +283,8 @@ def run(n_lines: int, seed: int = 1, batch: int = 40) -> Findings:
             session.run_text(PRELUDE)
         for line in generate(rng, units):
             _one(session, line, found)
+            if progress is not None and found.lines % every == 0:
+                progress(found)
             if found.lines >= n_lines:
                 break
     return found
@@ -334,9 +338,21 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--show", type=int, default=10, help="examples and slow lines to show")
     parser.add_argument("--trace", action="store_true", help="print how to reproduce each finding")
     parser.add_argument("--batch", type=int, default=40, help="lines run on one scene before a fresh one")
+    parser.add_argument("--progress", type=int, default=1000, metavar="N",
+                        help="a progress line on stderr every N lines (0: none)")
     args = parser.parse_args(argv)
     start = time.perf_counter()
-    found = run(args.lines, args.seed, args.batch)
+
+    def progress(found: Findings) -> None:
+        seconds = time.perf_counter() - start
+        left = (args.lines - found.lines) * seconds / found.lines
+        print(f"{found.lines}/{args.lines} lines, {seconds:.0f} s (about {left:.0f} s left): "
+              f"{sum(found.escaped.values())} escaped, {sum(found.internal.values())} internal, "
+              f"{found.changed_on_failure} changed on failure, {len(found.slow)} slow",
+              file=sys.stderr, flush=True)
+
+    found = run(args.lines, args.seed, args.batch, progress=progress if args.progress else None,
+                every=args.progress or 1000)
     print(found.report(args.show))
     if args.trace:
         for trace in found.traces.values():
