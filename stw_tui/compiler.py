@@ -81,7 +81,14 @@ def _lambdify(args, outputs):
     try:
         return se.Lambdify(args, outputs, cse=True, backend="llvm")
     except (RuntimeError, ValueError, TypeError):  # symengine built without LLVM
+        pass
+    try:
         return se.Lambdify(args, outputs, cse=True, backend="lambda")
+    except RuntimeError as exc:   # e.g. 0^x: its derivative holds log(0), a complex infinity
+        if "infinity" not in str(exc):
+            raise
+        raise StwError("the expression or one of its derivatives is infinite everywhere "
+                       "(such as log(0) in the derivative of 0^x): rewrite it") from None
 
 
 @dataclass(frozen=True)

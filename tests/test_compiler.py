@@ -78,3 +78,17 @@ def test_compiled_terms_are_kept_on_disk_across_runs(tmp_path, monkeypatch):
     third = compile_term(expr, {"x", "y"}, {"g"})
     assert np.array_equal(third.value(values, times, np.array([9.81])), first.value(values, times, np.array([9.81])))
     assert next(tmp_path.glob("*.pkl")).read_bytes() != b"garbage"
+
+
+@pytest.mark.parametrize("line", ["print sin(atan(tan(0) ^ x))", "objective z: 0^x"])
+def test_an_expression_whose_derivative_is_infinite_is_refused_clearly(line):
+    # 0^x differentiates to 0^x·log(0): symengine cannot compile the complex infinity and raised
+    # a RuntimeError, which reached the console as an "internal error" (found by the 100k fuzz).
+    from stw_tui.errors import StwError
+    from stw_tui.session import Session
+
+    s = Session()
+    s.run_text("time 0 1 knots=8\ndof x = t\n")
+    with pytest.raises(StwError, match="infinite everywhere"):
+        s.execute(line)
+    assert not s.scene.objectives
