@@ -23,6 +23,7 @@ from .compiler import _to_symengine
 from .errors import StwError
 from .instances import relation_times
 from .kinds import TermKind
+from .linkage.kinematics import to_sympy
 from .outcome import Outcome, PrintResult
 from .scene import Scene
 
@@ -214,7 +215,9 @@ def _terms(scene: Scene, cmd) -> list[tuple[str, sp.Basic]]:
 def common_subexpressions(exprs: list[sp.Basic]) -> tuple[list[tuple[sp.Symbol, sp.Basic]], list[sp.Basic]]:
     """symengine's CSE of the terms (what the compiler's Lambdify(cse=True) shares), as sympy."""
     replacements, reduced = se.cse([_to_symengine(e) for e in exprs])
-    return ([(sp.sympify(s), sp.sympify(e)) for s, e in replacements], [sp.sympify(e) for e in reduced])
+    memo: dict = {}   # converted node by node (linkage.kinematics.to_sympy): no text is ever parsed
+    return ([(to_sympy(s, memo), to_sympy(e, memo)) for s, e in replacements],
+            [to_sympy(e, memo) for e in reduced])
 
 
 def cse(session: "Session", scene: Scene, cmd) -> Outcome:

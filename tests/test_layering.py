@@ -56,3 +56,27 @@ def test_no_two_core_modules_import_each_other():
         imports[name] = _imports_of(path, package, set(paths)) - {name}
     mutual = sorted(f"{a} <-> {b}" for a in imports for b in imports[a] if a < b and a in imports[b])
     assert mutual == []
+
+
+def test_no_code_can_evaluate_text_as_python():
+    # User text must never reach Python evaluation: no eval/exec/compile builtins, and no sympy
+    # or symengine call that parses strings (sympify, parse_expr, S(...)), anywhere in the core
+    # or the bundled backends. One S(...) is known: the compiler hands symengine its own sympy
+    # trees (never text), and that site is listed here so any other one fails.
+    import ast
+    from pathlib import Path
+
+    root = Path(__file__).resolve().parent.parent
+    builtins, parsers = {"eval", "exec", "compile"}, {"sympify", "parse_expr", "S"}
+    known = {("stw_tui/compiler.py", "S")}
+    found = []
+    for path in sorted([*(root / "stw_tui").rglob("*.py"), *(root / "backends").rglob("*.py")]):
+        rel = path.relative_to(root).as_posix()
+        for node in ast.walk(ast.parse(path.read_text(encoding="utf-8"))):
+            if not isinstance(node, ast.Call):
+                continue
+            f = node.func
+            if (isinstance(f, ast.Name) and f.id in builtins | parsers) or \
+                    (isinstance(f, ast.Attribute) and f.attr in parsers and (rel, f.attr) not in known):
+                found.append(f"{rel}:{node.lineno}")
+    assert not found, found
