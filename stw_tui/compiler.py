@@ -218,16 +218,7 @@ def check_size(expr: sp.Basic) -> None:
     """
     most, largest_exponent = limits.value_or_ceiling("expression_size"), limits.value_or_ceiling("exponent")
     sizes: dict[sp.Basic, int] = {}
-    stack = [expr]
-    while stack:   # iterative post-order: deep expressions must not exhaust the Python stack
-        node = stack[-1]
-        pending = [a for a in node.args if a not in sizes]
-        if pending:
-            stack.extend(pending)
-            continue
-        stack.pop()
-        if node in sizes:
-            continue
+    for node in _post_order(expr):
         if node.is_Pow and node.exp.is_Integer and abs(node.exp) > largest_exponent:
             raise LimitError(limits.over("exponent", node.exp, f"{_clip(node)}: exponent") +
                              "; compiled code cannot raise to such a power exactly")
