@@ -33,7 +33,7 @@ class Problem:
 
     def before_first_iterate(self) -> str:
         """The lines before the first `iterate` (all of them when there is none)."""
-        from stw_tui.language import classify_line
+        from stw_tui.sym.language import classify_line
 
         lines = self.text.splitlines()
         cut = next((i for i, line in enumerate(lines) if classify_line(line).verb == "iterate"), len(lines))
@@ -41,7 +41,7 @@ class Problem:
 
     def setup(self, prefix: str = ""):
         """A session that ran ``prefix`` and then the problem up to its first `iterate`."""
-        from stw_tui.session import Session
+        from stw_tui.session.session import Session
 
         session = Session()
         session.run_text(prefix + self.before_first_iterate())
@@ -49,7 +49,7 @@ class Problem:
 
     def run(self, prefix: str = "", then: str = ""):
         """A session that ran ``prefix``, the whole problem, and ``then``."""
-        from stw_tui.session import Session
+        from stw_tui.session.session import Session
 
         session = Session()
         session.run_text(prefix + self.text + then)

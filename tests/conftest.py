@@ -11,7 +11,7 @@ SESSIONS = ROOT / "sessions"
 
 @pytest.fixture
 def session():
-    from stw_tui.session import Session
+    from stw_tui.session.session import Session
 
     return Session()
 
@@ -29,7 +29,7 @@ def registered(monkeypatch):
     backend existed)."""
     import importlib.util
 
-    import stw_tui.backend as backend_module
+    import stw_tui.sos.backend as backend_module
 
     if importlib.util.find_spec("stw_scipy") is None:   # the backend packages, from the checkout
         monkeypatch.syspath_prepend(str(ROOT / "backends"))

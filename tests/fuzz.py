@@ -40,8 +40,8 @@ os.environ.setdefault("STW_CACHE_DIR", "off")   # a fuzz run must not fill the u
 
 import numpy as np  # noqa: E402
 
-from stw_tui.errors import StwError  # noqa: E402
-from stw_tui.session import Session  # noqa: E402
+from stw_tui.session.session import Session  # noqa: E402
+from stw_tui.sym.errors import StwError  # noqa: E402
 
 SLOW = 2.0   # seconds: no line but `iterate` may take longer before its first result
 
@@ -175,7 +175,7 @@ def grammar_line(rng: random.Random) -> list[str]:
 def session_units() -> list[list[str]]:
     """The lines of the bundled sessions (the test catalogue's), a `linkage` block kept as one unit."""
     import catalogue
-    from stw_tui.language import classify_line
+    from stw_tui.sym.language import classify_line
 
     units: list[list[str]] = []
     for problem in catalogue.BUNDLED.values():

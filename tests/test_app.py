@@ -9,8 +9,8 @@ import asyncio
 
 import test_app_support as support
 from stw_tui.app import create_app
-from stw_tui.backend import Status
-from stw_tui.session import Session
+from stw_tui.session.session import Session
+from stw_tui.sos.backend import Status
 
 JET = support.SESSIONS / "particle_jet.stw"
 SIZE = (120, 40)
@@ -375,7 +375,7 @@ def test_curves_are_redrawn_from_each_iteration_while_a_solve_runs():
 
 def test_compare_key_in_the_opt_panel_shows_a_row_per_installed_backend():
     from stw_tui.app.dialogs import CompareScreen
-    from stw_tui.backend import available_backends
+    from stw_tui.sos.backend import available_backends
 
     app = create_app(session=jet_without_iterate(), show_timing=False)
 
@@ -649,7 +649,7 @@ def test_ctrl_z_and_ctrl_y_undo_and_redo_through_the_journal():
 
 
 def test_an_autosaved_session_says_where_its_journal_is_and_preview_accept_work_from_the_console(tmp_path):
-    from stw_tui.autosave import Checkpoints
+    from stw_tui.session.autosave import Checkpoints
 
     journal = tmp_path / "j.stw"
     session = jet_without_iterate()

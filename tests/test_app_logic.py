@@ -10,7 +10,7 @@ import pytest
 from stw_tui.app.completion import History, candidates, complete
 from stw_tui.app.runner import Job, Script
 from stw_tui.app.values import dof_series, equation_series, equation_violations, figure_bounds, scene_info
-from stw_tui.session import Session
+from stw_tui.session.session import Session
 
 SESSIONS = Path(__file__).resolve().parent.parent / "sessions"
 
@@ -78,7 +78,7 @@ def test_importing_the_app_loads_neither_the_solver_stack_nor_torch():
     import sys
 
     code = ("import sys, stw_tui.app\n"
-            "print(','.join(m for m in ('torch', 'sympy', 'scipy', 'stw_tui.session') if m in sys.modules))")
+            "print(','.join(m for m in ('torch', 'sympy', 'scipy', 'stw_tui.session.session') if m in sys.modules))")
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True)
     assert out.stdout.strip() == ""
 
@@ -119,7 +119,7 @@ def test_axes_have_round_ticks_and_a_constant_gets_a_sensible_range():
 
 
 def test_stw_help_starts_with_how_to_open_the_tui(capsys):
-    from stw_tui.cli import main
+    from stw_tui.cli.main import main
 
     with pytest.raises(SystemExit):
         main(["--help"])

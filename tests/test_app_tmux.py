@@ -151,8 +151,8 @@ def test_autosave_survives_kill_9_and_resume_reopens_it_without_solving(tmp_path
     resuming rebuilds the replayed scene without solving, and `stw --resume` opens the TUI on it."""
     import signal
 
-    from stw_tui import autosave
-    from stw_tui.session import Session
+    from stw_tui.session import resume
+    from stw_tui.session.session import Session
 
     state = tmp_path / "state"
     name = f"stw-test-{uuid.uuid4().hex[:8]}"
@@ -169,7 +169,7 @@ def test_autosave_survives_kill_9_and_resume_reopens_it_without_solving(tmp_path
         tmux(*base, "kill-server")
     journals = list((state / "stw").glob("particle_jet-*.stw"))
     assert len(journals) == 1, journals
-    resumed, restored, solved = autosave.resume(journals[0])
+    resumed, restored, solved = resume.resume(journals[0])
     assert restored >= 1 and solved == 0
     uninterrupted = Session()
     uninterrupted.run_file(ROOT / "sessions" / "particle_jet.stw")

@@ -13,9 +13,10 @@ import numpy as np
 import pytest
 
 import catalogue
-from stw_tui import autosave, interpreter
-from stw_tui.autosave import Checkpoints, resume
-from stw_tui.session import Session
+from stw_tui.session import autosave, interpreter, paths
+from stw_tui.session.autosave import Checkpoints
+from stw_tui.session.resume import resume
+from stw_tui.session.session import Session
 
 SCENE = catalogue.problem("analytic_landing").text + """iterate 30
 key 0.5 x=0.3
@@ -90,15 +91,15 @@ def test_resolve_and_damaged_checkpoints_solve_again(tmp_path):
 
 def test_state_directory_new_and_latest_journal_and_the_journal_command(tmp_path, monkeypatch):
     monkeypatch.setenv("XDG_STATE_HOME", str(tmp_path / "state"))
-    assert autosave.state_dir() == tmp_path / "state" / "stw"
-    first = autosave.new_journal_path("sessions/arm_throw.stw", now=0)
+    assert paths.state_dir() == tmp_path / "state" / "stw"
+    first = paths.new_journal_path("sessions/arm_throw.stw", now=0)
     assert first.parent == tmp_path / "state" / "stw" and first.name.startswith("arm_throw-")
     first.write_text("dof x\n")
-    second = autosave.new_journal_path("sessions/arm_throw.stw", now=0)
+    second = paths.new_journal_path("sessions/arm_throw.stw", now=0)
     assert second != first and second.name.endswith("-2.stw")
     second.write_text("dof y\n")
     os.utime(first, ns=(1, 1))
-    assert autosave.latest_journal() == second
+    assert paths.latest_journal() == second
     session = journalled(tmp_path / "j.stw", "dof x\n")
     message = session.execute("journal").message
     assert f"journal: {tmp_path / 'j.stw'}" in message and str(tmp_path / "state" / "stw") in message
@@ -107,8 +108,8 @@ def test_state_directory_new_and_latest_journal_and_the_journal_command(tmp_path
 
 WORKER = textwrap.dedent("""
     import sys
-    from stw_tui.autosave import Checkpoints
-    from stw_tui.session import Session
+    from stw_tui.session.autosave import Checkpoints
+    from stw_tui.session.session import Session
     from pathlib import Path
     path = Path(sys.argv[1])
     session = Session(journal_path=path)
@@ -148,7 +149,7 @@ def test_kill_9_during_solves_loses_no_acknowledged_command(tmp_path, kill_after
 
 def test_stw_autosaves_by_default_and_resume_opens_the_last_journal(tmp_path, monkeypatch, capsys):
     import stw_tui.app as app_module
-    from stw_tui import cli
+    from stw_tui.cli import main as cli
 
     monkeypatch.setenv("XDG_STATE_HOME", str(tmp_path / "state"))
     opened = {}

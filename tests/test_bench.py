@@ -3,8 +3,8 @@
 import argparse
 
 from conftest import SESSIONS
-from stw_tui import bench
-from stw_tui.window import WindowProblem
+from stw_tui.session import bench
+from stw_tui.sos.window import WindowProblem
 
 
 def _number(text: str) -> float:
@@ -60,8 +60,8 @@ def test_split_at_first_and_last_iterate():
 
 # --- the issue-10 target table (bench_targets.py) -------------------------------------------------
 
-from stw_tui import bench_targets as targets
-from stw_tui.bench_targets import Figure
+from stw_tui.cli import bench_targets as targets
+from stw_tui.cli.bench_targets import Figure
 
 
 def _figures() -> list[Figure]:
@@ -150,7 +150,7 @@ def test_stw_bench_prints_the_targets_unless_sessions_or_detail_are_asked(monkey
     monkeypatch.setattr(targets, "run_targets", lambda quick, anchors, repeat: calls.append(
         ("targets", quick, anchors, repeat)))
     monkeypatch.setattr(bench, "run_bench", lambda args: calls.append(("detail",)) or 0)
-    from stw_tui.cli import build_parser
+    from stw_tui.cli.main import build_parser
 
     for argv in (["bench", "--quick"], ["bench", "--anchors", "--repeat", "2"], ["bench", "--detail"],
                  ["bench", "--sessions", "x.stw"]):

@@ -10,10 +10,10 @@ import numpy as np
 import pytest
 
 from conftest import run_lines
-from stw_tui.errors import StwError
-from stw_tui.export import frame_times
-from stw_tui.session import Session
-from stw_tui.symbols import named_symbol
+from stw_tui.session.export import frame_times
+from stw_tui.session.session import Session
+from stw_tui.sym.errors import StwError
+from stw_tui.sym.symbols import named_symbol
 
 # A 3-D creature that uses every part of the mapping: a base that translates then rotates, a twist
 # (alpha) between rows, a prismatic joint, offsets theta and d.
@@ -179,7 +179,7 @@ def test_bvh_is_refused_without_one_linkage_and_stw_export_writes_it(tmp_path):
     session = tmp_path / "arm.stw"
     session.write_text(LAST_PRISMATIC)
     out = tmp_path / "cli.bvh"
-    done = subprocess.run([sys.executable, "-m", "stw_tui.cli", "export", str(session), "--format", "bvh",
+    done = subprocess.run([sys.executable, "-m", "stw_tui.cli.main", "export", str(session), "--format", "bvh",
                            "-o", str(out), "--fps", "10"], capture_output=True, text=True)
     assert done.returncode == 0, done.stderr
     check_positions(run_lines(Session(), LAST_PRISMATIC), out.read_text(), "arm", 10)

@@ -4,8 +4,8 @@ import numpy as np
 import pytest
 
 import catalogue
-from stw_tui.backend import SolverState, create_backend, load_backend, run_iterations
-from stw_tui.window import WindowProblem
+from stw_tui.sos.backend import SolverState, create_backend, load_backend, run_iterations
+from stw_tui.sos.window import WindowProblem
 
 
 def test_the_catalogue_holds_every_bundled_session_and_the_analytic_problems():

@@ -10,8 +10,8 @@ import pytest
 
 import catalogue
 from conftest import SESSIONS
-from stw_tui.compare import compare
-from stw_tui.errors import StwError
+from stw_tui.session.compare import compare
+from stw_tui.sym.errors import StwError
 
 
 @pytest.mark.parametrize("problem", catalogue.problems(*catalogue.QUICK), ids=str)
@@ -26,11 +26,11 @@ def test_linear_solvers_reach_the_same_motion(problem):
 
 
 def test_compare_cli_json_and_errors():
-    out = subprocess.run([sys.executable, "-m", "stw_tui.cli", "compare", str(SESSIONS / "particle_jet.stw"),
+    out = subprocess.run([sys.executable, "-m", "stw_tui.cli.main", "compare", str(SESSIONS / "particle_jet.stw"),
                           "--backends", "scipy", "--json"], capture_output=True, text=True, check=True)
     data = json.loads(out.stdout)
     assert data["backends"][0]["objective"] == pytest.approx(12 + 9.81**2, rel=1e-8)
-    bad = subprocess.run([sys.executable, "-m", "stw_tui.cli", "compare", str(SESSIONS / "particle_jet.stw"),
+    bad = subprocess.run([sys.executable, "-m", "stw_tui.cli.main", "compare", str(SESSIONS / "particle_jet.stw"),
                           "--backends", "nosuch"], capture_output=True, text=True)
     assert bad.returncode == 1 and "no backend named 'nosuch'" in bad.stderr
     with pytest.raises(StwError, match="cannot read session"):
@@ -38,9 +38,9 @@ def test_compare_cli_json_and_errors():
 
 
 def test_compare_names_a_different_local_optimum_and_streams_rows(monkeypatch):
-    from stw_tui import compare as compare_module
-    from stw_tui.bench import Measurement
-    from stw_tui.session import Session
+    from stw_tui.session import compare as compare_module
+    from stw_tui.session.bench import Measurement
+    from stw_tui.session.session import Session
 
     s = Session()
     s.run_text((SESSIONS / "particle_jet.stw").read_text().split("iterate")[0])

@@ -4,8 +4,8 @@ import numpy as np
 import pytest
 import sympy as sp
 
-from stw_tui.compiler import compile_term
-from stw_tui.symbols import TIME, dof_symbol, named_symbol
+from stw_tui.sym.compiler import compile_term
+from stw_tui.sym.symbols import TIME, dof_symbol, named_symbol
 
 x, xd, xdd = (dof_symbol("x", k) for k in range(3))
 y = dof_symbol("y")
@@ -50,14 +50,14 @@ def test_terms_are_cached_by_expression_and_constants_are_parameters():
 
 
 def test_an_undefined_symbol_is_a_clear_error():
-    from stw_tui.errors import StwError
+    from stw_tui.sym.errors import StwError
 
     with pytest.raises(StwError, match="'q' is not defined"):
         compile_term(named_symbol("q") * x, {"x"}, set())
 
 
 def test_compiled_terms_are_kept_on_disk_across_runs(tmp_path, monkeypatch):
-    from stw_tui import compiler
+    from stw_tui.sym import compiler
 
     monkeypatch.setenv("STW_CACHE_DIR", str(tmp_path))
     expr = sp.cos(x) * xd**2 + g * y
@@ -84,8 +84,8 @@ def test_compiled_terms_are_kept_on_disk_across_runs(tmp_path, monkeypatch):
 def test_an_expression_whose_derivative_is_infinite_is_refused_clearly(line):
     # 0^x differentiates to 0^x·log(0): symengine cannot compile the complex infinity and raised
     # a RuntimeError, which reached the console as an "internal error" (found by the 100k fuzz).
-    from stw_tui.errors import StwError
-    from stw_tui.session import Session
+    from stw_tui.session.session import Session
+    from stw_tui.sym.errors import StwError
 
     s = Session()
     s.run_text("time 0 1 knots=8\ndof x = t\n")

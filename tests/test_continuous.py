@@ -11,10 +11,10 @@ from scipy.interpolate import BSpline
 
 import catalogue
 from conftest import ROOT, SESSIONS, run_lines
-from stw_tui.continuous import check_scene
-from stw_tui.instances import exact_times
-from stw_tui.session import Session
-from stw_tui.window import WindowProblem
+from stw_tui.session.session import Session
+from stw_tui.sos.continuous import check_scene
+from stw_tui.sos.instances import exact_times
+from stw_tui.sos.window import WindowProblem
 
 FINE = np.linspace(0, 1, 100_001)
 
@@ -95,7 +95,7 @@ dof E = 0.3*sin(2*t)
 let h = arm.tip.y
 """)
     t = np.array([0.3, 0.5, 0.8])
-    from stw_tui.symbols import named_symbol
+    from stw_tui.sym.symbols import named_symbol
 
     def tip_y(times):   # forward kinematics by hand, from the DOF curves
         S, E = (s.scene.dofs[n].curve.evaluate(times) for n in ("S", "E"))
@@ -181,8 +181,8 @@ def test_adaptive_instances_fix_what_the_samples_missed():
 def test_a_stopped_adaptive_round_is_undone_and_journalled_as_what_was_kept(monkeypatch):
     from dataclasses import replace
 
-    from stw_tui import interpreter
-    from stw_tui.backend import Status
+    from stw_tui.session import interpreter
+    from stw_tui.sos.backend import Status
 
     s = run_lines(Session(), ADAPT)
     real, calls = interpreter.run_iterations, []
@@ -207,7 +207,7 @@ def test_print_names_a_constraint_and_json_reports_the_dense_check():
     s = run_lines(Session(), PIN)
     s.execute("print pin")
     assert s.prints[-1].value["dense"] <= 1e-8
-    out = subprocess.run([sys.executable, "-m", "stw_tui.cli", "run", str(SESSIONS / "point_mass_2d.stw"),
+    out = subprocess.run([sys.executable, "-m", "stw_tui.cli.main", "run", str(SESSIONS / "point_mass_2d.stw"),
                           "--json"], capture_output=True, text=True, check=True, cwd=ROOT)
     data = json.loads(out.stdout)
     assert data["dense_violation"] <= 1e-6 and data["dense_ok"]
@@ -216,7 +216,7 @@ def test_print_names_a_constraint_and_json_reports_the_dense_check():
 
 
 def test_instances_command_and_its_errors():
-    from stw_tui.errors import StwError
+    from stw_tui.sym.errors import StwError
 
     s = run_lines(Session(), PIN.replace("iterate 20\n", "constraint low: x <= 2 on [0.1, 0.9]\n"))
     s.execute("instances low add 0.5, 0.45")
@@ -352,7 +352,7 @@ def test_condition_tree_is_evaluated_like_its_boolean_formula():
     written out with numpy's own operators."""
     import sympy as sp
 
-    from stw_tui.window import evaluate_condition_tree, numpy_filled, relation_nodes
+    from stw_tui.sos.window import evaluate_condition_tree, numpy_filled, relation_nodes
 
     x, y = sp.symbols("x y", real=True)
     tree = sp.Or(sp.And(x > 0, sp.Not(sp.And(y <= 1, x < 2))), sp.Eq(x, y), sp.Ne(y, 2) & (x < -1))

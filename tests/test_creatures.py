@@ -5,10 +5,10 @@ import pytest
 
 import catalogue
 from conftest import SESSIONS
-from stw_tui.continuous import check_scene
-from stw_tui.errors import SourceError, StwError
-from stw_tui.figure import scene_figure
-from stw_tui.session import Session
+from stw_tui.session.figure import scene_figure
+from stw_tui.session.session import Session
+from stw_tui.sos.continuous import check_scene
+from stw_tui.sym.errors import SourceError, StwError
 
 ARM = catalogue.problem("analytic_arm2").text
 

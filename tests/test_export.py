@@ -8,11 +8,11 @@ import numpy as np
 import pytest
 
 from conftest import SESSIONS, run_lines
-from stw_tui import cli
-from stw_tui.errors import SourceError, StwError
-from stw_tui.session import Session
-from stw_tui.spline import DofCurve
-from stw_tui.symbols import named_symbol
+from stw_tui.cli import main as cli
+from stw_tui.session.session import Session
+from stw_tui.sos.spline import DofCurve
+from stw_tui.sym.errors import SourceError, StwError
+from stw_tui.sym.symbols import named_symbol
 
 LINKS = (0.35, 0.30, 0.15)   # the arm of sessions/arm_throw.stw
 
@@ -117,7 +117,7 @@ def test_export_changes_nothing_and_is_not_a_step_nor_replayed(tmp_path):
 
 
 def test_frames_cover_the_span():
-    from stw_tui.export import frame_times
+    from stw_tui.session.export import frame_times
 
     s = run_lines(Session(), "time 0.25 1.3 knots=6\ndof x\n")
     t = frame_times(s.scene, 10)

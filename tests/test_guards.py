@@ -8,9 +8,9 @@ import time
 import numpy as np
 import pytest
 
-from stw_tui import limits
-from stw_tui.errors import LimitError, SourceError, StwError
-from stw_tui.session import Session
+from stw_tui.session.session import Session
+from stw_tui.sym import limits
+from stw_tui.sym.errors import LimitError, SourceError, StwError
 
 QUICK = 5.0   # seconds: a sanity bound for lines that used to run for minutes, not a benchmark
 
@@ -196,8 +196,8 @@ def test_a_solve_from_an_undefined_start_names_the_term_and_the_time(negative):
     negative.execute("constraint cube: q = 1 @ 0.5")
     err = refused(negative, "iterate 2")                            # was: "non-finite values (diverged)"
     assert "constraint cube" in str(err) and "t=0.5" in str(err)
-    from stw_tui.interpreter import _check_start
-    from stw_tui.window import WindowProblem
+    from stw_tui.session.interpreter import _check_start
+    from stw_tui.sos.window import WindowProblem
 
     negative.execute("constraint cube: q = 1 @ 0.5 when x > 0")      # where it is undefined, it is off
     _check_start(WindowProblem(negative.scene))
@@ -233,7 +233,7 @@ class _Entry:
 
 
 def _faulty_backend(where: str, fault: type[BaseException]):
-    from stw_tui.backend import Backend, SolverState, StepReport
+    from stw_tui.sos.backend import Backend, SolverState, StepReport
 
     class Faulty(Backend):
         name = "faulty"
@@ -262,7 +262,7 @@ def _faulty_backend(where: str, fault: type[BaseException]):
 @pytest.mark.parametrize("fault", [SystemExit, KeyboardInterrupt, RuntimeError])
 @pytest.mark.parametrize("where", ["load", "init_options", "init", "step"])
 def test_a_plugin_raising_anything_is_stopped_at_the_backend_boundary(monkeypatch, plain, where, fault):
-    import stw_tui.backend as backend
+    import stw_tui.sos.backend as backend
 
     def load():
         if where == "load":
@@ -288,7 +288,7 @@ PLANTED = b"cos\nsystem\n(S'touch PWNED'\ntR."   # a pickle that runs a shell co
 
 @pytest.fixture
 def cache(tmp_path, monkeypatch):
-    from stw_tui import compiler
+    from stw_tui.sym import compiler
 
     root = tmp_path / "terms"
     monkeypatch.setenv("STW_CACHE_DIR", str(root))
@@ -301,8 +301,8 @@ def cache(tmp_path, monkeypatch):
 def _compile_once():
     import sympy as sp
 
-    from stw_tui.compiler import compile_term
-    from stw_tui.symbols import dof_symbol
+    from stw_tui.sym.compiler import compile_term
+    from stw_tui.sym.symbols import dof_symbol
 
     return compile_term(sp.sin(dof_symbol("x")) * 3, {"x"}, set())
 
@@ -326,7 +326,7 @@ def test_a_new_cache_is_private_and_its_entries_are_signed(cache):
 def test_a_planted_entry_is_never_unpickled_but_recompiled_and_reported_once(cache, monkeypatch):
     import warnings
 
-    from stw_tui import compiler
+    from stw_tui.sym import compiler
 
     _compile_once()
     _plant_everywhere(cache)
@@ -347,7 +347,7 @@ def test_a_planted_entry_is_never_unpickled_but_recompiled_and_reported_once(cac
 def test_a_cache_others_can_write_is_not_used(cache, monkeypatch, mode):
     import os
 
-    from stw_tui import compiler
+    from stw_tui.sym import compiler
 
     _compile_once()
     _plant_everywhere(cache)
@@ -361,7 +361,7 @@ def test_a_cache_others_can_write_is_not_used(cache, monkeypatch, mode):
 def test_a_key_others_can_read_disables_the_cache(cache, monkeypatch):
     import os
 
-    from stw_tui import compiler
+    from stw_tui.sym import compiler
 
     _compile_once()
     os.chmod(cache / ".key", 0o644)
@@ -372,8 +372,8 @@ def test_a_key_others_can_read_disables_the_cache(cache, monkeypatch):
 
 
 def test_compiled_terms_in_memory_are_bounded(monkeypatch):
-    from stw_tui import compiler
-    from stw_tui.symbols import dof_symbol
+    from stw_tui.sym import compiler
+    from stw_tui.sym.symbols import dof_symbol
 
     monkeypatch.setenv("STW_CACHE_DIR", "off")
     monkeypatch.setattr(compiler, "_CACHE", {})
@@ -397,7 +397,7 @@ def test_control_characters_in_an_echoed_line_are_shown_escaped(tmp_path):
     session = tmp_path / "hostile.stw"
     session.write_text("dof x\nprint x\x1b[2J\x1b[31m + 1\n", encoding="utf-8")
     env = dict(os.environ, STW_CACHE_DIR="off")
-    run = subprocess.run([sys.executable, "-m", "stw_tui.cli", "run", str(session)], env=env,
+    run = subprocess.run([sys.executable, "-m", "stw_tui.cli.main", "run", str(session)], env=env,
                          capture_output=True, text=True, timeout=120)
     assert run.returncode != 0
     assert "\x1b" not in run.stderr + run.stdout
@@ -436,7 +436,7 @@ def test_linkage_names_follow_the_language_rules(block, words):
 def test_a_front_end_drawing_outside_a_command_is_bound_only_by_the_ceilings(plain, monkeypatch):
     from dataclasses import replace
 
-    from stw_tui.symbols import named_symbol
+    from stw_tui.sym.symbols import named_symbol
 
     small = replace(limits.LIMITS["expression_size"], default=100)    # the same at 2^14 takes 9 s
     monkeypatch.setitem(limits.LIMITS, "expression_size", small)
@@ -507,10 +507,10 @@ def test_journal_onto_the_session_being_replayed_is_refused(tmp_path):
     before = session.read_text()
     for args in (["run", str(session), "--journal", str(session)],      # headless
                  [str(session), "--journal", str(tmp_path / "." / "s.stw")]):   # the TUI, another spelling
-        out = subprocess.run([sys.executable, "-m", "stw_tui.cli", *args], capture_output=True, text=True,
+        out = subprocess.run([sys.executable, "-m", "stw_tui.cli.main", *args], capture_output=True, text=True,
                              timeout=120)
         assert out.returncode == 2 and "would append itself" in out.stderr
         assert session.read_text() == before
-    ok = subprocess.run([sys.executable, "-m", "stw_tui.cli", "run", str(session), "--journal",
+    ok = subprocess.run([sys.executable, "-m", "stw_tui.cli.main", "run", str(session), "--journal",
                          str(tmp_path / "j.stw")], capture_output=True, text=True, timeout=120)
     assert ok.returncode == 0 and (tmp_path / "j.stw").read_text().startswith("time 0 1 knots=8")

@@ -7,9 +7,9 @@ import pytest
 
 import catalogue
 from conftest import run_lines
-from stw_tui.errors import StwError
-from stw_tui.history import History
-from stw_tui.session import Session
+from stw_tui.session.history import History
+from stw_tui.session.session import Session
+from stw_tui.sym.errors import StwError
 
 TWO_D = catalogue.problem("analytic_point_mass").text
 ARM = catalogue.problem("analytic_arm2").text + """constraint reach: arm.tip.x = 0.4, arm.tip.y = 0.3 @ 1
@@ -208,7 +208,7 @@ def test_snapshots_lists_objective_and_violation_of_each():
     s.execute("iterate 10")
     s.execute("snapshot solved")
     last = s.runs[-1].reports[-1]
-    from stw_tui.snapshots import measure
+    from stw_tui.session.snapshots import measure
     m = measure(s.history.snapshots["solved"].scene)
     assert m.objective == pytest.approx(last.objective, rel=1e-12)
     assert m.violation < 1e-8 and m.dense < 1e-8
@@ -224,7 +224,7 @@ def test_diff_names_the_changed_dof_and_how_much():
     old_y = s.scene.dofs["y"].curve
     s.execute("shake y amplitude=0.05 seed=1")
     s.execute("const g = 9.8")
-    from stw_tui.snapshots import diff_scenes
+    from stw_tui.session.snapshots import diff_scenes
     d = diff_scenes(s.history.snapshots["a"].scene, s.scene)
     changes = {c.name: c for c in d.dofs}
     assert changes["x"].max_abs == 0 and changes["y"].max_abs > 0
@@ -261,7 +261,7 @@ def test_a_stopped_solve_is_one_step():
 def test_a_failed_solve_leaves_the_warm_start_as_it_was(monkeypatch):
     """A command that fails after its solve ran keeps neither the scene nor the multipliers, so a
     replay (where it is a comment) goes on from the same warm start."""
-    import stw_tui.interpreter as interpreter
+    import stw_tui.session.interpreter as interpreter
 
     s = run_lines(Session(), TWO_D + "iterate 2\nconstraint mid: y = 1 @ 1\n")
     before, warm = state(s.scene), warm_bytes(s)

@@ -6,9 +6,9 @@ import pytest
 casadi = pytest.importorskip("casadi")
 
 import catalogue  # noqa: E402
-from stw_tui.backend import SolverState, load_backend, run_iterations  # noqa: E402
-from stw_tui.session import Session  # noqa: E402
-from stw_tui.window import WindowProblem  # noqa: E402
+from stw_tui.session.session import Session  # noqa: E402
+from stw_tui.sos.backend import SolverState, load_backend, run_iterations  # noqa: E402
+from stw_tui.sos.window import WindowProblem  # noqa: E402
 
 IpoptBackend = catalogue.backend_package("stw_ipopt").IpoptBackend
 
@@ -87,7 +87,7 @@ def test_options_and_limited_memory(registered):
 def test_settings_the_chosen_backend_ignores_are_warned_about(registered):
     """IPOPT declares no damping: `damp` under it, and choosing it for a damped scene, say so;
     scipy honours damping and says nothing."""
-    from stw_tui.backend import Capability
+    from stw_tui.sos.backend import Capability
 
     assert Capability.DAMPING not in IpoptBackend.capabilities
     s = Session()

@@ -9,18 +9,18 @@ import inspect
 import pytest
 import sympy as sp
 
-from stw_tui.errors import SourceError, StwError
-from stw_tui.language import (COMMAND_HELP, COMMAND_NAMES, DictScope, NameKind, parse_command,
+from stw_tui.sym.errors import SourceError, StwError
+from stw_tui.sym.language import (COMMAND_HELP, COMMAND_NAMES, DictScope, NameKind, parse_command,
                               parse_condition, parse_expression)
-from stw_tui.language import commands as commands_module
-from stw_tui.language import expressions as expressions_module
-from stw_tui.language import tokens as tokens_module
-from stw_tui.language.commands import (BackendCmd, ConstCmd, ConstraintCmd, DampCmd, DeleteCmd,
+from stw_tui.sym.language import commands as commands_module
+from stw_tui.sym.language import expressions as expressions_module
+from stw_tui.sym.language import tokens as tokens_module
+from stw_tui.sym.language.commands import (BackendCmd, ConstCmd, ConstraintCmd, DampCmd, DeleteCmd,
                                        DofCmd, FilterCmd, HelpCmd, IterateCmd, KeyCmd, LetCmd,
                                        ObjectiveCmd, PrintCmd, RefineCmd, Relation, SetCmd, ShakeCmd,
                                        TimeCmd, UseCmd, WeightCmd, WindowCmd)
-from stw_tui.language.help import help_text
-from stw_tui.symbols import TIME, dof_symbol, named_symbol
+from stw_tui.sym.language.help import help_text
+from stw_tui.sym.symbols import TIME, dof_symbol, named_symbol
 
 SCOPE = DictScope({"x": NameKind.DOF, "y": NameKind.DOF, "m": NameKind.CONST, "g": NameKind.CONST,
                    "f": NameKind.LET})
@@ -599,7 +599,7 @@ def test_help_unknown_topic():
     ("dof \u00e9 ?? unparsable", "dof", ("dof", "\u00e9", "??", "unparsable")),   # never raises
 ])
 def test_classify_line_reads_the_words_before_a_comment(text, verb, words):
-    from stw_tui.language import classify_line
+    from stw_tui.sym.language import classify_line
 
     line = classify_line(text)
     assert (line.verb, line.words, line.is_blank) == (verb, words, verb is None)

@@ -8,11 +8,11 @@ import time
 import pytest
 import sympy as sp
 
-from stw_tui.errors import SourceError
-from stw_tui.language import DictScope, NameKind, parse_command, parse_condition, parse_expression
-from stw_tui.language.commands import ConstCmd, IterateCmd, KeyCmd, ShakeCmd
-from stw_tui.language.expressions import MAX_DEPTH
-from stw_tui.symbols import TIME, dof_symbol, named_symbol
+from stw_tui.sym.errors import SourceError
+from stw_tui.sym.language import DictScope, NameKind, parse_command, parse_condition, parse_expression
+from stw_tui.sym.language.commands import ConstCmd, IterateCmd, KeyCmd, ShakeCmd
+from stw_tui.sym.language.expressions import MAX_DEPTH
+from stw_tui.sym.symbols import TIME, dof_symbol, named_symbol
 
 SCOPE = DictScope({"x": NameKind.DOF, "y": NameKind.DOF, "m": NameKind.CONST, "g": NameKind.CONST,
                    "f": NameKind.LET})

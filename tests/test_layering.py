@@ -6,8 +6,8 @@ import sys
 
 def test_core_imports_neither_textual_nor_torch():
     code = (
-        "import sys, stw_tui.session, stw_tui.cli, stw_tui.window, stw_tui.backend, stw_scipy\n"
-        "from stw_tui.session import Session\n"
+        "import sys, stw_tui.session.session, stw_tui.cli.main, stw_tui.sos.window, stw_tui.sos.backend, stw_scipy\n"
+        "from stw_tui.session.session import Session\n"
         "s = Session(); s.run_text('dof x\\nconstraint c: x = 1 @ 0\\nobjective o: x\\'\\'\\niterate 2')\n"
         "bad = [m for m in ('textual', 'torch', 'plotext') if m in sys.modules]\n"
         "print(','.join(bad))\n"
@@ -68,7 +68,7 @@ def test_no_code_can_evaluate_text_as_python():
 
     root = Path(__file__).resolve().parent.parent
     builtins, parsers = {"eval", "exec", "compile"}, {"sympify", "parse_expr", "S"}
-    known = {("stw_tui/compiler.py", "S")}
+    known = {("stw_tui/sym/compiler.py", "S")}
     found = []
     for path in sorted([*(root / "stw_tui").rglob("*.py"), *(root / "backends").rglob("*.py")]):
         rel = path.relative_to(root).as_posix()
@@ -80,3 +80,80 @@ def test_no_code_can_evaluate_text_as_python():
                     (isinstance(f, ast.Attribute) and f.attr in parsers and (rel, f.attr) not in known):
                 found.append(f"{rel}:{node.lineno}")
     assert not found, found
+
+
+# The layers of ARCHITECTURE.md, bottom up, and what each may import. An import anywhere in a
+# module counts: at the top, inside a function, or under TYPE_CHECKING.
+LAYERS = {
+    "stw_tui.sym": set(),
+    "stw_tui.sos": {"stw_tui.sym"},
+    "stw_tui.session": {"stw_tui.sym", "stw_tui.sos"},
+    "stw_tui.cli": {"stw_tui.sym", "stw_tui.sos", "stw_tui.session", "stw_tui.app"},
+    "stw_tui.app": {"stw_tui.sym", "stw_tui.sos", "stw_tui.session"},
+    "backends": {"stw_tui.sym", "stw_tui.sos"},
+}
+THIRD_PARTY_HOMES = {"textual": ("stw_tui.app",), "textual_plotext": ("stw_tui.app",),
+                     "torch": ("backends",), "casadi": ("backends",)}
+
+
+def _all_imports(path):
+    """Every module a file imports by absolute name (a relative import stays in its own package,
+    so in its own layer)."""
+    import ast
+
+    names = set()
+    for node in ast.walk(ast.parse(path.read_text(encoding="utf-8"))):
+        if isinstance(node, ast.ImportFrom):
+            if node.level == 0:
+                names.add(node.module)
+        elif isinstance(node, ast.Import):
+            names |= {alias.name for alias in node.names}
+    return names
+
+
+def _layer_of(module: str) -> str | None:
+    for layer in LAYERS:
+        if module == layer or module.startswith(layer + "."):
+            return layer
+    if module.split(".")[0] in ("stw_scipy", "stw_torch", "stw_ipopt"):
+        return "backends"
+    return None
+
+
+def test_layers_import_only_downwards():
+    """sym <- sos <- session <- app/cli, backends on sos: no arrow runs the other way, and Textual,
+    torch and casadi stay in their homes (ARCHITECTURE.md)."""
+    from pathlib import Path
+
+    root = Path(__file__).resolve().parent.parent
+    files = [*(root / "stw_tui").rglob("*.py"), *(root / "backends").rglob("*.py")]
+    assert len(files) > 60
+    wrong = []
+    for path in files:
+        rel = path.relative_to(root)
+        module = ".".join(rel.with_suffix("").parts)
+        own = _layer_of(module if rel.parts[0] == "stw_tui" else rel.parts[1])
+        assert own is not None or rel == Path("stw_tui/__init__.py"), rel
+        for name in _all_imports(path):
+            target = _layer_of(name)
+            if target is not None and target != own and target not in LAYERS.get(own, set()):
+                wrong.append(f"{rel} imports {name} ({own} -> {target})")
+            top = name.split(".")[0]
+            if top in THIRD_PARTY_HOMES and own not in THIRD_PARTY_HOMES[top]:
+                wrong.append(f"{rel} imports {name}, which belongs in {THIRD_PARTY_HOMES[top]}")
+    assert wrong == []
+
+
+def test_the_architecture_note_names_every_module():
+    """ARCHITECTURE.md lists every module of the tree under its layer, and nothing that is gone."""
+    import re
+    from pathlib import Path
+
+    root = Path(__file__).resolve().parent.parent
+    note = (root / "ARCHITECTURE.md").read_text(encoding="utf-8")
+    named = set(re.findall(r"`(stw_tui/[\w/]+\.py|backends/[\w/]+\.py)`", note))
+    present = {p.relative_to(root).as_posix() for p in [*(root / "stw_tui").rglob("*.py"),
+                                                        *(root / "backends").rglob("*.py")]
+               if p.name not in ("__init__.py", "__main__.py")}
+    assert named - present == set(), "named in ARCHITECTURE.md but gone"
+    assert present - named == set(), "in the tree but not in ARCHITECTURE.md"

@@ -16,11 +16,11 @@ import pytest
 import sympy as sp
 import symengine as se
 
-from stw_tui.errors import StwError
-from stw_tui.linkage import derive, dof_names, parse_linkage, segments, time_derivative
-from stw_tui.linkage.kinematics import chain, link_com_world, world_frames
-from stw_tui.linkage.spec import link_com, link_inertia
-from stw_tui.symbols import dof_symbol, named_symbol
+from stw_tui.sym.errors import StwError
+from stw_tui.sym.linkage import derive, dof_names, parse_linkage, segments, time_derivative
+from stw_tui.sym.linkage.kinematics import chain, link_com_world, world_frames
+from stw_tui.sym.linkage.spec import link_com, link_inertia
+from stw_tui.sym.symbols import dof_symbol, named_symbol
 
 G = named_symbol("g")
 GVAL = 9.81
@@ -336,8 +336,8 @@ def test_spatial_vs_lagrangian_symengine():
 
 def test_symengine_build_equals_sympy_build():
     """The same recursion run in pure sympy gives the same numbers and the same tree sizes."""
-    from stw_tui.linkage.dynamics import generalized_forces_raw
-    from stw_tui.linkage.kinematics import SYMPY
+    from stw_tui.sym.linkage.dynamics import generalized_forces_raw
+    from stw_tui.sym.linkage.kinematics import SYMPY
 
     spec = make(SPATIAL)
     names = dof_names(spec)
@@ -440,7 +440,7 @@ def test_cold_derivation_time():
 
     script = (
         "import time; t0 = time.perf_counter();"
-        "from stw_tui.linkage import parse_linkage, derive; t1 = time.perf_counter();"
+        "from stw_tui.sym.linkage import parse_linkage, derive; t1 = time.perf_counter();"
         "spec = parse_linkage('linkage arm', [(2, 'SHOULDER revolute a=0.35 mass=2'),"
         " (3, 'ELBOW revolute a=0.3 mass=1.5'), (4, 'WRIST revolute a=0.15 mass=0.5')]);"
         "d = derive(spec); t2 = time.perf_counter();"
@@ -463,7 +463,7 @@ def test_centroidal_base_places_the_centre_of_mass_and_keeps_the_base_forces():
     # link and 0.125 along the second from the foot; and by Newton's second law the force on the
     # free base (the ground reaction) is the total mass times the centre of mass's acceleration
     # plus its weight, whatever the joints do.
-    from stw_tui.session import Session
+    from stw_tui.session.session import Session
 
     s = Session()
     s.run_text("""time 0 1 knots=8
@@ -505,7 +505,7 @@ dof CY = 0.5 + 2*t - 4.9*t^2
     ("linkage a base=tx:X,ty:Y com=CX,X", "given twice"),
 ])
 def test_centroidal_base_errors(header, message):
-    from stw_tui.errors import SourceError
+    from stw_tui.sym.errors import SourceError
 
     with pytest.raises(SourceError, match=message):
         parse_linkage(header, [(2, "A revolute a=0.5")], header_line=1)

@@ -6,8 +6,8 @@ import math
 
 import pytest
 
-from stw_tui.errors import SourceError
-from stw_tui.linkage import BaseAxis, dof_names, parse_linkage
+from stw_tui.sym.errors import SourceError
+from stw_tui.sym.linkage import BaseAxis, dof_names, parse_linkage
 
 
 def parse(header, *rows, start=2):

@@ -5,7 +5,7 @@ import pytest
 
 import catalogue
 from conftest import SESSIONS, run_lines
-from stw_tui.session import Session
+from stw_tui.session.session import Session
 
 PARTICLE = catalogue.problem("analytic_particle").text + "backend scipy solver={solver}\niterate 20\n"
 

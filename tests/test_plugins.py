@@ -10,7 +10,7 @@ import pytest
 PLUGIN = textwrap.dedent('''
     """A tiny out-of-tree backend: steepest descent on the objective, no constraints."""
     import numpy as np
-    from stw_tui.backend import Backend, BackendOption, SolverState, StepReport
+    from stw_tui.sos.backend import Backend, BackendOption, SolverState, StepReport
 
     class Descent(Backend):
         """Gradient descent (a third party's toy)."""
@@ -48,11 +48,11 @@ def _install(tmp_path):
 
 def test_an_installed_third_party_backend_is_listed_and_used(tmp_path):
     env = _install(tmp_path)
-    listing = subprocess.run([sys.executable, "-m", "stw_tui.cli", "backends"], env=env,
+    listing = subprocess.run([sys.executable, "-m", "stw_tui.cli.main", "backends"], env=env,
                              capture_output=True, text=True, check=True).stdout
     assert "descent" in listing and "0.3" in listing and "rate=0.1" in listing
     assert "broken" in listing and "unavailable" in listing and "not installed" in listing  # reported, skipped
-    code = ("from stw_tui.session import Session\n"
+    code = ("from stw_tui.session.session import Session\n"
             "s = Session()\n"
             "s.run_text('dof x\\nobjective o: x - 1\\nbackend descent rate=4\\niterate 200')\n"
             "print(s.scene.dofs['x'].curve.evaluate([0.5])[0])\n")
@@ -62,7 +62,7 @@ def test_an_installed_third_party_backend_is_listed_and_used(tmp_path):
 
 def test_listing_backends_imports_none_of_them(tmp_path):
     env = _install(tmp_path)
-    code = ("import sys\nfrom stw_tui.backend import available_backends\n"
+    code = ("import sys\nfrom stw_tui.sos.backend import available_backends\n"
             "names = sorted(available_backends())\n"
             "print(names, [m for m in ('stw_descent', 'stw_broken', 'stw_torch', 'torch') if m in sys.modules])\n")
     out = subprocess.run([sys.executable, "-c", code], env=env, capture_output=True, text=True, check=True)
@@ -71,7 +71,7 @@ def test_listing_backends_imports_none_of_them(tmp_path):
 
 def test_installed_backends_declare_capabilities_as_the_enum():
     """Capabilities are Capability members, not bare strings (the interpreter reads them)."""
-    from stw_tui.backend import Capability, available_backends, load_backend
+    from stw_tui.sos.backend import Capability, available_backends, load_backend
 
     for name in available_backends():
         declared = load_backend(name).capabilities
@@ -88,8 +88,8 @@ def test_installed_backends_declare_capabilities_as_the_enum():
 ])
 def test_backend_options_out_of_range_are_refused_and_change_nothing(line, message):
     pytest.importorskip("casadi")
-    from stw_tui.errors import StwError
-    from stw_tui.session import Session
+    from stw_tui.session.session import Session
+    from stw_tui.sym.errors import StwError
 
     s = Session()
     s.run_text("time 0 1 knots=8\ndof x\nbackend scipy lin_tol=1e-10\n")

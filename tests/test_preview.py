@@ -7,8 +7,8 @@ import pytest
 
 import catalogue
 from conftest import run_lines
-from stw_tui.errors import StwError
-from stw_tui.session import Session
+from stw_tui.session.session import Session
+from stw_tui.sym.errors import StwError
 
 SCENE = catalogue.problem("analytic_landing").text
 

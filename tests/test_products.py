@@ -1,4 +1,4 @@
-"""Planned sparse products (stw_tui/products.py) are scipy's products bit for bit: the same
+"""Planned sparse products (stw_tui/sos/products.py) are scipy's products bit for bit: the same
 values, the same stored entries in the same order, so no downstream result can change."""
 
 import numpy as np
@@ -6,10 +6,10 @@ import pytest
 import scipy.sparse as sps
 
 from conftest import SESSIONS
-from stw_tui.backend import SolverState
-from stw_tui.products import GramPlan, ProductPlan
-from stw_tui.session import Session
-from stw_tui.window import HESSIAN_PLAN_AFTER, WindowProblem
+from stw_tui.session.session import Session
+from stw_tui.sos.backend import SolverState
+from stw_tui.sos.products import GramPlan, ProductPlan
+from stw_tui.sos.window import HESSIAN_PLAN_AFTER, WindowProblem
 
 
 def same(a, b) -> bool:

@@ -8,9 +8,9 @@ import sympy as sp
 
 import catalogue
 from conftest import run_lines
-from stw_tui.errors import SourceError, StwError
-from stw_tui.session import Session
-from stw_tui.show import common_subexpressions
+from stw_tui.session.session import Session
+from stw_tui.session.show import common_subexpressions
+from stw_tui.sym.errors import SourceError, StwError
 
 ARM = catalogue.problem("analytic_arm3").text + """dof BX, BY = 0.5*t lo=-2
 hold B at arm.tip on [0, 0.55]

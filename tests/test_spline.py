@@ -5,7 +5,7 @@ import pytest
 import scipy.sparse as sps
 from scipy.interpolate import BSpline, CubicSpline
 
-from stw_tui.spline import DofCurve, clamped_uniform_knots, gauss_legendre_nodes
+from stw_tui.sos.spline import DofCurve, clamped_uniform_knots, gauss_legendre_nodes
 
 
 def random_curve(seed=0, spans=7, t0=-0.5, t1=2.0):

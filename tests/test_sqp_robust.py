@@ -12,9 +12,9 @@ import numpy as np
 import pytest
 
 from conftest import ROOT, SESSIONS
-from stw_tui.backend import SolverState, Status, run_iterations
-from stw_tui.session import Session
-from stw_tui.window import WindowProblem
+from stw_tui.session.session import Session
+from stw_tui.sos.backend import SolverState, Status, run_iterations
+from stw_tui.sos.window import WindowProblem
 
 sys.path.insert(0, str(ROOT / "backends"))
 from stw_scipy import ScipyBackend  # noqa: E402
@@ -229,7 +229,7 @@ def test_an_elastic_qp_with_a_large_weight_keeps_its_best_acceptable_iterate():
     import scipy.sparse as sps
 
     from stw_scipy.linear import SparseAlgebra
-    from stw_tui.sqp import qp as Q
+    from stw_tui.sos.sqp import qp as Q
 
     f = np.load(ROOT / "tests" / "data" / "hop_first_qp.npz")
     H = sps.csr_array((f["H_data"], f["H_indices"], f["H_indptr"]), shape=tuple(f["H_shape"]))
@@ -268,7 +268,7 @@ def test_dependent_binding_rows_share_their_force_without_drift(la):
     # change of w/ε each time (basketball.stw: `limit ELBOW 0 2.5` with `ELBOW = 0 @ 0`; its
     # multiplier grew from 1 to 3500 in 300 steps, and the merit weight with it).
     import scipy.sparse as sps
-    from stw_tui.sqp.qp import solve_qp
+    from stw_tui.sos.sqp.qp import solve_qp
 
     H = la.matrix(sps.csr_array(np.diag([2.0, 1e4])))
     g = la.vector([30.0, -3e4])
@@ -306,7 +306,7 @@ def test_positive_definite_agrees_with_the_eigenvalues(la):
 def test_convexify_shifts_just_enough_for_the_null_space_of_the_binding_rows():
     import scipy.sparse as sps
     from stw_scipy.linear import SparseAlgebra
-    from stw_tui.sqp.curvature import convexify
+    from stw_tui.sos.sqp.curvature import convexify
 
     la = SparseAlgebra()
     H = sps.csr_array(np.diag([1.0, -1.0, -100.0]))

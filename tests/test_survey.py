@@ -1,4 +1,4 @@
-"""Surveys of local optima (stw_tui/survey.py, survey_engines.py, survey_session.py).
+"""Surveys of local optima (stw_tui/session/survey.py, survey_engines.py, survey_session.py).
 
 The problem is a pendulum swing-up: θ'' = u − g sin θ from hanging at rest (θ = 0) to upright at
 rest (θ = π) in 2.5 s, minimizing ∫u². Two local optima are known from the physics: swing straight
@@ -18,10 +18,10 @@ import pytest
 import catalogue
 from conftest import ROOT
 
-from stw_tui.errors import SourceError, StwError
-from stw_tui.session import Session
-from stw_tui.survey import SurveyPlan, plan_tasks
-from stw_tui.survey_engines import PoolEngine, SerialEngine, run_survey
+from stw_tui.session.session import Session
+from stw_tui.session.survey import SurveyPlan, plan_tasks
+from stw_tui.session.survey_engines import PoolEngine, SerialEngine, run_survey
+from stw_tui.sym.errors import SourceError, StwError
 
 PENDULUM = catalogue.problem("analytic_pendulum_swing_up").text
 PLAN = SurveyPlan(12, seed=1, amplitude=3.0, iterations=100)
@@ -188,7 +188,7 @@ def test_pool_gives_the_serial_table_and_survives_a_killed_worker(pendulum, seri
 
 def test_dask_local_cluster_gives_the_pool_table(pendulum, serial_table):
     pytest.importorskip("distributed")
-    from stw_tui.survey_engines import DaskEngine
+    from stw_tui.session.survey_engines import DaskEngine
 
     table = run_survey(pendulum, PLAN, DaskEngine(2))
     assert table_rows(table) == table_rows(serial_table)   # the pool gives it too (the test above)
@@ -197,7 +197,7 @@ def test_dask_local_cluster_gives_the_pool_table(pendulum, serial_table):
 
 def test_dask_survives_a_killed_worker(pendulum, serial_table):
     pytest.importorskip("distributed")
-    from stw_tui.survey_engines import DaskEngine
+    from stw_tui.session.survey_engines import DaskEngine
 
     engine = DaskEngine(2)
     client = engine.client()
@@ -221,7 +221,7 @@ def test_cli_survey_json(tmp_path):
     path.write_text(PENDULUM)
     env = {**os.environ, "PYTHONPATH": os.pathsep.join([str(ROOT), str(ROOT / "backends"),
                                                         os.environ.get("PYTHONPATH", "")])}
-    done = subprocess.run([sys.executable, "-m", "stw_tui.cli", "survey", str(path), "6", "seed=1",
+    done = subprocess.run([sys.executable, "-m", "stw_tui.cli.main", "survey", str(path), "6", "seed=1",
                            "amplitude=3", "--scheduler", "serial", "--json"],
                           capture_output=True, text=True, env=env, timeout=300)
     assert done.returncode == 0, done.stderr
@@ -232,14 +232,14 @@ def test_cli_survey_json(tmp_path):
 
 
 def _result(index, objective, motion, converged=True):
-    from stw_tui.survey import StartResult
+    from stw_tui.session.survey import StartResult
 
     return StartResult(index, index, (), "converged" if converged else "iteration limit reached",
                        converged=converged, objective=objective, dofs=("x",), motion=np.asarray([motion], float))
 
 
 def test_grouping_rules_objective_and_motion_tolerances_and_order():
-    from stw_tui.survey import MOTION_TOL, OBJECTIVE_RTOL, group
+    from stw_tui.session.survey import MOTION_TOL, OBJECTIVE_RTOL, group
 
     base = np.linspace(0, 1, 201)
     results = [_result(0, 10.0, base),

@@ -11,7 +11,7 @@ import test_app_support as support
 import catalogue
 from stw_tui.app import create_app
 from stw_tui.app.gallery import GalleryScreen
-from stw_tui.session import Session
+from stw_tui.session.session import Session
 
 PENDULUM = catalogue.problem("analytic_pendulum_swing_up").text + """set scheduler serial
 """

@@ -10,10 +10,10 @@ torch = pytest.importorskip("torch")
 
 import catalogue  # noqa: E402
 from conftest import ROOT, SESSIONS  # noqa: E402
-from stw_tui.backend import SolverState, run_iterations  # noqa: E402
-from stw_tui.errors import SolveError  # noqa: E402
-from stw_tui.session import Session  # noqa: E402
-from stw_tui.window import WindowProblem  # noqa: E402
+from stw_tui.session.session import Session  # noqa: E402
+from stw_tui.sos.backend import SolverState, run_iterations  # noqa: E402
+from stw_tui.sos.window import WindowProblem  # noqa: E402
+from stw_tui.sym.errors import SolveError  # noqa: E402
 from stw_scipy import ScipyBackend  # noqa: E402
 
 TorchBackend = catalogue.backend_package("stw_torch").TorchBackend
@@ -120,7 +120,7 @@ def test_derivatives_match_the_symbolic_compiler():
 
 
 def test_lowering_handles_numbers_in_min_max_and_numeric_calls():
-    from stw_tui.compiler import CompiledTerm, LocalVar
+    from stw_tui.sym.compiler import CompiledTerm, LocalVar
     from stw_torch.lower import lower
     import sympy as sp
 
@@ -182,7 +182,7 @@ def test_cuda_matches_cpu(registered, linear):
 def test_options_are_declared_and_validated():
     names = [o.name for o in TorchBackend.options]
     assert names[:2] == ["device", "linear"] and "solver" in names
-    from stw_tui.errors import StwError
+    from stw_tui.sym.errors import StwError
     with pytest.raises(StwError, match="device"):
         TorchBackend(device="tpu")
 

@@ -6,8 +6,8 @@ import pytest
 
 import catalogue
 from conftest import run_lines
-from stw_tui.errors import SourceError, StwError
-from stw_tui.session import Session
+from stw_tui.session.session import Session
+from stw_tui.sym.errors import SourceError, StwError
 
 ARM = catalogue.problem("analytic_arm3").text + """dof BX, BY
 limit SHOULDER -2.6 3.2
@@ -134,9 +134,9 @@ def test_contact_and_flight_expand_into_named_constraints_grouped_under_the_verb
 
 
 def _values(scene, expr_text, times):
-    from stw_tui.continuous import expression_values
-    from stw_tui.language.commands import parse_command
-    from stw_tui.session import SceneScope
+    from stw_tui.session.session import SceneScope
+    from stw_tui.sos.continuous import expression_values
+    from stw_tui.sym.language.commands import parse_command
     return expression_values(scene, parse_command(f"print {expr_text}", SceneScope(scene)).expr, times)
 
 
@@ -157,7 +157,7 @@ flight acro on [0.5, 1]
     f = sc.dofs["FOOT"].curve.evaluate(times)
     w = f + sc.dofs["WAIST"].curve.evaluate(times)
     planted, push, friction = (sc.constraints[n] for n in ("FOOT_planted", "FOOT_push", "FOOT_friction"))
-    from stw_tui.continuous import expression_values
+    from stw_tui.sos.continuous import expression_values
     np.testing.assert_allclose(expression_values(sc, push.relations[0].expr, times), 2 * (cy + 9.81), atol=1e-9)
     np.testing.assert_allclose(expression_values(sc, friction.relations[0].expr, times),
                                0.8 * 2 * (cy + 9.81) - 2 * cx, atol=1e-9)

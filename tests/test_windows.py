@@ -5,8 +5,8 @@ import pytest
 
 import catalogue
 from conftest import SESSIONS, run_lines
-from stw_tui.errors import SolveError, SourceError, StwError
-from stw_tui.session import Session
+from stw_tui.session.session import Session
+from stw_tui.sym.errors import SolveError, SourceError, StwError
 
 TWO_D = catalogue.problem("analytic_point_mass").text
 
@@ -15,7 +15,7 @@ def test_window_leaves_everything_outside_bit_for_bit():
     s = run_lines(Session(), TWO_D + "iterate 1\nconstraint mid: y = 1 @ 1\n")
     before = {n: d.curve.coef.copy() for n, d in s.scene.dofs.items()}
     s.execute("window middle dofs=y [0.8, 1.2]")
-    from stw_tui.window import WindowProblem
+    from stw_tui.sos.window import WindowProblem
     free = WindowProblem(s.scene).free - s.scene.dofs["x"].curve.n_coef
     s.execute("iterate 5")
     after = {n: d.curve.coef for n, d in s.scene.dofs.items()}

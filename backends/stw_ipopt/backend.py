@@ -20,7 +20,7 @@ iteration (its iterate through ``iteration_callback``, and ``obj``/``inf_pr``/``
 iteration. Intermediate reports carry IPOPT's iterate *of that iteration* (so the curves move as
 the table fills); the last one carries IPOPT's final solution and multipliers, with
 ``converged=True`` when the final point passes stw's own convergence tests (the same
-``tol_violation`` / ``tol_kkt`` tests as every backend, stw_tui.sqp.termination) and
+``tol_violation`` / ``tol_kkt`` tests as every backend, stw_tui.sos.sqp.termination) and
 ``stalled=True`` otherwise; IPOPT's own verdict is in the message. IPOPT's ``max_iter`` is the
 driver's iteration budget (``iterate N``) when that is smaller, so ``iterate 3`` runs three IPOPT
 iterations, and ends as "iteration limit reached" (not stalled); a further ``iterate`` restarts
@@ -41,9 +41,9 @@ import casadi
 import numpy as np
 import scipy.sparse as sps
 
-from stw_tui.backend import CANCELLED, ITERATION_BUDGET, Backend, BackendOption, Capability, SolverState, StepReport
-from stw_tui.errors import StwError
-from stw_tui.sqp.termination import is_converged, kkt_residual
+from stw_tui.sos.backend import CANCELLED, ITERATION_BUDGET, Backend, BackendOption, Capability, SolverState, StepReport
+from stw_tui.sos.sqp.termination import is_converged, kkt_residual
+from stw_tui.sym.errors import StwError
 
 
 # --- sparsity handling ---------------------------------------------------------------------
@@ -222,7 +222,7 @@ class IpoptBackend(Backend):
                                 step_length=float(rec.alpha), linear_iterations=0,
                                 active=int(np.count_nonzero((merit.c_ge <= 1e-8) & merit.active_ge)), ms=ms)
             return inner, report
-        # The last report: converged by the same tests as every other backend (stw_tui.sqp.termination).
+        # The last report: converged by the same tests as every other backend (stw_tui.sos.sqp.termination).
         ev = problem.evaluate(state.s)
         violation = problem.max_violation(ev)
         kkt = kkt_residual(ev, state.lam_eq, state.lam_ge)

@@ -15,8 +15,8 @@ import numpy as np
 import scipy.sparse as sps
 import scipy.sparse.linalg as spla
 
-from stw_tui.products import GramPlan
-from stw_tui.sqp.algebra import KKTSystem, LinearAlgebra, SingularSystem
+from stw_tui.sos.products import GramPlan
+from stw_tui.sos.sqp.algebra import KKTSystem, LinearAlgebra, SingularSystem
 
 SOLVERS = ("direct", "minres", "cg")
 FALLBACK_RESIDUAL = 1e-6   # relative KKT residual above which an iterative solve is not trusted

@@ -1,14 +1,14 @@
-"""The SciPy backend: the shared SQP (stw_tui.sqp) on sparse linear algebra.
+"""The SciPy backend: the shared SQP (stw_tui.sos.sqp) on sparse linear algebra.
 
 The SQP itself — its QP, elastic mode, step limit, merit acceptance test and termination — lives
-in the core (:mod:`stw_tui.sqp`); this backend supplies SciPy's sparse KKT solves (linear.py) and
+in the core (:mod:`stw_tui.sos.sqp`); this backend supplies SciPy's sparse KKT solves (linear.py) and
 evaluates the window problem with the core's compiled numpy terms.
 """
 
 from __future__ import annotations
 
-from stw_tui.backend import BackendOption
-from stw_tui.sqp import SQP_OPTIONS, SQPBackend
+from stw_tui.sos.backend import BackendOption
+from stw_tui.sos.sqp import SQP_OPTIONS, SQPBackend
 
 from .linear import SOLVERS, SparseAlgebra
 

@@ -1,4 +1,4 @@
-"""The torch backend: the shared SQP (stw_tui.sqp) with values and derivatives from torch autograd.
+"""The torch backend: the shared SQP (stw_tui.sos.sqp) with values and derivatives from torch autograd.
 
 The SQP itself — the QP of each step, its elastic mode, the step limit, the merit acceptance test
 and the convergence tests — is the core's, so this backend and ``stw_scipy`` take the same steps.
@@ -14,9 +14,9 @@ options (``help``, the TUI's backend panel) costs nothing.
 from __future__ import annotations
 
 from stw_scipy.sqp import ScipyBackend
-from stw_tui.backend import BackendOption, Capability
-from stw_tui.errors import StwError
-from stw_tui.sqp import SQPBackend, SQPInner
+from stw_tui.sos.backend import BackendOption, Capability
+from stw_tui.sos.sqp import SQPBackend, SQPInner
+from stw_tui.sym.errors import StwError
 
 
 class TorchBackend(SQPBackend):

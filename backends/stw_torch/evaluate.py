@@ -26,8 +26,8 @@ import numpy as np
 import scipy.sparse as sps
 import torch
 
-from stw_tui.errors import StwError
-from stw_tui.window import EQ, GE, OBJ, MeritValues, evaluate_condition_tree
+from stw_tui.sos.window import EQ, GE, OBJ, MeritValues, evaluate_condition_tree
+from stw_tui.sym.errors import StwError
 
 from .lower import LoweredTerm, lower
 

@@ -12,7 +12,7 @@ import numpy as np
 import scipy.sparse as sps
 import torch
 
-from stw_tui.sqp.algebra import KKTSystem, LinearAlgebra, SingularSystem
+from stw_tui.sos.sqp.algebra import KKTSystem, LinearAlgebra, SingularSystem
 
 
 class DenseKKT(KKTSystem):

@@ -15,8 +15,8 @@ from dataclasses import dataclass
 import sympy as sp
 import torch
 
-from stw_tui.compiler import CompiledTerm, LocalVar
-from stw_tui.symbols import TIME, split_dof_symbol
+from stw_tui.sym.compiler import CompiledTerm, LocalVar
+from stw_tui.sym.symbols import TIME, split_dof_symbol
 
 
 def _as_tensor(value, like: torch.Tensor) -> torch.Tensor:

@@ -10,10 +10,10 @@ import sys
 from pathlib import Path
 from typing import TYPE_CHECKING
 
-from .app import StwApp
+from stw_tui.app.app import StwApp
 
 if TYPE_CHECKING:
-    from ..session import Session
+    from stw_tui.session.session import Session
 
 __all__ = ["StwApp", "create_app", "run_app"]
 
@@ -48,16 +48,16 @@ def run_app(session_path: str | Path | None = None, step: bool = False,
         session_path, step: as for :func:`create_app`.
         journal: a file the session's journal is appended to as commands are applied (each entry
             is written and closed at once, so nothing is pending at exit); solves are
-            checkpointed beside it (stw_tui/autosave.py).
-        session: drive this session (a resumed one, see stw_tui/autosave.py) instead of a new one.
+            checkpointed beside it (stw_tui/session/autosave.py).
+        session: drive this session (a resumed one, see stw_tui/session/autosave.py) instead of a new one.
         exit_process: end the process with ``os._exit`` once the screen is restored, so Ctrl+Q
             takes well under a second: an interpreter that has loaded sympy and scipy spends about
             a second finalizing them, and a solve abandoned by Ctrl+Q (a daemon thread) is not
             waited for. False: return the exit code instead (for callers that go on).
     """
     if session is None and journal is not None:
-        from ..autosave import Checkpoints
-        from ..session import Session
+        from stw_tui.session.autosave import Checkpoints
+        from stw_tui.session.session import Session
 
         session = Session(journal_path=journal)
         session.checkpoints = Checkpoints(Path(journal))
@@ -66,11 +66,11 @@ def run_app(session_path: str | Path | None = None, step: bool = False,
     app.run()
     code = app.return_code or 0
     if session is not None and session.journal.path is not None:   # the screen is restored: say it
-        from ..autosave import kept_note
+        from stw_tui.session.autosave import kept_note
 
         print(kept_note(session.journal.path), file=sys.stderr)
     if exit_process:
-        engines = sys.modules.get("stw_tui.survey_engines")
+        engines = sys.modules.get("stw_tui.session.survey_engines")
         if engines is not None:   # a survey's Dask workers would outlive os._exit
             engines.kill_local_workers()
         sys.stdout.flush()

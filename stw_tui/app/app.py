@@ -18,25 +18,25 @@ from textual.containers import Horizontal
 from textual.widget import Widget
 from textual.widgets import Footer, TabbedContent, TabPane
 
-from ..language import classify_line
-from .console import Console
-from .dialogs import CompareScreen
-from .help_screen import HelpScreen, help_sections
-from .palette import SceneCommands, app_commands
-from .gallery import GalleryScreen, OptimumChosen
-from .messages import (CommandFinished, CommandRequested, CommandStarted, IterationReported, ItemChosen,
+from stw_tui.app.console import Console
+from stw_tui.app.dialogs import CompareScreen
+from stw_tui.app.gallery import GalleryScreen, OptimumChosen
+from stw_tui.app.help_screen import HelpScreen, help_sections
+from stw_tui.app.palette import SceneCommands, app_commands
+from stw_tui.sym.language import classify_line
+from stw_tui.app.messages import (CommandFinished, CommandRequested, CommandStarted, IterationReported, ItemChosen,
                        Origin, SurveyProgressed, TaskFinished)
-from .panels import ConstantsPanel, DofPanel, EquationsPanel, OptimizationPanel, TimePanel, WindowsPanel
-from .plots import ConvergencePlot, DofPlot, ExpressionPlot, FigurePlot, ScenePlot
-from .runner import Job, Runner, Script
-from .status import StatusLine
-from .values import SceneInfo
+from stw_tui.app.panels import ConstantsPanel, DofPanel, EquationsPanel, OptimizationPanel, TimePanel, WindowsPanel
+from stw_tui.app.plots import ConvergencePlot, DofPlot, ExpressionPlot, FigurePlot, ScenePlot
+from stw_tui.app.runner import Job, Runner, Script
+from stw_tui.app.status import StatusLine
+from stw_tui.app.values import SceneInfo
 
 if TYPE_CHECKING:
     from textual.app import SystemCommand
 
-    from ..scene import Scene
-    from ..session import Session
+    from stw_tui.session.session import Session
+    from stw_tui.sos.scene import Scene
 
 PANELS = (("DOF", DofPanel), ("Eqns", EquationsPanel), ("Const", ConstantsPanel), ("Win", WindowsPanel),
           ("Time", TimePanel), ("Opt", OptimizationPanel))
@@ -152,7 +152,7 @@ class StwApp(App[int]):
         return self.query_one(StatusLine)
 
     def _backend_names(self) -> list[str]:
-        from ..backend import available_backends
+        from stw_tui.sos.backend import available_backends
 
         return sorted(available_backends())
 
@@ -182,7 +182,7 @@ class StwApp(App[int]):
                              "F1 help, F2 panels, F3 plots, F5 iterate, F4 stops, Esc back here, Ctrl+P palette, "
                              "Ctrl+Q quits.")
         journal = self.runner.session.journal.path if self.runner.session is not None else None
-        if journal is not None:   # autosaved (stw_tui/autosave.py): say where, once
+        if journal is not None:   # autosaved (stw_tui/session/autosave.py): say where, once
             self.repl.write_note(f"journal: {journal} (`journal` says more; `stw --resume` reopens it)")
         self.status_line.show(state="loading")
         self.runner.submit(Job("", origin=Origin.STARTUP))   # loads the core and measures the scene, off the UI thread
@@ -193,7 +193,7 @@ class StwApp(App[int]):
         try:
             text = path.read_text(encoding="utf-8")
         except (OSError, UnicodeDecodeError) as exc:
-            from ..errors import StwError
+            from stw_tui.sym.errors import StwError
 
             self.repl.write_error(StwError(f"cannot read session {path}: {exc}"))
             return
@@ -307,7 +307,7 @@ class StwApp(App[int]):
         if event.action == "adopt":
             self.submit(f"adopt {event.rank}", origin="panel")
             return
-        from ..survey import preview_scene
+        from stw_tui.session.survey import preview_scene
 
         survey = self.session.survey if self.session is not None else None
         table = survey if survey is not None else getattr(self.screen, "table", None)
@@ -455,7 +455,7 @@ class StwApp(App[int]):
         self.screen.set_focus(tabs.get_pane(tabs.active).query_one(kind))
 
     def action_panels(self) -> None:
-        from .panel_base import ScenePanel
+        from stw_tui.app.panel_base import ScenePanel
 
         self._cycle_tabs("panels", ScenePanel)
 
@@ -493,7 +493,7 @@ class StwApp(App[int]):
         backends = self._backend_names()
 
         def task(session: "Session") -> tuple[int, list[dict]]:
-            from ..compare import compare_scene
+            from stw_tui.session.compare import compare_scene
 
             return n, compare_scene(session.scene, n, backends, label="session")
 
@@ -564,7 +564,7 @@ def _changes_scene(line: str) -> bool:
 
 def _was_stopped(outcome) -> bool:
     """Whether a command's solve ended because the user stopped it."""
-    from ..backend import Status
+    from stw_tui.sos.backend import Status
 
     run = getattr(outcome, "run", None)
     return run is not None and run.status is Status.STOPPED

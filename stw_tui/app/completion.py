@@ -8,7 +8,7 @@ import re
 from typing import TYPE_CHECKING
 
 if TYPE_CHECKING:
-    from ..scene import Scene
+    from stw_tui.sos.scene import Scene
 
 _WORD = re.compile(r"[A-Za-z_][A-Za-z0-9_.]*$")
 
@@ -52,8 +52,8 @@ def candidates(text: str, scene: "Scene | None", backends: list[str] = ()) -> tu
     Returns:
         The partial word and the sorted, distinct candidates that start with it.
     """
-    from ..language import COMMAND_NAMES     # the core loads in the worker; see app.StwApp
-    from ..scene import DEFAULT_SETTINGS
+    from stw_tui.sos.scene import DEFAULT_SETTINGS
+    from stw_tui.sym.language import COMMAND_NAMES     # the core loads in the worker; see app.StwApp
 
     match = _WORD.search(text)
     partial = match.group(0) if match else ""

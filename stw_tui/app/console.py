@@ -10,12 +10,12 @@ from textual.binding import Binding
 from textual.containers import Horizontal, Vertical
 from textual.widgets import Input, Label, RichLog
 
-from ..errors import SourceError
-from .completion import History, complete
-from .messages import CommandRequested, Origin
+from stw_tui.app.completion import History, complete
+from stw_tui.app.messages import CommandRequested, Origin
+from stw_tui.sym.errors import SourceError
 
 if TYPE_CHECKING:
-    from ..scene import Scene
+    from stw_tui.sos.scene import Scene
 
 PROMPT, CONTINUATION = "stw> ", "...> "
 

@@ -45,7 +45,7 @@ COMPARE_COLUMNS = ("backend", "its", "conv", "ms/it", "s total", "objective", "m
 
 
 class CompareScreen(ModalScreen[None]):
-    """The rows of :func:`stw_tui.compare.compare_scene` in a table (as `stw compare` prints them).
+    """The rows of :func:`stw_tui.session.compare.compare_scene` in a table (as `stw compare` prints them).
 
     Args:
         rows: one dict per backend (keys as compare_scene returns them).

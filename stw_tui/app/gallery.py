@@ -30,7 +30,7 @@ class OptimumChosen(Message):
 
 
 class GalleryScreen(ModalScreen[None]):
-    """The optima of a survey (a :class:`~stw_tui.survey.SurveyTable`), updated with :meth:`show`."""
+    """The optima of a survey (a :class:`~stw_tui.session.survey.SurveyTable`), updated with :meth:`show`."""
 
     BINDINGS = [Binding("escape", "close", "Close"), Binding("a", "adopt", "Adopt"),
                 Binding("enter", "play", "Play", show=False)]
@@ -56,7 +56,7 @@ class GalleryScreen(ModalScreen[None]):
 
     def show(self, survey) -> None:
         """Show ``survey`` (the table so far, or the finished one); the cursor stays on its row."""
-        from ..survey import describe_text
+        from stw_tui.session.survey import describe_text
 
         self.table = survey
         optima = survey.optima

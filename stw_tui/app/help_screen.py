@@ -1,6 +1,6 @@
 """The help screen (F1): a short tutorial, every key, and every command, scrollable and searchable.
 
-The command texts come from :mod:`stw_tui.language.help` (as `help` and `help COMMAND` print them)
+The command texts come from :mod:`stw_tui.sym.language.help` (as `help` and `help COMMAND` print them)
 and the keys from the widgets' own ``BINDINGS``, so neither is written twice.
 """
 
@@ -102,7 +102,7 @@ def key_sections(app: "App", areas: Iterable[tuple[str, type]]) -> str:
 
 def help_sections(app: "App", areas: Iterable[tuple[str, type]]) -> list[HelpSection]:
     """The tutorial, the keys, the command list, then one section per command."""
-    from ..language.help import COMMAND_HELP, help_text   # here: the language loads sympy
+    from stw_tui.sym.language.help import COMMAND_HELP, help_text   # here: the language loads sympy
 
     sections = [HelpSection("Getting started", TUTORIAL), HelpSection("Keys", key_sections(app, areas)),
                 HelpSection("Commands", help_text())]

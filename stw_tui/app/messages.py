@@ -9,9 +9,9 @@ from typing import TYPE_CHECKING, Any
 from textual.message import Message
 
 if TYPE_CHECKING:
-    from ..backend import StepReport
-    from .runner import Job
-    from .values import SceneInfo
+    from stw_tui.app.runner import Job
+    from stw_tui.app.values import SceneInfo
+    from stw_tui.sos.backend import StepReport
 
 
 class Origin(enum.StrEnum):

@@ -13,13 +13,13 @@ from typing import TYPE_CHECKING, Iterator
 from textual.app import SystemCommand
 from textual.command import DiscoveryHit, Hit, Hits, Provider
 
-from .messages import ItemChosen
-from .values import equation_names
+from stw_tui.app.messages import ItemChosen
+from stw_tui.app.values import equation_names
 
 if TYPE_CHECKING:
     from textual.app import App
 
-    from ..scene import Scene
+    from stw_tui.sos.scene import Scene
 
 # (title, help, action) of the app's own entries: its keys' actions, and a few without a key
 APP_ACTIONS = (
@@ -60,7 +60,7 @@ class SceneCommands(Provider):
     """DOF and equations of the scene (plot one), and the language's commands (start one)."""
 
     def _entries(self) -> list[tuple[str, str, object]]:
-        from ..language.help import COMMAND_HELP   # here: the language loads sympy
+        from stw_tui.sym.language.help import COMMAND_HELP   # here: the language loads sympy
 
         app = self.app
         entries = [(title, help, partial(app.post_message, ItemChosen(kind, name)))

@@ -12,12 +12,12 @@ from typing import TYPE_CHECKING, Callable, Iterable
 
 from textual.widgets import DataTable
 
-from .dialogs import EditDialog
-from .messages import CommandRequested
-from .values import SceneInfo
+from stw_tui.app.dialogs import EditDialog
+from stw_tui.app.messages import CommandRequested
+from stw_tui.app.values import SceneInfo
 
 if TYPE_CHECKING:
-    from ..scene import Scene
+    from stw_tui.sos.scene import Scene
 
 
 def num(value: float | None) -> str:

@@ -10,12 +10,12 @@ from typing import TYPE_CHECKING
 
 from textual.binding import Binding
 
-from .messages import ItemChosen
-from .panel_base import ScenePanel, SettingRow, SettingsPanel, num, show
-from .values import SceneInfo
+from stw_tui.app.messages import ItemChosen
+from stw_tui.app.panel_base import ScenePanel, SettingRow, SettingsPanel, num, show
+from stw_tui.app.values import SceneInfo
 
 if TYPE_CHECKING:
-    from ..scene import Scene
+    from stw_tui.sos.scene import Scene
 
 
 class DofPanel(ScenePanel):

@@ -13,13 +13,13 @@ from typing import TYPE_CHECKING
 from textual.binding import Binding
 from textual_plotext import PlotextPlot
 
-from .axes import fit_title, nice_ticks, title_room, value_limits
-from .messages import ItemChosen
-from .values import QUANTITIES, SceneInfo, dof_series, equation_names, equation_series
+from stw_tui.app.axes import fit_title, nice_ticks, title_room, value_limits
+from stw_tui.app.messages import ItemChosen
+from stw_tui.app.values import QUANTITIES, SceneInfo, dof_series, equation_names, equation_series
 
 if TYPE_CHECKING:
-    from ..backend import StepReport
-    from ..scene import Scene
+    from stw_tui.sos.backend import StepReport
+    from stw_tui.sos.scene import Scene
 
 REDRAW_INTERVAL = 0.1   # seconds: at most ~10 redraws a second
 
@@ -226,7 +226,7 @@ class FigurePlot(ScenePlot):
             self.request_draw()
 
     def draw(self, plt) -> None:
-        from ..figure import scene_figure
+        from stw_tui.session.figure import scene_figure
 
         scene = self.scene
         if scene is None or not scene.dofs:

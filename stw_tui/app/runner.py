@@ -19,16 +19,16 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import TYPE_CHECKING, Any, Callable
 
-from ..errors import StwError
-from ..language import classify_line
-from .messages import CommandFinished, CommandStarted, IterationReported, Origin, SurveyProgressed, TaskFinished
-from .values import SceneInfo, scene_info
+from stw_tui.app.messages import CommandFinished, CommandStarted, IterationReported, Origin, SurveyProgressed, TaskFinished
+from stw_tui.app.values import SceneInfo, scene_info
+from stw_tui.sym.errors import StwError
+from stw_tui.sym.language import classify_line
 
 if TYPE_CHECKING:
     from textual.app import App
 
-    from ..backend import StepReport
-    from ..session import Session
+    from stw_tui.session.session import Session
+    from stw_tui.sos.backend import StepReport
 
 
 @dataclass
@@ -159,7 +159,7 @@ class Runner:
         """Execute ``job`` on the session and post what happened. Never raises."""
         try:
             if self.session is None:   # the first job loads the core here, off the UI thread
-                from ..session import Session
+                from stw_tui.session.session import Session
 
                 self.session = Session()
         except Exception as exc:  # e.g. a broken install: say so instead of staying busy forever

@@ -8,7 +8,7 @@ from rich.text import Text
 from textual.widget import Widget
 
 if TYPE_CHECKING:
-    from ..backend import StepReport
+    from stw_tui.sos.backend import StepReport
 
 
 class StatusLine(Widget):

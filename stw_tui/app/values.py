@@ -13,10 +13,10 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
-from ..kinds import TermKind
+from stw_tui.sym.kinds import TermKind
 
 if TYPE_CHECKING:
-    from ..scene import Scene
+    from stw_tui.sos.scene import Scene
 
 QUANTITIES = ("value", "velocity", "acceleration")
 
@@ -60,7 +60,7 @@ def equation_series(scene: "Scene", name: str, n: int = 161) -> tuple[list[Serie
     Raises:
         StwError: an expression that no longer compiles (e.g. a deleted name).
     """
-    from ..symbols import named_symbol
+    from stw_tui.sym.symbols import named_symbol
 
     times = np.linspace(scene.t0, scene.t1, n)
     if name in scene.constraints:
@@ -84,7 +84,7 @@ def equation_violations(scene: "Scene") -> dict[str, float]:
     if not scene.constraints or not scene.dofs:
         return {}
     try:
-        from ..continuous import check_scene
+        from stw_tui.sos.continuous import check_scene
 
         return {name: c.dense for name, c in check_scene(scene).checks.items()}
     except Exception:  # a half-built scene (e.g. a constraint on a deleted name) has no check
@@ -93,7 +93,7 @@ def equation_violations(scene: "Scene") -> dict[str, float]:
 
 def figure_bounds(scene: "Scene", frames: int = 11) -> tuple[float, float, float, float] | None:
     """Bounds of the stick figure over the whole span, so playback does not rescale the axes."""
-    from ..figure import scene_figure
+    from stw_tui.session.figure import scene_figure
 
     try:
         boxes = [scene_figure(scene, t).bounds() for t in np.linspace(scene.t0, scene.t1, frames)]
@@ -109,7 +109,7 @@ def scene_info(scene: "Scene") -> SceneInfo:
     """Everything slow the panels need, measured once per command (called in the worker)."""
     info = SceneInfo(violations=equation_violations(scene), figure_bounds=figure_bounds(scene))
     try:
-        from ..backend import load_backend
+        from stw_tui.sos.backend import load_backend
 
         info.backend_options = tuple(load_backend(scene.backend).options)
     except Exception as exc:  # a broken plugin is shown in the panel, not raised

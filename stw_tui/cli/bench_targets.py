@@ -1,0 +1,364 @@
+"""`stw bench` (no ``--sessions``): every speed target of issue 10 beside its measured figure.
+
+Each row is one figure, its target and a verdict: ``met``, ``missed``, or why the target does not
+apply (two solvers that reached different optima, a backend that is not installed, no CUDA
+device). Targets that are ratios are measured against a reference timed in the same run on the
+same machine; the machines are shared and noisy, so nothing here asserts anything about time.
+
+What each figure is (medians of ``repeat`` runs unless said otherwise):
+
+* ``arm_throw first solve: ms/it``: scipy's median per-iteration time on the arm's first solve
+  (the paper's arm problem); ``basketball``'s on its one solve (``--quick``: its first 3
+  iterations).
+* ``S: time/ipopt``: the time to converge of scipy over IPOPT's on the scene before session
+  S's last `iterate` (bench.py's case); it counts only where both converge to the same optimum
+  (objectives within ``SAME_OPTIMUM``), else the verdict says why.
+* ``S: torch/scipy per it``: the torch backend on the CPU against scipy, per iteration, same
+  case; ``torch first iterate (S)``: the longest untimed warm-up `iterate 1` of the torch backend
+  over the sessions, on a fresh copy of the scene (torch itself is imported before, when the
+  backend is loaded; the warm-up pays the session's lowering and term caches, as a user's first
+  `iterate` does).
+* ``pendulum: time / SLSQP``: the swing-up θ'' = u − g sin θ over 20 knot spans, stw's `iterate`
+  against ``scipy.optimize.minimize(method="SLSQP")`` with an analytic gradient on the identical
+  B-spline and quadrature, written directly in numpy (slsqp_solve). Counted when the objectives
+  agree within 1e-4 relative. crocoddyl FDDP (``--anchors``) is not measured yet: its row only
+  says whether crocoddyl is installed.
+* ``window in 100 s / in 10 s``: the whole `iterate` of the same 1 s window in a 100 s and a 10 s
+  animation of the same knot density.
+* ``cold start``: wall time of ``stw run`` on the arm's text up to its first `iterate`, followed
+  by `iterate 1`, in a new process with a warm compile cache (the process's whole life).
+  ``arm: cached compile``: replaying that text and building its window problem with the
+  in-memory term cache emptied and the disk cache warm.
+* ``torch cuda / scipy per it`` at 10k control points: only where torch sees a CUDA device.
+"""
+
+from __future__ import annotations
+
+import os
+import statistics
+import subprocess
+import sys
+import tempfile
+import textwrap
+import time
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+from stw_tui.session import bench
+from stw_tui.sos.backend import load_backend
+from stw_tui.sym import compiler
+from stw_tui.session.bench import (Case, Measurement, bundled_sessions, machine_facts, measure, prepare,
+                    split_at_first_iterate, synthetic_session)
+from stw_tui.session.session import Session
+from stw_tui.sos.window import WindowProblem
+from stw_tui.sym.errors import StwError
+from stw_tui.sym.kinds import TermKind
+
+WIDTH = 80
+LABEL, VALUE, TARGET = 34, 11, 9           # column widths; the verdict gets the rest
+SAME_OPTIMUM = 1e-6                        # relative objective difference of "the same optimum"
+ANCHOR_ACCURACY = 1e-4                     # relative objective difference of "equal accuracy"
+# --quick: the sessions that converge in seconds (basketball's full solve takes minutes, and
+# arm_overhand's solvers reach different optima, so it cannot count against IPOPT anyway)
+QUICK_SESSIONS = ("acrobat", "arm_throw", "cat_mouse", "particle_jet", "point_mass_2d")
+QUICK_BASKETBALL_ITERATIONS = 3
+PENDULUM = """time 0 2 knots=20
+const g = 9.81
+dof th
+constraint start: th = 0, th' = 0 @ 0
+constraint goal: th = pi, th' = 0 @ 2
+objective effort: th'' + g*sin(th)       # u = th'' + g sin(th), the pendulum's torque
+iterate 50"""
+
+
+@dataclass
+class Figure:
+    """One measured figure and its target ``value <= limit``."""
+
+    label: str
+    value: float | None            # None: not measured (``note`` says why)
+    unit: str                      # "ms", "s" or "x" (a same-run ratio)
+    limit: float
+    note: str = ""                 # the verdict when not measured or not counted
+    counted: bool = True           # False: measured, but the target does not apply here
+
+    def verdict(self) -> str:
+        if self.value is None or not self.counted:
+            return self.note
+        return "met" if self.value <= self.limit else "missed"
+
+
+def _amount(value: float, unit: str) -> str:
+    if unit == "x":
+        return f"{value:.2f}x"
+    return f"{value:.1f} ms" if unit == "ms" else f"{value:.2f} s"
+
+
+def format_figure(f: Figure) -> str:
+    """One row of the target table, at most WIDTH characters."""
+    value = "-" if f.value is None else _amount(f.value, f.unit)
+    target = "≤ " + (f"{f.limit:g}x" if f.unit == "x" else f"{f.limit:g} {f.unit}")
+    room = WIDTH - LABEL - VALUE - TARGET - 3
+    return (f"{f.label[:LABEL]:<{LABEL}} {value:>{VALUE}} {target:>{TARGET}} "
+            f"{f.verdict()[:room]}").rstrip()
+
+
+def format_table(figures: list[Figure]) -> list[str]:
+    """Header, one row per figure and the count of met targets."""
+    header = f"{'figure':<{LABEL}} {'measured':>{VALUE}} {'target':>{TARGET}} verdict"
+    judged = [f for f in figures if f.value is not None and f.counted]
+    met = sum(f.verdict() == "met" for f in judged)
+    return [header, "-" * len(header), *map(format_figure, figures),
+            f"{met} of {len(judged)} judged targets met; {len(figures) - len(judged)} not judged"]
+
+
+# --- the figures ---------------------------------------------------------------------------------
+
+def _loadable(name: str) -> str | None:
+    """None when backend ``name`` loads, else the first line of why not."""
+    try:
+        load_backend(name)
+    except StwError as exc:
+        return str(exc).splitlines()[0]
+    return None
+
+
+def _measure(case: Case, backend: str, options: str, repeat: int, n: int | None = None,
+             ) -> Measurement | str:
+    try:
+        return measure(case.name, case.setup, n or case.n, backend, options, repeat, 5.0)
+    except StwError:
+        return f"{backend} failed"
+
+
+def session_figures(sources: list[tuple[str, str]], repeat: int, out) -> list[Figure]:
+    """Per session: scipy against IPOPT (time to converge) and torch (per iteration)."""
+    figures, firsts = [], []
+    missing = {b: why for b in ("ipopt", "torch") if (why := _loadable(b))}
+    for name, text in sources:
+        case = prepare(name, text)
+        if isinstance(case, str):
+            print(f"  {name}: {case}"[:WIDTH], file=out, flush=True)
+            continue
+        started = time.perf_counter()
+        scipy = _measure(case, "scipy", "solver=direct", repeat)
+        if isinstance(scipy, str):
+            figures.append(Figure(f"{name}: time/ipopt", None, "x", 0.5, scipy))
+            continue
+        if name == "basketball":
+            figures.append(Figure("basketball: scipy ms/it", scipy.ms_per_iteration, "ms", 20.0))
+        ipopt = _measure(case, "ipopt", "", repeat) if "ipopt" not in missing else "ipopt missing"
+        if isinstance(ipopt, str):
+            figures.append(Figure(f"{name}: time/ipopt", None, "x", 0.5, ipopt))
+        else:
+            same = (scipy.converged and ipopt.converged and abs(scipy.objective - ipopt.objective)
+                    <= SAME_OPTIMUM * max(1.0, abs(ipopt.objective)))
+            why = "other optimum" if scipy.converged and ipopt.converged else "not converged"
+            figures.append(Figure(f"{name}: time/ipopt", scipy.seconds / ipopt.seconds,
+                                  "x", 0.5, why, counted=same))
+        torch = _measure(case, "torch", "device=cpu", repeat) if "torch" not in missing else "torch missing"
+        if isinstance(torch, str):
+            figures.append(Figure(f"{name}: torch/scipy per it", None, "x", 1.5, torch))
+        else:
+            firsts.append((torch.first_seconds, name))
+            figures.append(Figure(f"{name}: torch/scipy per it",
+                                  torch.ms_per_iteration / scipy.ms_per_iteration, "x", 1.5))
+        print(f"  {case.name}: {time.perf_counter() - started:.1f} s"[:WIDTH], file=out, flush=True)
+    if firsts:
+        seconds, where = max(firsts)
+        figures.append(Figure(f"torch first iterate ({where})", seconds, "s", 1.0))
+    elif "torch" in missing:
+        figures.append(Figure("torch first iterate", None, "s", 1.0, "torch missing"))
+    return figures
+
+
+def basketball_quick_figure(text: str) -> Figure:
+    """basketball's scipy ms/it over its first iterations only (its full solve takes minutes)."""
+    case = prepare("basketball", text)
+    if isinstance(case, str):
+        return Figure("basketball: scipy ms/it", None, "ms", 20.0, case)
+    m = _measure(case, "scipy", "solver=direct", 1, QUICK_BASKETBALL_ITERATIONS)
+    if isinstance(m, str):
+        return Figure("basketball: scipy ms/it", None, "ms", 20.0, m)
+    return Figure(f"basketball: ms/it, {QUICK_BASKETBALL_ITERATIONS} its", m.ms_per_iteration,
+                  "ms", 20.0)
+
+
+def arm_first_solve_figure(text: str, repeat: int) -> Figure:
+    """scipy's per-iteration time on the arm's first solve (the paper's arm problem)."""
+    split = split_at_first_iterate(text)
+    setup = Session()
+    setup.run_text(split[0])
+    m = _measure(Case("arm_throw", setup, split[1]), "scipy", "solver=direct", repeat)
+    if isinstance(m, str):
+        return Figure("arm_throw first solve: ms/it", None, "ms", 4.0, m)
+    return Figure("arm_throw first solve: ms/it", m.ms_per_iteration, "ms", 4.0)
+
+
+def slsqp_solve(scene) -> tuple[float, float]:
+    """(seconds, objective) of SLSQP on the pendulum swing-up, written directly in numpy.
+
+    The naive choice a user would make: the same B-spline (stw's curve, its basis matrices) and
+    the same quadrature rule (stw's objective instances and weights, taken untimed), the
+    objective ``Σ w (θ'' + g sin θ)²`` and its analytic gradient, the four boundary conditions as
+    linear equalities. Timed from building the basis matrices to SLSQP's answer.
+    """
+    from scipy.optimize import minimize
+
+    group = next(g for g in WindowProblem(scene).groups if g.kind == TermKind.OBJ)
+    times, w, g = group.times, group.weights, float(scene.constants["g"])
+    started = time.perf_counter()
+    curve = scene.dofs["th"].curve
+    B0, B2 = curve.basis(times, 0).toarray(), curve.basis(times, 2).toarray()
+    ends = np.array([scene.t0, scene.t1])
+    A = np.vstack([curve.basis(ends, 0).toarray(), curve.basis(ends, 1).toarray()])
+    b = np.array([0.0, np.pi, 0.0, 0.0])        # θ(0), θ(T), θ'(0), θ'(T)
+
+    def objective(c):
+        theta = B0 @ c
+        u = B2 @ c + g * np.sin(theta)
+        return float(w @ (u * u))
+
+    def gradient(c):
+        theta = B0 @ c
+        r = 2.0 * w * (B2 @ c + g * np.sin(theta))
+        return B2.T @ r + B0.T @ (r * g * np.cos(theta))
+
+    result = minimize(objective, np.zeros(curve.n_coef), jac=gradient, method="SLSQP",
+                      constraints=[{"type": "eq", "fun": lambda c: A @ c - b, "jac": lambda c: A}],
+                      options={"maxiter": 500, "ftol": 1e-12})
+    return time.perf_counter() - started, float(result.fun)
+
+
+def pendulum_figures(repeat: int, anchors: bool) -> list[Figure]:
+    """stw against SLSQP (and crocoddyl FDDP with ``anchors``) on the pendulum swing-up."""
+    case = prepare("pendulum", PENDULUM)
+    stw = _measure(case, "scipy", "solver=direct", max(repeat, 3))
+    if isinstance(stw, str):
+        return [Figure("pendulum: time / SLSQP", None, "x", 1.0, stw)]
+    slsqp_solve(case.setup.scene.copy())                       # untimed: warm caches as stw's
+    runs = [slsqp_solve(case.setup.scene.copy()) for _ in range(max(repeat, 3))]
+    seconds = statistics.median(r[0] for r in runs)
+    objective = runs[0][1]
+    same = abs(objective - stw.objective) <= ANCHOR_ACCURACY * max(1.0, abs(objective))
+    figures = [Figure("pendulum: time / SLSQP", stw.seconds / seconds, "x", 1.0,
+                      "other optimum", counted=same)]
+    if anchors:
+        try:
+            import crocoddyl  # noqa: F401
+            note = "FDDP not wired yet"
+        except ImportError:
+            note = "crocoddyl missing"
+        figures.append(Figure("pendulum: time / FDDP", None, "x", 1.0, note))
+    return figures
+
+
+def window_session(span: int) -> str:
+    """The same 1 s window [4.5, 5.5] in an animation of ``span`` seconds, 4 knot spans a second."""
+    return "\n".join([
+        f"time 0 {span} knots={4 * span}",
+        "dof x, y",
+        "constraint start: x = 0, x' = 0, y = 0, y' = 0 @ 0",
+        f"constraint goal: x = 1, y = 2, x' = 0, y' = 0 @ {span}",
+        "objective effort: x'' + sin(y), y'' + 3*sin(x)",
+        "window focus [4.5, 5.5]",
+        "constraint mid: x = 2, y = -1 @ 5",
+        "iterate 20"])
+
+
+def window_figure(repeat: int) -> Figure:
+    times = []
+    for span in (10, 100):
+        case = prepare(f"window-{span}", window_session(span))
+        m = case if isinstance(case, str) else _measure(case, "scipy", "solver=direct", max(repeat, 3))
+        if isinstance(m, str):
+            return Figure("1 s window: in 100 s / 10 s", None, "x", 1.1, m)
+        times.append(m.seconds)
+    return Figure("1 s window: in 100 s / 10 s", times[1] / times[0], "x", 1.1)
+
+
+def cold_start_figures(text: str, repeat: int) -> list[Figure]:
+    """`stw run` of the arm up to its first iteration in a new process, and its cached compile."""
+    prefix = split_at_first_iterate(text)[0]
+    with tempfile.TemporaryDirectory() as folder:
+        path = Path(folder) / "arm_first.stw"
+        path.write_text(prefix + "\niterate 1\n", encoding="utf-8")
+        command = [sys.executable, "-m", "stw_tui.cli.main", "run", str(path)]
+        runs = []
+        for i in range(1 + max(repeat, 1)):                  # the first warms the disk cache
+            started = time.perf_counter()
+            done = subprocess.run(command, capture_output=True, text=True, env=os.environ.copy())
+            if done.returncode != 0:
+                return [Figure("cold start: stw run arm, 1 it", None, "s", 1.0, "stw run failed")]
+            runs.append(time.perf_counter() - started)
+    cold = Figure("cold start: stw run arm, 1 it", statistics.median(runs[1:]), "s", 1.0)
+    compiles = []
+    for _ in range(max(repeat, 1)):
+        compiler._CACHE.clear()                              # the in-memory cache only
+        started = time.perf_counter()
+        session = Session()
+        session.run_text(prefix)
+        WindowProblem(session.scene)
+        compiles.append(time.perf_counter() - started)
+    return [cold, Figure("arm: cached compile", statistics.median(compiles), "s", 0.1)]
+
+
+def gpu_figure() -> Figure:
+    """torch on CUDA against scipy per iteration at 10k control points, where a device exists."""
+    label = "10k points: torch cuda / scipy"
+    if _loadable("torch"):
+        return Figure(label, None, "x", 0.1, "torch missing")
+    # Ask the plugin (the core never imports torch): one iteration of the smallest problem on cuda.
+    probe = prepare("cuda-probe", synthetic_session(1, 4))
+    if isinstance(probe, str) or isinstance(_measure(probe, "torch", "device=cuda", 1, 1), str):
+        return Figure(label, None, "x", 0.1, "no CUDA device")
+    case = prepare("synthetic-10k", synthetic_session(5, 1997))     # 5 x 2000 control points
+    if isinstance(case, str):
+        return Figure(label, None, "x", 0.1, case)
+    scipy, cuda = (_measure(case, b, o, 1, 3) for b, o in
+                   (("scipy", "solver=direct"), ("torch", "device=cuda")))
+    if isinstance(scipy, str) or isinstance(cuda, str):
+        return Figure(label, None, "x", 0.1, "a solve failed")
+    return Figure(label, cuda.ms_per_iteration / scipy.ms_per_iteration, "x", 0.1)
+
+
+def run_targets(quick: bool, anchors: bool, repeat: int, out=None) -> list[Figure]:
+    """Measure every figure, print the table (WIDTH columns) and return the figures."""
+    out = out or sys.stdout
+    started = time.perf_counter()
+    repeat = 1 if quick else repeat
+    for line in textwrap.wrap(f"stw bench{' --quick' if quick else ''} — {machine_facts()}", WIDTH):
+        print(line, file=out)
+    paths = {p.stem: p for p in bundled_sessions()}
+    texts = {name: p.read_text(encoding="utf-8") for name, p in paths.items()}
+    names = [n for n in QUICK_SESSIONS if n in texts] if quick else sorted(texts)
+    for line in textwrap.wrap(f"sessions: {', '.join(names)}", WIDTH):
+        print(line, file=out, flush=True)
+    figures = []
+    if "arm_throw" in texts:
+        figures.append(arm_first_solve_figure(texts["arm_throw"], repeat))
+    if quick and "basketball" in texts:
+        figures.append(basketball_quick_figure(texts["basketball"]))
+    figures += session_figures([(n, texts[n]) for n in names], repeat, out)
+    figures += pendulum_figures(repeat, anchors)
+    figures.append(window_figure(repeat))
+    if "arm_throw" in texts:
+        figures += cold_start_figures(texts["arm_throw"], repeat)
+    figures.append(gpu_figure())
+    print(file=out)
+    for line in format_table(figures):
+        print(line, file=out)
+    print(f"ratios are same-run; {time.perf_counter() - started:.0f} s in all", file=out, flush=True)
+    return figures
+
+
+def run_bench(args) -> int:
+    """Entry point of `stw bench`: the targets; with ``--sessions`` or ``--detail``, bench.py's
+    per-configuration table instead."""
+    if getattr(args, "sessions", None) or getattr(args, "detail", False):
+        return bench.run_bench(args)
+    run_targets(bool(getattr(args, "quick", False)), bool(getattr(args, "anchors", False)),
+                max(1, int(getattr(args, "repeat", 3) or 1)))
+    return 0

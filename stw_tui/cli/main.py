@@ -1,0 +1,286 @@
+"""The `stw` command: the TUI by default, plus headless `run`, `bench` and `backends`."""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import sys
+import time
+from pathlib import Path
+
+from stw_tui.sos.backend import StepReport
+from stw_tui.sym.errors import SourceError, StwError
+
+SUBCOMMANDS = ("run", "bench", "backends", "compare", "export", "survey")
+
+# The TUI comes first: it is what `stw` with no command opens.
+USAGE = """
+  stw [SESSION.stw] [--step] [--journal FILE]  open the TUI (and replay SESSION)
+  stw --resume [JOURNAL] [--resolve]           reopen an autosaved session
+  stw COMMAND ...                              headless (the commands below)"""
+
+
+def _table_header() -> str:
+    return f"{'iter':>5} {'objective':>14} {'max viol':>10} {'KKT':>10} {'step':>8} {'lin it':>6} {'active':>6} {'ms':>8}"
+
+
+def format_report(r: StepReport) -> str:
+    """One row of the iteration table."""
+    return (f"{r.iteration:>5} {r.objective:>14.8g} {r.max_violation:>10.2e} {r.kkt_residual:>10.2e} "
+            f"{r.step_length:>8.3g} {r.linear_iterations:>6} {r.active:>6} {r.total_ms:>8.2f}")
+
+
+def _journal_is_the_session(journal: Path | None, session: Path | None) -> bool:
+    """`--journal` naming the session being replayed would append the replay to itself (and the
+    next replay would run everything twice)."""
+    if journal is None or session is None or not journal.exists() or not session.exists():
+        return False
+    return os.path.samefile(journal, session)
+
+
+JOURNAL_ON_ITSELF = ("stw: --journal {0} is the session being replayed: the replay would append itself "
+                     "to it; journal to another file")
+
+
+def _run(args: argparse.Namespace) -> int:
+    from stw_tui.session.session import Session
+
+    if _journal_is_the_session(args.journal, args.session):
+        print(JOURNAL_ON_ITSELF.format(args.journal), file=sys.stderr)
+        return 2
+    session = Session(journal_path=args.journal)
+    started = time.perf_counter()
+
+    def on_line(number, line, outcome):
+        if args.json or not outcome.message:
+            return
+        if outcome.run is not None:
+            print(_table_header())
+            for report in outcome.run.reports:
+                print(format_report(report))
+        print(f"[{number}] {outcome.message}")
+
+    if args.backend:
+        session.execute(f"backend {args.backend}")
+    try:
+        session.run_file(args.session, on_line=on_line)
+    except SourceError as exc:
+        print(f"{args.session}: {exc}", file=sys.stderr)
+        if exc.caret():
+            print(exc.caret(), file=sys.stderr)
+        return 2
+    except StwError as exc:
+        print(f"{args.session}: {exc}", file=sys.stderr)
+        return 1
+    seconds = time.perf_counter() - started
+    if args.json:
+        print(json.dumps(summary(session, args.samples, seconds)))
+    return 0
+
+
+def summary(session, samples: int, seconds: float) -> dict:
+    """The JSON result of `stw run --json`: the last solve, and the continuous-time check of
+    every constraint over the whole animation (instances, dense, worst_t)."""
+    from stw_tui.sos.continuous import check_scene
+
+    runs = session.runs
+    reports = [r for run in runs for r in run.reports]
+    last = reports[-1] if reports else None
+    check = check_scene(session.scene)
+    tol = session.scene.settings["dense_tol"]
+    return {
+        "backend": session.scene.backend,
+        "iterations": len(reports),
+        "converged": bool(runs and runs[-1].converged),
+        "objective": last.objective if last else None,
+        "max_violation": last.max_violation if last else None,
+        "dense_violation": check.dense_violation,
+        "dense_ok": not check.failing(tol),
+        "constraints": {name: c.as_dict() for name, c in check.checks.items()},
+        "seconds": seconds,
+        "dofs": session.sample(samples),
+        "prints": [{"expr": p.expr, "t": p.t, "value": p.value} for p in session.prints],
+    }
+
+
+def _backends(args: argparse.Namespace) -> int:
+    from stw_tui.sos.backend import available_backends, load_backend
+
+    for name, ep in sorted(available_backends().items()):
+        try:
+            cls = load_backend(name)
+        except StwError as exc:
+            print(f"{name:<10} unavailable: {exc}")
+            continue
+        dist = ep.dist.version if ep.dist is not None else "?"
+        print(f"{name:<10} {dist:<8} {cls.__doc__.strip().splitlines()[0] if cls.__doc__ else ''}")
+        for opt in cls.options:
+            choices = f" ({'|'.join(map(str, opt.choices))})" if opt.choices else ""
+            print(f"    {opt.name}={opt.default}{choices}  {opt.help}")
+    return 0
+
+
+def _compare(args: argparse.Namespace) -> int:
+    from stw_tui.session.compare import run_compare
+
+    try:
+        return run_compare(args)
+    except StwError as exc:
+        print(f"stw compare: {exc}", file=sys.stderr)
+        return 1
+
+
+def _bench(args: argparse.Namespace) -> int:
+    from stw_tui.cli.bench_targets import run_bench
+
+    return run_bench(args)
+
+
+def _export(args: argparse.Namespace) -> int:
+    """Replay a session headless and write its motion (see stw_tui/session/export.py)."""
+    from stw_tui.session.export import export_text, write_text
+    from stw_tui.session.session import Session
+
+    session = Session()
+    try:
+        session.run_file(args.session)
+        what = tuple(n for n in (args.what or "").split(",") if n)
+        target = write_text(args.output, export_text(session, args.format, args.fps, what))
+    except SourceError as exc:
+        print(f"{args.session}: {exc}", file=sys.stderr)
+        return 2
+    except StwError as exc:
+        print(f"stw export: {exc}", file=sys.stderr)
+        return 1
+    print(f"wrote {target}")
+    return 0
+
+
+def _survey(args: argparse.Namespace) -> int:
+    """Replay a session headless, survey its scene's local optima (stw_tui/session/survey.py) with a
+    progress line on stderr, and print the table (or its JSON)."""
+    from stw_tui.cli.survey import run_survey_command
+
+    return run_survey_command(args)
+
+
+def build_parser() -> argparse.ArgumentParser:
+    parser = argparse.ArgumentParser(
+        prog="stw", usage=USAGE, description="Spacetime Windows for the terminal.",
+        epilog="In the TUI: F1 help, F5 iterate, F4 stop, Ctrl+P palette, Ctrl+Q quit.")
+    sub = parser.add_subparsers(dest="command", title="headless commands", metavar="COMMAND", prog="stw")
+    run = sub.add_parser("run", help="replay a session headless and print the iterations")
+    run.add_argument("session", type=Path)
+    run.add_argument("--backend", help="backend to use (overridden by `backend` lines in the session)")
+    run.add_argument("--json", action="store_true", help="print one JSON object instead of the table")
+    run.add_argument("--samples", type=int, default=21, help="DOF samples in the JSON output")
+    run.add_argument("--journal", type=Path, help="append the journal of this run to a file")
+    run.set_defaults(func=_run)
+    bench = sub.add_parser("bench", help="time the solvers against their speed targets (--detail: per solver)")
+    bench.add_argument("--sessions", nargs="*", type=Path, help="session files (default: sessions/*.stw)")
+    bench.add_argument("--repeat", type=int, default=3, help="repetitions per measurement")
+    bench.add_argument("--quick", action="store_true", help="fewer sessions, one run each (< 2 min)")
+    bench.add_argument("--anchors", action="store_true", help="also time crocoddyl, when installed")
+    bench.add_argument("--detail", action="store_true",
+                       help="the per-backend, per-solver table instead of the targets")
+    bench.set_defaults(func=_bench)
+    comp = sub.add_parser("compare", help="solve a session's first problem with several backends")
+    comp.add_argument("session", type=Path)
+    comp.add_argument("--backends", default="scipy,torch",
+                      help="comma list of NAME or NAME:opt=value:… (default scipy,torch)")
+    comp.add_argument("--repeat", type=int, default=1, help="timed repetitions per backend")
+    comp.add_argument("--json", action="store_true", help="print one JSON object")
+    comp.set_defaults(func=_compare)
+    export = sub.add_parser("export", help="replay a session headless and export its motion")
+    export.add_argument("session", type=Path)
+    export.add_argument("--format", choices=("csv", "json", "bvh"), default="csv",
+                        help="file format (default csv)")
+    export.add_argument("-o", "--output", type=Path, required=True, help="the file to write")
+    export.add_argument("--fps", type=int, default=30, help="frames per second (default 30)")
+    export.add_argument("--what", help="subexpressions to add as columns, e.g. tau_ELBOW,arm.tip.x' "
+                        "(bvh: the linkage to export)")
+    export.set_defaults(func=_export)
+    survey = sub.add_parser("survey", help="replay a session, then survey the local optima of its scene",
+                            description="Options after N are those of the console's `survey` (help survey).")
+    survey.add_argument("session", type=Path)
+    survey.add_argument("n", metavar="N", help="the number of starts")
+    survey.add_argument("options", nargs="*", metavar="OPTION=VALUE",
+                        help="seed=S from=shake|sketch|random amplitude=A window=W workers=K iterate=M")
+    survey.add_argument("--scheduler", metavar="ADDR", help="an existing Dask cluster, tcp://HOST:PORT (or pool, serial)")
+    survey.add_argument("--json", action="store_true", help="print the table as one JSON object")
+    survey.set_defaults(func=_survey)
+    backends = sub.add_parser("backends", help="list installed solver backends and their options")
+    backends.set_defaults(func=_backends)
+    return parser
+
+
+def main(argv: list[str] | None = None) -> int:
+    argv = list(sys.argv[1:] if argv is None else argv)
+    if not argv or (argv[0] not in SUBCOMMANDS and argv[0] not in ("-h", "--help")):
+        return _launch_tui(argv)
+    args = build_parser().parse_args(argv)
+    return args.func(args)
+
+
+def _launch_tui(argv: list[str]) -> int:
+    parser = argparse.ArgumentParser(prog="stw", description="Open the Spacetime Windows TUI.")
+    parser.add_argument("session", nargs="?", type=Path, help="a .stw session to open and replay")
+    parser.add_argument("--step", action="store_true", help="step through the session line by line")
+    parser.add_argument("--journal", type=Path, help="append the journal of this session to a file "
+                        "(default: a new one in the state directory, see `journal` in the console)")
+    parser.add_argument("--resume", nargs="?", const="", metavar="JOURNAL",
+                        help="reopen the last autosaved journal (or JOURNAL) and restore its checkpointed state")
+    parser.add_argument("--resolve", action="store_true", help="with --resume: solve everything again")
+    args = parser.parse_args(argv)
+    try:
+        from stw_tui.app import run_app
+    except ImportError as exc:  # the TUI is optional for the headless core
+        print(f"stw: the TUI is unavailable ({exc}); use `stw run SESSION`", file=sys.stderr)
+        return 1
+    if args.session is not None and not args.session.is_file():
+        print(f"stw: no session file {args.session}", file=sys.stderr)
+        return 2
+    if _journal_is_the_session(args.journal, args.session):
+        print(JOURNAL_ON_ITSELF.format(args.journal), file=sys.stderr)
+        return 2
+    if args.resume is not None:
+        return _resume_tui(args, run_app)
+    return run_app(args.session, step=args.step, journal=args.journal or _autosave_journal(args.session))
+
+
+def _autosave_journal(session: Path | None) -> Path | None:
+    """A new journal in the state directory (None, with a warning, when it cannot be made)."""
+    from stw_tui.session.paths import new_journal_path, state_dir
+
+    try:
+        return new_journal_path(session)
+    except OSError as exc:
+        print(f"stw: not autosaving: cannot use {state_dir()} ({exc})", file=sys.stderr)
+        return None
+
+
+def _resume_tui(args: argparse.Namespace, run_app) -> int:
+    """`stw --resume [JOURNAL] [--resolve]`: replay the journal (checkpointed solves are not solved
+    again), then open the TUI on it, appending to the same journal."""
+    from stw_tui.session.paths import latest_journal, state_dir
+    from stw_tui.session.resume import resume
+
+    if args.session is not None or args.journal is not None:
+        print("stw: --resume reopens a journal; give no session file or --journal with it", file=sys.stderr)
+        return 2
+    path = Path(args.resume) if args.resume else latest_journal()
+    if path is None:
+        print(f"stw: no autosaved session in {state_dir()} to resume", file=sys.stderr)
+        return 2
+    try:
+        session, restored, solved = resume(path, resolve=args.resolve)
+    except (SourceError, StwError) as exc:
+        print(f"stw: cannot resume {path}: {exc}", file=sys.stderr)
+        return 1
+    print(f"stw: resumed {path}: {restored} solve(s) from checkpoints, {solved} solved again", file=sys.stderr)
+    return run_app(None, session=session)
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,71 @@
+"""Starts per second of a survey on each engine, with the ratio to serial measured in the same run.
+
+    python -m stw_tui.cli.survey_bench SESSION N [OPTION=VALUE…] [--workers K]
+
+The session is replayed, then the same survey (`survey N OPTIONS`, the console's parser) runs on
+each engine: serial in this process, a local process pool of K workers, and a Dask LocalCluster of
+K workers when Dask is installed. Each engine pays what a user pays for its first survey, except
+the LocalCluster's own start-up (a TUI session starts it once), which is timed apart: every worker
+process replays the session once, and the pool's processes start with the survey. The machines
+are shared and noisy, so only the ratios of one run mean much. The tables must agree (the same
+optima from the same starts); the last column says whether they do.
+"""
+
+from __future__ import annotations
+
+import argparse
+import time
+
+from stw_tui.session.session import Session
+from stw_tui.session.survey_engines import DaskEngine, PoolEngine, SerialEngine, dask_available, run_survey
+from stw_tui.session.survey_session import plan_of
+from stw_tui.sym.errors import StwError
+
+
+def _rows(table) -> list:
+    return [(round(o.best.objective, 6), tuple(m.index for m in o.members)) for o in table.optima]
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = argparse.ArgumentParser(prog="python -m stw_tui.cli.survey_bench", description=__doc__.split("\n\n")[0])
+    parser.add_argument("session")
+    parser.add_argument("n", metavar="N")
+    parser.add_argument("options", nargs="*", metavar="OPTION=VALUE")
+    parser.add_argument("--workers", type=int, default=None, help="pool and cluster size (default: cores)")
+    args = parser.parse_args(argv)
+    from stw_tui.session.interpreter import SceneScope
+    from stw_tui.sym.language import parse_command
+
+    session = Session()
+    try:
+        session.run_file(args.session)
+        command = parse_command(" ".join(["survey", args.n, *args.options]), SceneScope(session.scene))
+    except StwError as exc:
+        print(f"survey_bench: {exc}")
+        return 1
+    plan = plan_of(session.scene, command)
+    engines = [SerialEngine(), PoolEngine(args.workers)]
+    if dask_available():
+        engines.append(DaskEngine(args.workers))
+    print(f"{args.session}: survey {args.n} {' '.join(args.options)}")
+    print(f"{'engine':<36} {'s':>8} {'starts/s':>9} {'ratio':>6} {'optima':>6}  same table as serial")
+    serial, first = None, None
+    for engine in engines:
+        note = ""
+        if isinstance(engine, DaskEngine):
+            started = time.perf_counter()
+            engine.client()
+            note = f"  (cluster start-up {time.perf_counter() - started:.1f} s, not counted)"
+        table = run_survey(session, plan, engine)
+        rate = len(table.results) / table.seconds
+        serial, first = serial or (rate, _rows(table)), first or table
+        same = "yes" if _rows(table) == serial[1] else "NO"
+        print(f"{engine.describe():<36} {table.seconds:>8.1f} {rate:>9.3f} {rate / serial[0]:>6.2f} "
+              f"{len(table.optima):>6}  {same}{note}", flush=True)
+    print()
+    print(first.describe(limit=40))
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())

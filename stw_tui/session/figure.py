@@ -1,0 +1,63 @@
+"""Stick figures of a scene at one time, as plain geometry (the TUI draws them, `--json` lists them).
+
+Linkages give segments (base → joints → tip). Point masses are found by name: a pair of DOF or
+subexpressions ``<prefix>x`` and ``<prefix>y`` (or ``X``/``Y``), such as ``x, y``, ``cx, cy``,
+``BX, BY`` or the mouse's ``mx, my``, is drawn as a dot labelled with the prefix.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from stw_tui.sos.scene import Scene
+from stw_tui.sym.symbols import named_symbol
+
+
+@dataclass
+class Figure:
+    """Segments and dots in the x–y plane (a side view; y is up)."""
+
+    t: float
+    segments: list[tuple[tuple[float, float], tuple[float, float]]] = field(default_factory=list)
+    points: list[tuple[str, tuple[float, float]]] = field(default_factory=list)
+
+    def bounds(self) -> tuple[float, float, float, float]:
+        xs = [p[0] for s in self.segments for p in s] + [p[1][0] for p in self.points]
+        ys = [p[1] for s in self.segments for p in s] + [p[1][1] for p in self.points]
+        if not xs:
+            return (-1.0, 1.0, -1.0, 1.0)
+        return (min(xs), max(xs), min(ys), max(ys))
+
+
+def _value(scene: Scene, name: str, t: float) -> float:
+    return float(scene.evaluate(named_symbol(name), np.array([t]))[0])
+
+
+def point_pairs(scene: Scene) -> list[tuple[str, str, str]]:
+    """(label, x name, y name) for every name pair that looks like a planar point."""
+    names = list(scene.dofs) + list(scene.lets)
+    pairs = []
+    for name in names:
+        for xs, ys in (("x", "y"), ("X", "Y")):
+            if name.endswith(xs) and "." not in name:
+                partner = name[:-1] + ys
+                if partner in names:
+                    pairs.append((name[:-1] or "•", name, partner))
+    return pairs
+
+
+def scene_figure(scene: Scene, t: float) -> Figure:
+    """The stick figure of every linkage and point mass of ``scene`` at time ``t``."""
+    from stw_tui.sym.linkage import dof_names, segments
+
+    t = min(max(t, scene.t0), scene.t1)
+    figure = Figure(t)
+    for spec in scene.linkages.values():
+        values = {n: _value(scene, n, t) for n in dof_names(spec)}
+        for start, end in segments(spec, values, scene.constants):
+            figure.segments.append(((float(start[0]), float(start[1])), (float(end[0]), float(end[1]))))
+    for label, xn, yn in point_pairs(scene):
+        figure.points.append((label, (_value(scene, xn, t), _value(scene, yn, t))))
+    return figure

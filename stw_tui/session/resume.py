@@ -1,0 +1,50 @@
+"""`stw --resume`: a session rebuilt from its journal, with the checkpoints of :mod:`.autosave` put
+in place of the solves they recorded. Above the session (it builds one), so nothing in the
+session imports it."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+from stw_tui.session.autosave import SOLVE_COMMANDS, Checkpoints, apply_record
+from stw_tui.session.session import Session
+from stw_tui.sym.errors import StwError
+from stw_tui.sym.language import classify_line
+
+
+def resume(journal: str | Path, *, resolve: bool = False, on_line=None) -> tuple["Session", int, int]:
+    """A session rebuilt from ``journal``, which it goes on appending to.
+
+    Returns:
+        (session, solves restored from checkpoints, solves run again).
+    Raises:
+        SourceError, StwError: a line of the journal fails on replay (the session stops there).
+    """
+    journal = Path(journal).expanduser()
+    try:
+        data = journal.read_bytes()
+    except OSError as exc:
+        raise StwError(f"cannot read journal {journal}: {exc}") from exc
+    records = {} if resolve else Checkpoints(journal).load()
+    session = Session()           # no journal file while replaying: the lines are there already
+    restored = solved = 0
+    offset = 0
+    for number, raw in enumerate(data.split(b"\n"), start=1):
+        offset += len(raw) + 1
+        text = raw.decode("utf-8")
+        verb = classify_line(text).verb if not session.in_block else None
+        record = records.get(offset) if verb in SOLVE_COMMANDS else None
+        if record is not None:
+            try:
+                apply_record(session, record, text.rstrip())
+                restored += 1
+                continue
+            except StwError:
+                pass                  # does not fit: solve it again
+        outcome = session.execute(text, line=number)
+        solved += verb in SOLVE_COMMANDS
+        if on_line is not None:
+            on_line(number, text, outcome)
+    session.journal.path = journal
+    session.checkpoints = Checkpoints(journal)
+    return session, restored, solved

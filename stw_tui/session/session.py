@@ -1,0 +1,291 @@
+"""A session: the scene, its journal, and the interpreter that applies one command line at a time.
+
+Every change goes through :meth:`Session.execute`: the line is appended to the journal, parsed
+against the current names, and applied to a *copy* of the scene that replaces the scene only if
+the whole command succeeds. A typo, a bad value or a diverging solve therefore leaves the scene
+exactly as it was. Replaying the journal's successful lines rebuilds the same scene and numbers.
+"""
+
+from __future__ import annotations
+
+import os
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Callable
+
+import numpy as np
+
+from stw_tui.session import interpreter
+from stw_tui.session.history import NOT_STEPS, History, State
+from stw_tui.session.outcome import Outcome, PrintResult
+from stw_tui.session.preview import propose
+from stw_tui.session.session_commands import SESSION_HANDLERS
+from stw_tui.sos.backend import RunResult, StepReport
+from stw_tui.sos.scene import Scene
+from stw_tui.sym import limits
+from stw_tui.sym.errors import SourceError, StwError
+from stw_tui.sym.language import CommandLine, classify_line
+
+
+@dataclass
+class JournalEntry:
+    """One command as typed or read, and what became of it."""
+
+    text: str
+    line: int | None = None
+    ok: bool | None = None      # None while it is being applied
+    error: str = ""
+
+
+@dataclass
+class Journal:
+    """Append-only record of commands. Failed commands are kept but never replayed."""
+
+    entries: list[JournalEntry] = field(default_factory=list)
+    path: Path | None = None
+
+    def append(self, text: str, line: int | None) -> JournalEntry:
+        entry = JournalEntry(text, line)
+        self.entries.append(entry)
+        return entry
+
+    def settle(self, entry: JournalEntry, ok: bool, error: str = "") -> None:
+        """Record what became of ``entry``: appended to the journal file, flushed and synced to
+        disk before the caller acknowledges the command.
+
+        Raises:
+            StwError: the file could not be written (a full disk); the entry is then recorded
+                as failed, so it is never replayed.
+        """
+        entry.ok, entry.error = ok, error
+        if self.path is None:
+            return
+        try:
+            with self.path.open("a", encoding="utf-8") as out:
+                out.write(self._render(entry) + "\n")
+                out.flush()
+                os.fsync(out.fileno())
+        except (OSError, ValueError) as exc:
+            entry.ok, entry.error = False, f"the journal could not record it: {exc}"
+            raise StwError(f"the journal {self.path} could not record the line ({exc}); "
+                           "the scene is unchanged") from exc
+
+    @staticmethod
+    def _render(entry: JournalEntry) -> str:
+        if entry.ok:
+            return entry.text
+        first = entry.error.splitlines()[0] if entry.error else "failed"
+        return "\n".join(f"# failed: {t}" for t in entry.text.splitlines()) + f"\n#   {first}"
+
+    def replayable(self) -> list[str]:
+        """The lines that succeeded, in order: running them again rebuilds the scene."""
+        return [e.text for e in self.entries if e.ok]
+
+    def text(self) -> str:
+        return "\n".join(self._render(e) for e in self.entries if e.ok is not None) + "\n"
+
+
+ReportCallback = Callable[[StepReport], "bool | None"]
+
+
+class Session:
+    """The headless core that both the TUI and the CLI drive."""
+
+    def __init__(self, journal_path: str | Path | None = None):
+        self.scene = Scene()
+        self.journal = Journal(path=Path(journal_path) if journal_path else None)
+        self.prints: list[PrintResult] = []
+        self.runs: list[RunResult] = []
+        self.warm: interpreter.WarmStart | None = None
+        self._block: list[tuple[int | None, str]] | None = None   # lines of an open `linkage` block
+        self.history = History()    # undo, redo and named snapshots (history.py)
+        self.survey = None          # the last survey's table, for `adopt` (survey_session.py)
+        self.checkpoints = None     # autosave.Checkpoints: solves are checkpointed beside the journal
+        self.proposal: State | None = None   # a solve's result under `set preview on` (preview.py)
+
+    # --- commands ----------------------------------------------------------------------------
+    @property
+    def in_block(self) -> bool:
+        """True while a multi-line block (`linkage … end`) is being typed."""
+        return self._block is not None
+
+    def execute(self, text: str, *, line: int | None = None,
+                on_report: ReportCallback | None = None) -> Outcome:
+        """Apply one command line.
+
+        Args:
+            text: the command, as typed (comments and blank lines are accepted and ignored).
+            line: its line number in a session file, for error messages.
+            on_report: called after each solver iteration; returning False stops the solve.
+        Raises:
+            SourceError: bad input, with line and column; the scene is unchanged.
+            SolveError: a solve diverged or its backend raised; the scene is unchanged.
+        """
+        self._check_length(text, line)
+        self._check_text(text, line)
+        kind = classify_line(text)
+        if self._block is not None:
+            return self._continue_block(text, kind, line)
+        if kind.is_blank:
+            return Outcome()
+        if kind.verb == "linkage":
+            self._block = [(line, text)]
+            return Outcome(message="linkage block: enter joint rows, then `end`")
+        if kind.verb == "open":
+            return self._open(text, line, on_report)
+        return self._apply(text.rstrip(), line, on_report)
+
+    def _open(self, text: str, line: int | None, on_report) -> Outcome:
+        """`open FILE`: run the file's lines as if typed, each journalled (and undoable) on its
+        own; the `open` line itself is not journalled, so a replay never reads the file again.
+        Stops at the first failing line, keeping the lines before it."""
+        from stw_tui.sym.language.session_commands import parse_file_command
+
+        path = Path(parse_file_command(text, line).path).expanduser()
+        try:
+            content = path.read_text(encoding="utf-8")
+        except (OSError, UnicodeDecodeError) as exc:
+            raise StwError(f"cannot open {path}: {exc}") from exc
+        if self._block is not None:
+            raise StwError("finish the open `linkage` block first")
+        count = 0
+        try:
+            for number, source in enumerate(content.splitlines(), start=1):
+                self.execute(source, line=number, on_report=on_report)
+                count += not classify_line(source).is_blank
+            if self._block is not None:
+                self._block = None
+                raise SourceError("`linkage` block is not closed", line=None, expected="a line `end`")
+        except StwError as exc:
+            raise StwError(f"{path}: {exc} ({count} line(s) before it were applied)") from exc
+        return Outcome(message=f"opened {path}: {count} line(s) applied")
+
+    def _check_length(self, text: str, line: int | None) -> None:
+        """Refuse an over-long line before anything reads it (a 1 MB line must fail at once)."""
+        with limits.active(self.scene.limits):
+            longest = limits.value("line_length")
+            if len(text) > longest:
+                raise SourceError(limits.over("line_length", f"{len(text)} characters", "a line of"), line=line,
+                                  column=longest + 1, expected=f"at most {longest} characters")
+
+    @staticmethod
+    def _check_text(text: str, line: int | None) -> None:
+        """Refuse text that is not valid Unicode (a lone surrogate from a badly decoded file), even
+        in a comment: the journal could not record it, and a line must not apply and then fail."""
+        try:
+            text.encode("utf-8")
+        except UnicodeEncodeError as exc:
+            raise SourceError(f"character {text[exc.start]!r} is not valid text (a lone surrogate)",
+                              line=line, column=exc.start + 1, expected="UTF-8 text") from None
+
+    def _continue_block(self, text: str, kind: CommandLine, line: int | None) -> Outcome:
+        if kind.words == ("end",):
+            block, self._block = self._block, None
+            joined = "\n".join(t.rstrip() for _, t in block) + "\n" + text.rstrip()
+            return self._apply(joined, block[0][0], None, block=block)
+        if not kind.is_blank:
+            self._block.append((line, text))
+        return Outcome()
+
+    def cancel_block(self) -> None:
+        self._block = None
+
+    def _apply(self, text: str, line: int | None, on_report, block=None) -> Outcome:
+        entry = self.journal.append(text, line)
+        before = State.of(self)
+        scene = self.scene.copy()
+        try:
+            with limits.active(self.scene.limits):
+                if block is not None:
+                    self._check_joints(block)
+                    outcome = interpreter.apply_linkage(self, scene, block)
+                else:
+                    outcome = interpreter.apply_line(self, scene, text, line, on_report, SESSION_HANDLERS)
+        except SourceError as exc:
+            self.warm = before.warm   # the solver's warm start too (a solve may have run)
+            error = exc if exc.line is not None or line is None else exc.at_line(line)
+            self._settle_failed(entry, str(error))
+            raise error from None
+        except StwError as exc:
+            self.warm = before.warm   # the solver's warm start too (a solve may have run)
+            self._settle_failed(entry, str(exc))
+            raise type(exc)(f"line {line}: {exc}" if line is not None else str(exc)) from exc
+        except Exception as exc:  # a bug must not lose the scene or the session: report it
+            self.warm = before.warm   # the solver's warm start too (a solve may have run)
+            message = f"internal error ({type(exc).__name__}: {exc}); the scene is unchanged"
+            self._settle_failed(entry, message)
+            raise StwError(f"line {line}: {message}" if line is not None else message) from exc
+        broken = [name for name, dof in scene.dofs.items() if not np.all(np.isfinite(dof.curve.coef))]
+        if broken:   # shake amplitude=1e308, a key at 1e308: a curve must stay a curve
+            message = (f"the command would make the curve of {', '.join(broken)} non-finite; "
+                       "the scene is unchanged")
+            self.warm = before.warm
+            self._settle_failed(entry, message)
+            raise StwError(f"line {line}: {message}" if line is not None else message)
+        if outcome.journal_text is not None:
+            entry.text = outcome.journal_text
+        try:
+            self.journal.settle(entry, True)   # on disk first: only then is the command applied
+        except StwError as exc:
+            self.warm = before.warm
+            raise StwError(f"line {line}: {exc}" if line is not None else str(exc)) from exc.__cause__
+        if outcome.run is not None and scene.settings.get("preview"):
+            
+            self.runs.append(outcome.run)
+            return propose(self, scene, before, outcome)
+        self.scene = scene
+        self.history.settled(text, before, outcome.journal_text)
+        if self.proposal is not None and classify_line(text).verb not in NOT_STEPS:
+            self.proposal = None    # proposed from a scene that is no longer the scene
+        self.prints.extend(outcome.prints)
+        if outcome.run is not None:
+            self.runs.append(outcome.run)
+            if self.checkpoints is not None and outcome.journal_text is None:   # not a stopped solve
+                self.checkpoints.record(self)
+        return outcome
+
+    def _settle_failed(self, entry: JournalEntry, message: str) -> None:
+        """Record a failed line; a journal that cannot record it must not hide the line's error."""
+        try:
+            self.journal.settle(entry, False, message)
+        except StwError:
+            pass   # the line failed anyway: its own error is what the user needs to see
+
+    @staticmethod
+    def _check_joints(block: list[tuple[int | None, str]]) -> None:
+        """Refuse a linkage with more joint rows than the limit, before deriving its equations
+        of motion (their size grows about fourfold with every joint)."""
+        most = limits.value("joints")
+        if len(block) - 1 > most:
+            number, text = block[most + 1]
+            raise SourceError(limits.over("joints", f"{len(block) - 1} joints", "a linkage of"), line=number,
+                              column=1, source=text, expected=f"at most {most} joint rows")
+
+    def run_text(self, text: str, on_report: ReportCallback | None = None,
+                 on_line: Callable[[int, str, Outcome], None] | None = None) -> None:
+        """Execute a whole session text, stopping at the first error (which is raised)."""
+        for number, line in enumerate(text.splitlines(), start=1):
+            outcome = self.execute(line, line=number, on_report=on_report)
+            if on_line is not None:
+                on_line(number, line, outcome)
+        if self._block is not None:
+            start = self._block[0][0]
+            self._block = None
+            raise SourceError("`linkage` block is not closed", line=start, expected="a line `end`")
+
+    def run_file(self, path: str | Path, **kwargs) -> None:
+        try:
+            text = Path(path).read_text(encoding="utf-8")
+        except (OSError, UnicodeDecodeError) as exc:
+            raise StwError(f"cannot read session {path}: {exc}") from exc
+        self.run_text(text, **kwargs)
+
+    # --- queries -----------------------------------------------------------------------------
+    def sample(self, n: int = 21) -> dict[str, dict[str, list[float]]]:
+        """Values, velocities and accelerations of every DOF at n uniform times over the span."""
+        times = np.linspace(self.scene.t0, self.scene.t1, n)
+        return {name: {"t": times.tolist(),
+                       "value": dof.curve.evaluate(times, 0).tolist(),
+                       "velocity": dof.curve.evaluate(times, 1).tolist(),
+                       "acceleration": dof.curve.evaluate(times, 2).tolist()}
+                for name, dof in self.scene.dofs.items()}

@@ -1,0 +1,289 @@
+"""Engines that run a survey's starts, and :func:`run_survey`, which streams their results.
+
+* :class:`SerialEngine`: one start after another in this process (the baseline of the benchmark).
+* :class:`PoolEngine`: a local pool of worker processes (``concurrent.futures``), the default when
+  Dask is not installed. A worker process that dies breaks the pool: a new pool takes over the
+  unfinished starts (each start at most ``MAX_ATTEMPTS`` times), and the loss is reported.
+* :class:`DaskEngine`: an embedded ``dask.distributed.LocalCluster`` (one single-threaded worker
+  process per core), or an existing cluster at a scheduler address. Dask itself reschedules the
+  tasks of a lost worker; the engine reports the loss.
+
+Every engine calls ``on_result`` in the caller's thread as each start finishes, ``on_note`` with
+what the user should know (a lost worker), and stops submitting once ``cancelled()`` is true.
+Tasks are plain text (:class:`~stw_tui.session.survey.StartTask`), so any engine can run them anywhere.
+"""
+
+from __future__ import annotations
+
+import atexit
+import importlib.util
+import logging
+import multiprocessing
+import os
+import signal
+import time
+from concurrent.futures import FIRST_COMPLETED, ProcessPoolExecutor, wait
+from concurrent.futures.process import BrokenProcessPool
+from typing import Callable
+
+from stw_tui.session.survey import StartResult, StartTask, SurveyPlan, SurveyTable, plan_tasks, solve_start
+from stw_tui.sym.errors import StwError
+
+MAX_ATTEMPTS = 2      # a start whose worker dies this many times is counted as lost
+POLL_S = 0.2          # how often a waiting engine looks at cancellation and the workers
+
+OnResult = Callable[[StartResult], None]
+OnNote = Callable[[str], None]
+Cancelled = Callable[[], bool]
+
+
+def dask_available() -> bool:
+    """Whether dask.distributed is installed (found, not imported: importing it takes a second)."""
+    return importlib.util.find_spec("distributed") is not None
+
+
+def _lost(task: StartTask, why: str) -> StartResult:
+    return StartResult(task.index, task.seed, task.lines, "lost", error=why)
+
+
+class SerialEngine:
+    """Each start in turn, in this process."""
+
+    def describe(self) -> str:
+        return "serial in this process"
+
+    def run(self, tasks: list[StartTask], on_result: OnResult, on_note: OnNote, cancelled: Cancelled) -> None:
+        for task in tasks:
+            if cancelled():
+                return
+            on_result(solve_start(task))
+
+
+def _quiet_worker() -> None:
+    """A worker writes nothing to the terminal (it would draw over the TUI)."""
+    devnull = os.open(os.devnull, os.O_WRONLY)
+    os.dup2(devnull, 1)
+    os.dup2(devnull, 2)
+
+
+def _context():
+    """Forkserver where there is one: a clean, single-threaded parent that has imported the core
+    once, so a pool (and the new pool after a lost worker) starts in a fraction of a second
+    instead of importing sympy and scipy again in every process. Spawn elsewhere."""
+    if "forkserver" not in multiprocessing.get_all_start_methods():
+        return multiprocessing.get_context("spawn")
+    context = multiprocessing.get_context("forkserver")
+    context.set_forkserver_preload(["stw_tui.session.survey", "stw_tui.session.session", "stw_tui.session.interpreter"])
+    return context
+
+
+class PoolEngine:
+    """A local pool of ``workers`` processes (forked from a clean server, or spawned: no state of
+    this process, and none of its threads, leak into them)."""
+
+    def __init__(self, workers: int | None = None):
+        self.workers = max(1, workers or os.cpu_count() or 1)
+        self.processes: list[int] = []    # the pids of the current pool (tests kill one)
+
+    def describe(self) -> str:
+        return f"local pool of {self.workers} process{'es' if self.workers > 1 else ''}"
+
+    def run(self, tasks: list[StartTask], on_result: OnResult, on_note: OnNote, cancelled: Cancelled) -> None:
+        pending = {t.index: t for t in tasks}
+        attempts = dict.fromkeys(pending, 0)
+        context = _context()
+        while pending and not cancelled():
+            pool = ProcessPoolExecutor(self.workers, mp_context=context, initializer=_quiet_worker)
+            broken = self._drain(pool, pending, on_result, cancelled)
+            pool.shutdown(wait=not cancelled(), cancel_futures=True)
+            if not broken:
+                continue
+            for index in broken:
+                attempts[index] += 1
+                if attempts[index] >= MAX_ATTEMPTS:
+                    on_result(_lost(pending.pop(index), f"its worker process died {attempts[index]} times"))
+            on_note(f"a worker process died; {len(pending)} unfinished start(s) go to a new pool")
+
+    def _drain(self, pool, pending: dict, on_result: OnResult, cancelled: Cancelled) -> list[int]:
+        """Run the pending tasks on ``pool``; the indexes of those a dead worker broke."""
+        futures = {pool.submit(solve_start, task): index for index, task in pending.items()}
+        self.processes = [p.pid for p in getattr(pool, "_processes", {}).values()]
+        waiting, broken = set(futures), []
+        while waiting:
+            if cancelled():
+                return []
+            done, waiting = wait(waiting, timeout=POLL_S, return_when=FIRST_COMPLETED)
+            self.processes = [p.pid for p in (getattr(pool, "_processes", None) or {}).values()]
+            for future in sorted(done, key=futures.get):
+                index = futures[future]
+                try:
+                    result = future.result()
+                except BrokenProcessPool:
+                    broken.append(index)
+                    continue
+                pending.pop(index)
+                on_result(result)
+        return broken
+
+
+# One embedded cluster per worker count, kept for the next survey and closed at exit.
+_CLUSTERS: dict[int, object] = {}
+_WORKER_PIDS: list[int] = []     # of the embedded clusters' worker processes
+
+
+def close_local_clusters() -> None:
+    """Close the embedded clusters (at exit, or when a command is done with them)."""
+    for client in _CLUSTERS.values():
+        try:
+            cluster = client.cluster
+            client.close()
+            cluster.close()
+        except Exception:  # closing at exit: nothing left to report to
+            pass
+    _CLUSTERS.clear()
+    _WORKER_PIDS.clear()
+
+
+def kill_local_workers() -> None:
+    """End the embedded clusters' worker processes at once (the TUI quits with os._exit, which
+    runs no atexit handler and would leave them behind)."""
+    for pid in _WORKER_PIDS:
+        try:
+            os.kill(pid, signal.SIGTERM)
+        except OSError:   # already gone
+            pass
+    _WORKER_PIDS.clear()
+
+
+class DaskEngine:
+    """Dask: an embedded LocalCluster of ``workers`` single-threaded processes, or the existing
+    cluster whose scheduler is at ``address`` (tcp://HOST:PORT)."""
+
+    def __init__(self, workers: int | None = None, address: str | None = None):
+        self.workers = max(1, workers or os.cpu_count() or 1)
+        self.address = address
+
+    def describe(self) -> str:
+        if self.address:
+            return f"Dask cluster at {self.address}"
+        return f"Dask LocalCluster of {self.workers} worker process{'es' if self.workers > 1 else ''}"
+
+    def client(self):
+        """The Dask client (the embedded cluster is started on first use)."""
+        try:
+            from distributed import Client, LocalCluster
+        except ImportError:
+            raise StwError("Dask is not installed: pip install 'stw-tui[survey]'") from None
+        if self.address:
+            try:
+                return Client(self.address, timeout="10s", set_as_default=False)
+            except (OSError, TimeoutError, ValueError) as exc:
+                raise StwError(f"cannot reach the Dask scheduler at {self.address}: {exc}") from exc
+        if self.workers not in _CLUSTERS:
+            try:
+                cluster = LocalCluster(n_workers=self.workers, threads_per_worker=1, processes=True,
+                                       dashboard_address=":0", silence_logs=logging.ERROR)
+            except Exception as exc:  # Dask's own errors are many kinds: say what failed
+                raise StwError(f"could not start a Dask LocalCluster of {self.workers} worker(s): "
+                               f"{type(exc).__name__}: {exc}") from exc
+            if not _CLUSTERS:
+                atexit.register(close_local_clusters)
+            _CLUSTERS[self.workers] = Client(cluster, set_as_default=False)
+            _CLUSTERS[self.workers].run(_quiet_worker)   # no worker output over the TUI
+            _WORKER_PIDS.extend(_CLUSTERS[self.workers].run(os.getpid).values())
+        return _CLUSTERS[self.workers]
+
+    def run(self, tasks: list[StartTask], on_result: OnResult, on_note: OnNote, cancelled: Cancelled) -> None:
+        from distributed import as_completed
+
+        client = self.client()
+        try:
+            futures = client.map(solve_start, tasks, pure=False)
+            index = {f.key: t for f, t in zip(futures, tasks)}
+            workers = set(client.ncores())   # asked of the scheduler (scheduler_info() is a cache)
+            finished = as_completed(futures, loop=client.loop)
+            while not finished.is_empty():
+                if cancelled():
+                    client.cancel(futures)
+                    return
+                batch = finished.next_batch(block=False)
+                if not batch:
+                    time.sleep(POLL_S)
+                    workers = self._watch(client, workers, on_note)
+                    continue
+                for future in batch:
+                    task = index[future.key]
+                    if future.status == "finished":
+                        on_result(future.result())
+                    elif future.status in ("error", "cancelled"):
+                        why = future.exception() if future.status == "error" else "cancelled"
+                        on_result(_lost(task, f"Dask gave up on it: {why!r}"))
+                    else:   # its result died with a worker before it was gathered: Dask recomputes it
+                        finished.add(future)
+        finally:
+            if self.address:
+                client.close()
+
+    @staticmethod
+    def _watch(client, known: set, on_note: OnNote) -> set:
+        """Report workers that left the cluster (Dask reschedules their tasks on the others)."""
+        now = set(client.ncores())
+        for address in sorted(known - now):
+            on_note(f"Dask worker {address} was lost; its starts go to the remaining workers")
+        return now
+
+
+def choose_engine(workers: int | None = None, scheduler: str | None = None):
+    """(engine, note) for `set scheduler`'s value: "serial", "pool", a Dask scheduler address, or
+    None (Dask's LocalCluster when Dask is installed, else a local pool)."""
+    if scheduler == "serial":
+        return SerialEngine(), ""
+    if scheduler == "pool":
+        return PoolEngine(workers), ""
+    if scheduler:
+        return DaskEngine(workers, scheduler), ""
+    if dask_available():
+        return DaskEngine(workers), ""
+    engine = PoolEngine(workers)
+    return engine, (f"Dask is not installed: the survey runs on a {engine.describe()} "
+                    "(pip install 'stw-tui[survey]' for Dask)")
+
+
+def run_survey(session, plan: SurveyPlan, engine=None, *, scheduler: str | None = None,
+               on_progress: Callable[[SurveyTable, StartResult | None], None] | None = None,
+               cancelled: Cancelled | None = None) -> SurveyTable:
+    """Survey ``session``'s scene: plan the starts, run them on ``engine`` (chosen by
+    :func:`choose_engine` when None) and group them as they arrive.
+
+    Args:
+        on_progress: called with the table so far after each start (and each note; then the
+            result is None), in the calling thread.
+        cancelled: polled; once it returns True no more starts are solved and the table says so.
+    Raises:
+        StwError: a bad plan (see :func:`~stw_tui.session.survey.plan_tasks`) or an unreachable cluster.
+    """
+    tasks = plan_tasks(session, plan)
+    if engine is None:
+        engine, note = choose_engine(plan.workers, scheduler)
+    else:
+        note = ""
+    table = SurveyTable(plan, tasks[0].base_text, engine.describe(), notes=[note] if note else [])
+    cancelled = cancelled or (lambda: False)
+    started = time.perf_counter()
+
+    def on_result(result: StartResult) -> None:
+        table.results.append(result)
+        table.seconds = time.perf_counter() - started
+        if on_progress is not None:
+            on_progress(table, result)
+
+    def on_note(text: str) -> None:
+        table.notes.append(text)
+        if on_progress is not None:
+            on_progress(table, None)
+
+    engine.run(tasks, on_result, on_note, cancelled)
+    table.seconds = time.perf_counter() - started
+    table.cancelled = len(table.results) < len(tasks) and cancelled()
+    table.results.sort(key=lambda r: r.index)
+    return table

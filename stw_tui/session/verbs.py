@@ -1,0 +1,142 @@
+"""Motion verbs: a line an animator thinks in, expanded into ordinary named constraints and
+objectives (which the journal does not keep: it keeps the verb, and replays it).
+
+- ``hold P at arm.tip on [A, B]``: the object P (DOF PX, PY[, PZ]) is carried by a linkage point.
+  It has the point's position and velocity exactly at A (picked up; unless A is the start) and
+  at B (let go), and a tracking objective carries it in between. A constraint "P = point on
+  [A, B]" could not hold between its samples (the point is trigonometry of the joint curves, P a
+  cubic spline), and a ball tied only at samples leaves the hand with the wrong velocity.
+- ``ballistic P on [A, B]``: free flight under g along -y: PX'' = 0, PY'' + g = 0 (PZ'' = 0),
+  linear in the DOF, so it holds exactly everywhere on [A, B].
+- ``contact acro.FOOT on ground [y=H] on [A, B] [friction=MU] [x=X0]``: the point stays on the
+  ground, planted (at X0, or wherever it lands), and the ground only pushes. The ground's force
+  on a creature with a free base is the generalized force of the base's translations (tau_X,
+  tau_Y): whatever else acts inside, only external forces move the base. So the push is
+  ``tau_Y >= 0`` and the friction cone ``MU*tau_Y >= |tau_X|``. With ``com=CX,CY`` those are
+  linear in the DOF (M (CY'' + g)) and hold exactly between the samples.
+- ``flight acro on [A, B]``: nothing outside acts on the creature: the generalized forces of its
+  base DOF vanish, and so do the torques of the joints that hang the first massive link on the
+  (massless) base, which has nothing to push against in the air.
+"""
+
+from __future__ import annotations
+
+from stw_tui.sym.errors import StwError
+
+HOLD_WEIGHT = 1e4
+
+
+def point_axes(scene, point: str) -> list[tuple[str, str]]:
+    """[(axis, DOF)] of the point object ``point``: DOF PX, PY (and PZ), or Px, Py (and Pz)."""
+    for x, y, z in (("X", "Y", "Z"), ("x", "y", "z")):
+        if point + x in scene.dofs and point + y in scene.dofs:
+            axes = [("x", point + x), ("y", point + y)]
+            return axes + ([("z", point + z)] if point + z in scene.dofs else [])
+    raise StwError(f"'{point}' is not a point object: declare its DOF first, e.g. `dof {point}X, {point}Y`")
+
+
+def linkage_point(scene, at: str, axes: list[tuple[str, str]]) -> list[str]:
+    """Names of the linkage point's coordinates, one per axis (``arm.tip`` -> arm.tip.x, …)."""
+    names = [f"{at}.{axis}" for axis, _ in axes]
+    missing = [n for n in names if n not in scene.derived]
+    if missing:
+        points = sorted({n.rsplit(".", 1)[0] for n in scene.derived if n.count(".") == 2})
+        raise StwError(f"'{at}' is not a linkage point (points: {', '.join(points) or 'none; add a linkage'})")
+    return names
+
+
+def fresh_name(scene, base: str) -> str:
+    """``base``, or ``base2``, ``base3``… when taken."""
+    taken = set(scene.constraints) | set(scene.objectives) | set(scene.verbs)
+    if scene.kind_of(base) is None and base not in taken:
+        return base
+    k = 2
+    while scene.kind_of(f"{base}{k}") is not None or f"{base}{k}" in taken:
+        k += 1
+    return f"{base}{k}"
+
+
+def _t(value: float) -> str:
+    return repr(float(value))
+
+
+def hold_lines(scene, point: str, at: str, a: float, b: float, weight: float | None) -> tuple[str, list[str]]:
+    """(group name, command lines) of ``hold``."""
+    axes = point_axes(scene, point)
+    coords = linkage_point(scene, at, axes)
+    group = fresh_name(scene, f"{point}_held")
+    match = lambda: ", ".join([f"{dof} = {c}" for (_, dof), c in zip(axes, coords)]
+                              + [f"{dof}' = {c}'" for (_, dof), c in zip(axes, coords)])
+    lines = [f"objective {group}: " + ", ".join(f"{c} - {dof}" for (_, dof), c in zip(axes, coords))
+             + f" on [{_t(a)}, {_t(b)}] weight={weight if weight is not None else HOLD_WEIGHT!r}"]
+    if a > scene.t0:
+        lines.append(f"constraint {fresh_name(scene, f'{point}_caught')}: {match()} @ {_t(a)}")
+    if b < scene.t1:
+        lines.append(f"constraint {fresh_name(scene, f'{point}_released')}: {match()} @ {_t(b)}")
+    return group, lines
+
+
+def ballistic_lines(scene, point: str, a: float, b: float) -> tuple[str, list[str]]:
+    """(group name, command lines) of ``ballistic``."""
+    axes = point_axes(scene, point)
+    if "g" not in scene.constants:
+        raise StwError("ballistic flight falls under g: declare it first, e.g. `const g = 9.81`")
+    group = fresh_name(scene, f"{point}_flight")
+    relations = [f"{dof}'' + g = 0" if axis == "y" else f"{dof}'' = 0" for axis, dof in axes]
+    return group, [f"constraint {group}: {', '.join(relations)} on [{_t(a)}, {_t(b)}]"]
+
+
+def _free_linkage(scene, name: str, what: str):
+    """The linkage ``name``, which must have a free base (a creature that can leave the ground)."""
+    spec = scene.linkages.get(name)
+    if spec is None:
+        known = ", ".join(scene.linkages) or "none; add a linkage"
+        raise StwError(f"'{name}' is not a linkage (linkages: {known})")
+    if not spec.base:
+        raise StwError(f"linkage {name} has a fixed base: {what} needs a free one, "
+                       f"e.g. `linkage {name} base=tx:X,ty:Y`")
+    return spec
+
+
+def contact_lines(scene, point: str, height: float, a: float, b: float,
+                  friction: float | None, x: float | None) -> tuple[str, list[str]]:
+    """(group name, command lines) of ``contact``."""
+    spec = _free_linkage(scene, point.split(".")[0], "a contact with the ground")
+    if f"{point}.y" not in scene.derived:
+        points = sorted({n.rsplit(".", 1)[0] for n in scene.derived if n.startswith(spec.name + ".")})
+        raise StwError(f"'{point}' is not a point of linkage {spec.name} (points: {', '.join(points)})")
+    if (spec.gravity_axis, spec.gravity_sign) != (1, -1):
+        raise StwError(f"the ground is y = H under gravity along -y; linkage {spec.name} falls along "
+                       f"{'none' if spec.gravity_axis is None else 'xyz'[spec.gravity_axis]}")
+    axes = {axis.axis: axis.dof for axis in spec.base}
+    if "ty" not in axes:
+        raise StwError(f"the ground pushes linkage {spec.name} up through a base translation along y, "
+                       f"and it has none: give it one, e.g. `base=tx:X,ty:Y`")
+    if friction is not None and not friction >= 0:
+        raise StwError(f"friction coefficient {friction:g} must be at least 0")
+    tangential = [(ax, axes[f"t{ax}"]) for ax in "xz" if f"t{ax}" in axes]
+    if x is not None and "tx" not in axes:
+        raise StwError(f"x= plants the point along x, and linkage {spec.name} cannot move along x")
+    short = point.rsplit(".", 1)[-1]
+    on = f"on [{_t(a)}, {_t(b)}]"
+    planted = [f"{point}.y = {height!r}"] + [
+        f"{point}.x = {x!r}" if ax == "x" and x is not None else f"{point}.{ax}' = 0" for ax, _ in tangential]
+    normal = f"tau_{axes['ty']}"
+    lines = [f"constraint {fresh_name(scene, f'{short}_planted')}: {', '.join(planted)} {on}",
+             f"constraint {fresh_name(scene, f'{short}_push')}: {normal} >= 0 {on}"]
+    if friction is not None and tangential:
+        cone = ", ".join(f"{friction!r}*{normal} {sign} tau_{dof} >= 0" for _, dof in tangential for sign in "-+")
+        lines.append(f"constraint {fresh_name(scene, f'{short}_friction')}: {cone} {on}")
+    return fresh_name(scene, f"{short}_contact"), lines
+
+
+def flight_lines(scene, name: str, a: float, b: float) -> tuple[str, list[str]]:
+    """(group name, command lines) of ``flight``: the unactuated DOF's forces vanish on [A, B]."""
+    spec = _free_linkage(scene, name, "flight")
+    free = [axis.dof for axis in spec.base]
+    for joint in spec.joints:       # joints up to the first massive link hang on the massless base
+        free.append(joint.name)
+        if joint.mass > 0:
+            break
+    group = fresh_name(scene, f"{name}_flight")
+    return group, [f"constraint {group}: {', '.join(f'tau_{d} = 0' for d in free)} on [{_t(a)}, {_t(b)}]"]

@@ -1,0 +1,273 @@
+"""The solver backend plugin interface, discovery, and the one driver loop every backend runs under.
+
+A backend is a class registered under the entry-point group ``stw_tui.backends``. It never loops
+by itself: the driver (:func:`run_iterations`) calls ``init`` once and ``step`` once per
+iteration, checks for non-finite results, asks the caller's callback whether to go on, and stops
+on convergence — so pause, single-step and cancel work the same for every backend (the shape of
+optimistix's init/step/terminate). Everything crossing the interface is plain data: the
+:class:`~stw_tui.sos.window.WindowProblem` (numpy arrays, scipy sparse matrices, compiled terms with
+their sympy expressions) and :class:`SolverState` / :class:`StepReport`.
+"""
+
+from __future__ import annotations
+
+import enum
+import math
+import time
+from abc import ABC, abstractmethod
+from dataclasses import dataclass, field, replace
+from importlib import metadata
+from typing import Any, Callable, ClassVar
+
+import numpy as np
+
+from stw_tui.sym.errors import SolveError, StwError
+from stw_tui.sym.kinds import Capability, TermKind
+
+INTERFACE_VERSION = 1
+ENTRY_POINT_GROUP = "stw_tui.backends"
+
+
+@dataclass(frozen=True)
+class BackendOption:
+    """One option a backend accepts, declared as data (CLI flags, `backend NAME k=v`, TUI panel)."""
+
+    name: str
+    type: type
+    default: Any
+    help: str
+    choices: tuple | None = None
+    minimum: float | None = None    # the smallest value allowed (numbers only)
+    exclusive: bool = False         # the minimum itself is not allowed (a tolerance of 0)
+
+    def parse(self, raw: str | Any) -> Any:
+        """Convert a raw string to the option's type, with a clear error."""
+        try:
+            if self.type is bool and isinstance(raw, str):
+                if raw.lower() not in ("1", "0", "true", "false", "yes", "no", "on", "off"):
+                    raise ValueError(raw)
+                value = raw.lower() in ("1", "true", "yes", "on")
+            else:
+                value = self.type(raw)
+        except (TypeError, ValueError):
+            raise StwError(f"option {self.name}: '{raw}' is not a valid {self.type.__name__}") from None
+        if self.type in (int, float) and not math.isfinite(value):
+            raise StwError(f"option {self.name}: '{raw}' is not a finite number")
+        if self.minimum is not None and (value < self.minimum or (self.exclusive and value == self.minimum)):
+            least = f"above {self.minimum:g}" if self.exclusive else f"at least {self.minimum:g}"
+            raise StwError(f"option {self.name}: '{raw}' must be {least}")
+        if self.choices is not None and value not in self.choices:
+            raise StwError(f"option {self.name}: '{raw}' is not one of {', '.join(map(str, self.choices))}")
+        return value
+
+
+class Status(enum.Enum):
+    """Why a run of iterations ended; the value is the message shown to the user."""
+
+    RUNNING = "running"
+    CONVERGED = "converged"
+    MAX_ITERATIONS = "iteration limit reached"
+    STOPPED = "stopped by the user"
+    STALLED = "no further progress (line search failed)"
+    INFEASIBLE = "the constraints conflict: no motion meets them all"
+    FAILED = "failed"
+
+
+@dataclass(frozen=True)
+class SolverState:
+    """Backend-neutral state carried between iterations and across `iterate` commands."""
+
+    s: np.ndarray                    # free control point values
+    lam_eq: np.ndarray               # multipliers of equality rows
+    lam_ge: np.ndarray               # multipliers of inequality rows (<= 0 when active)
+    working_set: np.ndarray          # bool, inequality rows treated as active
+    merit_weight: float = 1.0
+    regularization: float = 0.0      # proximal (Levenberg-Marquardt) weight; 0: the backend's default
+    trust_radius: float = 0.0        # step limit; 0: the backend's initial one
+    elastic_weight: float = 0.0      # cost of an elastic slack once elastic mode was needed; 0: not yet
+
+    @classmethod
+    def start(cls, problem) -> "SolverState":
+        return cls(s=problem.initial(), lam_eq=np.zeros(problem.row_counts[TermKind.EQ]),
+                   lam_ge=np.zeros(problem.row_counts[TermKind.GE]),
+                   working_set=np.zeros(problem.row_counts[TermKind.GE], bool))
+
+
+@dataclass(frozen=True)
+class StepReport:
+    """What one iteration did (one row of the iteration table)."""
+
+    iteration: int
+    objective: float
+    max_violation: float
+    kkt_residual: float
+    step_length: float
+    linear_iterations: int
+    active: int
+    ms: dict[str, float] = field(default_factory=dict)
+    converged: bool = False
+    stalled: bool = False
+    message: str = ""                # a sentence for the user (e.g. which constraints conflict)
+    fallbacks: int = 0               # iterative KKT solves replaced by a factorization
+    qp_capped: int = 0               # QP solves that stopped at their iteration limit unconverged
+    elastic: bool = False            # the step came from the elastic QP (linearization inconsistent)
+    infeasible: bool = False         # the constraints were found in conflict (status INFEASIBLE)
+    conflicts: tuple[str, ...] = ()  # names of the constraints in conflict, when infeasible
+    coefficients: np.ndarray | None = field(default=None, repr=False)  # all DOF control points after
+    # this iteration (set by the driver, so front ends can redraw curves while a solve runs)
+
+    @property
+    def total_ms(self) -> float:
+        return sum(self.ms.values())
+
+
+class Backend(ABC):
+    """Base class of solver backends.
+
+    Subclasses set ``name``, optionally ``options`` and ``capabilities``, and implement
+    :meth:`init` and :meth:`step`. They need know nothing of the UI.
+    """
+
+    name: ClassVar[str]
+    interface_version: ClassVar[int] = INTERFACE_VERSION
+    options: ClassVar[tuple[BackendOption, ...]] = ()
+    capabilities: ClassVar[frozenset[Capability]] = frozenset()
+
+    def __init__(self, **options: Any):
+        known = {o.name: o for o in self.options}
+        unknown = sorted(set(options) - set(known))
+        if unknown:
+            names = ", ".join(known) or "none"
+            raise StwError(f"backend {self.name} has no option {', '.join(unknown)} (options: {names})")
+        self.config = {name: opt.default for name, opt in known.items()}
+        self.config.update({k: known[k].parse(v) for k, v in options.items()})
+
+    @abstractmethod
+    def init(self, problem, state: SolverState, settings: dict[str, float]) -> Any:
+        """Prepare to iterate on ``problem`` from ``state``; returns the backend's own state."""
+
+    @abstractmethod
+    def step(self, problem, inner: Any, iteration: int) -> tuple[Any, StepReport]:
+        """Run one iteration; returns the new inner state and its report."""
+
+    @abstractmethod
+    def state(self, inner: Any) -> SolverState:
+        """The backend-neutral state of ``inner`` (control points and multipliers)."""
+
+
+# What a plugin may raise that must stop at the boundary: any error, and also SystemExit and
+# KeyboardInterrupt raised by the plugin's own code (a stray sys.exit() must not end stw).
+_PLUGIN_FAULTS = (Exception, SystemExit, KeyboardInterrupt)
+
+
+# --- discovery -------------------------------------------------------------------------------
+def available_backends() -> dict[str, metadata.EntryPoint]:
+    """Installed backends by name, without importing any of them."""
+    return {ep.name: ep for ep in metadata.entry_points(group=ENTRY_POINT_GROUP)}
+
+
+def load_backend(name: str) -> type[Backend]:
+    """Import the backend called ``name``.
+
+    Raises:
+        StwError: unknown name (listing the installed ones), import failure, or an interface
+            version this stw does not speak.
+    """
+    found = available_backends()
+    if name not in found:
+        raise StwError(f"no backend named '{name}' (installed: {', '.join(sorted(found)) or 'none'})")
+    try:
+        cls = found[name].load()
+    except _PLUGIN_FAULTS as exc:  # a plugin's import error (even a sys.exit) must not take stw down
+        raise StwError(f"backend '{name}' failed to load: {type(exc).__name__}: {exc}") from exc
+    if not (isinstance(cls, type) and issubclass(cls, Backend)):
+        raise StwError(f"backend '{name}' is not a stw_tui.sos.backend.Backend subclass")
+    if cls.interface_version != INTERFACE_VERSION:
+        raise StwError(f"backend '{name}' speaks interface {cls.interface_version}, stw speaks "
+                       f"{INTERFACE_VERSION}")
+    return cls
+
+
+def create_backend(cls: type[Backend], options: dict[str, Any]) -> Backend:
+    """An instance of backend ``cls`` with ``options`` (validated by the backend).
+
+    Raises:
+        StwError: bad options, or the plugin's constructor raised (SystemExit included).
+    """
+    try:
+        return cls(**options)
+    except StwError:
+        raise
+    except _PLUGIN_FAULTS as exc:
+        raise StwError(f"backend {getattr(cls, 'name', cls.__name__)} could not start: "
+                       f"{type(exc).__name__}: {exc}") from exc
+
+
+# --- the driver ------------------------------------------------------------------------------
+@dataclass
+class RunResult:
+    status: Status
+    state: SolverState
+    reports: list[StepReport]
+    seconds: float
+
+    @property
+    def converged(self) -> bool:
+        return self.status is Status.CONVERGED
+
+
+ITERATION_BUDGET = "iterations"   # the settings key run_iterations adds: how many iterations it may run
+CANCELLED = "cancelled"           # ... and this one: a callable, True once the user asked to stop
+
+
+def run_iterations(backend: Backend, problem, start: SolverState, n: int, settings: dict[str, float],
+                   on_report: Callable[[StepReport], bool | None] | None = None) -> RunResult:
+    """Run up to ``n`` iterations of ``backend`` on ``problem``.
+
+    ``on_report`` is called after every iteration; returning False stops at that boundary. It may
+    carry ``on_report.cancelled()`` (the TUI's stop flag): a backend that iterates inside one call
+    (IPOPT) polls it between its own iterations, through ``settings[CANCELLED]``.
+    Raises:
+        SolveError: the backend raised or produced non-finite values; nothing is returned, so the
+            caller's scene is untouched.
+    """
+    t0 = time.perf_counter()
+    reports: list[StepReport] = []
+    status = Status.MAX_ITERATIONS
+    try:
+        # The budget travels with the settings: a backend that solves in one call (IPOPT) stops there.
+        cancelled = getattr(on_report, "cancelled", None) or (lambda: False)
+        inner = backend.init(problem, start, {**settings, ITERATION_BUDGET: n, CANCELLED: cancelled})
+        state = start
+        for k in range(1, n + 1):
+            inner, report = backend.step(problem, inner, k)
+            state = backend.state(inner)
+            if not (np.all(np.isfinite(state.s)) and np.isfinite(report.objective)
+                    and np.isfinite(report.max_violation)):
+                raise SolveError(f"iteration {k} produced non-finite values (diverged); "
+                                 "the scene is unchanged — try damping, a smaller window or `shake`")
+            report = replace(report, coefficients=problem.scatter(state.s))
+            reports.append(report)
+            if report.converged:
+                status = Status.CONVERGED
+                break
+            if report.infeasible:
+                status = Status.INFEASIBLE
+                break
+            if report.stalled:
+                status = Status.STALLED
+                break
+            if on_report is not None and on_report(report) is False:
+                status = Status.STOPPED
+                break
+        if reports and status in (Status.CONVERGED, Status.STALLED, Status.INFEASIBLE) \
+                and on_report is not None:
+            on_report(reports[-1])
+    except SolveError:
+        raise
+    except StwError as exc:
+        raise SolveError(f"backend {backend.name}: {exc}") from exc
+    except _PLUGIN_FAULTS as exc:  # any bug or numerical failure inside a plugin, or its sys.exit()
+        raise SolveError(f"backend {backend.name} raised {type(exc).__name__}: {exc}; "
+                         "the scene is unchanged") from exc
+    return RunResult(status, replace(state), reports, time.perf_counter() - t0)

@@ -1,0 +1,255 @@
+"""The continuous-time check: every constraint evaluated densely over its whole scope.
+
+Instances are samples, and an optimizer exploits the gaps between them. After a solve, each
+constraint (and each DOF bound) is evaluated over the whole animation at every instance, at least
+``DENSE_PER_SPAN`` points in every knot span of the DOF it uses, and between every pair of
+instances. Violations are scaled like the instance rows (the constraint's weight times its value),
+so ``dense_tol`` compares with the same numbers as ``tol_violation``.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, replace
+
+import numpy as np
+import sympy as sp
+
+from stw_tui.sos.instances import (bound_extra_times, bound_times, dofs_used, exact_degree, interval_cuts,
+                        on_own_side, relation_times, repeated_knots)
+from stw_tui.sym.kinds import TermKind
+from stw_tui.sym.symbols import dof_symbol
+
+DENSE_PER_SPAN = 8
+MAX_PEAKS = 256          # local maxima of a relation's violation looked at more closely
+SNAP = 2**14            # added instances lie on a lattice of 1/SNAP of the animation
+REFINE_ROUNDS = 5        # each narrows a peak's bracket 8-fold: 1/8^5 of a grid step in the end
+
+
+@dataclass(frozen=True)
+class ConstraintCheck:
+    """How well one constraint holds: at its instances, densely, and where it is worst."""
+
+    name: str
+    instances: float       # largest violation at the instance times
+    dense: float           # largest violation anywhere on the dense grid (instances included)
+    worst_t: float | None  # where the dense violation is largest (None: it holds everywhere)
+    tol: float | None = None   # the constraint's own dense_tol (None: the scene's)
+
+    def as_dict(self) -> dict:
+        return {"instances": self.instances, "dense": self.dense, "worst_t": self.worst_t,
+                **({"dense_tol": self.tol} if self.tol is not None else {})}
+
+    def fails(self, default_tol: float) -> bool:
+        return self.dense > (self.tol if self.tol is not None else default_tol)
+
+
+@dataclass(frozen=True)
+class DenseReport:
+    """The continuous-time check of a whole scene."""
+
+    checks: dict[str, ConstraintCheck]
+
+    @property
+    def dense_violation(self) -> float:
+        return max((c.dense for c in self.checks.values()), default=0.0)
+
+    @property
+    def instance_violation(self) -> float:
+        return max((c.instances for c in self.checks.values()), default=0.0)
+
+    def failing(self, tol: float) -> list[ConstraintCheck]:
+        """Checks whose dense violation exceeds their tolerance (``tol`` unless the constraint
+        has its own), worst first."""
+        return sorted((c for c in self.checks.values() if c.fails(tol)), key=lambda c: -c.dense)
+
+    def describe_failures(self, tol: float, limit: int = 3) -> str:
+        """'in_hand 3.1e-04 at t=0.52, …' for the worst failures (empty when all hold)."""
+        bad = self.failing(tol)
+        text = ", ".join(f"{c.name} {c.dense:.1e} at t={c.worst_t:.4g}" for c in bad[:limit])
+        return text + (f" and {len(bad) - limit} more" if len(bad) > limit else "")
+
+
+def expression_values(scene, expr: sp.Basic, times: np.ndarray) -> np.ndarray:
+    """:meth:`Scene.evaluate <stw_tui.sos.scene.Scene.evaluate>`, under the name older callers use."""
+    return scene.evaluate(expr, times)
+
+
+def condition_holds(scene, when: sp.Basic | None, times: np.ndarray) -> np.ndarray:
+    """Where a ``when`` condition holds on the scene's curves (all True without one)."""
+    from stw_tui.sos.window import evaluate_condition_tree, numpy_filled, relation_nodes
+
+    if when is None or when is sp.true:
+        return np.ones(times.size, bool)
+    leaves = {node: scene.evaluate(node.lhs - node.rhs, times) for node in relation_nodes(when)}
+    return evaluate_condition_tree(when, leaves, numpy_filled(times.size))
+
+
+def dense_times(scene, exprs, a: float, b: float, instances: np.ndarray) -> np.ndarray:
+    """The check's grid on [a, b]: instances, their midpoints, and DENSE_PER_SPAN points in every
+    knot span of the DOF the expressions use."""
+    knots = [scene.dofs[n].curve.knots for n in dofs_used(scene, exprs)]
+    breaks = np.unique(np.concatenate(knots or [[a, b]]))
+    cuts = interval_cuts(breaks, a, b)
+    fractions = np.linspace(0.0, 1.0, DENSE_PER_SPAN + 1)
+    grid = (cuts[:-1, None] + (cuts[1:] - cuts[:-1])[:, None] * fractions[None, :]).ravel()
+    mids = (instances[:-1] + instances[1:]) / 2 if instances.size > 1 else np.zeros(0)
+    times = np.unique(np.concatenate([grid, instances, mids, [a, b]]))
+    return np.unique(on_own_side(times, a, b, repeated_knots(knots)))
+
+
+def _score(values: np.ndarray, kind: str, weight: float) -> np.ndarray:
+    """Signed violation: positive where violated; for an inequality, how near it is to failing."""
+    scaled = weight * values
+    return np.abs(scaled) if kind == TermKind.EQ else -scaled
+
+
+@dataclass(frozen=True)
+class _Samples:
+    """One relation's violations at its instances and on its dense grid (where it is active)."""
+
+    t_inst: np.ndarray
+    v_inst: np.ndarray
+    t_grid: np.ndarray
+    v_grid: np.ndarray
+    exact: bool = False   # instances placed so that the relation holds everywhere (instances.py)
+
+
+def _sharpen(score_at, t_grid: np.ndarray, score: np.ndarray, rounds: int = REFINE_ROUNDS):
+    """Zoom in on the local maxima of a signed violation between grid points, where a tangency
+    or a peak between samples hides (8 points a span find it only to within a sixteenth of a
+    span). Returns the extra times looked at and their scores."""
+    if score.size < 2:
+        return np.zeros(0), np.zeros(0)
+    left, right = np.r_[-np.inf, score[:-1]], np.r_[score[1:], -np.inf]
+    peaks = np.flatnonzero((score >= left) & (score >= right))
+    peaks = peaks[np.argsort(-score[peaks])][:MAX_PEAKS]
+    lo = t_grid[np.maximum(peaks - 1, 0)]
+    hi = t_grid[np.minimum(peaks + 1, t_grid.size - 1)]
+    seen_t, seen_v = [], []
+    fractions = np.linspace(0.0, 1.0, 9)
+    for _ in range(rounds):
+        times = (lo[:, None] + (hi - lo)[:, None] * fractions[None, :])
+        values = score_at(times.ravel()).reshape(times.shape)
+        seen_t.append(times.ravel())
+        seen_v.append(values.ravel())
+        best = np.argmax(values, axis=1)
+        width = (hi - lo) / 8
+        centre = times[np.arange(times.shape[0]), best]
+        lo, hi = np.maximum(lo, centre - width), np.minimum(hi, centre + width)
+    return np.concatenate(seen_t), np.concatenate(seen_v)
+
+
+def _densely(score_at, t_inst: np.ndarray, t_base: np.ndarray, exact: bool = False) -> _Samples:
+    """A relation's violations at its instances and on the grid ``t_base``, sharpened at peaks."""
+    score = score_at(t_base)
+    t_more, v_more = _sharpen(score_at, t_base, score)
+    t_grid = np.concatenate([t_base, t_more])
+    order = np.argsort(t_grid, kind="stable")
+    v_grid = np.maximum(0.0, np.concatenate([score, v_more]))[order]
+    return _Samples(t_inst, np.maximum(0.0, score_at(t_inst)), t_grid[order], v_grid, exact)
+
+
+def _relation_samples(scene, constraint) -> list[_Samples]:
+    out = []
+    for rel in constraint.relations:
+        def score_at(times, expr=rel.expr, kind=rel.kind):
+            v = _score(scene.evaluate(expr, times), kind, constraint.weight)
+            if constraint.when is not None:   # a conditional constraint counts only where it applies
+                v = np.where(condition_holds(scene, constraint.when, times), v, -np.inf)
+            return v
+
+        t_inst = relation_times(scene, constraint, rel.expr, rel.kind)
+        if constraint.at is not None:
+            v_inst = np.maximum(0.0, score_at(t_inst))
+            out.append(_Samples(t_inst, v_inst, t_inst, v_inst))
+            continue
+        exact = constraint.samples is None and exact_degree(scene, rel.expr, rel.kind) is not None
+        t_base = dense_times(scene, [rel.expr], *constraint.interval, t_inst)
+        out.append(_densely(score_at, t_inst, t_base, exact))
+    return out
+
+
+def _bound_samples(scene, dof) -> list[_Samples]:
+    """A bound's instances are the control points (see instances.bound_times): their violation is
+    the control points' own; the dense grid checks the curve, which they bound everywhere."""
+    x, coef = dof_symbol(dof.name), np.asarray(dof.curve.coef, float)
+    t_inst = bound_times(scene, dof.name)
+    t_base = dense_times(scene, [x], scene.t0, scene.t1, np.union1d(t_inst, bound_extra_times(scene, dof.name)))
+    out = []
+    for bound, expr, at_points in ((dof.lo, x - (dof.lo or 0), coef - (dof.lo or 0)),
+                                   (dof.hi, (dof.hi or 0) - x, (dof.hi or 0) - coef)):
+        if bound is not None:
+            def score_at(times, expr=expr):
+                return _score(scene.evaluate(expr, times), TermKind.GE, 1.0)
+            dense = _densely(score_at, t_inst, t_base, exact=True)
+            out.append(replace(dense, v_inst=np.maximum(0.0, -at_points)))
+    return out
+
+
+def _summarize(name: str, samples: list[_Samples], tol: float | None) -> ConstraintCheck:
+    worst_inst = max((float(s.v_inst.max(initial=0.0)) for s in samples), default=0.0)
+    worst_dense, worst_t = 0.0, None
+    for s in samples:
+        i = int(np.argmax(s.v_grid)) if s.v_grid.size else 0
+        if s.v_grid.size and s.v_grid[i] > worst_dense:
+            worst_dense, worst_t = float(s.v_grid[i]), float(s.t_grid[i])
+    return ConstraintCheck(name, worst_inst, max(worst_dense, worst_inst), worst_t, tol)
+
+
+def _all_samples(scene):
+    """(check name, its relations' samples, its own tolerance) for every constraint and every
+    bounded DOF."""
+    for c in scene.constraints.values():
+        yield c.name, _relation_samples(scene, c), c.dense_tol
+    for dof in scene.dofs.values():
+        if dof.lo is not None or dof.hi is not None:
+            yield f"{dof.name}.bounds", _bound_samples(scene, dof), None
+
+
+def check_scene(scene) -> DenseReport:
+    """Every constraint and every DOF bound (named ``X.bounds``) of ``scene``, checked densely over
+    the whole animation.
+
+    Raises:
+        StwError: a constraint that no longer compiles (e.g. it names a deleted definition).
+    """
+    return survey(scene, None)[0]
+
+
+def survey(scene, tol: float | None) -> tuple[DenseReport, dict[str, np.ndarray]]:
+    """The dense check and, from the same samples, where new instances would help (see
+    :func:`_refinement`; nothing when ``tol`` is None)."""
+    checks, wanted = {}, {}
+    for name, samples, own_tol in _all_samples(scene):
+        checks[name] = _summarize(name, samples, own_tol)
+        if tol is not None:
+            found = _refinement(scene, samples, own_tol if own_tol is not None else tol)
+            if found.size:
+                wanted[name] = found
+    return DenseReport(checks), wanted
+
+
+def _snap(scene, t: float) -> float:
+    """Round a new instance time to 1/SNAP of the animation: the same instances for motions that
+    differ only by rounding (two backends, two machines), so their re-solves stay comparable."""
+    step = (scene.t1 - scene.t0) / SNAP
+    return float(min(scene.t1, max(scene.t0, scene.t0 + round((t - scene.t0) / step) * step)))
+
+
+def _refinement(scene, samples: list[_Samples], limit: float) -> np.ndarray:
+    """Where new instances would help one check: the local maxima of its dense violation above
+    ``limit`` that are not instances already (at most one per gap between instances)."""
+    found = []
+    for s in samples:
+        v = s.v_grid
+        if v.size < 3 or s.t_inst.size < 2 or s.exact:
+            continue   # an instant, or exactly placed instances: more would add nothing
+        peak = (v > limit) & (v >= np.roll(v, 1)) & (v >= np.roll(v, -1))
+        peak[0] = peak[-1] = False
+        gap = np.searchsorted(s.t_inst, s.t_grid)
+        for g in np.unique(gap[peak]):   # the worst peak of each gap between instances
+            in_gap = np.flatnonzero(peak & (gap == g))
+            t = _snap(scene, s.t_grid[in_gap[np.argmax(v[in_gap])]])
+            if np.min(np.abs(s.t_inst - t)) > 1e-9 * (scene.t1 - scene.t0):
+                found.append(t)
+    return np.unique(found)

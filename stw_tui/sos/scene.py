@@ -1,0 +1,287 @@
+"""The scene: everything a session has defined, as plain data.
+
+A scene is changed only by the interpreter, one command at a time, on a copy that replaces the
+original when the command succeeds — so a failed command leaves the scene exactly as it was.
+"""
+
+from __future__ import annotations
+
+import copy
+from dataclasses import dataclass, field, replace
+
+import numpy as np
+import sympy as sp
+
+from stw_tui.sos.spline import DofCurve
+from stw_tui.sym.errors import LimitError, StwError
+from stw_tui.sym.kinds import TermKind
+from stw_tui.sym.symbols import named_symbol
+
+DEFAULT_SETTINGS: dict[str, float] = {
+    "tol_violation": 1e-8,   # max |constraint| accepted as satisfied
+    "tol_kkt": 1e-6,         # max |gradient of the Lagrangian|, relative to max(1, |grad R|)
+    "tol_step": 1e-10,       # relative step length counted as "no progress"
+    "quadrature": 4,         # Gauss-Legendre points per knot span for objective integrals
+    "merit": 1.0,            # least weight of constraint violation in the line-search merit
+    "frame": 0.0,            # frame time shown by the player
+    "dense_tol": 1e-6,       # max violation between instances (the continuous-time check)
+    "adaptive": 1.0,         # 1: add instances where the continuous-time check fails, and re-solve
+    "adaptive_rounds": 4,    # at most this many re-solves per `iterate`
+    "preview": 0.0,          # 1: a solve's result is a proposal to `accept` or `reject` (preview.py)
+}
+
+
+@dataclass
+class Dof:
+    """A degree of freedom: a cubic B-spline curve with optional bounds, damping and keys."""
+
+    name: str
+    curve: DofCurve
+    lo: float | None = None
+    hi: float | None = None
+    damp: float = 0.0
+    keys: list[tuple[float, float]] = field(default_factory=list)
+
+
+@dataclass(frozen=True)
+class Relation:
+    """One relation of a constraint, normalized to ``expr = 0`` or ``expr >= 0``."""
+
+    expr: sp.Expr
+    kind: TermKind   # EQ or GE
+
+
+@dataclass
+class Constraint:
+    name: str
+    relations: tuple[Relation, ...]
+    at: float | None = None
+    interval: tuple[float, float] | None = None
+    when: sp.Basic | None = None
+    weight: float = 1.0
+    text: str = ""
+    samples: int | None = None   # instances per animation span (None: the scene's)
+    dense_tol: float | None = None   # largest violation between instances (None: the scene's)
+
+    @property
+    def scope_text(self) -> str:
+        return f"@ {self.at:g}" if self.at is not None else f"on [{self.interval[0]:g}, {self.interval[1]:g}]"
+
+
+@dataclass
+class Objective:
+    name: str
+    exprs: tuple[sp.Expr, ...]
+    interval: tuple[float, float] | None = None
+    weight: float = 1.0
+    text: str = ""
+
+
+@dataclass
+class Window:
+    """A spacetime window: a subset of DOF (None: all) over a time interval (None: the span)."""
+
+    name: str
+    dofs: tuple[str, ...] | None = None
+    interval: tuple[float, float] | None = None
+
+
+@dataclass
+class Scene:
+    t0: float = 0.0
+    t1: float = 1.0
+    knots: int = 12
+    samples: int | None = None   # constraint instances per animation span; default 2 * knots
+    constants: dict[str, float] = field(default_factory=dict)
+    dofs: dict[str, Dof] = field(default_factory=dict)
+    lets: dict[str, sp.Expr] = field(default_factory=dict)
+    derived: dict[str, sp.Expr] = field(default_factory=dict)   # from linkages, read-only names
+    linkages: dict[str, object] = field(default_factory=dict)
+    constraints: dict[str, Constraint] = field(default_factory=dict)
+    objectives: dict[str, Objective] = field(default_factory=dict)
+    windows: dict[str, Window] = field(default_factory=lambda: {"all": Window("all")})
+    active_window: str = "all"
+    backend: str = "scipy"
+    backend_options: dict[str, str] = field(default_factory=dict)
+    settings: dict[str, float] = field(default_factory=lambda: dict(DEFAULT_SETTINGS))
+    shake_count: int = 0
+    # Instances added where the continuous-time check failed, by constraint name (or "X.bounds").
+    extra_instances: dict[str, tuple[float, ...]] = field(default_factory=dict)
+    # Motion verbs (`hold`, `ballistic`): the verb's line and the constraints/objectives it made.
+    verbs: dict[str, tuple[str, tuple[str, ...]]] = field(default_factory=dict)
+    # Limits changed with `set limit NAME VALUE` (see stw_tui.sym.limits; the others are the defaults).
+    limits: dict[str, int] = field(default_factory=dict)
+    # Where `survey` sends its starts: a Dask scheduler (tcp://HOST:PORT), or "" for this machine.
+    scheduler: str = ""
+
+    def copy(self) -> "Scene":
+        """A copy that commands may change freely. Sympy expressions, curves and linkage specs
+        are immutable and shared; only the mutable records are copied (deepcopy of the derived
+        equations of motion cost more than the commands themselves)."""
+        new = copy.copy(self)
+        new.constants = dict(self.constants)
+        new.dofs = {k: replace(v, keys=list(v.keys)) for k, v in self.dofs.items()}
+        new.lets, new.derived, new.linkages = dict(self.lets), dict(self.derived), dict(self.linkages)
+        new.constraints = {k: replace(v) for k, v in self.constraints.items()}
+        new.objectives = {k: replace(v) for k, v in self.objectives.items()}
+        new.windows = {k: replace(v) for k, v in self.windows.items()}
+        new.backend_options, new.settings = dict(self.backend_options), dict(self.settings)
+        new.extra_instances = dict(self.extra_instances)
+        new.verbs = dict(self.verbs)
+        new.limits = dict(self.limits)
+        return new
+
+    # --- names -------------------------------------------------------------------------------
+    def kind_of(self, name: str) -> str | None:
+        """'dof', 'const', 'let' (subexpressions and derived names) or None."""
+        if name in self.dofs:
+            return "dof"
+        if name in self.constants:
+            return "const"
+        if name in self.lets or name in self.derived:
+            return "let"
+        return None
+
+    @property
+    def sample_count(self) -> int:
+        return self.samples if self.samples is not None else 2 * self.knots
+
+    @property
+    def window(self) -> Window:
+        return self.windows[self.active_window]
+
+    # --- expressions -------------------------------------------------------------------------
+    def expand(self, expr: sp.Basic) -> sp.Basic:
+        """Substitute subexpressions (lets and derived quantities) until only DOF, t and constants
+        remain. ``f'`` and ``f''`` of a subexpression ``f`` become its time derivatives."""
+        definitions = {named_symbol(n): e for n, e in {**self.derived, **self.lets}.items()}
+        self._check_size(expr, definitions)
+        for _ in range(100):
+            inside = expr.free_symbols & definitions.keys()
+            primed = {s for s in expr.free_symbols if s.name.endswith("'") and
+                      named_symbol(s.name.rstrip("'")) in definitions}
+            if not inside and not primed:
+                return expr
+            replacements = {s: definitions[s] for s in inside}
+            for s in primed:
+                base = s.name.rstrip("'")
+                replacements[s] = self.time_derivative(self.expand(named_symbol(base)), base,
+                                                       len(s.name) - len(base))
+            expr = expr.xreplace(replacements)
+        raise StwError("subexpressions refer to each other in a circle")
+
+    def _check_size(self, expr: sp.Basic, definitions: dict) -> None:
+        """Refuse an expansion over the limit expression_size before doing it (it would take
+        time and memory exponential in a chain of subexpressions)."""
+        from stw_tui.sym import limits
+        from stw_tui.sym.compiler import expanded_size
+
+        names = {d.name for d in definitions}
+        if any(s.name.rstrip("'") in names for s in expr.free_symbols):
+            size = expanded_size(expr, definitions)
+            if size > limits.value("expression_size", self.limits):
+                raise LimitError(limits.over("expression_size", f"{size} nodes",
+                                             "an expression (its subexpressions substituted) of",
+                                             self.limits))
+
+    def time_derivative(self, expr: sp.Expr, name: str, order: int) -> sp.Expr:
+        """d^order/dt^order of an expanded expression, by the chain rule through the DOF.
+
+        Raises:
+            StwError: it would need a DOF's third derivative (curves have two).
+        """
+        from stw_tui.sym.symbols import TIME, dof_symbols
+
+        for k in range(order):
+            out = sp.diff(expr, TIME)
+            for dof in self.dofs:
+                q, v, a = dof_symbols(dof)
+                used = expr.free_symbols
+                if a in used:
+                    raise StwError(f"{name}{chr(39) * order} needs the third derivative of {dof}; "
+                                   f"{name}{chr(39) * k} already uses {dof}''")
+                if q in used:
+                    out += sp.diff(expr, q) * v
+                if v in used:
+                    out += sp.diff(expr, v) * a
+            expr = out
+        return expr
+
+    def constant_values(self, names) -> np.ndarray:
+        return np.array([self.constants[n] for n in names], dtype=float)
+
+    def numeric(self, expr: sp.Basic, what: str = "value") -> float:
+        """Evaluate a constant expression (numbers and constants only) to a float."""
+        expr = self.expand(expr)
+        from stw_tui.sym.compiler import double_finite
+
+        used = {s for s in expr.free_symbols if s.name in self.constants}   # a scene may hold thousands
+        others = expr.free_symbols - used
+        if others:
+            names = ", ".join(sorted(s.name for s in others))
+            raise StwError(f"{what} must be a number or constant expression, but it uses {names}")
+        if not double_finite(expr, {s.name: self.constants[s.name] for s in used}):
+            # before sympy evaluates anything: exp(exp(exp(T))) would compute digits for ever
+            raise StwError(f"{what} is not a finite number (beyond what a double holds)")
+        value = expr.xreplace({s: sp.Float(self.constants[s.name]) for s in used})   # a bare constant stays sympy
+        try:
+            result = float(value.evalf())
+        except TypeError:   # log(T)^3.25 with T = 0.5: complex once the constant's value is known
+            raise StwError(f"{what} is not a real number ({sp.sstr(value)[:60]})") from None
+        if not np.isfinite(result):
+            raise StwError(f"{what} is not a finite number ({result})")
+        return result
+
+    def names_used_by(self, name: str) -> list[str]:
+        """Definitions that refer to ``name`` (to refuse deleting something in use)."""
+        symbol = named_symbol(name)
+        from stw_tui.sym.symbols import dof_symbols
+        targets = {symbol, named_symbol(name + "'"), named_symbol(name + "''")} | \
+            (set(dof_symbols(name)) if name in self.dofs else set())
+        users = []
+        for n, e in self.lets.items():
+            if n != name and e.free_symbols & targets:
+                users.append(n)
+        for c in self.constraints.values():
+            if any(r.expr.free_symbols & targets for r in c.relations) or (
+                    c.when is not None and c.when.free_symbols & targets):
+                users.append(c.name)
+        for o in self.objectives.values():
+            if any(e.free_symbols & targets for e in o.exprs):
+                users.append(o.name)
+        for w in self.windows.values():
+            if w.dofs and name in w.dofs:
+                users.append(w.name)
+        return users
+
+    def evaluate(self, expr: sp.Basic, times) -> np.ndarray:
+        """Values of an expression (DOF and their derivatives, t, constants, subexpressions) on
+        the scene's curves at ``times``: what `print`, the plots, figures and the dense check show.
+
+        Raises:
+            StwError: the expression names something the scene no longer defines.
+        """
+        from stw_tui.sym.compiler import compile_term
+
+        term = compile_term(self.expand(expr), set(self.dofs), set(self.constants))
+        times = np.asarray(times, float)
+        return term.value(self.term_inputs(term, times), times, self.constant_values(term.parameters))
+
+    def term_inputs(self, term, times: np.ndarray) -> np.ndarray:
+        """The (n, k) values of a compiled term's variables (DOF and their derivatives) on the
+        scene's curves at n times."""
+        if not term.variables:
+            return np.zeros((times.size, 0))
+        return np.column_stack([self.dofs[v.dof].curve.evaluate(times, v.order) for v in term.variables])
+
+    # --- curves ------------------------------------------------------------------------------
+    def coefficient_vector(self) -> np.ndarray:
+        return np.concatenate([d.curve.coef for d in self.dofs.values()]) if self.dofs else np.zeros(0)
+
+    def with_coefficients(self, vector: np.ndarray) -> None:
+        """Replace all DOF control points from one concatenated vector (in DOF order)."""
+        offset = 0
+        for dof in self.dofs.values():
+            n = dof.curve.n_coef
+            dof.curve = dof.curve.with_coef(np.array(vector[offset:offset + n], dtype=float))
+            offset += n

@@ -1,0 +1,59 @@
+"""Curvature control of exact (Newton) models: the least shift δI that makes the QP convex where
+it must be.
+
+The QP of an SQP step with an indefinite model H steps toward any stationary point of its
+model, saddles included: the SQP then crawls near saddles of the reduced Lagrangian, and whether
+it leaves one, or stops there as "converged", turns on rounding (basketball.stw: scipy left a
+saddle at objective 166.21 after 100 steps, torch stopped there). IPOPT corrects the inertia of
+its KKT matrix; the same test without an inertia-revealing factorization: H is positive definite
+on the null space of A exactly when H + ρAᵀA is for ρ large enough (Debreu's lemma), which one
+Cholesky-type factorization (``LinearAlgebra.positive_definite``) answers.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from stw_tui.sos.sqp.algebra import LinearAlgebra, Matrix
+
+# Relative to max(1, max |H_ii|):
+CURVATURE_PENALTY = 1e4   # ρ·max (AᵀA)_ii in the test H + ρAᵀA > 0
+SHIFT_FIRST, SHIFT_MAX = 1e-10, 1e-1   # first and largest shift δI tried; each try is 10x the last ...
+SHIFT_BISECTIONS = 3      # ... then geometric bisections bring it within a factor 10^(1/8) of the least
+
+
+def convexify(la: LinearAlgebra, H: Matrix, A: Matrix | None, last: float = 0.0) -> tuple[Matrix, float]:
+    """H + δI with the least δ >= 0 that makes it positive definite on the null space of A
+    (None: everywhere), and δ.
+
+    δ = 0 when H already is; else the search starts at max(SHIFT_FIRST, ``last``/3) (the shift
+    the previous step needed, as IPOPT does), multiplies by 10 until the test passes and bisects
+    the last decade geometrically: a shift far above the least one leaves a saddle only slowly
+    (the step along a curvature -λ grows by δ/(δ-λ) per iteration). When no shift up to
+    SHIFT_MAX does, H with that largest shift (a short, proximal step).
+    """
+    n = H.shape[0]
+    scale = max(1.0, la.max_abs_diagonal(H))
+    M = H
+    if A is not None and A.shape[0]:
+        widest = la.max_abs_diagonal(la.gram(A, la.full(A.shape[0], 1.0)))
+        if widest > 0:
+            M = la.add(H, la.gram(A, la.full(A.shape[0], CURVATURE_PENALTY * scale / widest)))
+
+    def convex(delta: float) -> bool:
+        return la.positive_definite(la.add(M, la.diagonal_matrix(np.full(n, delta))) if delta else M)
+
+    if convex(0.0):
+        return H, 0.0
+    top = SHIFT_MAX * scale
+    lo, hi = 0.0, max(SHIFT_FIRST * scale, last / 3.0)
+    while hi < top and not convex(hi):
+        lo, hi = hi, 10.0 * hi
+    hi = min(hi, top)
+    for _ in range(SHIFT_BISECTIONS if lo > 0 else 0):
+        mid = float(np.sqrt(lo * hi))
+        lo, hi = (lo, mid) if convex(mid) else (mid, hi)
+    return la.add(H, la.diagonal_matrix(np.full(n, hi))), hi
+
+
+__all__ = ["convexify", "CURVATURE_PENALTY", "SHIFT_FIRST", "SHIFT_MAX", "SHIFT_BISECTIONS"]

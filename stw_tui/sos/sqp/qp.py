@@ -1,0 +1,230 @@
+"""The SQP subproblem: a convex QP with equality and inequality rows, optionally elastic.
+
+    min ½dᵀHd + gᵀd   s.t.   A_e d + c_e = 0,   A_i d + c_i >= 0                  (hard)
+
+    min ½dᵀHd + gᵀd + ρ·Σ(u + v) + ρ·Σt
+        s.t.  A_e d + c_e + u - v = 0,  A_i d + c_i + t >= 0,  u, v, t >= 0         (elastic)
+
+With equality rows only, the hard QP is one Lagrange–Newton (KKT) solve, the paper's step. With
+inequality rows, or elastic, a primal–dual interior-point method (Mehrotra predictor–corrector)
+decides which rows bind; each of its iterations solves a KKT system of the same shape,
+[[H + A_iᵀ Q⁻¹ A_i, A_eᵀ], [A_e, -E]], where Q = w/z (+ t/(ρ - z)) and E = ε (+ u/(ρ + y) +
+v/(ρ - y)). The elastic QP (SNOPT's elastic mode, Fletcher's Sℓ1QP) is always feasible: its
+multipliers are bounded by ρ, and rows whose linearization cannot be met keep nonzero slacks.
+
+Everything is written over :class:`~stw_tui.sos.sqp.algebra.LinearAlgebra`.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from stw_tui.sos.sqp.algebra import KKTSystem, LinearAlgebra, Matrix, SingularSystem, Vector
+
+STEP_TO_BOUNDARY = 0.995   # fraction of the way to a bound an interior-point step may go
+KKT_EPS = 1e-10            # small negative (2,2) block: redundant (densely sampled) constraint rows get bounded multipliers
+IPM_TOL = 1e-11            # relative residuals and complementarity at which the interior-point method stops
+IPM_MAX = 100              # interior-point iteration limit (hitting it is reported, never silent)
+IPM_ACCEPTABLE = 1e-6      # when the method stalls short of IPM_TOL, its best iterate is used if it got this far
+IPM_STALL = 20             # iterations without halving the best error: stalled (round-off, or an infeasible QP)
+POLISH_TOL = 1e-9          # relative: how negative a binding row's multiplier may come out of a working-set solve ...
+FEASIBLE_TOL = 1e-12       # ... and how far its step may leave another inequality row's linearization (rounding)
+
+
+@dataclass
+class QPResult:
+    d: Vector
+    y: Vector               # equality multipliers (L = R + yᵀc_e)
+    z: Vector               # inequality multipliers, >= 0 (L = R - zᵀc_i)
+    linear_iterations: int
+    ipm_iterations: int
+    fallbacks: int = 0      # iterative solves that had to be replaced by a factorization
+    capped: bool = False    # the interior-point method stopped (limit or stall) short of IPM_ACCEPTABLE
+    elastic: float | None = None   # ρ of an elastic QP, None for a hard one
+    system: KKTSystem | None = None   # a hard equality-only QP's system [[H, A_eᵀ], [A_e, -ε]],
+                                      # which the second-order correction solves again
+
+
+def solve_qp(la: LinearAlgebra, H: Matrix, g: Vector, Ae: Matrix, ce: Vector, Ai: Matrix, ci: Vector,
+             y0: Vector | None = None, elastic: float | None = None, tol: float = IPM_TOL,
+             max_ipm: int = IPM_MAX, z0: Vector | None = None, working: Vector | None = None) -> QPResult:
+    """Solve the QP (hard, or elastic with weight ρ = ``elastic``).
+
+    The hard equality rows are stabilized around the previous multipliers ``y0`` (a proximal
+    method of multipliers): A_e d + c_e = ε (y - y0). Redundant rows — a constraint sampled more
+    densely than its spline can vary — then get bounded multipliers, and the constraints are
+    still met exactly once the multipliers settle.
+
+    A hard QP with inequality rows is first tried on the ``working`` rows (a backend bool vector:
+    those that bound at the last step), then solved by the interior-point method, whose
+    solution is made exact on the rows it found binding (:func:`_on_working_set`): binding rows
+    become equality rows, stabilized around ``z0`` (the previous inequality multipliers, >= 0)
+    like the others.
+
+    Raises:
+        SingularSystem: a KKT matrix could not be factorized.
+    """
+    n, me, mi = g.shape[0], ce.shape[0], ci.shape[0]
+    y0 = la.zeros(me) if y0 is None else y0
+    if mi == 0 and elastic is None:
+        system = la.kkt(H, Ae, KKT_EPS)
+        x = system.solve(la.concat([-g, -ce - KKT_EPS * y0]))
+        return QPResult(x[:n], x[n:], la.zeros(0), system.iterations, 0, system.fallbacks, system=system)
+    z0 = la.zeros(mi) if z0 is None else z0
+    if elastic is None and working is not None:
+        guess = _on_working_set(la, H, g, Ae, ce, Ai, ci, y0, z0, working)
+        if guess is not None:
+            return guess
+    result, w = _interior_point(la, H, g, Ae, ce, Ai, ci, y0, elastic, tol, max_ipm)
+    if elastic is None and not result.capped:
+        polished = _on_working_set(la, H, g, Ae, ce, Ai, ci, y0, z0, result.z > w)
+        if polished is not None:
+            polished.linear_iterations += result.linear_iterations
+            polished.ipm_iterations, polished.fallbacks = result.ipm_iterations, result.fallbacks + polished.fallbacks
+            result = polished
+    return result
+
+
+def _on_working_set(la, H, g, Ae, ce, Ai, ci, y0, z0, binding) -> QPResult | None:
+    """The QP's solution if the inequality rows ``binding`` (a backend bool vector) are the ones
+    that bind: one KKT factorization with them as equality rows, every row stabilized around its
+    previous multiplier; None when a binding row comes out with a negative multiplier or
+    another inequality row is left violated.
+
+    Tried first with the previous step's working set: near a solution the binding rows settle,
+    and the step is then exactly Newton's on them (the interior-point method, which explores
+    other sets, also finds far stationary points of a QP whose model is convex only on the
+    null space of its binding rows). Tried after the interior-point method on the rows it
+    found binding (z > w), to make its solution exact: it stops with slacks w ≈ μ/z > 0, and
+    where a binding row and equality rows are linearly dependent (a DOF held at its bound by a
+    constraint: `limit ELBOW 0 2.5` with `ELBOW = 0 @ 0`), that slack is an equality residual
+    that the proximal term turns into a multiplier change of w/ε, again each step: the
+    dependent rows' multipliers drift apart without bound, inflate the merit weight, and make
+    the steps depend on rounding.
+    """
+    n, me = g.shape[0], ce.shape[0]
+    A = la.stack_rows([Ae, la.rows(Ai, np.flatnonzero(la.numpy(binding)))])
+    c = la.concat([ce, ci[binding]])
+    center = la.concat([y0, -z0[binding]])   # a binding row's equality multiplier is -z
+    try:
+        system = la.kkt(H, A, KKT_EPS, exact=True)
+    except SingularSystem:
+        return None
+    rhs = la.concat([-g, -c])
+    x = system.solve(rhs - la.concat([la.zeros(n), KKT_EPS * center]))
+    # Once more around the multipliers just found (the same factorization): the rows are then
+    # met up to ε times rounding, not up to ε times the multipliers' change since the last step.
+    x = system.solve(rhs - la.concat([la.zeros(n), KKT_EPS * x[n:]]))
+    d, y, z_bound = x[:n], x[n:n + me], -x[n + me:]
+    z = la.zeros(ci.shape[0])
+    z[binding] = z_bound
+    slack = (la.matvec(Ai, d) + ci)[~binding]
+    scale_z = 1.0 + la.max_abs(z_bound)
+    scale_c = 1.0 + max(la.max_abs(ce), la.max_abs(ci))
+    if not (np.all(np.isfinite(la.numpy(x)))
+            and (z_bound.shape[0] == 0 or float(z_bound.min()) >= -POLISH_TOL * scale_z)
+            and (slack.shape[0] == 0 or float(slack.min()) >= -FEASIBLE_TOL * scale_c)):
+        return None
+    return QPResult(d, y, la.maximum(z, 0.0), system.iterations, 0, system.fallbacks)
+
+
+def _interior_point(la, H, g, Ae, ce, Ai, ci, y0, rho, tol, max_ipm) -> tuple[QPResult, Vector]:
+    n, me, mi = g.shape[0], ce.shape[0], ci.shape[0]
+    elastic = rho is not None
+    d = la.zeros(n)
+    y = la.zeros(me) if elastic else y0 * 1.0
+    w = la.maximum(ci, 1.0)
+    z = la.full(mi, min(1.0, rho / 2) if elastic else 1.0)
+    t, u, v = (la.full(mi, 1.0), la.full(me, 1.0), la.full(me, 1.0)) if elastic else (None, None, None)
+    # The duals of the slack bounds, ρ - z and ρ ± y, are variables of their own: recomputing
+    # them from a large ρ would cancel to zero as the multipliers reach their bound.
+    s, a, b = (rho - z, rho + y, rho - y) if elastic else (None, None, None)
+    scale_d = 1.0 + la.max_abs(g)
+    scale_c = 1.0 + max(la.max_abs(ce), la.max_abs(ci))
+    pairs = mi + (2 * mi + 2 * me if elastic else 0)
+    linear_its = fallbacks = 0
+    converged = False
+    # The best iterate so far, by its largest scaled residual: near the solution round-off can
+    # throw the iterates off again (large elastic weights), and an infeasible hard QP never
+    # converges; both stall, and the best iterate is what there is to return.
+    best, best_error, since_best = (d, y, z, w), np.inf, 0
+    k = 0
+    for k in range(1, max_ipm + 1):
+        r_d = la.matvec(H, d) + g + la.rmatvec(Ae, y) - la.rmatvec(Ai, z)
+        r_e = la.matvec(Ae, d) + ce - KKT_EPS * (y - y0)
+        r_i = la.matvec(Ai, d) + ci - w
+        gap = la.dot(w, z)
+        if elastic:
+            r_e = r_e + u - v
+            r_i = r_i + t
+            gap += la.dot(t, s) + la.dot(u, a) + la.dot(v, b)
+        mu = gap / pairs
+        if not np.isfinite(mu):
+            break
+        error = max(la.max_abs(r_d) / scale_d, la.max_abs(r_i) / scale_c, la.max_abs(r_e) / scale_c,
+                    mu / scale_d)
+        if error <= tol:
+            converged = True
+            break
+        if error < 0.5 * best_error:
+            since_best = 0
+        else:
+            since_best += 1
+            if since_best >= IPM_STALL:
+                break
+        if error < best_error:
+            best, best_error = (d, y, z, w), error
+        q_inv = z / w if not elastic else 1.0 / (w / z + t / s)
+        e = KKT_EPS + (u / a + v / b if elastic else 0.0) + la.zeros(me)
+        system = la.kkt(la.add(H, la.gram(Ai, q_inv)), Ae, e, exact=True)
+
+        def newton(rc):
+            """Newton direction for complementarity targets rc = (w z, t s, u a, v b) - targets."""
+            ri_t = r_i + rc[0] / z
+            re_t = r_e
+            if elastic:
+                ri_t = ri_t - rc[1] / s
+                re_t = re_t - rc[2] / a + rc[3] / b
+            x = system.solve(la.concat([-r_d - la.rmatvec(Ai, q_inv * ri_t), -re_t]))
+            dd, dy = x[:n], x[n:]
+            dz = -q_inv * (ri_t + la.matvec(Ai, dd))
+            primal = [(w, (-rc[0] - w * dz) / z)]
+            dual = [(z, dz)]
+            if elastic:
+                primal += [(t, (-rc[1] + t * dz) / s), (u, (-rc[2] - u * dy) / a), (v, (-rc[3] + v * dy) / b)]
+                dual += [(s, -dz), (a, dy), (b, -dy)]
+            return dd, dy, primal, dual
+
+        products = [w * z] + ([t * s, u * a, v * b] if elastic else [])
+        # Predictor (affine scaling), then Mehrotra's centring + second-order corrector.
+        dd, dy, primal, dual = newton(products)
+        ap = min(_max_step(x, dx) for x, dx in primal)
+        ad = min(_max_step(x, dx) for x, dx in dual)
+        gap_aff = sum(la.dot(p + ap * dp, q + ad * dq) for (p, dp), (q, dq) in zip(primal, dual))
+        sigma = (gap_aff / pairs / mu) ** 3 if mu > 0 else 0.0
+        dd, dy, primal, dual = newton([pq + dp * dq - sigma * mu
+                                       for pq, (_, dp), (_, dq) in zip(products, primal, dual)])
+        ap = min(1.0, STEP_TO_BOUNDARY * min(_max_step(x, dx, 1e30) for x, dx in primal))
+        ad = min(1.0, STEP_TO_BOUNDARY * min(_max_step(x, dx, 1e30) for x, dx in dual))
+        linear_its += system.iterations
+        fallbacks += system.fallbacks
+        d = d + ap * dd
+        w = w + ap * primal[0][1]
+        if elastic:
+            t, u, v = t + ap * primal[1][1], u + ap * primal[2][1], v + ap * primal[3][1]
+            s, a, b = s - ad * dual[0][1], a + ad * dy, b - ad * dy
+        y = y + ad * dy
+        z = z + ad * dual[0][1]
+    if not converged and best_error <= IPM_ACCEPTABLE:
+        (d, y, z, w), converged = best, True
+    return QPResult(d, y, z, linear_its, k, fallbacks, capped=not converged, elastic=rho), w
+
+
+def _max_step(v: Vector, dv: Vector, cap: float = 1.0) -> float:
+    """Largest α <= cap keeping v + α dv >= 0."""
+    neg = dv < 0
+    if not bool(neg.any()):
+        return cap
+    return float(min(cap, float((-v[neg] / dv[neg]).min())))

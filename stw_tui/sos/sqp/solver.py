@@ -1,0 +1,534 @@
+"""SQP (Lagrange–Newton) iterations, after Cohen 1992, 3.6 — written once for every backend.
+
+Each :meth:`SQPBackend.step` solves the QP of the Lagrangian's quadratic model over the linearized
+constraints — with equality rows only, exactly the paper's system
+
+    [[∇²L + δI + damping, Aᵀ], [A, 0]] [d; λ⁺] = [-∇R; -c]
+
+and with inequality instances by an interior-point method whose iterations solve systems of the
+same shape (qp.py). Rows whose `when` condition fails at the current iterate are left out.
+
+Robustness, in the order a step meets it:
+
+* **Elastic mode.** When the linearized constraints cannot be met (the hard QP's interior-point
+  method reaches its iteration limit, or its KKT systems stay singular under regularization),
+  the step comes from the elastic QP instead: every row relaxed by
+  nonnegative slacks that cost ρ each (SNOPT's elastic mode). It is always feasible, and its
+  step decreases the ℓ1 merit with weight ρ.
+* **Curvature control.** An exact (Newton) model is shifted by the least δI (of a geometric
+  series, refined by bisection) that makes it positive definite on the null space of the
+  equality rows and the binding inequality rows (IPOPT's inertia correction, tested through a
+  Cholesky factorization of H + ρAᵀA): the QP then steps away from saddles of the reduced
+  Lagrangian instead of toward them. Where the model is convex only there, a step that restores
+  feasibility may climb the objective; the merit weight is raised to what such a step needs.
+* **Working set.** The QP is first solved with the rows that bound at the last step as equality
+  rows (one KKT solve: Newton's step once they settle), and by the interior-point method only
+  when that guess fails; its solution is then made exact on the rows it found binding.
+* **Step limit** (option `trust`). A trust radius bounds the largest change of any control point; it adapts by
+  the ratio of the merit's actual to predicted decrease, so near the optimum full (Newton) steps
+  are taken and fast local convergence is kept. A refused step is retried with a heavier proximal
+  (Levenberg–Marquardt) term and a smaller radius; backtracking comes last.
+* **Acceptance.** A step must decrease the ℓ1 merit R + ρ·Σ violation by a fraction of what the
+  model predicts (with one second-order correction against the Maratos effect); with the option
+  `growth`, it may not multiply the objective by more than that factor (once the objective is
+  above max(1, ℓ1 violation)): a large merit weight must not let one step blow the motion up.
+* **Infeasibility.** When elastic steps make no more progress while rows stay violated (after the
+  elastic weight has been raised), the problem is declared infeasible, and the constraints in
+  conflict are named: those whose rows carry the multipliers of the least-violation QP.
+
+Backends supply a :class:`~stw_tui.sos.sqp.algebra.LinearAlgebra` (where vectors live, how the KKT
+system is solved) and optionally their own evaluator of the window problem (torch autograd).
+"""
+
+from __future__ import annotations
+
+import time
+from dataclasses import dataclass, replace
+from typing import Any
+
+import numpy as np
+
+from stw_tui.sos.backend import Backend, BackendOption, Capability, SolverState, StepReport
+from stw_tui.sos.sqp.algebra import LinearAlgebra, SingularSystem
+from stw_tui.sos.sqp.curvature import convexify
+from stw_tui.sos.sqp.qp import KKT_EPS, QPResult, solve_qp
+from stw_tui.sos.sqp.termination import is_converged, kkt_residual
+from stw_tui.sym.errors import StwError
+
+PROX_MIN, PROX_MAX = 1e-10, 1e8   # range of the adaptive proximal (Levenberg-Marquardt) term
+RETRIES = 5              # a refused full step is retried with 10x, 100x, ... heavier proximal terms
+ETA = 1e-4               # Armijo: accept a step whose merit decrease is this share of the slope's
+RATIO_POOR, RATIO_GOOD = 0.25, 0.75   # trust-radius update: shrink below, grow above (when it bound)
+RADIUS_FLOOR, RADIUS_CEILING = 1e-6, 1e2   # the step limit stays within these multiples of its start
+MIN_STEP = 1e-8          # smallest backtracking step before declaring a stall
+ACTIVE_FRACTION = 1e-6   # an inequality whose multiplier exceeds this share of the largest binds
+OBJECTIVE_FLOOR = 1.0    # option `growth` bounds the objective's growth once it is above this
+ELASTIC_WEIGHT = 1e2     # elastic slack cost: this x max(1, |∇R|, |λ|) ...
+ELASTIC_RAISE, ELASTIC_MAX = 1e2, 1e6   # ... raised by this factor, up to this x max(1, |∇R|)
+CONFLICT_FRACTION = 0.1  # a group with this share of the least-violation multipliers is in conflict
+
+SQP_OPTIONS = (
+    BackendOption("trust", float, 0.5, "initial step limit: largest change of any control point "
+                  "in one iteration, times max(1, largest control point); it adapts by the merit's "
+                  "ratio test (0: no limit)", minimum=0.0),
+    BackendOption("growth", float, 0.0, "largest factor by which one step may multiply the "
+                  "objective (above max(1, violation)); 0: no bound", minimum=0.0),
+    BackendOption("max_step", float, 0.0, "a fixed cap on the change of any control point in one "
+                  "iteration (0: no cap)", minimum=0.0),
+    BackendOption("hessian", str, "auto", "Hessian of the Lagrangian: exact (Newton), "
+                  "gauss_newton (objective residuals only: positive semidefinite), or auto "
+                  "(Gauss-Newton until nearly feasible, then exact)", ("auto", "exact", "gauss_newton")),
+    BackendOption("prox", float, 1e-6, "initial proximal (Levenberg-Marquardt) weight; it adapts",
+                  minimum=0.0),
+    BackendOption("newton_switch", float, 1e-2, "max violation below which `auto` uses the "
+                  "exact Hessian", minimum=0.0),
+)
+
+
+@dataclass
+class SQPInner:
+    """The SQP's own state between steps."""
+
+    state: SolverState
+    ev: Any                   # the evaluation at state.s
+    settings: dict
+    evaluator: Any            # evaluates the window problem (the problem itself, or a lowering)
+    algebra: LinearAlgebra
+    shift: float = 0.0        # the last curvature shift δ an exact model needed (see _convexify)
+
+
+@dataclass
+class _Linearization:
+    """The constraint rows of one iterate, as backend vectors and matrices."""
+
+    eq_rows: np.ndarray
+    ge_rows: np.ndarray
+    g: Any
+    Ae: Any
+    ce: Any
+    Ai: Any
+    ci: Any
+    y0: Any
+    z0: Any                   # the previous inequality multipliers (>= 0) of the live rows
+    working: Any              # the live rows that bound at the last step (backend bool vector)
+
+
+@dataclass
+class _Subproblem:
+    """A solved QP, in numpy, with what the acceptance test and the report need."""
+
+    qp: QPResult
+    d: np.ndarray
+    lam_eq: np.ndarray
+    lam_ge: np.ndarray
+    working: np.ndarray
+    lin_eq: np.ndarray        # c_e + A_e d over the live equality rows
+    lin_ge: np.ndarray        # c_i + A_i d over the live inequality rows
+    H: Any                    # the regularized Hessian it was solved with
+
+
+@dataclass
+class _Counts:
+    linear_iterations: int = 0
+    fallbacks: int = 0
+    capped: int = 0
+    elastic: bool = False
+
+
+@dataclass
+class _Trial:
+    alpha: float
+    d: np.ndarray
+    ratio: float = 0.0
+
+
+class SQPBackend(Backend):
+    """The shared SQP. Subclasses implement :meth:`algebra` (and may override :meth:`evaluator`)."""
+
+    options = SQP_OPTIONS
+    capabilities = frozenset({Capability.INEQUALITIES, Capability.CONDITIONAL, Capability.DAMPING,
+                              Capability.WEIGHTS, Capability.ELASTIC})
+
+    # --- what a backend supplies ------------------------------------------------------------
+    def algebra(self, problem) -> LinearAlgebra:
+        """The linear algebra the SQP runs on."""
+        raise NotImplementedError
+
+    def evaluator(self, problem, algebra: LinearAlgebra):
+        """What evaluates the problem: ``evaluate(s)``, ``merit_values(s)`` and ``damping`` as
+        :class:`~stw_tui.sos.window.WindowProblem` has them (the default: the problem itself)."""
+        return problem
+
+    # --- init / state -----------------------------------------------------------------------
+    def init(self, problem, state: SolverState, settings) -> SQPInner:
+        la = self.algebra(problem)
+        evaluator = self.evaluator(problem, la)
+        return SQPInner(state=state, ev=evaluator.evaluate(state.s), settings=dict(settings),
+                        evaluator=evaluator, algebra=la)
+
+    def state(self, inner: SQPInner) -> SolverState:
+        return inner.state
+
+    # --- one iteration -----------------------------------------------------------------------
+    def step(self, problem, inner: SQPInner, iteration: int) -> tuple[SQPInner, StepReport]:
+        ms: dict[str, float] = {"assemble": 0.0, "solve": 0.0, "line_search": 0.0}
+        la, st, ev, settings = inner.algebra, inner.state, inner.ev, inner.settings
+        counts = _Counts()
+        clock = time.perf_counter()
+        lin = self._linearize(la, ev, st)
+        modes = self._hessian_modes(ev)
+        prox = st.regularization if st.regularization > 0 else self.config["prox"]
+        ceiling = self._initial_radius(ev.s)
+        floor = RADIUS_FLOOR * ceiling
+        radius = st.trust_radius if st.trust_radius > 0 else ceiling
+        ceiling *= RADIUS_CEILING
+        rho_elastic = st.elastic_weight
+        ms["assemble"] += _lap(clock)
+        # A refused full step is retried with a heavier proximal term (shorter, better-modelled
+        # steps) before any backtracking; an exact step also as Gauss-Newton. Last: backtracking.
+        attempts = [(mode, prox, False) for mode in modes] + \
+            [(modes[-1], min(PROX_MAX, prox * 10.0 ** k), False) for k in range(1, RETRIES)] + \
+            [(modes[-1], prox, True)]
+        trial, sub, rho, capped = _Trial(0.0, np.zeros(ev.s.size)), None, st.merit_weight, False
+        models: dict[str, Any] = {}   # the model Hessian of each mode: only the proximal term changes
+        damping = 2.0 * inner.evaluator.damping
+        shift = inner.shift
+        for mode, prox, backtrack in attempts:
+            clock = time.perf_counter()
+            if mode not in models:
+                models[mode] = la.matrix(
+                    ev.gauss_newton() if mode == "gauss_newton" else
+                    ev.lagrangian_hessian(st.lam_eq * ev.active_eq, st.lam_ge * ev.active_ge))
+            H_model = models[mode]
+            H = la.add(H_model, la.diagonal_matrix(damping + prox))
+            if mode == "exact":
+                H, shift = self._convexify(la, H, ev, lin, st, inner.shift)
+            ms["assemble"] += _lap(clock)
+
+            clock = time.perf_counter()
+            sub, rho_elastic = self._subproblem(la, H, ev, lin, rho_elastic, settings, counts)
+            ms["solve"] += _lap(clock)
+            if sub is None:
+                continue
+            clock = time.perf_counter()
+            if sub.qp.elastic is not None:
+                rho = sub.qp.elastic
+            else:
+                rho = max(float(settings.get("merit", 1.0)),
+                          1.5 * float(np.abs(np.concatenate([sub.lam_eq, sub.lam_ge])).max(initial=0.0)),
+                          self._descent_weight(la, ev, lin, sub))
+            d = sub.d
+            biggest = float(np.abs(d).max(initial=0.0))
+            limit = min(radius, self.config["max_step"] or np.inf)
+            capped = biggest > limit
+            if capped:
+                d = d * (limit / biggest)
+            trial = self._accept(la, inner.evaluator, ev, lin, sub, H_model, d, rho,
+                                 backtrack=backtrack)
+            ms["line_search"] += _lap(clock)
+            if trial.alpha > 0:
+                break
+            radius = max(floor, 0.5 * min(radius, float(np.abs(d).max(initial=0.0))))
+        if sub is None:
+            raise StwError("the KKT system stayed singular under regularization: are two "
+                           "constraints contradicting each other?")
+
+        clock = time.perf_counter()
+        alpha, d = trial.alpha, trial.d
+        stalled = alpha == 0.0
+        s_new = ev.s + alpha * d
+        # The QP's multipliers are the estimate at this point whatever the step length (a damped
+        # update would freeze them, and the Hessian with them, while steps are short).
+        lam_eq, lam_ge = sub.lam_eq, sub.lam_ge
+        new_ev = inner.evaluator.evaluate(s_new) if not stalled else ev
+        ms["evaluate"] = _lap(clock)
+
+        kkt = kkt_residual(new_ev, lam_eq, lam_ge)
+        violation = new_ev.max_violation()
+        step_norm = alpha * float(np.abs(d).max(initial=0.0))
+        tiny_step = step_norm <= settings["tol_step"] * (1.0 + float(np.abs(s_new).max(initial=0.0)))
+        converged = is_converged(violation, kkt, settings, tiny_step, stalled)
+        stalled = stalled and not converged
+        infeasible, message = False, ""
+        no_direction = float(np.abs(sub.d).max(initial=0.0)) <= 1e-8 * (1.0 + float(np.abs(ev.s).max(initial=0.0)))
+        if counts.elastic and violation > settings["tol_violation"] and no_direction:
+            if rho_elastic < ELASTIC_MAX * self._elastic_base(ev):
+                rho_elastic *= ELASTIC_RAISE      # weigh the violation more, and try again
+                stalled = False
+            else:
+                infeasible = True
+                conflicts = self._conflicts(problem, la, ev, lin)
+                message = _conflict_message(conflicts, violation)
+        radius = self._update_radius(radius, trial, d, floor, ceiling)
+        # Full steps: trust the model more; cut or capped steps: less — a heavier proximal term
+        # shortens the next QP step itself (Levenberg-Marquardt), which scaling a step does not.
+        # A capped step whose model predicted the merit well was cut by the limit, not by a bad
+        # model: the growing radius lengthens the next one, and the proximal term stays light.
+        well_modelled = alpha == 1.0 and (not capped or trial.ratio > RATIO_GOOD)
+        prox = max(PROX_MIN, prox / 3) if well_modelled else min(PROX_MAX, prox * 10)
+        new_state = replace(st, s=s_new, lam_eq=lam_eq, lam_ge=lam_ge, working_set=sub.working,
+                            merit_weight=rho, regularization=prox, trust_radius=radius,
+                            elastic_weight=rho_elastic)
+        report = StepReport(iteration=iteration, objective=new_ev.objective, max_violation=violation,
+                            kkt_residual=kkt, step_length=alpha, linear_iterations=counts.linear_iterations,
+                            active=int(sub.working.sum()), ms=ms, converged=converged, stalled=stalled,
+                            message=message, fallbacks=counts.fallbacks, qp_capped=counts.capped,
+                            elastic=counts.elastic, infeasible=infeasible,
+                            conflicts=conflicts if infeasible else ())
+        return replace(inner, state=new_state, ev=new_ev, shift=shift), report
+
+    # --- pieces of a step ---------------------------------------------------------------------
+    def _hessian_modes(self, ev) -> tuple[str, ...]:
+        """Which Hessians to try this step. "auto": Gauss-Newton while far from feasible (the
+        multipliers, and so the constraint curvature, mean little there), exact Newton near it."""
+        choice = self.config["hessian"]
+        if choice != "auto":
+            return (choice,)
+        if ev.max_violation() > self.config["newton_switch"]:
+            return ("gauss_newton",)
+        return ("exact", "gauss_newton")
+
+    @staticmethod
+    def _convexify(la: LinearAlgebra, H, ev, lin: _Linearization, st: SolverState, last: float):
+        """:func:`~.curvature.convexify` on the null space of the equality rows and of the
+        binding inequality rows: those of the last working set, and those violated now."""
+        binding = st.working_set[lin.ge_rows] | (ev.c_ge[lin.ge_rows] <= 0.0)
+        rows = [lin.Ae] if lin.eq_rows.size else []
+        if binding.any():
+            rows.append(la.rows(lin.Ai, np.flatnonzero(binding)))
+        A = None if not rows else la.stack_rows(rows) if len(rows) > 1 else rows[0]
+        return convexify(la, H, A, last)
+
+    def _initial_radius(self, s: np.ndarray) -> float:
+        trust = self.config["trust"]
+        return trust * max(1.0, float(np.abs(s).max(initial=0.0))) if trust > 0 else np.inf
+
+    @staticmethod
+    def _update_radius(radius: float, trial: _Trial, d: np.ndarray, floor: float, ceiling: float) -> float:
+        """Shrink the step limit after a poorly predicted step, grow it after a well predicted one."""
+        taken = trial.alpha * float(np.abs(d).max(initial=0.0))
+        if trial.alpha == 0.0 or trial.ratio < RATIO_POOR:
+            return max(floor, 0.5 * min(radius, taken)) if taken > 0 else radius
+        if trial.ratio > RATIO_GOOD:
+            return min(ceiling, 2.0 * radius)
+        if trial.alpha == 1.0 and taken >= 0.99 * radius:
+            # A full step stopped by the limit, with a fair ratio: the ℓ1 merit's kink (Maratos)
+            # keeps the ratio below RATIO_GOOD near a solution, and a radius that never grows
+            # there turns Newton's convergence into a crawl at the limit.
+            return min(ceiling, 2.0 * radius)
+        return radius
+
+    @staticmethod
+    def _elastic_base(ev) -> float:
+        return max(1.0, float(np.abs(ev.gradient).max(initial=0.0)))
+
+    def _linearize(self, la: LinearAlgebra, ev, st: SolverState) -> _Linearization:
+        eq_rows, ge_rows = np.flatnonzero(ev.active_eq), np.flatnonzero(ev.active_ge)
+        return _Linearization(eq_rows, ge_rows, la.vector(ev.gradient),
+                              la.rows(la.jacobian(ev, "eq"), eq_rows), la.vector(ev.c_eq[eq_rows]),
+                              la.rows(la.jacobian(ev, "ge"), ge_rows), la.vector(ev.c_ge[ge_rows]),
+                              la.vector(st.lam_eq[eq_rows]), la.vector(-st.lam_ge[ge_rows]),
+                              la.vector(st.working_set[ge_rows].astype(float)) > 0.5)
+
+    def _subproblem(self, la, H, ev, lin: _Linearization, rho_elastic: float, settings,
+                    counts: _Counts) -> tuple[_Subproblem | None, float]:
+        """The hard QP's step when its linearization can be met; the elastic QP's otherwise."""
+        hard = self._qp(la, H, ev, lin, None, counts)
+        if hard is not None and not hard.qp.capped and self._meets(la, lin, hard.qp.d):
+            return hard, rho_elastic
+        multipliers = float(np.abs(hard.lam_eq).max(initial=0.0)) if hard is not None else 0.0
+        rho_elastic = max(rho_elastic, ELASTIC_WEIGHT * max(self._elastic_base(ev), min(multipliers, 1e6)))
+        counts.elastic = True
+        return self._qp(la, H, ev, lin, rho_elastic, counts), rho_elastic
+
+    @staticmethod
+    def _meets(la, lin: _Linearization, d) -> bool:
+        """Whether a hard QP's step meets the linearized constraints. The QP's equality rows are
+        regularized (KKT_EPS): on an inconsistent linearization (a bound against a constraint) it
+        can "converge" with huge multipliers instead of failing, and that step must not pass."""
+        eq = la.numpy(la.matvec(lin.Ae, d) + lin.ce) if lin.ce.shape[0] else np.zeros(0)
+        ge = la.numpy(la.matvec(lin.Ai, d) + lin.ci) if lin.ci.shape[0] else np.zeros(0)
+        residual = max(float(np.abs(eq).max(initial=0.0)), float(-ge.min(initial=0.0)))
+        before = max(float(np.abs(la.numpy(lin.ce)).max(initial=0.0)), float(-la.numpy(lin.ci).min(initial=0.0)))
+        return residual <= max(1e-6, 1e-3 * before)
+
+    def _qp(self, la: LinearAlgebra, H, ev, lin: _Linearization, elastic: float | None,
+            counts: _Counts) -> _Subproblem | None:
+        """Solve the QP, raising a diagonal shift while its KKT systems are singular or (elastic QP:
+        no equality rows to restrict the model to) its step meets negative curvature."""
+        n = ev.s.size
+        reg, qp, Hr = 0.0, None, H
+        for _attempt in range(8):
+            Hr = la.add(H, la.diagonal_matrix(np.full(n, reg))) if reg else H
+            try:
+                qp = solve_qp(la, Hr, lin.g, lin.Ae, lin.ce, lin.Ai, lin.ci, y0=lin.y0, elastic=elastic,
+                              z0=lin.z0, working=lin.working)
+            except SingularSystem:
+                qp = None
+                reg = max(10 * reg, 1e-8)
+                continue
+            counts.linear_iterations += qp.linear_iterations
+            counts.fallbacks += qp.fallbacks
+            counts.capped += int(qp.capped)
+            if not np.all(np.isfinite(la.numpy(qp.d))):
+                qp = None
+                reg = max(10 * reg, 1e-8)
+                continue
+            if elastic is None:
+                # A hard QP's model is convex where it counts, on the null space of its binding
+                # rows (_convexify); along a step that also restores feasibility, dᵀHd < 0 is
+                # no sign of trouble, and a shift there would cost Newton's local convergence.
+                break
+            curvature = la.dot(qp.d, la.matvec(Hr, qp.d))
+            if curvature >= -1e-12 * la.dot(qp.d, qp.d) or la.max_abs(qp.d) == 0.0:
+                break
+            reg = max(10 * reg, 1e-6 * max(1.0, la.max_abs_diagonal(H)))
+        if qp is None:
+            return None
+        lam_eq = np.zeros(ev.c_eq.size)
+        lam_eq[lin.eq_rows] = la.numpy(qp.y)
+        lam_ge = np.zeros(ev.c_ge.size)
+        z = la.numpy(qp.z)
+        lam_ge[lin.ge_rows] = -z          # L = R + Σλc: a binding h >= 0 has λ <= 0
+        working = np.zeros(ev.c_ge.size, bool)
+        if z.size:
+            working[lin.ge_rows[z > ACTIVE_FRACTION * max(1.0, float(z.max()))]] = True
+        lin_eq = la.numpy(la.matvec(lin.Ae, qp.d) + lin.ce)
+        lin_ge = la.numpy(la.matvec(lin.Ai, qp.d) + lin.ci)
+        return _Subproblem(qp, la.numpy(qp.d), lam_eq, lam_ge, working, lin_eq, lin_ge, Hr)
+
+    def _accept(self, la, evaluator, ev, lin: _Linearization, sub: _Subproblem, H_model, d, rho,
+                backtrack: bool) -> _Trial:
+        """Test the step ``d`` (a multiple τ of the QP's step) against the ℓ1 merit φ = R + ρ·viol:
+        accept when φ decreases by ETA x the model's prediction and the objective does not grow
+        by more than the option `growth` allows; else try one second-order correction, and (``backtrack``)
+        halve the step."""
+        def merit(mv) -> float:
+            eq = np.abs(mv.c_eq[mv.active_eq]).sum()
+            ge = np.maximum(0.0, -mv.c_ge[mv.active_ge]).sum()
+            return mv.objective + rho * (eq + ge)
+
+        phi0 = merit(ev)
+        c_eq, c_ge = ev.c_eq[lin.eq_rows], ev.c_ge[lin.ge_rows]
+        full = float(np.abs(sub.d).max(initial=0.0))
+        tau = float(np.abs(d).max(initial=0.0)) / full if full > 0 else 0.0
+        g_d = float(ev.gradient @ d)
+        d_alg = la.vector(d)
+        dHd = la.dot(d_alg, la.matvec(H_model, d_alg))
+        viol0 = np.abs(c_eq).sum() + np.maximum(0.0, -c_ge).sum()
+
+        def predicted(alpha: float) -> float:
+            a = alpha * tau
+            lin_eq = c_eq + a * (sub.lin_eq - c_eq)
+            lin_ge = c_ge + a * (sub.lin_ge - c_ge)
+            viol = np.abs(lin_eq).sum() + np.maximum(0.0, -lin_ge).sum()
+            return -(alpha * g_d + 0.5 * alpha * alpha * dHd) + rho * (viol0 - viol)
+
+        # Armijo on the merit's directional derivative along d (the linearization's violation
+        # after the full step is what the merit expects to lose).
+        # A hard QP step meets the linearization (up to the linear solver's accuracy, which must
+        # not count as progress); an elastic one leaves its slacks.
+        viol_after = 0.0 if sub.qp.elastic is None else (
+            np.abs(c_eq + tau * (sub.lin_eq - c_eq)).sum()
+            + np.maximum(0.0, -(c_ge + tau * (sub.lin_ge - c_ge))).sum())
+        slope = g_d - rho * (tau * viol0 if sub.qp.elastic is None else viol0 - viol_after)
+        if not np.any(d) or abs(slope) <= 1e-15 * (1.0 + abs(phi0)):
+            return _Trial(1.0, d, 1.0)
+        slope = min(slope, 0.0)   # not a descent direction for this ρ: ask only for simple decrease
+        factor = self.config["growth"]
+        growth = factor * max(ev.objective, OBJECTIVE_FLOOR, viol0) if factor > 0 else np.inf
+
+        def ok(mv, alpha: float) -> tuple[bool, float]:
+            pred = predicted(alpha)
+            actual = phi0 - merit(mv)
+            if mv.objective > growth or not np.isfinite(actual):
+                return False, 0.0
+            return actual >= -ETA * alpha * slope, actual / pred if pred > 0 else 1.0
+
+        trial = evaluator.merit_values(ev.s + d)
+        good, ratio = ok(trial, 1.0)
+        if good:
+            return _Trial(1.0, d, ratio)
+        if sub.qp.elastic is None and tau == 1.0:
+            corrected = self._second_order_correction(la, ev, lin, sub, d, trial)
+            if corrected is not None:
+                good, ratio = ok(evaluator.merit_values(ev.s + corrected), 1.0)
+                if good:
+                    return _Trial(1.0, corrected, ratio)
+        alpha = 0.5
+        while backtrack and alpha >= MIN_STEP:
+            good, ratio = ok(evaluator.merit_values(ev.s + alpha * d), alpha)
+            if good:
+                return _Trial(alpha, d, ratio)
+            alpha *= 0.5
+        return _Trial(0.0, d)
+
+    @staticmethod
+    def _descent_weight(la, ev, lin: _Linearization, sub: _Subproblem) -> float:
+        """The least merit weight for which a hard QP's step descends the ℓ1 merit by at least
+        half the model's decrease (Nocedal & Wright, Numerical Optimization, (18.36)):
+        (∇Rᵀd + ½ max(dᵀHd, 0)) / (½ ‖c‖₁).
+
+        The multipliers bound it when the model is convex along d; where it is convex only on
+        the null space of the binding rows (_convexify), a step that restores feasibility can
+        climb the objective, and the merit must weigh the violation it removes enough for that."""
+        viol = np.abs(ev.c_eq[lin.eq_rows]).sum() + np.maximum(0.0, -ev.c_ge[lin.ge_rows]).sum()
+        if viol <= 0.0:
+            return 0.0
+        d = la.vector(sub.d)
+        rise = float(ev.gradient @ sub.d) + 0.5 * max(la.dot(d, la.matvec(sub.H, d)), 0.0)
+        return max(rise, 0.0) / (0.5 * viol)
+
+    @staticmethod
+    def _second_order_correction(la, ev, lin: _Linearization, sub: _Subproblem, d, trial):
+        """The minimum-change step that fixes the binding rows' values at the trial point."""
+        ge_rows = np.flatnonzero(sub.working)
+        c = np.concatenate([trial.c_eq[lin.eq_rows], trial.c_ge[ge_rows]])
+        if c.size == 0:
+            return None
+        n = d.size
+        try:
+            if ge_rows.size == 0 and sub.qp.system is not None:
+                system = sub.qp.system   # the same matrix [[H, A_eᵀ], [A_e, -ε]], already factorized
+            else:
+                A = la.stack_rows([lin.Ae, la.rows(la.jacobian(ev, "ge"), ge_rows)])
+                system = la.kkt(sub.H, A, KKT_EPS)
+            x = system.solve(la.concat([la.zeros(n), la.vector(-c)]))
+        except SingularSystem:
+            return None
+        correction = la.numpy(x[:n])
+        return d + correction if np.all(np.isfinite(correction)) else None
+
+    def _conflicts(self, problem, la: LinearAlgebra, ev, lin: _Linearization) -> tuple[str, ...]:
+        """Constraints in conflict: the groups that carry the multipliers of the least-violation
+        QP (min ½δ|d|² + Σ elastic slacks, no objective) at ``ev``, or that stay violated."""
+        n = ev.s.size
+        H = la.diagonal_matrix(np.full(n, 1e-8))
+        try:
+            qp = solve_qp(la, H, la.zeros(n), lin.Ae, lin.ce, lin.Ai, lin.ci, elastic=1.0)
+            weight = {"eq": np.abs(la.numpy(qp.y)), "ge": np.abs(la.numpy(qp.z))}
+        except SingularSystem:
+            weight = {"eq": np.zeros(lin.eq_rows.size), "ge": np.zeros(lin.ge_rows.size)}
+        violated = {"eq": np.abs(ev.c_eq[lin.eq_rows]), "ge": np.maximum(0.0, -ev.c_ge[lin.ge_rows])}
+        totals: dict[str, float] = {}
+        for kind, rows in (("eq", lin.eq_rows), ("ge", lin.ge_rows)):
+            sources = problem.row_sources(kind)[rows]
+            for source, w, v in zip(sources, weight[kind], violated[kind]):
+                totals[source] = totals.get(source, 0.0) + float(w) + (1.0 if v > 1e-6 else 0.0)
+        top = max(totals.values(), default=0.0)
+        return tuple(name for name, total in totals.items() if top > 0 and total >= CONFLICT_FRACTION * top)
+
+
+def _conflict_message(conflicts: tuple[str, ...], violation: float) -> str:
+    if not conflicts:
+        return f"the constraints cannot all be met here (violation {violation:.3g} left)"
+    names = ", ".join(conflicts[:-1]) + (" and " if len(conflicts) > 1 else "") + conflicts[-1]
+    return (f"constraints {names} conflict: no motion meets them all "
+            f"(least violation {violation:.3g} left)")
+
+
+def _lap(start: float) -> float:
+    return (time.perf_counter() - start) * 1e3
+
+
+__all__ = ["SQPBackend", "SQPInner", "SQP_OPTIONS"]

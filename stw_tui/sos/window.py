@@ -1,0 +1,616 @@
+"""The window problem: a spacetime window of a scene as a sparse nonlinear program.
+
+Free variables are the control points of the window's DOF whose support meets the window's time
+interval; every other control point is fixed (paper 4.2). Constraint instances (placed by
+instances.py) and objective quadrature points are taken over the whole part of the animation that
+the free control points can change, so the window problem minimizes exactly the scene's objective
+with everything outside held fixed, and cannot break a constraint outside the window.
+
+Evaluation is vectorized: DOF quantities at all instances are one sparse product ``P @ coef``
+(``P`` stacks the B-spline basis rows of every term variable at every instance); Jacobians and
+Hessians follow by the chain rule as sparse products ``G @ Pf`` and ``Pfᵀ D Pf`` where ``G`` and
+``D`` hold the compiled local derivatives on fixed sparsity patterns. No Python loop runs over
+instances or control points; one runs over term groups (constraints and objective terms).
+"""
+
+from __future__ import annotations
+
+import operator
+from dataclasses import dataclass, field
+from functools import lru_cache
+
+import numpy as np
+import scipy.sparse as sps
+import sympy as sp
+
+from stw_tui.sos.instances import bound_extra_times, bound_times, relation_times
+from stw_tui.sos.products import GRAM_PLAN_TERMS, GramPlan, ProductPlan
+from stw_tui.sos.scene import Scene
+from stw_tui.sos.spline import gauss_legendre_nodes
+from stw_tui.sym.compiler import CompiledTerm, compile_term
+from stw_tui.sym.errors import StwError
+from stw_tui.sym.kinds import TermKind
+from stw_tui.sym.symbols import dof_symbol
+
+EQ, GE, OBJ = TermKind.EQ, TermKind.GE, TermKind.OBJ
+HESSIAN_PLAN_AFTER = 4   # Hessians assembled by plain sparse products before a plan is made
+# The comparisons of a `when` condition, as operators: numpy arrays and torch tensors both take them.
+_RELATIONS = {
+    sp.StrictGreaterThan: operator.gt, sp.GreaterThan: operator.ge,
+    sp.StrictLessThan: operator.lt, sp.LessThan: operator.le,
+    sp.Equality: operator.eq, sp.Unequality: operator.ne,
+}
+
+
+def relation_nodes(tree: sp.Basic) -> list[sp.Basic]:
+    """The relations (leaves) of a ``when`` condition, in a fixed order."""
+    return [node for node in sp.preorder_traversal(tree) if isinstance(node, tuple(_RELATIONS))]
+
+
+def evaluate_condition_tree(node: sp.Basic, leaf_values: dict, filled):
+    """Where a boolean tree of relations holds, given each leaf's ``lhs - rhs`` at n times.
+
+    Array-generic (numpy here, torch in the torch backend): leaves are compared with 0 by Python's
+    operators and combined with ``&``, ``|`` and ``~``; ``filled(flag)`` makes the n-long boolean
+    array that a literal true or false stands for.
+    """
+    if node is sp.true or node is sp.false:
+        return filled(node is sp.true)
+    if isinstance(node, (sp.And, sp.Or)):
+        parts = [evaluate_condition_tree(a, leaf_values, filled) for a in node.args]
+        out = parts[0]
+        for part in parts[1:]:
+            out = out & part if isinstance(node, sp.And) else out | part
+        return out
+    if isinstance(node, sp.Not):
+        return ~evaluate_condition_tree(node.args[0], leaf_values, filled)
+    return _RELATIONS[type(node)](leaf_values[node], 0.0)
+
+
+def numpy_filled(n: int):
+    """``filled`` for :func:`evaluate_condition_tree` on numpy arrays of n times."""
+    return lambda flag: np.full(n, flag, dtype=bool)
+
+
+@dataclass(eq=False)
+class Condition:
+    """A compiled ``when`` condition: a boolean tree whose leaves are (lhs - rhs) terms."""
+
+    tree: sp.Basic
+    leaves: list[tuple[sp.Basic, CompiledTerm, int]] = field(default_factory=list)  # (node, term, slot offset)
+
+    def evaluate(self, slot_values: np.ndarray, times: np.ndarray, scene_params) -> np.ndarray:
+        n = len(times)
+        leaf_values = {}
+        for node, term, offset in self.leaves:
+            x = slot_values[offset:offset + term.k * n].reshape(term.k, n).T
+            leaf_values[node] = term.value(x, times, scene_params(term))
+        return evaluate_condition_tree(self.tree, leaf_values, numpy_filled(n))
+
+
+@dataclass(eq=False)
+class TermGroup:
+    """One compiled expression evaluated at a set of instance times.
+
+    ``kind`` is EQ (= 0), GE (>= 0) or OBJ (squared and integrated). Slot ``(a, i)`` — the
+    value of variable ``a`` at instance ``i`` — lives at ``slot_offset + a * n + i`` of the slot
+    vector; the group's rows are ``row_offset .. row_offset + n`` among the rows of its kind.
+    """
+
+    label: str
+    source: str
+    kind: TermKind
+    term: CompiledTerm
+    times: np.ndarray
+    weights: np.ndarray
+    params: np.ndarray
+    slot_offset: int = 0
+    row_offset: int = 0
+    condition: Condition | None = None
+    basis: list | None = None   # basis rows computed while choosing instances, until assembly
+
+    @property
+    def n(self) -> int:
+        return len(self.times)
+
+
+@dataclass(eq=False)
+class Evaluation:
+    """Everything one SQP iteration needs at the current free values ``s``."""
+
+    s: np.ndarray
+    objective: float
+    gradient: np.ndarray
+    c_eq: np.ndarray
+    J_eq: sps.csr_array
+    c_ge: np.ndarray
+    J_ge: sps.csr_array
+    active_eq: np.ndarray      # bool: equality rows whose `when` holds
+    active_ge: np.ndarray      # bool: inequality rows whose `when` holds
+    _problem: "WindowProblem" = field(repr=False, default=None)
+    _hess_data: dict = field(repr=False, default_factory=dict)
+    _residual: np.ndarray = field(repr=False, default=None)
+    _J_obj: sps.csr_array = field(repr=False, default=None)
+    _gauss_newton: sps.csr_array = field(repr=False, default=None)
+
+    def max_violation(self) -> float:
+        return WindowProblem.max_violation(self)
+
+    def lagrangian_hessian(self, lam_eq: np.ndarray, lam_ge: np.ndarray) -> sps.csr_array:
+        """∇²R + Σ λ ∇²C over the free variables (sparse, symmetric)."""
+        return self._problem._hessian(self, lam_eq, lam_ge)
+
+    def gauss_newton(self) -> sps.csr_array:
+        """2 Jᵀ W J of the objective residuals: positive semidefinite, no second derivatives.
+
+        Computed once per evaluation (the exact Hessian adds it too); callers must not modify it."""
+        if self._gauss_newton is None:
+            self._gauss_newton = self._problem._gauss_newton(self)
+        return self._gauss_newton
+
+
+@lru_cache(maxsize=None)
+def _pair_rows(pairs: tuple[tuple[int, int], ...]) -> np.ndarray:
+    """Each Hessian pair once, an off-diagonal one twice: a group's entries of D, in order."""
+    return np.repeat(np.arange(len(pairs)), [1 if a == b else 2 for a, b in pairs])
+
+
+def _triplet_structure(rows, cols, shape) -> tuple[sps.csr_array, np.ndarray] | None:
+    """The CSR structure ``csr_array((data, (rows, cols)))`` gets, and the permutation from the
+    triplets to its stored entries; None when an entry repeats (then values would be summed)."""
+    order = np.lexsort((cols, rows))
+    r, c = rows[order], cols[order]
+    if np.any((r[1:] == r[:-1]) & (c[1:] == c[:-1])):
+        return None
+    indptr = np.zeros(shape[0] + 1, dtype=np.int64)
+    np.cumsum(np.bincount(r, minlength=shape[0]), out=indptr[1:])
+    return sps.csr_array((np.ones(r.size), c, indptr), shape=shape), order
+
+
+@dataclass(frozen=True)
+class MeritValues:
+    objective: float
+    c_eq: np.ndarray
+    c_ge: np.ndarray
+    active_eq: np.ndarray
+    active_ge: np.ndarray
+
+
+class WindowProblem:
+    """The NLP of one spacetime window. Build once per `iterate`; evaluate many times."""
+
+    def __init__(self, scene: Scene, window_name: str | None = None):
+        window = scene.windows[window_name or scene.active_window]
+        self.scene = scene
+        self.window = window
+        self.dof_names = tuple(scene.dofs)
+        if not self.dof_names:
+            raise StwError("there are no DOF: declare one with `dof NAME`")
+        self.offsets = {}
+        offset = 0
+        for name, dof in scene.dofs.items():
+            self.offsets[name] = offset
+            offset += dof.curve.n_coef
+        self.n_total = offset
+        self.coef0 = scene.coefficient_vector()
+        self.interval = window.interval or (scene.t0, scene.t1)
+        self.window_dofs = tuple(window.dofs) if window.dofs else self.dof_names
+        missing = [d for d in self.window_dofs if d not in scene.dofs]
+        if missing:
+            raise StwError(f"window '{window.name}' names unknown DOF {', '.join(missing)}")
+        self._select_free()
+        self._build_groups()
+        self._assemble_patterns()
+
+    # --- building ----------------------------------------------------------------------------
+    def _select_free(self) -> None:
+        a, b = self.interval
+        full = a <= self.scene.t0 and b >= self.scene.t1
+        free, lo, hi = [], np.inf, -np.inf
+        for name in self.window_dofs:
+            curve = self.scene.dofs[name].curve
+            support = curve.support()
+            mask = np.ones(curve.n_coef, bool) if full else (support[:, 0] < b) & (support[:, 1] > a)
+            idx = np.flatnonzero(mask)
+            if idx.size:
+                lo, hi = min(lo, support[idx, 0].min()), max(hi, support[idx, 1].max())
+            free.append(self.offsets[name] + idx)
+        self.free = np.concatenate(free).astype(np.int64) if free else np.zeros(0, np.int64)
+        if self.free.size == 0:
+            raise StwError(f"window '{self.window.name}' has no free control points")
+        # Constraint instances and objective quadrature cover every time the free control points
+        # can change: the union of their supports, up to three knot spans past the window. (The
+        # paper's one span past it (4.2) lets a window break constraints just outside itself.)
+        self.reach = (max(self.scene.t0, lo), min(self.scene.t1, hi))
+        self.free_dofs = frozenset(self.window_dofs)
+        self.dof_of_free = np.empty(self.free.size, dtype=object)
+        pos = 0
+        for name, idx in zip(self.window_dofs, free):
+            self.dof_of_free[pos:pos + idx.size] = name
+            pos += idx.size
+
+    def _compile(self, expr: sp.Basic) -> CompiledTerm:
+        return compile_term(self.scene.expand(expr), set(self.scene.dofs), set(self.scene.constants))
+
+    def _params(self, term: CompiledTerm) -> np.ndarray:
+        return self.scene.constant_values(term.parameters)
+
+    def _build_groups(self) -> None:
+        scene, (ia, ib) = self.scene, self.reach
+        self.groups: list[TermGroup] = []
+        def inside(times):
+            return times[(times >= ia - 1e-12) & (times <= ib + 1e-12)]
+
+        for c in scene.constraints.values():
+            for r_index, rel in enumerate(c.relations):
+                label = c.name if len(c.relations) == 1 else f"{c.name}[{r_index + 1}]"
+                times = inside(relation_times(scene, c, rel.expr, rel.kind))
+                self._add_group(label, c.name, rel.kind, rel.expr, times, c.weight, c.when)
+        for name in self.window_dofs:
+            dof = scene.dofs[name]
+            if dof.lo is None and dof.hi is None:
+                continue
+            x, n = dof_symbol(name), dof.curve.n_coef
+            # Bounds hold on the control points (so, by the convex hull, everywhere); a row per
+            # control point, named by the time it stands for.
+            points = sps.csr_array((np.ones(n), (np.arange(n), self.offsets[name] + np.arange(n))),
+                                   shape=(n, self.n_total))
+            times, extra = bound_times(scene, name), inside(bound_extra_times(scene, name))
+            for side, bound, expr in (("lo", dof.lo, x - (dof.lo or 0)), ("hi", dof.hi, (dof.hi or 0) - x)):
+                if bound is not None:
+                    self._add_group(f"{name}.{side}", f"{name}.bounds", GE, expr, times, 1.0, None,
+                                    basis=[points])
+                    self._add_group(f"{name}.{side}+", f"{name}.bounds", GE, expr, extra, 1.0, None)
+        quad = int(scene.settings["quadrature"])
+        for o in scene.objectives.values():
+            a, b = self.reach
+            if o.interval is not None:
+                a, b = max(a, o.interval[0]), min(b, o.interval[1])
+            if b <= a:
+                continue
+            for e_index, expr in enumerate(o.exprs):
+                term = self._compile(expr)
+                if not term.dofs & self.free_dofs:
+                    continue  # constant over this window
+                breaks = np.unique(np.concatenate([scene.dofs[d].curve.breakpoints for d in term.dofs]))
+                times, weights = gauss_legendre_nodes(breaks, quad, a, b)
+                label = o.name if len(o.exprs) == 1 else f"{o.name}[{e_index + 1}]"
+                self._add_group(label, o.name, OBJ, expr, times, o.weight, None, term=term,
+                                weights=weights * o.weight)
+
+    def _basis_rows(self, term: CompiledTerm, times: np.ndarray) -> list[sps.csr_array]:
+        """Per variable of ``term``: the (n, n_total) matrix mapping all coefficients to its values."""
+        blocks = []
+        for var in term.variables:
+            curve = self.scene.dofs[var.dof].curve
+            local = sps.coo_array(curve.basis(times, var.order))
+            blocks.append(sps.csr_array((local.data, (local.row, local.col + self.offsets[var.dof])),
+                                        shape=(len(times), self.n_total)))
+        return blocks
+
+    def _add_group(self, label, source, kind, expr, times, weight, when, *, term=None, weights=None,
+                   basis=None):
+        """``basis``: rows mapping all coefficients to the term's variables at ``times`` (default:
+        the curves' basis functions at ``times``)."""
+        term = term or self._compile(expr)
+        if kind != OBJ:
+            times, basis = self._touching_free(term, times, basis)
+        if times.size == 0 or not term.dofs & self.free_dofs:
+            return
+        weights = weights if weights is not None else np.full(times.size, float(weight))
+        condition = None
+        if when is not None and when is not sp.true:
+            if when is sp.false:
+                return
+            condition = Condition(when)
+        self.groups.append(TermGroup(label, source, kind, term, times, weights, self._params(term),
+                                     condition=condition, basis=basis))
+
+    def _touching_free(self, term: CompiledTerm, times: np.ndarray, blocks=None):
+        """Drop instances that no free control point can influence (their Jacobian rows are zero).
+
+        Returns the kept times and their basis rows (reused when P is assembled)."""
+        if times.size == 0:
+            return times, []
+        free_mask = np.zeros(self.n_total, bool)
+        free_mask[self.free] = True
+        blocks = blocks if blocks is not None else self._basis_rows(term, times)
+        keep = np.zeros(times.size, bool)
+        for block in blocks:
+            coo = block.tocoo()
+            hit = free_mask[coo.col] & (coo.data != 0)
+            keep[coo.row[hit]] = True
+        return times[keep], [block[keep] for block in blocks]
+
+    def _assemble_patterns(self) -> None:
+        """Stack basis rows of every group into P and precompute the sparsity of G and D."""
+        rows, slot = [], 0
+        counts = {EQ: 0, GE: 0, OBJ: 0}
+        g_idx = {EQ: ([], []), GE: ([], []), OBJ: ([], [])}
+        d_rows, d_cols = [], []
+        for group in self.groups:
+            n, k = group.n, group.term.k
+            group.slot_offset, group.row_offset = slot, counts[group.kind]
+            rows.extend(group.basis if group.basis is not None else self._basis_rows(group.term, group.times))
+            group.basis = None   # only needed here
+            inst = np.arange(n)
+            r, c = g_idx[group.kind]
+            for a in range(k):
+                r.append(group.row_offset + inst)
+                c.append(slot + a * n + inst)
+            for a, b in group.term.hessian_pairs:
+                d_rows.append(slot + a * n + inst)
+                d_cols.append(slot + b * n + inst)
+                if a != b:
+                    d_rows.append(slot + b * n + inst)
+                    d_cols.append(slot + a * n + inst)
+            slot += k * n
+            counts[group.kind] += n
+            if group.condition is not None:
+                slot = self._add_condition_slots(group, rows, slot)
+        self.n_slots = slot
+        self.row_counts = counts
+        self.P = sps.vstack(rows, format="csr") if rows else sps.csr_array((0, self.n_total))
+        self.Pf = self.P[:, self.free].tocsr()
+        self._g_pattern = {kind: (np.concatenate(r) if r else np.zeros(0, int),
+                                  np.concatenate(c) if c else np.zeros(0, int))
+                           for kind, (r, c) in g_idx.items()}
+        self._d_pattern = (np.concatenate(d_rows) if d_rows else np.zeros(0, int),
+                           np.concatenate(d_cols) if d_cols else np.zeros(0, int))
+        self.PfT = self.Pf.T.tocsr()
+        self._product_plans: dict = {}   # made when first worth it (_plans)
+        self._uses = {"hess": 0, "gram": 0}   # Hessians and Gauss-Newtons before their plans
+        self.row_group = {kind: np.repeat(np.arange(len(self.groups)),
+                                          [g.n if g.kind == kind else 0 for g in self.groups])
+                          for kind in (EQ, GE, OBJ)}
+
+    def _add_condition_slots(self, group: TermGroup, rows: list, slot: int) -> int:
+        for node in relation_nodes(group.condition.tree):
+            term = self._compile(node.lhs - node.rhs)
+            group.condition.leaves.append((node, term, slot))
+            rows.extend(self._basis_rows(term, group.times))
+            slot += term.k * group.n
+        return slot
+
+    # --- evaluation --------------------------------------------------------------------------
+    @property
+    def n_free(self) -> int:
+        return self.free.size
+
+    def initial(self) -> np.ndarray:
+        """Current values of the free control points."""
+        return self.coef0[self.free].copy()
+
+    def scatter(self, s: np.ndarray) -> np.ndarray:
+        """The full coefficient vector with the free values ``s`` put in place."""
+        full = self.coef0.copy()
+        full[self.free] = s
+        return full
+
+    def _slot_values(self, s: np.ndarray) -> np.ndarray:
+        return self.P @ self.scatter(s)
+
+    def _group_inputs(self, group: TermGroup, v: np.ndarray) -> np.ndarray:
+        n, k = group.n, group.term.k
+        return v[group.slot_offset:group.slot_offset + k * n].reshape(k, n).T
+
+    def _conditions(self, v: np.ndarray) -> dict[str, np.ndarray]:
+        masks = {EQ: np.ones(self.row_counts[EQ], bool), GE: np.ones(self.row_counts[GE], bool)}
+        for group in self.groups:
+            if group.condition is not None:
+                masks[group.kind][group.row_offset:group.row_offset + group.n] = group.condition.evaluate(
+                    v, group.times, self._params)
+        return masks
+
+    def merit_values(self, s: np.ndarray) -> MeritValues:
+        """Objective and constraint values only (cheap: no derivatives), for line searches."""
+        v = self._slot_values(s)
+        out = {EQ: np.empty(self.row_counts[EQ]), GE: np.empty(self.row_counts[GE])}
+        objective = 0.0
+        for group in self.groups:
+            f = group.term.value(self._group_inputs(group, v), group.times, group.params)
+            if group.kind == OBJ:
+                objective += float(np.dot(group.weights, f * f))
+            else:
+                out[group.kind][group.row_offset:group.row_offset + group.n] = group.weights * f
+        masks = self._conditions(v)
+        return MeritValues(objective, out[EQ], out[GE], masks[EQ], masks[GE])
+
+    def _local_terms(self, v: np.ndarray):
+        """Per group: the group, and its term's values, gradients and Hessian entries at its
+        instances (``CompiledTerm.full``) from slot values ``v``."""
+        for group in self.groups:
+            yield (group, *group.term.full(self._group_inputs(group, v), group.times, group.params))
+
+    def first_undefined(self, s: np.ndarray) -> tuple[TermGroup, int, str] | None:
+        """The first group and instance where a term's value or gradient is not a finite real
+        number at free values ``s`` (where its `when` holds), and which of the two; None: none."""
+        v = self._slot_values(s)
+        for group, f, grad, _ in self._local_terms(v):
+            bad = ~(np.isfinite(f) & np.all(np.isfinite(grad), axis=1))
+            if bad.any() and group.condition is not None:
+                bad &= group.condition.evaluate(v, group.times, self._params)
+            if bad.any():
+                i = int(np.flatnonzero(bad)[0])
+                return group, i, "its value" if not np.isfinite(f[i]) else "its derivative"
+        return None
+
+    def evaluate(self, s: np.ndarray) -> Evaluation:
+        """Values, gradients and (lazily) Hessians at free values ``s``."""
+        v = self._slot_values(s)
+        values = {kind: np.empty(self.row_counts[kind]) for kind in (EQ, GE, OBJ)}
+        grads = {kind: [] for kind in (EQ, GE, OBJ)}
+        hess = []
+        for group, f, grad, h in self._local_terms(v):
+            values[group.kind][group.row_offset:group.row_offset + group.n] = f
+            scale = group.weights if group.kind != OBJ else np.ones(group.n)
+            grads[group.kind].append((grad * scale[:, None]).T.ravel())
+            hess.append((group, h))
+        J, full = {}, {}
+        for kind in (EQ, GE, OBJ):
+            J[kind], full[kind] = self._jacobian(kind, grads[kind])
+        w_obj = np.concatenate([g.weights for g in self.groups if g.kind == OBJ] or [np.zeros(0)])
+        residual = values[OBJ]
+        objective = float(np.dot(w_obj, residual * residual))
+        gradient = J[OBJ].T @ (2.0 * w_obj * residual) if residual.size else np.zeros(self.n_free)
+        c = {kind: np.concatenate([g.weights for g in self.groups if g.kind == kind] or [np.zeros(0)])
+             * values[kind] for kind in (EQ, GE)}
+        masks = self._conditions(v)
+        return Evaluation(s=s.copy(), objective=objective, gradient=np.asarray(gradient),
+                          c_eq=c[EQ], J_eq=J[EQ], c_ge=c[GE], J_ge=J[GE],
+                          active_eq=masks[EQ], active_ge=masks[GE], _problem=self,
+                          _hess_data={"groups": hess, "w_obj": w_obj, "J_obj_full": full[OBJ]}, _residual=residual, _J_obj=J[OBJ])
+
+    def _plans(self, kind: str):
+        """The product G @ Pf of a kind, ("hess") the pair Pfᵀ D, (Pfᵀ D) Pf, or ("gram") the
+        Gauss-Newton Joᵀ W Jo, planned once on their fixed structures (products.py: bitwise
+        scipy's products, without working the structure out each time). None: triplets that
+        repeat an entry, or a Hessian or Gauss-Newton plan not yet worth making (one costs about
+        as much as HESSIAN_PLAN_AFTER plain ones)."""
+        plans = self._product_plans
+        if kind not in plans:
+            if kind in ("hess", "gram"):
+                self._uses[kind] += 1
+                if self._uses[kind] < HESSIAN_PLAN_AFTER:
+                    return None
+            if kind == "gram":   # Gauss-Newton 2 Joᵀ W Jo, on the objective Jacobian's plan
+                J = self._plans(OBJ)
+                terms = 0 if J is None else int((np.diff(J.indptr).astype(np.int64) ** 2).sum())
+                plans[kind] = None if J is None or terms > GRAM_PLAN_TERMS else GramPlan(
+                    sps.csr_array((np.ones(J.indices.size), J.indices, J.indptr), shape=J.shape))
+            elif kind == "hess":
+                D = _triplet_structure(*self._d_pattern, (self.n_slots, self.n_slots))
+                if D is None:
+                    plans[kind] = None
+                else:
+                    left = ProductPlan(self.PfT, D[0], "A", source=D[1])
+                    X = sps.csr_array((np.ones(left.indices.size), left.indices, left.indptr), shape=left.shape)
+                    plans[kind] = (left, ProductPlan(X, self.Pf, "B"))
+            else:
+                rows, cols = self._g_pattern[kind]
+                G = _triplet_structure(rows, cols, (self.row_counts[kind], self.n_slots))
+                plans[kind] = None if G is None else ProductPlan(G[0], self.Pf, "B", source=G[1])
+        return plans[kind]
+
+    def _jacobian(self, kind: str, grad_parts: list[np.ndarray]) -> tuple[sps.csr_array, np.ndarray | None]:
+        """The Jacobian of the ``kind`` rows, and its values on the plan's whole structure (None
+        without a plan)."""
+        rows, cols = self._g_pattern[kind]
+        data = np.concatenate(grad_parts) if grad_parts else np.zeros(0)
+        plan = self._plans(kind)
+        if plan is not None:
+            full = plan.data(data)
+            return plan.matrix(full), full
+        G = sps.csr_array((data, (rows, cols)), shape=(self.row_counts[kind], self.n_slots))
+        return (G @ self.Pf).tocsr(), None
+
+    def _gauss_newton(self, ev: Evaluation) -> sps.csr_array:
+        Jo, w = ev._J_obj, ev._hess_data["w_obj"]
+        n = ev.s.size
+        if Jo is None or Jo.shape[0] == 0:
+            return sps.csr_array((n, n))
+        full = ev._hess_data.get("J_obj_full")
+        plan = self._plans("gram") if full is not None else None
+        if plan is not None:
+            return plan.matrix(full, 2.0 * w)
+        return sps.csr_array(Jo.T @ (sps.diags_array(2.0 * w) @ Jo))
+
+    def _hessian(self, ev: Evaluation, lam_eq: np.ndarray, lam_ge: np.ndarray) -> sps.csr_array:
+        multipliers = {EQ: lam_eq, GE: lam_ge}
+        data = []
+        w_obj_all, residual = ev._hess_data["w_obj"], ev._residual
+        for group, h in ev._hess_data["groups"]:
+            if not group.term.hessian_pairs:
+                continue
+            rows = slice(group.row_offset, group.row_offset + group.n)
+            if group.kind == OBJ:
+                scale = 2.0 * w_obj_all[rows] * residual[rows]
+            else:
+                scale = multipliers[group.kind][rows] * group.weights
+            # Pair p's entries h[:, p] * scale, twice for an off-diagonal pair (D is symmetric).
+            data.append((h * scale[:, None]).T[_pair_rows(group.term.hessian_pairs)].ravel())
+        data = np.concatenate(data) if data else np.zeros(0)
+        plans = self._plans("hess")
+        if plans is not None:
+            left, right = plans
+            X = left.data(data)   # Pfᵀ D on its whole structure; scipy's drops the exact zeros
+            order = right.touch_order(X == 0)
+            if order is not False:
+                return sps.csr_array(right.matrix(right.data(X), order) + ev.gauss_newton())
+            H = left.matrix(X) @ self.Pf   # its zeros moved too much of the order: as scipy does
+            return sps.csr_array(H + ev.gauss_newton())
+        d_rows, d_cols = self._d_pattern
+        D = sps.csr_array((data, (d_rows, d_cols)), shape=(self.n_slots, self.n_slots))
+        H = self.PfT @ D @ self.Pf
+        return sps.csr_array(H + ev.gauss_newton())
+
+    # --- reporting ---------------------------------------------------------------------------
+    def violation_by_source(self, ev: Evaluation | MeritValues) -> dict[str, float]:
+        """Max violation per constraint name (for the equations panel and `print`)."""
+        out: dict[str, float] = {}
+        for group in self.groups:
+            if group.kind == OBJ:
+                continue
+            rows = slice(group.row_offset, group.row_offset + group.n)
+            if group.kind == EQ:
+                v = np.abs(ev.c_eq[rows])[ev.active_eq[rows]]
+            else:
+                v = np.maximum(0, -ev.c_ge[rows])[ev.active_ge[rows]]
+            out[group.source] = max(out.get(group.source, 0.0), float(v.max(initial=0.0)))
+        return out
+
+    def summary(self) -> str:
+        return (f"window '{self.window.name}': {self.n_free} free control points, "
+                f"{self.row_counts[EQ]} equality + {self.row_counts[GE]} inequality instances, "
+                f"{self.row_counts[OBJ]} quadrature points")
+
+    # --- backend contract ----------------------------------------------------------------------
+    # What a backend may read from a window problem: ``n_free``, ``row_counts``, ``groups`` (their
+    # label, source, kind, term, times, weights, params, slot_offset, row_offset, condition), ``P``,
+    # ``Pf``, ``free``, ``coef0``, ``dof_of_free``, ``initial``, ``scatter``, ``evaluate``,
+    # ``merit_values``, ``violation_by_source``, and the members below. Nothing else (no private
+    # attribute, nothing of the scene): the rest may change without notice.
+    @property
+    def damping(self) -> np.ndarray:
+        """Per free variable, the user's damping weight of its DOF (paper 4.3; ``damp DOF W``)."""
+        return np.array([self.scene.dofs[name].damp for name in self.dof_of_free], dtype=float)
+
+    @staticmethod
+    def max_violation(values: Evaluation | MeritValues) -> float:
+        """The largest violation of a live row: |c| of equalities, max(0, -c) of inequalities."""
+        eq = np.abs(values.c_eq[values.active_eq]) if values.c_eq.size else np.zeros(0)
+        ge = np.maximum(0.0, -values.c_ge[values.active_ge]) if values.c_ge.size else np.zeros(0)
+        return float(max(eq.max(initial=0.0), ge.max(initial=0.0)))
+
+    def row_sources(self, kind: str) -> np.ndarray:
+        """For every row of ``kind`` ("eq" or "ge"), the name of the constraint (or, for a DOF
+        bound, the DOF) it is an instance of."""
+        names = np.array([g.source for g in self.groups] or [""], dtype=object)
+        return names[self.row_group[kind]] if self.row_group[kind].size else np.zeros(0, dtype=object)
+
+    def jacobian_structure(self, kind: str) -> sps.csr_array:
+        """Structural nonzeros (ones) of the Jacobian of the ``kind`` rows over the free variables."""
+        rows, cols = self._g_pattern[kind]
+        G = sps.csr_array((np.ones(rows.size), (rows, cols)), shape=(self.row_counts[kind], self.n_slots))
+        Pf = sps.csr_array(self.Pf, copy=True)
+        Pf.data[:] = 1.0                  # explicit zeros stay in the structure
+        out = sps.csr_array(G @ Pf)
+        out.data[:] = 1.0
+        return out
+
+    def hessian_structure(self) -> sps.csr_array:
+        """Structural nonzeros (ones) of every Lagrangian Hessian :meth:`Evaluation.lagrangian_hessian`
+        can return (the Gauss-Newton part included)."""
+        d_rows, d_cols = self._d_pattern
+        D = sps.csr_array((np.ones(d_rows.size), (d_rows, d_cols)), shape=(self.n_slots, self.n_slots))
+        Pf = sps.csr_array(self.Pf, copy=True)
+        Pf.data[:] = 1.0
+        Jo = self.jacobian_structure(OBJ)
+        out = sps.csr_array(Pf.T @ D @ Pf + Jo.T @ Jo)
+        out.data[:] = 1.0
+        return out
+
+    def term_parameters(self, term: CompiledTerm) -> np.ndarray:
+        """Current values of the constants ``term`` reads (e.g. a `when` condition's leaves)."""
+        return self._params(term)
+

@@ -1,0 +1,485 @@
+"""Symbolic compiler: sympy expression -> vectorized numeric value, gradient and Hessian.
+
+"Symbolic once, numeric many": a term is differentiated with respect to the DOF symbols it uses
+(value, velocity, acceleration of each DOF), common subexpressions are shared, and the result is
+compiled once into a function evaluated over all instances at once. Differentiation and code
+generation use symengine (hundreds of times faster than sympy on equations of motion); the sympy
+expression is kept for backends that lower it themselves (torch).
+
+Constants stay symbols: their values are runtime parameters, so changing one never recompiles.
+Compiled terms are cached by (expression, parameter names): in memory, the most recently used
+``MAX_TERMS`` of them; on disk, in a cache directory that only the user can write, each entry
+authenticated by an HMAC under the user's own key (see :func:`_cache_root`).
+"""
+
+from __future__ import annotations
+
+import hashlib
+import math
+import hmac
+import os
+import pickle
+import secrets
+import stat
+import threading
+import warnings
+from dataclasses import dataclass, field
+from functools import cached_property
+from pathlib import Path
+
+import numpy as np
+import symengine as se
+import sympy as sp
+
+from stw_tui.sym import limits
+from stw_tui.sym.errors import LimitError, StwError
+from stw_tui.sym.symbols import TIME, split_dof_symbol
+
+MAX_TERMS = 256   # compiled terms kept in memory (each holds its machine code, up to ~1 MB)
+_CACHE: dict[tuple, "CompiledTerm"] = {}   # in least-recently-used order
+_CACHE_LOCK = threading.Lock()
+_WARNED: set[str] = set()   # cache problems already reported (each once a process)
+
+
+_KINKS = (sp.Abs, sp.sign, sp.Max, sp.Min)
+
+
+def _to_symengine(expr: sp.Basic):
+    """Convert our own sympy expression (never user text) to symengine.
+
+    symengine cannot differentiate abs, sign, min and max but can differentiate Piecewise, so
+    those become Piecewise — built in symengine, because sympy folds nested Piecewise
+    conditions into ITE objects symengine cannot read.
+    """
+    if not expr.has(*_KINKS):
+        return se.S(expr)
+    args = [_to_symengine(a) for a in expr.args]
+    if isinstance(expr, sp.Abs):
+        return se.Piecewise((args[0], args[0] >= 0), (-args[0], True))
+    if isinstance(expr, sp.sign):
+        return se.Piecewise((1, args[0] > 0), (-1, args[0] < 0), (0, True))
+    if isinstance(expr, (sp.Max, sp.Min)):
+        result = args[0]
+        for arg in args[1:]:
+            keep = result >= arg if isinstance(expr, sp.Max) else result <= arg
+            result = se.Piecewise((result, keep), (arg, True))
+        return result
+    if isinstance(expr, sp.Add):
+        return sum(args[1:], args[0])
+    if isinstance(expr, sp.Mul):
+        out = args[0]
+        for a in args[1:]:
+            out = out * a
+        return out
+    if isinstance(expr, sp.Pow):
+        return args[0] ** args[1]
+    return getattr(se, expr.func.__name__)(*args)  # sin, cos, atan2, exp, log, …
+
+
+def _lambdify(args, outputs):
+    """Compile with LLVM when the symengine build has it, else the portable lambda backend."""
+    try:
+        return se.Lambdify(args, outputs, cse=True, backend="llvm")
+    except (RuntimeError, ValueError, TypeError):  # symengine built without LLVM
+        pass
+    try:
+        return se.Lambdify(args, outputs, cse=True, backend="lambda")
+    except RuntimeError as exc:   # e.g. 0^x: its derivative holds log(0), a complex infinity
+        if "infinity" not in str(exc):
+            raise
+        raise StwError("the expression or one of its derivatives is infinite everywhere "
+                       "(such as log(0) in the derivative of 0^x): rewrite it") from None
+
+
+@dataclass(frozen=True)
+class LocalVar:
+    """One DOF quantity a term depends on: DOF ``dof`` differentiated ``order`` times."""
+
+    dof: str
+    order: int
+
+    @property
+    def label(self) -> str:
+        return self.dof + "'" * self.order
+
+
+@dataclass(eq=False)
+class CompiledTerm:
+    """A scalar expression compiled for vectorized evaluation with its first and second derivatives.
+
+    Attributes:
+        expr: the fully substituted sympy expression (DOF symbols, ``t``, constants only).
+        variables: the DOF quantities it depends on, in a fixed order (the gradient's columns).
+        parameters: the names of the constants it uses, in the order values are passed.
+        hessian_pairs: (a, b) index pairs, a <= b, of structurally nonzero second derivatives.
+    """
+
+    expr: sp.Expr
+    variables: tuple[LocalVar, ...]
+    parameters: tuple[str, ...]
+    hessian_pairs: tuple[tuple[int, int], ...] = field(default=())
+    _value_fn: object = field(default=None, repr=False)
+    _full_fn: object = field(default=None, repr=False)
+
+    @property
+    def k(self) -> int:
+        return len(self.variables)
+
+    @cached_property
+    def dofs(self) -> frozenset[str]:
+        return frozenset(v.dof for v in self.variables)
+
+    def _inputs(self, values: np.ndarray, times: np.ndarray, params: np.ndarray) -> np.ndarray:
+        n = len(times)
+        columns = [np.asarray(values, dtype=float).reshape(n, self.k), np.asarray(times, float)[:, None]]
+        if len(params):
+            columns.append(np.broadcast_to(np.asarray(params, float), (n, len(params))))
+        return np.ascontiguousarray(np.hstack(columns))
+
+    def value(self, values: np.ndarray, times: np.ndarray, params: np.ndarray) -> np.ndarray:
+        """Term values at n instances.
+
+        Args:
+            values: (n, k) values of ``variables`` at each instance.
+            times: (n,) instance times.
+            params: values of ``parameters``.
+        Returns:
+            (n,) array.
+        """
+        n = len(times)
+        if n == 0:
+            return np.zeros(0)
+        out = np.asarray(self._value_fn(self._inputs(values, times, params)), dtype=float)
+        return out.reshape(n)
+
+    def full(self, values, times, params) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """Values (n,), gradient (n, k) and Hessian entries (n, len(hessian_pairs))."""
+        n = len(times)
+        nh = len(self.hessian_pairs)
+        if n == 0:
+            return np.zeros(0), np.zeros((0, self.k)), np.zeros((0, nh))
+        out = np.asarray(self._full_fn(self._inputs(values, times, params)), dtype=float)
+        out = out.reshape(n, 1 + self.k + nh)
+        return out[:, 0], out[:, 1:1 + self.k], out[:, 1 + self.k:]
+
+
+def compile_term(expr: sp.Expr, dof_names: frozenset[str] | set[str],
+                 constant_names: frozenset[str] | set[str]) -> CompiledTerm:
+    """Compile a fully substituted expression (cached by expression).
+
+    Args:
+        expr: sympy expression in DOF symbols, ``t`` and constant symbols only.
+        dof_names: names of all DOF (to tell a DOF value symbol from a constant).
+        constant_names: names of all constants.
+    Raises:
+        StwError: if the expression contains a symbol that is neither (a missing definition).
+    """
+    if isinstance(expr, (int, float)):
+        expr = sp.Float(expr)
+    check_size(expr)
+    symbols = expr.free_symbols
+    variables, parameters = [], []
+    for symbol in symbols:
+        if symbol == TIME:
+            continue
+        name, order = split_dof_symbol(symbol)
+        if name in dof_names:
+            variables.append(LocalVar(name, order))
+        elif order == 0 and name in constant_names:
+            parameters.append(name)
+        else:
+            raise StwError(f"'{symbol.name}' is not defined (deleted or renamed?)")
+    variables = tuple(sorted(variables, key=lambda v: (v.dof, v.order)))
+    parameters = tuple(sorted(parameters))
+    key = (expr, variables, parameters)
+    with _CACHE_LOCK:
+        cached = _CACHE.pop(key, None)
+        if cached is not None:
+            _CACHE[key] = cached   # now the most recently used
+            return cached
+    term = _build(expr, variables, parameters)
+    with _CACHE_LOCK:
+        _CACHE[key] = term
+        while len(_CACHE) > MAX_TERMS:
+            del _CACHE[next(iter(_CACHE))]   # the least recently used
+    return term
+
+
+def check_size(expr: sp.Basic) -> None:
+    """Refuse, before any work on it, an expression too large to compile in reasonable time, or
+    with an integer exponent that compiled code would wrap (x^2147483648 evaluates to inf).
+
+    The size is that of the expression as a tree (what differentiation and code generation
+    walk), counted over its distinct nodes only, so a subexpression shared 2^30 times costs one
+    visit.
+
+    Raises:
+        StwError: naming the limit expression_size or exponent.
+    """
+    most, largest_exponent = limits.value_or_ceiling("expression_size"), limits.value_or_ceiling("exponent")
+    sizes: dict[sp.Basic, int] = {}
+    for node in _post_order(expr):
+        if node.is_Pow and node.exp.is_Integer and abs(node.exp) > largest_exponent:
+            raise LimitError(limits.over("exponent", node.exp, f"{_clip(node)}: exponent") +
+                             "; compiled code cannot raise to such a power exactly")
+        sizes[node] = 1 + sum(sizes[a] for a in node.args)
+        if sizes[node] > most:
+            raise LimitError(limits.over("expression_size", f"{sizes[node]}+ nodes",
+                                         "an expression (its subexpressions substituted) of") +
+                             "; a long linkage's forces grow fast")
+
+
+_HUGE = 10**18   # sizes are capped here: only "over the limit" matters
+
+
+def _post_order(root):
+    """Each distinct node of an expression tree (sympy or symengine) once, its arguments before
+    it; iteratively, so deep expressions do not exhaust the Python stack."""
+    done: set = set()
+    stack = [root]
+    while stack:
+        node = stack[-1]
+        pending = [a for a in node.args if a not in done]
+        if pending:
+            stack.extend(pending)
+            continue
+        stack.pop()
+        if node not in done:
+            done.add(node)
+            yield node
+
+
+def _tree_size(expr: sp.Basic, leaf_size) -> int:
+    """Size of ``expr`` as a tree, ``leaf_size(symbol)`` counting for each symbol, computed over
+    its distinct nodes."""
+    sizes: dict[sp.Basic, int] = {}
+    for node in _post_order(expr):
+        own = leaf_size(node) if node.is_Symbol else 1
+        sizes[node] = min(_HUGE, own + sum(sizes[a] for a in node.args))
+    return sizes[expr]
+
+
+def expanded_size(expr: sp.Basic, definitions: dict[sp.Symbol, sp.Basic]) -> int:
+    """The tree size ``expr`` will have once every defined symbol in it is replaced by its
+    definition, recursively — computed without substituting anything, so a chain of
+    subexpressions each using the previous twice (2^30 nodes after 30 lines) is measured at once.
+    A primed subexpression (its time derivative) counts four times per prime."""
+    named = {s.name: d for s, d in definitions.items()}
+    known: dict[str, int] = {}
+
+    def base_of(symbol) -> str | None:
+        base = symbol.name.rstrip("'")
+        return base if base in named else None
+
+    def used(e) -> set[str]:
+        seen, stack, names = set(), [e], set()
+        while stack:
+            node = stack.pop()
+            if node in seen:
+                continue
+            seen.add(node)
+            if node.is_Symbol and base_of(node) is not None:
+                names.add(base_of(node))
+            stack.extend(node.args)
+        return names
+
+    def leaf(symbol) -> int:
+        base = base_of(symbol)
+        if base is None:
+            return 1
+        primes = len(symbol.name) - len(base)
+        return min(_HUGE, known.get(base, 1) * 4 ** primes)
+
+    todo, visiting = list(used(expr)), set()
+    while todo:   # sizes of the definitions, dependencies first (a circle counts 1; expand reports it)
+        name = todo[-1]
+        if name in known:
+            todo.pop()
+            continue
+        waiting = [n for n in used(named[name]) if n not in known and n not in visiting]
+        if waiting and name not in visiting:
+            visiting.add(name)
+            todo.extend(waiting)
+            continue
+        todo.pop()
+        known[name] = _tree_size(named[name], leaf)
+    return _tree_size(expr, leaf)
+
+
+def _clip(power: sp.Pow) -> str:
+    return f"{power.base}^{power.exp}" if power.base.is_Symbol else f"a power ^{power.exp}"
+
+
+def _symbol_of(var: LocalVar) -> se.Symbol:
+    return se.Symbol(var.label)
+
+
+def _warn_once(what: str, message: str) -> None:
+    if what not in _WARNED:
+        _WARNED.add(what)
+        warnings.warn(message, RuntimeWarning, stacklevel=4)
+
+
+def _private(path: Path, *, directory: bool) -> bool:
+    """True when ``path`` is a real directory/file (not a link) owned by this user that no one
+    else may write (a file: nor read)."""
+    try:
+        info = os.lstat(path)
+    except OSError:
+        return False
+    kind_ok = stat.S_ISDIR(info.st_mode) if directory else stat.S_ISREG(info.st_mode)
+    others = 0o022 if directory else 0o077
+    return kind_ok and info.st_uid == os.getuid() and not info.st_mode & others
+
+
+def _cache_root() -> tuple[Path, bytes] | None:
+    """The disk cache directory and the user's key, or None when caching is off or unsafe.
+
+    ``STW_CACHE_DIR`` overrides the place (``off`` disables it). The cache is used only when the
+    directory is owned by the user and not writable by group or others (a new one is created
+    0700), and its entries are authenticated with HMAC-SHA256 under a per-user key kept in
+    ``.key`` inside it (mode 0600, created on first use). An unsafe directory is reported once.
+    """
+    root = os.environ.get("STW_CACHE_DIR") or str(Path.home() / ".cache" / "stw" / "terms")
+    if root == "off" or not hasattr(os, "getuid"):
+        return None
+    path = Path(root)
+    try:
+        if not path.exists():
+            path.parent.mkdir(parents=True, exist_ok=True)
+            path.mkdir(mode=0o700, exist_ok=True)
+    except OSError:
+        return None
+    if not _private(path, directory=True):
+        _warn_once(f"dir:{path}", f"stw: not using the term cache {path}: it is not a directory "
+                                  "owned by you that only you can write; compiling afresh")
+        return None
+    key_path = path / ".key"
+    try:
+        fd = os.open(key_path, os.O_WRONLY | os.O_CREAT | os.O_EXCL, 0o600)
+        with os.fdopen(fd, "wb") as out:
+            out.write(secrets.token_bytes(32))
+    except FileExistsError:
+        pass
+    except OSError:
+        return None
+    if not _private(key_path, directory=False):
+        _warn_once(f"key:{key_path}", f"stw: not using the term cache {path}: its key {key_path} "
+                                      "is not a file of yours that only you can read")
+        return None
+    try:
+        key = key_path.read_bytes()
+    except OSError:
+        return None
+    return (path, key) if len(key) == 32 else None
+
+
+def _disk_cache_path(root: Path, expr, variables, parameters) -> Path:
+    """Where a term's compiled functions are kept: named by the expression's text with its
+    argument order and the symengine version, so a changed linkage or term compiles afresh."""
+    key = f"{se.__version__}|{_to_symengine(expr)}|{variables}|{parameters}"  # C++ printing: fast
+    return root / (hashlib.sha256(key.encode()).hexdigest() + ".pkl")
+
+
+def _mac(key: bytes, path: Path, payload: bytes) -> bytes:
+    # The entry's name is signed too: a valid entry copied under another name is refused.
+    return hmac.new(key, path.name.encode() + b"\0" + payload, hashlib.sha256).digest()
+
+
+def _load(path: Path, key: bytes):
+    """The unpickled entry at ``path`` if its HMAC is valid, else None (reported once).
+    Nothing is unpickled before the HMAC is checked."""
+    try:
+        data = path.read_bytes()
+    except OSError:
+        return None
+    mac, payload = data[:32], data[32:]
+    if len(data) < 32 or not hmac.compare_digest(mac, _mac(key, path, payload)):
+        _warn_once("entry", f"stw: ignored a term cache entry not signed with your key ({path}: "
+                            "written by an older stw, damaged, or planted); compiling afresh")
+        return None
+    try:
+        return pickle.loads(payload)
+    except Exception:  # written by another version of a library: compile again
+        return None
+
+
+def _store(path: Path, key: bytes, entry) -> None:
+    try:
+        payload = pickle.dumps(entry)
+        tmp = path.with_suffix(f".{os.getpid()}.tmp")
+        fd = os.open(tmp, os.O_WRONLY | os.O_CREAT | os.O_TRUNC, 0o600)
+        with os.fdopen(fd, "wb") as out:
+            out.write(_mac(key, path, payload) + payload)
+        tmp.replace(path)   # atomic: concurrent runs never read half a file
+    except (OSError, pickle.PicklingError, TypeError):
+        pass  # caching is an optimization only
+
+
+def _build(expr: sp.Expr, variables: tuple[LocalVar, ...], parameters: tuple[str, ...]) -> CompiledTerm:
+    cache = _cache_root()
+    path = _disk_cache_path(cache[0], expr, variables, parameters) if cache is not None else None
+    if path is not None and path.is_file():
+        entry = _load(path, cache[1])
+        if entry is not None:
+            pairs, value_fn, full_fn = entry
+            return CompiledTerm(expr=expr, variables=variables, parameters=parameters,
+                                hessian_pairs=tuple(pairs), _value_fn=value_fn, _full_fn=full_fn)
+    term = _compile(expr, variables, parameters)
+    if path is not None:
+        _store(path, cache[1], (term.hessian_pairs, term._value_fn, term._full_fn))
+    return term
+
+
+def _compile(expr: sp.Expr, variables: tuple[LocalVar, ...], parameters: tuple[str, ...]) -> CompiledTerm:
+    e = _to_symengine(expr)
+    var_syms = [_symbol_of(v) for v in variables]
+    args = var_syms + [se.Symbol(TIME.name)] + [se.Symbol(p) for p in parameters]
+    grad = [e.diff(v) for v in var_syms]
+    pairs, hess = [], []
+    for a, ga in enumerate(grad):
+        if ga.is_zero or ga.is_number:
+            continue
+        for b in range(a, len(var_syms)):
+            hab = ga.diff(var_syms[b])
+            if not hab.is_zero:
+                pairs.append((a, b))
+                hess.append(hab)
+    value_fn = _lambdify(args, [e])
+    full_fn = _lambdify(args, [e, *grad, *hess])
+    return CompiledTerm(expr=expr, variables=variables, parameters=parameters,
+                        hessian_pairs=tuple(pairs), _value_fn=value_fn, _full_fn=full_fn)
+
+
+def double_finite(expr: sp.Expr, values: dict[str, float] | None = None) -> bool:
+    """Whether ``expr``, with symbols replaced by ``values``, and every part of it stay finite
+    in double precision. Each node is evaluated once, by symengine in plain floating point
+    (microseconds whatever the size), so exp(-exp(exp(100))) fails at its inner exp even though
+    its value underflows to 0: sympy's exact evaluation of it, or even substituting 100.0 for a
+    constant in it, would compute ever more digits, for ever.
+    """
+    try:
+        root = _to_symengine(expr)
+    except Exception:  # noqa: BLE001 - not convertible: leave it to the later checks
+        return True
+    subs = {se.Symbol(k): se.RealDouble(v) for k, v in (values or {}).items()}
+    memo: dict = {}
+    for node in _post_order(root):
+        value = node
+        try:
+            value = node.func(*[memo[a] for a in node.args]) if node.args else subs.get(node, node)
+            if not value.free_symbols:
+                number = complex(value.n(53, real=False))
+                if not (math.isfinite(number.real) and math.isfinite(number.imag)):
+                    return False
+                value = se.RealDouble(number.real) + se.I * se.RealDouble(number.imag) \
+                    if number.imag else se.RealDouble(number.real)
+        except Exception:  # noqa: BLE001 - a condition, a Piecewise: not a number to check
+            pass
+        memo[node] = value
+    return True
+
+
+def cache_size() -> int:
+    """Number of compiled terms held (for tests and the status line)."""
+    return len(_CACHE)

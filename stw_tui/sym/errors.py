@@ -1,0 +1,76 @@
+"""User-facing errors. Every error the user can cause is a StwError with a clear message."""
+
+from __future__ import annotations
+
+import unicodedata
+
+
+def printable(text: str) -> str:
+    """``text`` safe to show on a terminal: control and other invisible characters (escape
+    sequences, carriage returns, tabs, lone surrogates) are written as escapes like \\x1b."""
+    if text.isprintable():
+        return text
+    return "".join(c if c.isprintable() or (c == " ") else _escape(c) for c in text)
+
+
+def _escape(c: str) -> str:
+    if unicodedata.category(c) == "Cs":   # a lone surrogate cannot be encoded at all
+        return f"\\u{ord(c):04x}"
+    return c.encode("unicode_escape").decode("ascii")
+
+
+class StwError(Exception):
+    """Base class of all errors caused by user input or by a solve; the message is for the user."""
+
+
+class SourceError(StwError):
+    """An error located in a line of session text.
+
+    Args:
+        message: what is wrong, in words.
+        line: 1-based line number in the session (None when typed at the console).
+        column: 1-based column of the offending token.
+        source: the text of the line, to draw a caret under the column.
+        expected: what the parser expected instead, if known.
+    """
+
+    def __init__(self, message: str, *, line: int | None = None, column: int | None = None,
+                 source: str | None = None, expected: str | None = None):
+        self.message = message
+        self.line = line
+        self.column = column
+        self.source = source
+        self.expected = expected
+        super().__init__(self.describe())
+
+    def describe(self) -> str:
+        where = []
+        if self.line is not None:
+            where.append(f"line {self.line}")
+        if self.column is not None:
+            where.append(f"column {self.column}")
+        text = self.message
+        if self.expected:
+            text += f" (expected {self.expected})"
+        return printable(f"{', '.join(where)}: {text}" if where else text)
+
+    def caret(self) -> str:
+        """The source line with a caret under the offending column ('' if unknown); control
+        characters in the line are shown escaped, never sent to the terminal."""
+        if self.source is None or self.column is None:
+            return ""
+        before = printable(self.source[:self.column - 1])
+        return f"{printable(self.source)}\n{' ' * len(before)}^"
+
+    def at_line(self, line: int) -> "SourceError":
+        """Copy of this error placed at a session line number."""
+        return SourceError(self.message, line=line, column=self.column, source=self.source,
+                           expected=self.expected)
+
+
+class LimitError(StwError):
+    """A line asked for more than a limit of stw_tui.sym.limits allows (the message names the limit)."""
+
+
+class SolveError(StwError):
+    """A solve failed (non-finite values, backend exception); the scene was left as it was."""

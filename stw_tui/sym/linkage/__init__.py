@@ -1,0 +1,75 @@
+"""Denavit–Hartenberg creatures: symbolic forward kinematics and equations of motion.
+
+Public API::
+
+    spec = parse_linkage("linkage arm base=fixed", [(2, "SHOULDER revolute a=0.35 mass=2"), ...])
+    dof_names(spec)              # ["SHOULDER", ...] (base DOF first)
+    exprs = derive(spec)         # {"arm.SHOULDER.x": ..., "arm.tip.y": ..., "arm.com.z": ...,
+                                 #  "tau_SHOULDER": ...} sympy expressions in the DOF symbols
+                                 #  (stw_tui.sym.symbols.dof_symbol) and the constant g
+    segments(spec, {"SHOULDER": 0.3, ...}, {"g": 9.81})   # stick figure, list of (start, end) 3-vectors
+    time_derivative(expr, dof_names(spec))                # chain rule, q -> q', q' -> q''
+"""
+
+from __future__ import annotations
+
+from collections.abc import Mapping
+from functools import lru_cache
+
+import numpy as np
+import sympy as sp
+
+from stw_tui.sym.errors import StwError
+from stw_tui.sym.symbols import dof_symbol
+
+from stw_tui.sym.linkage.derivative import time_derivative
+from stw_tui.sym.linkage.dynamics import generalized_forces
+from stw_tui.sym.linkage.kinematics import SYMENGINE, chain, positions, to_sympy
+from stw_tui.sym.linkage.spec import BaseAxis, JointSpec, LinkageSpec, curve_dofs, dof_names, parse_linkage
+
+__all__ = ["BaseAxis", "JointSpec", "LinkageSpec", "curve_dofs", "derive", "dof_names", "parse_linkage",
+           "segments", "time_derivative"]
+
+
+def derive(spec: LinkageSpec) -> dict[str, sp.Expr]:
+    """Every derived subexpression of the linkage, by name.
+
+    ``<linkage>.<JOINT>.x|y|z``: where joint i sits (the origin of DH frame i-1; the base frame for
+    the first joint). ``<linkage>.tip.x|y|z``: origin of the last DH frame. ``<linkage>.com.x|y|z``:
+    centre of mass of the whole linkage. ``tau_<DOF>``: generalized force of each DOF, base DOF
+    included (recursive Newton–Euler, see :mod:`.dynamics`).
+    """
+    ch = chain(spec)
+    memo: dict = {}
+    out = {name: to_sympy(e, memo) for name, e in positions(spec, SYMENGINE).items()}
+    out.update(generalized_forces(spec, ch))
+    return out
+
+
+@lru_cache(maxsize=64)
+def _point_function(spec: LinkageSpec):
+    """(DOF names, numpy function of the DOF values -> (n_joints + 1) x 3 points), once per spec."""
+    memo: dict = {}
+    pos = positions(spec, SYMENGINE)
+    names = dof_names(spec)
+    points = [f"{spec.name}.{j.name}" for j in spec.joints] + [f"{spec.name}.tip"]
+    matrix = sp.Matrix([[to_sympy(pos[f"{p}.{axis}"], memo) for axis in "xyz"] for p in points])
+    # generated from our own expressions, never from user text
+    fn = sp.lambdify([dof_symbol(n) for n in names], matrix, modules="numpy", cse=True)
+    return names, fn
+
+
+def segments(spec: LinkageSpec, values: Mapping[str, float], consts: Mapping[str, float] | None = None
+             ) -> list[tuple[np.ndarray, np.ndarray]]:
+    """The stick figure at one configuration: base -> joint 1 -> joint 2 -> ... -> tip.
+
+    Returns one (start, end) pair of 3-vectors per link (joint i to joint i+1, the last joint to the
+    tip); the first start is the base frame origin, where joint 1 sits. ``values`` maps every DOF of
+    the linkage to its value; ``consts`` is accepted for symmetry (positions depend on no constant).
+    """
+    names, fn = _point_function(spec)
+    missing = [n for n in names if n not in values]
+    if missing:
+        raise StwError(f"linkage {spec.name}: no value for DOF {', '.join(missing)}")
+    pts = np.asarray(fn(*(float(values[n]) for n in names)), dtype=float)
+    return [(pts[i].copy(), pts[i + 1].copy()) for i in range(len(pts) - 1)]
