@@ -26,6 +26,7 @@ from .kinds import TermKind
 from .linkage.kinematics import to_sympy
 from .outcome import Outcome, PrintResult
 from .scene import Scene
+from .verbs import verb_of
 
 if TYPE_CHECKING:
     from .session import Session
@@ -152,10 +153,11 @@ def describe(scene: Scene, name: str) -> list[str]:
     """
     if name in scene.verbs:
         return _show_verb(scene, name)
-    if name in scene.constraints:
-        return _show_constraint(scene, name)
-    if name in scene.objectives:
-        return _show_objective(scene, name)
+    if name in scene.constraints or name in scene.objectives:
+        lines = _show_constraint(scene, name) if name in scene.constraints else _show_objective(scene, name)
+        group = verb_of(scene, name)
+        return lines + ([f"  made by the verb `{scene.verbs[group][0]}` (`delete {group}` removes the group)"]
+                        if group is not None else [])
     if name in scene.dofs:
         return _show_dof(scene, name)
     if name in scene.constants or name in scene.lets or name in scene.derived:

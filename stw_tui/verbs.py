@@ -26,6 +26,26 @@ from .errors import StwError
 HOLD_WEIGHT = 1e4
 
 
+def verb_of(scene, name: str) -> str | None:
+    """The verb group that made the constraint or objective ``name`` (None: one written by hand)."""
+    return next((group for group, (_, members) in scene.verbs.items() if name in members), None)
+
+
+def owned_by_verb(scene, name: str) -> str:
+    """Why ``name`` cannot be deleted or redefined on its own: a verb made it ("" when no verb did).
+
+    A verb is one journal line and one group: deleting or redefining one of its parts would leave
+    a `hold` that no longer holds, and its heading in the Eqns panel and `show` would say otherwise.
+    """
+    group = verb_of(scene, name)
+    if group is None:
+        return ""
+    line = scene.verbs[group][0]
+    return (f"'{name}' is part of the verb `{line}` (group {group}): `delete {group}` removes the "
+            f"whole group; to change one part, delete the group and write its lines by hand "
+            f"(`show {group}` prints them), or `weight {name} W` to reweigh it")
+
+
 def point_axes(scene, point: str) -> list[tuple[str, str]]:
     """[(axis, DOF)] of the point object ``point``: DOF PX, PY (and PZ), or Px, Py (and Pz)."""
     for x, y, z in (("X", "Y", "Z"), ("x", "y", "z")):
