@@ -1,5 +1,7 @@
 """Motion verbs: a line an animator thinks in, expanded into ordinary named constraints and
-objectives (which the journal does not keep: it keeps the verb, and replays it).
+objectives (which the journal does not keep: it keeps the verb, and replays it). The scene keeps
+each as a group (``scene.verbs``: name -> its line and what it made): `delete NAME` removes it
+whole, and no part of it is deleted or redefined alone (:func:`owned_by_verb`).
 
 - ``hold P at arm.tip on [A, B]``: the object P (DOF PX, PY[, PZ]) is carried by a linkage point.
   It has the point's position and velocity exactly at A (picked up; unless A is the start) and
