@@ -107,3 +107,22 @@ def test_constant_dof_curves_80x24(snap_compare):
         await support.settle(pilot)
 
     assert snap_compare(quiet_app(), terminal_size=(80, 24), run_before=run_before)
+
+
+def test_verb_groups_in_equations_80x24(snap_compare):
+    """A verb's constraints indented under a heading row with its word, scope and worst violation."""
+    import catalogue
+
+    lines = catalogue.problem("analytic_arm3").text.splitlines() + [
+        "dof BX, BY", "constraint hang: SHOULDER = -pi/2 @ 0", "hold B at arm.tip on [0.2, 0.55]",
+        "ballistic B on [0.55, 1.5]", "constraint goal: BX = 1.5, BY = 0.5 @ 1.5"]
+
+    async def run_before(pilot):
+        await support.settle(pilot)
+        for line in lines:
+            await support.submit(pilot, line)
+            await support.settle(pilot)
+        await pilot.press("f2", "f2")
+        await support.settle(pilot)
+
+    assert snap_compare(quiet_app(), terminal_size=(80, 24), run_before=run_before)

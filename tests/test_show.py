@@ -37,6 +37,10 @@ def test_show_a_verb_prints_its_line_and_the_constraints_it_expanded_into(arm):
     assert members == ("B_held", "B_released")
     assert text[2:] == ["  " + arm.scene.objectives["B_held"].text, "  " + arm.scene.constraints["B_released"].text]
     assert show(arm, "show B_flight").splitlines()[2] == "  constraint B_flight: BX'' = 0, BY'' + g = 0 on [0.55, 1.5]"
+    # A part of a verb says which verb made it; one written by hand does not.
+    assert show(arm, "show B_released").splitlines()[-1] == \
+        "  made by the verb `hold B at arm.tip on [0, 0.55]` (`delete B_held` removes the group)"
+    assert "made by" not in show(arm, "show up") and "made by" not in show(arm, "show effort")
 
 
 def test_show_a_constraint_gives_scope_weight_instances_and_the_compiled_relation(arm):

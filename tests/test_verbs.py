@@ -59,8 +59,40 @@ def test_hold_inside_the_animation_catches_and_releases_and_delete_removes_the_g
     s.execute("delete B_held")
     assert not {"B_held", "B_caught", "B_released"} & (set(s.scene.constraints) | set(s.scene.objectives))
     assert "B_held" not in s.scene.verbs and "B_released2" in s.scene.constraints
-    s.execute("delete B_caught2")                            # one part: the rest of the group stays
-    assert s.scene.verbs["B_held2"][1] == ("B_held2", "B_released2")
+    assert s.scene.verbs["B_held2"][1] == ("B_held2", "B_caught2", "B_released2")
+
+
+@pytest.mark.parametrize("line, message", [
+    # One part of a verb: refused, naming the group and how to delete it (never widened to it).
+    ("delete B_caught", r"'B_caught' is part of the verb `hold B at arm.tip on \[0.3, 0.9\]` "
+                        r"\(group B_held\): `delete B_held` removes the whole group"),
+    ("delete B_released", "part of the verb `hold B"),
+    # Redefining a part, or naming something else like a group, would make the group lie.
+    ("constraint B_released: BX = 0 @ 0.9", "part of the verb `hold B"),
+    ("objective B_held: BX", "part of the verb `hold B"),
+    ("let B_flight = BX + 1", "already a constraint or objective"),
+    ("window B_flight dofs=BX", "already a constraint or objective"),
+])
+def test_a_part_of_a_verb_is_neither_deleted_nor_redefined_alone(line, message):
+    s = run_lines(Session(), ARM + "hold B at arm.tip on [0.3, 0.9]\nballistic B on [0.9, 1.5]\n")
+    before = ({n: c.text for n, c in s.scene.constraints.items()}, set(s.scene.objectives),
+              set(s.scene.lets), set(s.scene.windows), dict(s.scene.verbs))
+    with pytest.raises(StwError, match=message):
+        s.execute(line)
+    assert ({n: c.text for n, c in s.scene.constraints.items()}, set(s.scene.objectives),
+            set(s.scene.lets), set(s.scene.windows), dict(s.scene.verbs)) == before
+    s.execute("weight B_caught 5")                             # reweighing one part is allowed
+    assert s.scene.constraints["B_caught"].weight == 5
+
+
+def test_a_verb_group_name_that_is_no_part_is_not_taken_by_anything_else():
+    s = run_lines(Session(), ACRO + "contact acro.FOOT on ground on [0, 0.5]\n")
+    assert "FOOT_contact" in s.scene.verbs and "FOOT_contact" not in s.scene.constraints
+    for line in ("constraint FOOT_contact: CX = 0 @ 0", "let FOOT_contact = CX", "window FOOT_contact dofs=CX"):
+        with pytest.raises(StwError, match="'FOOT_contact' names the verb `contact acro.FOOT on ground"):
+            s.execute(line)
+    assert s.execute("delete FOOT_contact").message == "deleted FOOT_contact (FOOT_planted, FOOT_push)"
+    assert not s.scene.verbs and not s.scene.constraints
 
 
 @pytest.mark.parametrize("line, message", [
@@ -100,6 +132,36 @@ def test_a_verb_and_its_delete_are_each_one_undo_step():
     assert {"B_caught", "B_released"} <= set(s.scene.constraints)
     s.execute("undo")                                          # and the verb is gone
     assert not s.scene.verbs and "B_held" not in s.scene.objectives
+
+
+def test_the_journal_save_and_autosave_keep_the_verb_line_and_replay_the_group(tmp_path):
+    from stw_tui.session.autosave import Checkpoints
+    from stw_tui.session.resume import resume
+
+    def groups(session):
+        scene = session.scene
+        return dict(scene.verbs), {n: c.text for n, c in scene.constraints.items()}, \
+            {n: (o.text, o.weight) for n, o in scene.objectives.items()}
+
+    path = tmp_path / "journal.stw"
+    s = Session(journal_path=path)
+    s.checkpoints = Checkpoints(path)
+    s.run_text(ARM + "hold B at arm.tip on [0.3, 0.9] weight=500\nballistic B on [0.9, 1.5]\n"
+               "hold B at arm.tip on [1, 1.2]\ndelete B_held\nweight B_released2 3\n")
+    assert set(s.scene.verbs) == {"B_flight", "B_held2"}
+    # On disk: the verbs as typed, never their expansion (which a replay makes again).
+    journal = path.read_text()
+    assert "hold B at arm.tip on [0.3, 0.9] weight=500" in journal and "ballistic B on [0.9, 1.5]" in journal
+    assert not any(line.startswith(("constraint B_", "objective B_")) for line in journal.splitlines())
+    resumed, _, _ = resume(path)
+    assert groups(resumed) == groups(s)
+    saved = tmp_path / "saved.stw"
+    s.execute(f"save {saved}")
+    assert "hold B at arm.tip on [1, 1.2]" in saved.read_text()
+    replay = Session()
+    replay.run_file(saved)
+    assert groups(replay) == groups(s)
+    assert replay.scene.verbs["B_held2"][1] == ("B_held2", "B_caught2", "B_released2")
 
 
 ACRO = """time 0 1.5 knots=30 samples=30
@@ -202,3 +264,22 @@ flight hopper on [0.2, 0.6]
 def test_contact_and_flight_remain_usable_as_constraint_names():
     s = run_lines(Session(), "time 0 1 knots=8\ndof x\nconstraint flight: x = 1 @ 0.5\nconstraint contact: x' = 0 @ 0.5\n")
     assert {"flight", "contact"} <= set(s.scene.constraints)
+
+
+@pytest.mark.parametrize("verb, made, deleted_by", [
+    ("hold", {"B_held": ("B_held", "B_released")}, "`delete P_held`"),
+    ("ballistic", {"B_flight": ("B_flight",)}, "`delete P_flight`"),
+    ("contact", {"FOOT_contact": ("FOOT_planted", "FOOT_push", "FOOT_friction")}, "`delete POINT_contact`"),
+    ("flight", {"acro_flight": ("acro_flight",)}, "`delete LINKAGE_flight`"),
+    ("limit", {}, "no group"),
+])
+def test_help_documents_every_verb_with_an_example_that_runs(verb, made, deleted_by):
+    from stw_tui.sym.language.help import help_text
+
+    text = help_text(verb)
+    assert text.startswith(verb + " ") and f"\n  {verb} " in help_text(None) and deleted_by in text
+    s = run_lines(Session(), ARM + ACRO.split("\n", 2)[2])     # the arm, and the acrobat beside it
+    s.execute(text.split("example: ", 1)[1])
+    assert {g: members for g, (_, members) in s.scene.verbs.items()} == made
+    if verb == "limit":
+        assert (s.scene.dofs["ELBOW"].lo, s.scene.dofs["ELBOW"].hi) == (0.0, 2.5)

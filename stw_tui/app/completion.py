@@ -43,7 +43,7 @@ def scene_names(scene: "Scene | None") -> list[str]:
     if scene is None:
         return []
     return [*scene.dofs, *scene.constants, *scene.lets, *scene.derived, *scene.constraints,
-            *scene.objectives, *scene.windows]
+            *scene.objectives, *scene.windows, *scene.verbs]
 
 
 def candidates(text: str, scene: "Scene | None", backends: list[str] = ()) -> tuple[str, list[str]]:

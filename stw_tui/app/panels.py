@@ -8,11 +8,13 @@ from __future__ import annotations
 
 from typing import TYPE_CHECKING
 
+from rich.text import Text
 from textual.binding import Binding
 
 from stw_tui.app.messages import ItemChosen
 from stw_tui.app.panel_base import ScenePanel, SettingRow, SettingsPanel, num, show
 from stw_tui.app.values import SceneInfo
+from stw_tui.session.verbs import verb_of
 
 if TYPE_CHECKING:
     from stw_tui.sos.scene import Scene
@@ -95,8 +97,13 @@ class DofPanel(ScenePanel):
             self.ask(f"Shake {name}: amplitude", "0.05", lambda v: f"shake {name} amplitude={v}")
 
 
+VERB_KEY = "verb:"   # row key of a verb's heading: a group may share its name with one of its parts
+
+
 class EquationsPanel(ScenePanel):
-    """Constraints, objectives and subexpressions with weight, time scope and current violation."""
+    """Constraints, objectives and subexpressions with weight, time scope and current violation.
+    What a motion verb made is grouped under a heading row with the verb's line (and the worst
+    violation of its parts): the verb is the unit the animator wrote, and the one `delete` removes."""
 
     COLUMNS = ("name", "kind", "weight", "scope", "max viol", "definition")
     BINDINGS = [
@@ -105,23 +112,63 @@ class EquationsPanel(ScenePanel):
     ]
 
     def table_rows(self, scene: "Scene", info: SceneInfo):
-        for c in scene.constraints.values():
-            scope = c.scope_text + (" when…" if c.when is not None else "")
-            viol = info.violations.get(c.name)
-            yield c.name, (c.name, "constraint", show(c.weight), scope,
-                           "n/a" if viol is None else f"{viol:.2e}", c.text.split(":", 1)[-1].strip())
-        for o in scene.objectives.values():
-            scope = f"on [{o.interval[0]:g}, {o.interval[1]:g}]" if o.interval else "span"
-            yield o.name, (o.name, "objective", show(o.weight), scope, "", o.text.split(":", 1)[-1].strip())
+        shown: set[str] = set()
+        for name in [*scene.constraints, *scene.objectives]:
+            if name in shown:
+                continue
+            group = verb_of(scene, name)
+            if group is None:
+                yield name, self._cells(scene, info, name, name)
+                continue
+            members = [m for m in scene.verbs[group][1] if m in scene.constraints or m in scene.objectives]
+            shown.update(members)     # the group sits where its first part would have
+            yield VERB_KEY + group, self._heading(scene, info, group, members)
+            for i, member in enumerate(members):
+                yield member, self._cells(scene, info, member, ("└ " if i == len(members) - 1 else "├ ") + member)
         for name, expr in scene.lets.items():
             yield name, (name, "let", "", "", "", str(expr))
 
+    @staticmethod
+    def _cells(scene: "Scene", info: SceneInfo, name: str, label: str) -> tuple:
+        if name in scene.constraints:
+            c = scene.constraints[name]
+            scope = c.scope_text + (" when…" if c.when is not None else "")
+            viol = info.violations.get(name)
+            return (label, "constraint", show(c.weight), scope,
+                    "n/a" if viol is None else f"{viol:.2e}", c.text.split(":", 1)[-1].strip())
+        o = scene.objectives[name]
+        scope = f"on [{o.interval[0]:g}, {o.interval[1]:g}]" if o.interval else "span"
+        return label, "objective", show(o.weight), scope, "", o.text.split(":", 1)[-1].strip()
+
+    @staticmethod
+    def _heading(scene: "Scene", info: SceneInfo, group: str, members: list[str]) -> tuple:
+        """The verb's row: its word, the time its parts cover, their worst violation, its line."""
+        line = scene.verbs[group][0]
+        spans = [(c.at, c.at) if c.at is not None else c.interval
+                 for c in (scene.constraints[m] for m in members if m in scene.constraints)]
+        spans += [scene.objectives[m].interval for m in members if m in scene.objectives]
+        if not spans or None in spans:
+            scope = "span"
+        else:
+            a, b = min(s[0] for s in spans), max(s[1] for s in spans)
+            scope = f"@ {a:g}" if a == b else f"on [{a:g}, {b:g}]"
+        viols = [info.violations[m] for m in members if m in scene.constraints and m in info.violations]
+        worst = f"{max(viols):.2e}" if viols else ("n/a" if any(m in scene.constraints for m in members) else "")
+        return Text(group, style="bold"), Text(line.split()[0], style="bold"), "", scope, worst, line
+
     def activate(self, key: str) -> None:
-        self.post_message(ItemChosen("equation", key))
+        if key.startswith(VERB_KEY):     # a verb: its line and expansion, in the console
+            self.emit(f"show {key[len(VERB_KEY):]}")
+        else:
+            self.post_message(ItemChosen("equation", key))
 
     def action_weight(self) -> None:
         name, scene = self.selected, self.scene
         if name is None:
+            return
+        if name.startswith(VERB_KEY):
+            self.app.notify("a verb has no weight of its own: choose one of its parts below it",
+                            severity="warning")
             return
         item = scene.constraints.get(name) or scene.objectives.get(name)
         if item is None:
@@ -131,9 +178,17 @@ class EquationsPanel(ScenePanel):
 
     def action_delete(self) -> None:
         name = self.selected
-        if name is not None:
-            self.ask(f"Delete {name}? (Enter runs the command)", f"delete {name}",
-                     lambda v: v if v.startswith("delete ") else f"delete {name}")
+        if name is None:
+            return
+        heading = name.startswith(VERB_KEY)
+        group = name[len(VERB_KEY):] if heading else verb_of(self.scene, name)
+        title = f"Delete {name}?"
+        if group is not None:   # a verb's parts go together (`delete` refuses one part alone)
+            title = ("" if heading else f"{name} is part of verb {group}. ") + \
+                f"Delete {group} and the {len(self.scene.verbs[group][1])} item(s) it made?"
+        target = group or name
+        self.ask(f"{title} (Enter runs the command)", f"delete {target}",
+                 lambda v: v if v.startswith("delete ") else f"delete {target}")
 
 
 class ConstantsPanel(SettingsPanel):

@@ -14,6 +14,7 @@ import sympy as sp
 
 from stw_tui.session.outcome import Outcome, PrintResult
 from stw_tui.session.protocol import SessionLike
+from stw_tui.session.verbs import owned_by_verb
 from stw_tui.sos.backend import RunResult, Status, SolverState, create_backend, load_backend, run_iterations
 from stw_tui.sos.continuous import DenseReport, check_scene, survey
 from stw_tui.sos.scene import DEFAULT_SETTINGS, Constraint, Dof, Objective, Relation, Scene, Window
@@ -156,6 +157,11 @@ def _check_new_name(scene: Scene, name: str, allowed: tuple[str, ...]) -> None:
     equations = {**scene.constraints, **scene.objectives}
     if "equation" not in allowed and name in equations:
         raise StwError(f"'{name}' is already a constraint or objective; choose another name")
+    owner = owned_by_verb(scene, name)
+    if owner:
+        raise StwError(owner)
+    if name in scene.verbs:
+        raise StwError(f"'{name}' names the verb `{scene.verbs[name][0]}`; choose another name")
 
 
 def _uses_dof(scene: Scene, expr: sp.Basic) -> bool:
@@ -510,9 +516,9 @@ def _delete(scene: Scene, cmd) -> str:
             scene.objectives.pop(member, None)
             scene.extra_instances.pop(member, None)
         return f"deleted {name} ({', '.join(members)})"
-    for group, (line, members) in list(scene.verbs.items()):
-        if name in members:     # one part of a verb: the rest stays, as its own group
-            scene.verbs[group] = (line, tuple(m for m in members if m != name))
+    owner = owned_by_verb(scene, name)
+    if owner:       # refused, not widened to the group: delete removes only what it names
+        raise StwError(owner)
     for table in (scene.constraints, scene.objectives, scene.lets, scene.dofs, scene.constants, scene.windows):
         if name in table:
             del table[name]

@@ -19,6 +19,7 @@ import sympy as sp
 
 from stw_tui.session.outcome import Outcome, PrintResult
 from stw_tui.session.protocol import SessionLike
+from stw_tui.session.verbs import verb_of
 from stw_tui.sos.instances import relation_times
 from stw_tui.sos.scene import Scene
 from stw_tui.sym.compiler import _to_symengine
@@ -149,10 +150,11 @@ def describe(scene: Scene, name: str) -> list[str]:
     """
     if name in scene.verbs:
         return _show_verb(scene, name)
-    if name in scene.constraints:
-        return _show_constraint(scene, name)
-    if name in scene.objectives:
-        return _show_objective(scene, name)
+    if name in scene.constraints or name in scene.objectives:
+        lines = _show_constraint(scene, name) if name in scene.constraints else _show_objective(scene, name)
+        group = verb_of(scene, name)
+        return lines + ([f"  made by the verb `{scene.verbs[group][0]}` (`delete {group}` removes the group)"]
+                        if group is not None else [])
     if name in scene.dofs:
         return _show_dof(scene, name)
     if name in scene.constants or name in scene.lets or name in scene.derived:

@@ -1,5 +1,7 @@
 """Motion verbs: a line an animator thinks in, expanded into ordinary named constraints and
-objectives (which the journal does not keep: it keeps the verb, and replays it).
+objectives (which the journal does not keep: it keeps the verb, and replays it). The scene keeps
+each as a group (``scene.verbs``: name -> its line and what it made): `delete NAME` removes it
+whole, and no part of it is deleted or redefined alone (:func:`owned_by_verb`).
 
 - ``hold P at arm.tip on [A, B]``: the object P (DOF PX, PY[, PZ]) is carried by a linkage point.
   It has the point's position and velocity exactly at A (picked up; unless A is the start) and
@@ -24,6 +26,26 @@ from __future__ import annotations
 from stw_tui.sym.errors import StwError
 
 HOLD_WEIGHT = 1e4
+
+
+def verb_of(scene, name: str) -> str | None:
+    """The verb group that made the constraint or objective ``name`` (None: one written by hand)."""
+    return next((group for group, (_, members) in scene.verbs.items() if name in members), None)
+
+
+def owned_by_verb(scene, name: str) -> str:
+    """Why ``name`` cannot be deleted or redefined on its own: a verb made it ("" when no verb did).
+
+    A verb is one journal line and one group: deleting or redefining one of its parts would leave
+    a `hold` that no longer holds, and its heading in the Eqns panel and `show` would say otherwise.
+    """
+    group = verb_of(scene, name)
+    if group is None:
+        return ""
+    line = scene.verbs[group][0]
+    return (f"'{name}' is part of the verb `{line}` (group {group}): `delete {group}` removes the "
+            f"whole group; to change one part, delete the group and write its lines by hand "
+            f"(`show {group}` prints them), or `weight {name} W` to reweigh it")
 
 
 def point_axes(scene, point: str) -> list[tuple[str, str]]:

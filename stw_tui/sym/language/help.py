@@ -60,7 +60,8 @@ COMMAND_HELP: dict[str, CommandHelp] = {
                         "hold B at arm.tip on [0, 0.55]"),
     "ballistic": CommandHelp("ballistic P on [A, B]",
                              "Free flight of the object P under g (along -y): constraint P_flight, "
-                             "PX'' = 0, PY'' + g = 0 (PZ'' = 0), exact between the samples.",
+                             "PX'' = 0, PY'' + g = 0 (PZ'' = 0), exact between the samples. "
+                             "`delete P_flight` removes it.",
                              "ballistic B on [0.55, 1.5]"),
     "contact": CommandHelp("contact POINT on ground [y=H] on [A, B] [friction=MU] [x=X0]",
                            "The linkage point stays on the ground y = H (default 0), planted at x = X0 or "
@@ -68,17 +69,20 @@ COMMAND_HELP: dict[str, CommandHelp] = {
                            "the free base, tau of the base's y translation, is >= 0 (POINT_push); with "
                            "friction=MU the tangential force stays in the friction cone (POINT_friction). "
                            "With `com=CX,CY` the push and the cone are linear and hold everywhere. "
-                           "One contact at a time per creature: the base force is their sum.",
+                           "One contact at a time per creature: the base force is their sum. "
+                           "`delete POINT_contact` (FOOT_contact) removes all of it.",
                            "contact acro.FOOT on ground on [0, 0.5] friction=1 x=0"),
     "flight": CommandHelp("flight LINKAGE on [A, B]",
                           "Nothing outside acts on the creature: the forces of its base DOF and the "
                           "torques of the joints up to its first massive link (which hang on the "
                           "massless base) are 0 (LINKAGE_flight). With `com=CX,CY` the base part is "
-                          "linear (CX'' = 0, CY'' + g = 0) and holds everywhere.",
+                          "linear (CX'' = 0, CY'' + g = 0) and holds everywhere. "
+                          "`delete LINKAGE_flight` removes it.",
                           "flight acro on [0.5, 1]"),
     "limit": CommandHelp("limit DOF A B",
                          "A range for a DOF (a joint's limits): A <= DOF <= B everywhere, imposed on its "
-                         "control points. The same as `dof DOF lo=A hi=B`.", "limit ELBOW 0 2.5"),
+                         "control points. The same as `dof DOF lo=A hi=B` (no group: a range is the DOF's own).",
+                         "limit ELBOW 0 2.5"),
     "slide": CommandHelp("slide WINDOW by DT [to T] [iterate N]",
                          "Move a window along the time axis by DT at a time, solving N iterations "
                          "(default 10) at each position, from where it is until its end reaches T "
@@ -123,7 +127,11 @@ COMMAND_HELP: dict[str, CommandHelp] = {
                              "instances in_hand add 0.52, 0.56"),
     "delete": CommandHelp("delete NAME",
                           "Delete a constraint, objective, subexpression, window, constant or DOF (refused "
-                          "while something else uses it).", "delete catch"),
+                          "while something else uses it). A motion verb's group (B_held, B_flight, "
+                          "FOOT_contact, acro_flight: the Eqns panel's headings) goes whole, in one "
+                          "undoable step; one part of a verb is not deleted alone (the verb would no "
+                          "longer do what its line says): delete the group, or reweigh the part.",
+                          "delete B_held"),
     "print": CommandHelp("print EXPR [@ T | on [A, B]] | print CONSTRAINT",
                          "Print an expression's value at T, or a summary (min, max, mean, ends) over [A, B] "
                          "(default: the span); or how well a constraint holds: its violation at its "
