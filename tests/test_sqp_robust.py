@@ -322,3 +322,18 @@ def test_convexify_shifts_just_enough_for_the_null_space_of_the_binding_rows():
     # Without rows, the whole space: it would take 100, more than the largest shift tried
     # (SHIFT_MAX = 0.1 of the largest |H_ii|), which is what comes back.
     assert convexify(la, H, None)[1] == pytest.approx(10.0)
+
+
+@pytest.mark.parametrize("name", ["arm", "sine"])
+def test_scipy_and_torch_reach_the_same_motion_on_the_reproductions(name):
+    # Issue 8: the same optimum from the same start (motion difference <= 1e-5), with the default
+    # step limit, on both reproductions that used to blow up.
+    pytest.importorskip("torch")
+    text = {"arm": ARM, "sine": SINE}[name]
+    ref, got = _solve(text, "scipy", 100), _solve(text, "torch device=cpu", 100)
+    assert ref.runs[-1].status is Status.CONVERGED and got.runs[-1].status is Status.CONVERGED
+    ref_motion, got_motion = ref.sample(201), got.sample(201)
+    assert ref_motion.keys() == got_motion.keys()
+    worst = max(np.abs(np.asarray(ref_motion[d]["value"]) - np.asarray(got_motion[d]["value"])).max()
+                for d in ref_motion)
+    assert worst <= 1e-5, worst
