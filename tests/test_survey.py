@@ -251,3 +251,25 @@ def test_grouping_rules_objective_and_motion_tolerances_and_order():
     assert [[m.index for m in o.members] for o in optima] == [[0, 1], [2], [3]]
     shuffled = group(results[::-1])
     assert [[m.index for m in o.members] for o in shuffled] == [[0, 1], [2], [3]]
+
+
+def test_a_start_brings_back_its_stick_figures_for_the_gallery():
+    # The worker draws the figures where it solved (the gallery only renders them): at FRAMES
+    # evenly spaced times, the same geometry scene_figure gives on the curves the start reached.
+    from stw_tui.session.figure import scene_figure
+    from stw_tui.session.survey import FRAMES, preview_scene, solve_start
+
+    session = Session()
+    session.run_text(catalogue.problem("analytic_arm3").text + """dof SHOULDER = -pi/2 + t
+constraint rest0: SHOULDER' = 0, ELBOW' = 0, WRIST' = 0 @ 0
+constraint rest1: SHOULDER' = 0, ELBOW' = 0, WRIST' = 0 @ 1.5
+objective effort: tau_SHOULDER, tau_ELBOW, tau_WRIST
+iterate 20
+""")
+    result = solve_start(plan_tasks(session, SurveyPlan(1, seed=3, amplitude=0.1, iterations=30))[0])
+    assert result.error == "" and len(result.frames) == FRAMES
+    preview = preview_scene(session.scene, result)
+    for frame, t in zip(result.frames, np.linspace(preview.t0, preview.t1, FRAMES)):
+        expected = scene_figure(preview, float(t))
+        assert frame.t == pytest.approx(t) and len(frame.segments) == len(expected.segments) == 3
+        np.testing.assert_allclose(np.array(frame.segments), np.array(expected.segments), atol=1e-12)

@@ -10,8 +10,11 @@ import test_app_support as support
 
 import catalogue
 from stw_tui.app import create_app
-from stw_tui.app.gallery import GalleryScreen
+from stw_tui.app.gallery import GALLERY_COLUMNS, THUMBNAIL, GalleryScreen
+from stw_tui.app.thumbnails import curves, has_geometry
+from stw_tui.session.figure import scene_figure
 from stw_tui.session.session import Session
+from stw_tui.session.survey import preview_scene
 
 PENDULUM = catalogue.problem("analytic_pendulum_swing_up").text + """set scheduler serial
 """
@@ -32,6 +35,21 @@ def test_gallery_fills_in_plays_and_adopts():
         optima = app.session.survey.optima
         assert grid.row_count == len(optima) >= 2
         assert screen.query_one("#gallery-progress").progress == 12
+        # Each row's thumbnail: the pendulum has no figure to draw, so its angle over time, as the
+        # curve of the motion the start reached (rebuilt here from its control points).
+        frames_column = list(GALLERY_COLUMNS).index("frames")
+        for rank, optimum in enumerate(optima, start=1):
+            cell = str(grid.get_row(str(rank))[frames_column])
+            preview = preview_scene(app.session.scene, optimum.best)
+            times = np.linspace(preview.t0, preview.t1, 4)
+            assert not has_geometry([scene_figure(preview, float(t)) for t in times])
+            theta = preview.dofs["th"].curve.evaluate(np.linspace(preview.t0, preview.t1, 201))
+            assert cell == curves([theta], 4 * THUMBNAIL[0] + 3, THUMBNAIL[1])
+            lines = cell.split("\n")
+            assert len(lines) == THUMBNAIL[1] and all(len(line) == 4 * THUMBNAIL[0] + 3 for line in lines)
+            assert any(ch != chr(0x2800) for ch in cell.replace(" ", "").replace("\n", ""))  # dots drawn
+        cells = [str(grid.get_row(str(r))[frames_column]) for r in range(1, len(optima) + 1)]
+        assert len(set(cells)) > 1                   # distinct optima look different
         await pilot.press("down", "enter")           # play optimum 2
         await pilot.pause()
         assert not isinstance(app.screen, GalleryScreen)

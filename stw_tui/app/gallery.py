@@ -1,7 +1,7 @@
 """The survey gallery: the distinct local optima of a survey, filled in as its starts come back.
 
-One row per optimum (rank, objective, dense violation, how many starts reached it, descriptors),
-a progress bar while the survey runs, and what did not converge under it. Enter plays the
+One row per optimum (rank, objective, dense violation, how many starts reached it, a strip of
+stick figures at a few times, descriptors), a progress bar while the survey runs, and what did not converge under it. Enter plays the
 optimum under the cursor in the figure player, `a` adopts it (the `adopt K` command), Esc closes;
 F4 (the app's key) cancels the starts still outstanding. The screen only shows: choosing an
 optimum posts :class:`OptimumChosen` and the app acts on it.
@@ -18,7 +18,10 @@ from textual.message import Message
 from textual.screen import ModalScreen
 from textual.widgets import DataTable, Label, ProgressBar
 
-GALLERY_COLUMNS = ("rank", "objective", "dense viol", "count", "descriptors")
+from stw_tui.app.thumbnails import curves, has_geometry, strip
+
+GALLERY_COLUMNS = ("rank", "objective", "dense viol", "count", "frames", "descriptors")
+THUMBNAIL = (5, 2)      # characters per frame (width, height) of the thumbnail strip
 
 
 @dataclass
@@ -27,6 +30,15 @@ class OptimumChosen(Message):
 
     rank: int
     action: str
+
+
+def thumbnail(result) -> str:
+    """Stick figures of a start's motion at a few times; its DOF curves where it has no figure."""
+    if has_geometry(result.frames):
+        return strip(result.frames, *THUMBNAIL)
+    frames = len(result.frames) or 4
+    width = frames * THUMBNAIL[0] + frames - 1          # as wide as the strip would be
+    return curves(result.motion if result.motion is not None else [], width, THUMBNAIL[1])
 
 
 class GalleryScreen(ModalScreen[None]):
@@ -69,7 +81,8 @@ class GalleryScreen(ModalScreen[None]):
         for rank, optimum in enumerate(optima, start=1):
             best = optimum.best
             grid.add_row(str(rank), f"{best.objective:.7g}", f"{best.dense_violation:.1e}", str(optimum.count),
-                         describe_text(best.descriptors), key=str(rank))
+                         thumbnail(best), describe_text(best.descriptors),
+                         key=str(rank), height=THUMBNAIL[1])
         if grid.row_count:
             grid.move_cursor(row=min(row, grid.row_count - 1))
         others = [f"start {r.index}: {r.status}" + (f" ({r.error[:60]})" if r.error else "")

@@ -35,6 +35,7 @@ OBJECTIVE_RTOL = 1e-4   # objectives of one optimum agree to this relative toler
 # 0.7 or more; the count of optima there is the same for any tolerance from 1e-2 to 1e-1.
 MOTION_TOL = 1e-2
 SAMPLES = 201           # times over the span at which motions are compared (as `stw compare`)
+FRAMES = 4              # stick figures per optimum for the gallery's thumbnails, evenly over the span
 DEFAULT_ITERATIONS = 100
 # First words of journal lines a worker must not replay: they read the scene (or write files).
 READ_ONLY = frozenset({"print", "help", "snapshots", "diff", "export", "save", "survey"})
@@ -90,6 +91,7 @@ class StartResult:
     motion: np.ndarray | None = None   # (len(dofs), SAMPLES) DOF values
     curves: dict = field(default_factory=dict)   # DOF -> (knots, control points), to show or play it
     descriptors: dict = field(default_factory=dict)
+    frames: list = field(default_factory=list)   # figure.Figure at FRAMES times: the gallery's thumbnails
     error: str = ""
     worker: str = ""
 
@@ -235,6 +237,7 @@ def solve_start(task: StartTask) -> StartResult:
 
 
 def _measure(session, result: StartResult) -> None:
+    from stw_tui.session.figure import scene_figure
     from stw_tui.session.survey_descriptors import describe
     from stw_tui.sos.continuous import check_scene
 
@@ -253,6 +256,7 @@ def _measure(session, result: StartResult) -> None:
     result.motion = motion_of(scene)
     result.curves = {name: (np.asarray(d.curve.knots), np.asarray(d.curve.coef)) for name, d in scene.dofs.items()}
     result.descriptors = describe(scene)
+    result.frames = [scene_figure(scene, float(t)) for t in np.linspace(scene.t0, scene.t1, FRAMES)]
 
 
 def motion_of(scene) -> np.ndarray:
