@@ -1,4 +1,5 @@
-"""The `stw` command: the TUI by default, plus headless `run`, `bench` and `backends`."""
+"""The `stw` command: the TUI by default, plus headless `run`, `bench`, `compare`, `export`,
+`survey` and `backends`."""
 
 from __future__ import annotations
 
@@ -166,6 +167,7 @@ def _survey(args: argparse.Namespace) -> int:
 
 
 def build_parser() -> argparse.ArgumentParser:
+    """The parser of the headless commands (`stw run`, `bench`, `compare`, `export`, ...)."""
     parser = argparse.ArgumentParser(
         prog="stw", usage=USAGE, description="Spacetime Windows for the terminal.",
         epilog="In the TUI: F1 help, F5 iterate, F4 stop, Ctrl+P palette, Ctrl+Q quit.")
@@ -216,6 +218,7 @@ def build_parser() -> argparse.ArgumentParser:
 
 
 def main(argv: list[str] | None = None) -> int:
+    """Entry point of `stw`: a headless command if one is named, else the TUI."""
     argv = list(sys.argv[1:] if argv is None else argv)
     if not argv or (argv[0] not in SUBCOMMANDS and argv[0] not in ("-h", "--help")):
         return _launch_tui(argv)

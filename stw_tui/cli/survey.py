@@ -20,6 +20,7 @@ def _progress_line(table) -> str:
 
 
 def run_survey_command(args) -> int:
+    """`stw survey`: replay the session, run the survey with progress on stderr, print the table."""
     from stw_tui.session.session import Session
 
     session = Session()

@@ -27,6 +27,7 @@ def _rows(table) -> list:
 
 
 def main(argv: list[str] | None = None) -> int:
+    """Run the same survey on each engine and print starts per second and the ratio to serial."""
     parser = argparse.ArgumentParser(prog="python -m stw_tui.cli.survey_bench", description=__doc__.split("\n\n")[0])
     parser.add_argument("session")
     parser.add_argument("n", metavar="N")

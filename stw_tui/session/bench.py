@@ -52,6 +52,8 @@ SMALL, LARGE = (5, 24), (5, 264)   # synthetic sizes: 5 DOF x 27 and x 267 contr
 
 @dataclass
 class Measurement:
+    """One configuration timed on one case: median times per iteration and phase, and the result."""
+
     session: str
     config: str
     free: int
@@ -230,6 +232,8 @@ def format_row(m: Measurement, ref_seconds: float | None) -> str:
 
 @dataclass
 class Case:
+    """A scene ready to time: the session replayed up to its last `iterate`, and that line's N."""
+
     name: str          # the session's name, with `@window` when the solve is a window's
     setup: Session     # replayed up to the measured `iterate`
     n: int             # that line's N

@@ -63,6 +63,7 @@ def compare_scene(scene, n: int, backends: list[str], repeat: int = 1, label: st
 
 
 def run_compare(args) -> int:
+    """`stw compare`: print each backend's row as it finishes, or all rows as JSON."""
     backends = [b for b in args.backends.split(",") if b]
     if args.json:
         rows = compare(args.session, backends, args.repeat)

@@ -82,6 +82,7 @@ def motion_table(scene: Scene, times: np.ndarray, what=()) -> dict[str, np.ndarr
 
 
 def csv_text(scene: Scene, fps: int, what=()) -> str:
+    """The motion as CSV: a header of column names, then one row per frame."""
     columns = motion_table(scene, frame_times(scene, fps), what)
     out = io.StringIO()
     writer = csv.writer(out, lineterminator="\n")
@@ -92,6 +93,7 @@ def csv_text(scene: Scene, fps: int, what=()) -> str:
 
 
 def json_document(scene: Scene, fps: int, session_text: str, what=()) -> dict:
+    """The motion as JSON: the columns, each DOF's curve, the constants and the session text."""
     columns = motion_table(scene, frame_times(scene, fps), what)
     return {
         "format": FORMAT_NAME, "version": FORMAT_VERSION, "fps": fps,
@@ -129,6 +131,7 @@ def write_text(path: str | Path, text: str) -> Path:
 
 
 def export_text(session: SessionLike, fmt: str, fps: int, what=()) -> str:
+    """The text of an export in format ``fmt`` (csv, json or bvh) at ``fps`` frames per second."""
     scene = session.scene
     if not 1 <= fps <= 10_000:
         raise StwError(f"fps must be from 1 to 10000, not {fps}")

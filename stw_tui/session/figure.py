@@ -24,6 +24,7 @@ class Figure:
     points: list[tuple[str, tuple[float, float]]] = field(default_factory=list)
 
     def bounds(self) -> tuple[float, float, float, float]:
+        """The figure's extent (xmin, xmax, ymin, ymax), to fit it in a view."""
         xs = [p[0] for s in self.segments for p in s] + [p[1][0] for p in self.points]
         ys = [p[1] for s in self.segments for p in s] + [p[1][1] for p in self.points]
         if not xs:

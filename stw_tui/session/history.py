@@ -91,6 +91,7 @@ class History:
 
     @staticmethod
     def describe(text: str) -> str:
+        """A command for messages: its first line in backquotes, with … if it spans more."""
         first = text.strip().splitlines()[0] if text.strip() else text
         return f"`{first}`" + (" …" if "\n" in text.strip() else "")
 
@@ -105,6 +106,7 @@ def become(session: SessionLike, scene: Scene, state: State) -> None:
 
 # --- handlers: (session, scene copy, command) -> Outcome -------------------------------------
 def undo(session: SessionLike, scene: Scene, cmd) -> Outcome:
+    """`undo`: return to the state before the last step, keeping the current one for `redo`."""
 
     history = session.history
     if not history.undo_steps:
@@ -118,6 +120,7 @@ def undo(session: SessionLike, scene: Scene, cmd) -> Outcome:
 
 
 def redo(session: SessionLike, scene: Scene, cmd) -> Outcome:
+    """`redo`: return to the state the last `undo` took back."""
 
     history = session.history
     if not history.redo_steps:
@@ -153,6 +156,7 @@ def restore(session: SessionLike, scene: Scene, cmd) -> Outcome:
 
 
 def list_snapshots(session: SessionLike, scene: Scene, cmd) -> Outcome:
+    """`snapshots`: each snapshot's objective and violations, and the scene's now."""
     from stw_tui.session.snapshots import measure
 
     snaps = session.history.snapshots
@@ -166,6 +170,7 @@ def list_snapshots(session: SessionLike, scene: Scene, cmd) -> Outcome:
 
 
 def diff(session: SessionLike, scene: Scene, cmd) -> Outcome:
+    """`diff NAME`: how the scene now differs from a snapshot."""
     from stw_tui.session.snapshots import describe_diff, diff_scenes, measure
 
     old = _snapshot_state(session, cmd.name).scene

@@ -45,6 +45,7 @@ class Journal:
     path: Path | None = None
 
     def append(self, text: str, line: int | None) -> JournalEntry:
+        """Record a line before it is applied; :meth:`settle` then says what became of it."""
         entry = JournalEntry(text, line)
         self.entries.append(entry)
         return entry
@@ -82,6 +83,7 @@ class Journal:
         return [e.text for e in self.entries if e.ok]
 
     def text(self) -> str:
+        """The journal as session text: the lines that succeeded, and failed ones as comments."""
         return "\n".join(self._render(e) for e in self.entries if e.ok is not None) + "\n"
 
 
@@ -188,6 +190,7 @@ class Session:
         return Outcome()
 
     def cancel_block(self) -> None:
+        """Drop an open `linkage` block (Esc at the console)."""
         self._block = None
 
     def _apply(self, text: str, line: int | None, on_report, block=None) -> Outcome:
@@ -274,6 +277,7 @@ class Session:
             raise SourceError("`linkage` block is not closed", line=start, expected="a line `end`")
 
     def run_file(self, path: str | Path, **kwargs) -> None:
+        """Execute a session file, stopping at the first error (which is raised)."""
         try:
             text = Path(path).read_text(encoding="utf-8")
         except (OSError, UnicodeDecodeError) as exc:

@@ -30,6 +30,7 @@ class Measures:
     problem: str = ""                  # why it could not be measured
 
     def describe(self) -> str:
+        """One line for `snapshots` and `diff`: objective and violations, or why not measurable."""
         if self.objective is None:
             return f"not measurable ({self.problem})" if self.problem else "not measurable"
         return (f"objective {self.objective:.6g}, max violation {self.violation:.2e} "
@@ -52,6 +53,8 @@ def measure(scene: Scene) -> Measures:
 
 @dataclass(frozen=True)
 class DofChange:
+    """How far one DOF's curve moved between a snapshot and now, and where."""
+
     name: str
     max_abs: float          # largest |new - old| of the curve on the comparison grid
     at: float | None        # where (None: it did not change)
@@ -70,6 +73,7 @@ class SceneDiff:
 
     @property
     def changed_dofs(self) -> list[DofChange]:
+        """The DOF whose curve or knots changed."""
         return [d for d in self.dofs if d.max_abs > 0 or d.knots_changed]
 
 
@@ -127,6 +131,7 @@ def diff_scenes(old: Scene, new: Scene) -> SceneDiff:
 
 
 def describe_diff(name: str, d: SceneDiff, before: Measures, after: Measures) -> str:
+    """The text of `diff NAME`: which DOF moved, what else changed, and both scenes' measures."""
     lines = [f"now against snapshot {name}:"]
     moved = d.changed_dofs
     if moved:

@@ -55,6 +55,7 @@ class SurveyPlan:
     workers: int | None = None     # None: one per core
 
     def describe(self) -> str:
+        """The plan's options as the table's summary shows them."""
         where = f", window {self.window}" if self.window else ""
         return f"from={self.source} amplitude={self.amplitude:g} seed={self.seed}{where}"
 
@@ -109,6 +110,7 @@ def base_text(session) -> str:
 
 
 def checksum(scene) -> float:
+    """A cheap fingerprint of a scene's curves: a worker checks its replay against it."""
     return float(np.abs(scene.coefficient_vector()).sum())
 
 
@@ -260,6 +262,7 @@ def _measure(session, result: StartResult) -> None:
 
 
 def motion_of(scene) -> np.ndarray:
+    """Every DOF's values at ``SAMPLES`` times over the span, to tell optima apart."""
     times = np.linspace(scene.t0, scene.t1, SAMPLES)
     return np.array([dof.curve.evaluate(times) for dof in scene.dofs.values()])
 
@@ -284,10 +287,12 @@ class Optimum:
 
     @property
     def best(self) -> StartResult:
+        """The member with the least objective."""
         return self.members[0]
 
     @property
     def count(self) -> int:
+        """How many starts reached this optimum."""
         return len(self.members)
 
 
@@ -332,17 +337,21 @@ class SurveyTable:
 
     @property
     def optima(self) -> list[Optimum]:
+        """The converged starts grouped into distinct optima, ranked by objective."""
         return group(self.results)
 
     @property
     def failed(self) -> list[StartResult]:
+        """Starts that gave no motion (an error, or a lost worker)."""
         return [r for r in self.results if r.motion is None]
 
     @property
     def unconverged(self) -> list[StartResult]:
+        """Starts that gave a motion but did not converge."""
         return [r for r in self.results if r.motion is not None and not r.converged]
 
     def summary(self) -> str:
+        """The table's first line: counts of optima and starts, the engine and the rate."""
         optima, done = self.optima, len(self.results)
         rate = f", {done / self.seconds:.2g} starts/s" if self.seconds > 0 else ""
         head = (f"survey of {done} of {self.plan.n} start(s) ({self.plan.describe()}"

@@ -50,9 +50,11 @@ class SerialEngine:
     """Each start in turn, in this process."""
 
     def describe(self) -> str:
+        """Where the starts run, for the table and messages."""
         return "serial in this process"
 
     def run(self, tasks: list[StartTask], on_result: OnResult, on_note: OnNote, cancelled: Cancelled) -> None:
+        """Solve the starts one after another, reporting each result."""
         for task in tasks:
             if cancelled():
                 return
@@ -86,9 +88,11 @@ class PoolEngine:
         self.processes: list[int] = []    # the pids of the current pool (tests kill one)
 
     def describe(self) -> str:
+        """Where the starts run, for the table and messages."""
         return f"local pool of {self.workers} process{'es' if self.workers > 1 else ''}"
 
     def run(self, tasks: list[StartTask], on_result: OnResult, on_note: OnNote, cancelled: Cancelled) -> None:
+        """Solve the starts on the pool, retrying those whose worker died in a new pool."""
         pending = {t.index: t for t in tasks}
         attempts = dict.fromkeys(pending, 0)
         context = _context()
@@ -164,6 +168,7 @@ class DaskEngine:
         self.address = address
 
     def describe(self) -> str:
+        """Where the starts run, for the table and messages."""
         if self.address:
             return f"Dask cluster at {self.address}"
         return f"Dask LocalCluster of {self.workers} worker process{'es' if self.workers > 1 else ''}"
@@ -194,6 +199,7 @@ class DaskEngine:
         return _CLUSTERS[self.workers]
 
     def run(self, tasks: list[StartTask], on_result: OnResult, on_note: OnNote, cancelled: Cancelled) -> None:
+        """Solve the starts on the cluster, reporting results and lost workers as they come."""
         from distributed import as_completed
 
         client = self.client()

@@ -29,6 +29,7 @@ def fingerprint(scene) -> tuple:
 
 
 def plan_of(scene, cmd) -> SurveyPlan:
+    """The :class:`SurveyPlan` of a `survey` command, its amplitude evaluated on the scene."""
     from stw_tui.session.survey import DEFAULT_ITERATIONS
 
     amplitude = scene.numeric(cmd.amplitude, "amplitude") if cmd.amplitude is not None else DEFAULT_AMPLITUDE
@@ -94,6 +95,7 @@ adopt.reports_progress = True
 
 
 def set_scheduler(session: SessionLike, scene, cmd) -> Outcome:
+    """`set scheduler ADDRESS`: where later surveys send their starts."""
     from stw_tui.session.survey_engines import dask_available
 
     scene.scheduler = cmd.address

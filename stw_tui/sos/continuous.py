@@ -36,10 +36,12 @@ class ConstraintCheck:
     tol: float | None = None   # the constraint's own dense_tol (None: the scene's)
 
     def as_dict(self) -> dict:
+        """The check as JSON-ready data (for `print` and `stw run --json`)."""
         return {"instances": self.instances, "dense": self.dense, "worst_t": self.worst_t,
                 **({"dense_tol": self.tol} if self.tol is not None else {})}
 
     def fails(self, default_tol: float) -> bool:
+        """Whether the dense violation exceeds the constraint's own tolerance, or ``default_tol``."""
         return self.dense > (self.tol if self.tol is not None else default_tol)
 
 
@@ -51,10 +53,12 @@ class DenseReport:
 
     @property
     def dense_violation(self) -> float:
+        """The largest violation anywhere on the dense grid, over all checks."""
         return max((c.dense for c in self.checks.values()), default=0.0)
 
     @property
     def instance_violation(self) -> float:
+        """The largest violation at the instance times, over all checks."""
         return max((c.instances for c in self.checks.values()), default=0.0)
 
     def failing(self, tol: float) -> list[ConstraintCheck]:

@@ -166,10 +166,12 @@ def bound_times(scene, dof_name: str) -> np.ndarray:
 
 
 def bound_extra_times(scene, dof_name: str) -> np.ndarray:
+    """Times added to a DOF's bounds (by the continuous-time check or `instances X.bounds add`)."""
     return extra_times(scene, f"{dof_name}.bounds", scene.t0, scene.t1)
 
 
 def extra_times(scene, key: str, a: float, b: float) -> np.ndarray:
+    """The instances added for ``key`` (a constraint, or "X.bounds") that lie in [a, b]."""
     times = np.asarray(scene.extra_instances.get(key, ()), float)
     return times[(times >= a) & (times <= b)]
 

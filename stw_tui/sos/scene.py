@@ -53,6 +53,8 @@ class Relation:
 
 @dataclass
 class Constraint:
+    """Relations imposed at an instant or over an interval, optionally only `when` it holds."""
+
     name: str
     relations: tuple[Relation, ...]
     at: float | None = None
@@ -65,11 +67,14 @@ class Constraint:
 
     @property
     def scope_text(self) -> str:
+        """Where the constraint holds, as typed: ``@ T`` or ``on [A, B]``."""
         return f"@ {self.at:g}" if self.at is not None else f"on [{self.interval[0]:g}, {self.interval[1]:g}]"
 
 
 @dataclass
 class Objective:
+    """Expressions to minimize: squared, weighted and integrated over an interval (None: the span)."""
+
     name: str
     exprs: tuple[sp.Expr, ...]
     interval: tuple[float, float] | None = None
@@ -88,6 +93,8 @@ class Window:
 
 @dataclass
 class Scene:
+    """Everything a session has defined (DOF, constraints, objectives...) as plain data."""
+
     t0: float = 0.0
     t1: float = 1.0
     knots: int = 12
@@ -144,10 +151,12 @@ class Scene:
 
     @property
     def sample_count(self) -> int:
+        """Constraint instances per animation span: ``samples``, or twice the knot spans."""
         return self.samples if self.samples is not None else 2 * self.knots
 
     @property
     def window(self) -> Window:
+        """The active window, the one `iterate` optimizes."""
         return self.windows[self.active_window]
 
     # --- expressions -------------------------------------------------------------------------
@@ -208,6 +217,7 @@ class Scene:
         return expr
 
     def constant_values(self, names) -> np.ndarray:
+        """The values of the named constants, in the given order (a compiled term's parameters)."""
         return np.array([self.constants[n] for n in names], dtype=float)
 
     def numeric(self, expr: sp.Basic, what: str = "value") -> float:
@@ -276,6 +286,7 @@ class Scene:
 
     # --- curves ------------------------------------------------------------------------------
     def coefficient_vector(self) -> np.ndarray:
+        """All DOF control points as one vector, in DOF order (see :meth:`with_coefficients`)."""
         return np.concatenate([d.curve.coef for d in self.dofs.values()]) if self.dofs else np.zeros(0)
 
     def with_coefficients(self, vector: np.ndarray) -> None:

@@ -156,18 +156,22 @@ class DofCurve:
     # --- properties --------------------------------------------------------------------------
     @property
     def degree(self) -> int:
+        """The polynomial degree of the curve (cubic)."""
         return DEGREE
 
     @property
     def t0(self) -> float:
+        """The time the curve starts (its first knot)."""
         return float(self.knots[0])
 
     @property
     def t1(self) -> float:
+        """The time the curve ends (its last knot)."""
         return float(self.knots[-1])
 
     @property
     def n_coef(self) -> int:
+        """The number of control points."""
         return self.coef.size
 
     @property

@@ -80,6 +80,7 @@ class Condition:
     leaves: list[tuple[sp.Basic, CompiledTerm, int]] = field(default_factory=list)  # (node, term, slot offset)
 
     def evaluate(self, slot_values: np.ndarray, times: np.ndarray, scene_params) -> np.ndarray:
+        """Where the condition holds at each of the times, from the slot values of its leaves."""
         n = len(times)
         leaf_values = {}
         for node, term, offset in self.leaves:
@@ -111,6 +112,7 @@ class TermGroup:
 
     @property
     def n(self) -> int:
+        """The number of instances (rows) in the group."""
         return len(self.times)
 
 
@@ -134,6 +136,7 @@ class Evaluation:
     _gauss_newton: sps.csr_array = field(repr=False, default=None)
 
     def max_violation(self) -> float:
+        """The largest violation of a live row at ``s`` (see :meth:`WindowProblem.max_violation`)."""
         return WindowProblem.max_violation(self)
 
     def lagrangian_hessian(self, lam_eq: np.ndarray, lam_ge: np.ndarray) -> sps.csr_array:
@@ -169,6 +172,8 @@ def _triplet_structure(rows, cols, shape) -> tuple[sps.csr_array, np.ndarray] | 
 
 @dataclass(frozen=True)
 class MeritValues:
+    """Objective and constraint values without derivatives, for line searches."""
+
     objective: float
     c_eq: np.ndarray
     c_ge: np.ndarray
@@ -375,6 +380,7 @@ class WindowProblem:
     # --- evaluation --------------------------------------------------------------------------
     @property
     def n_free(self) -> int:
+        """The number of free control points (the optimizer's variables)."""
         return self.free.size
 
     def initial(self) -> np.ndarray:
@@ -560,6 +566,7 @@ class WindowProblem:
         return out
 
     def summary(self) -> str:
+        """One line saying the window's size: free control points, instances, quadrature points."""
         return (f"window '{self.window.name}': {self.n_free} free control points, "
                 f"{self.row_counts[EQ]} equality + {self.row_counts[GE]} inequality instances, "
                 f"{self.row_counts[OBJ]} quadrature points")

@@ -100,6 +100,7 @@ class LocalVar:
 
     @property
     def label(self) -> str:
+        """The quantity as the language writes it: ``x``, ``x'`` or ``x''``."""
         return self.dof + "'" * self.order
 
 
@@ -123,10 +124,12 @@ class CompiledTerm:
 
     @property
     def k(self) -> int:
+        """The number of variables (the gradient's width)."""
         return len(self.variables)
 
     @cached_property
     def dofs(self) -> frozenset[str]:
+        """The DOF the term depends on."""
         return frozenset(v.dof for v in self.variables)
 
     def _inputs(self, values: np.ndarray, times: np.ndarray, params: np.ndarray) -> np.ndarray:

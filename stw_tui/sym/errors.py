@@ -44,6 +44,7 @@ class SourceError(StwError):
         super().__init__(self.describe())
 
     def describe(self) -> str:
+        """The message with where it happened and what was expected, safe to print."""
         where = []
         if self.line is not None:
             where.append(f"line {self.line}")

@@ -22,6 +22,8 @@ Interval = tuple[sp.Expr, sp.Expr]
 
 @dataclass(frozen=True)
 class TimeCmd:
+    """`time START END [knots=N] [samples=K]`: the animation span and how densely it is sampled."""
+
     start: sp.Expr
     end: sp.Expr
     knots: int | None
@@ -31,12 +33,16 @@ class TimeCmd:
 
 @dataclass(frozen=True)
 class ConstCmd:
+    """`const NAME = VALUE[, …]`: declare constants, or change their values."""
+
     items: tuple[tuple[str, sp.Expr], ...]
     text: str = ""
 
 
 @dataclass(frozen=True)
 class DofCmd:
+    """`dof NAME[, …] [= EXPR] [knots=N] [lo=A] [hi=B]`: declare DOF curves, or refit them."""
+
     names: tuple[str, ...]
     init: sp.Expr | None
     knots: int | None
@@ -47,6 +53,8 @@ class DofCmd:
 
 @dataclass(frozen=True)
 class LetCmd:
+    """`let NAME = EXPR`: a subexpression, substituted wherever it is named."""
+
     name: str
     expr: sp.Expr
     text: str = ""
@@ -54,6 +62,8 @@ class LetCmd:
 
 @dataclass(frozen=True)
 class Relation:
+    """One relation of a `constraint` line as parsed: ``lhs - rhs`` with "eq", "ge" or "le"."""
+
     expr: sp.Expr        # lhs - rhs
     kind: str            # "eq", "ge" or "le"
     column: int
@@ -61,6 +71,8 @@ class Relation:
 
 @dataclass(frozen=True)
 class ConstraintCmd:
+    """`constraint NAME: REL[, …] (@ T | on [A, B]) [when COND] [OPTION=VALUE…]`."""
+
     name: str
     relations: tuple[Relation, ...]
     at: sp.Expr | None
@@ -74,6 +86,8 @@ class ConstraintCmd:
 
 @dataclass(frozen=True)
 class ObjectiveCmd:
+    """`objective NAME: EXPR[, …] [on [A, B]] [weight=W]`: expressions to minimize."""
+
     name: str
     exprs: tuple[sp.Expr, ...]
     interval: Interval | None
@@ -83,6 +97,8 @@ class ObjectiveCmd:
 
 @dataclass(frozen=True)
 class KeyCmd:
+    """`key T DOF=V[, …]`: a keyframe that bends DOF curves through values (not a constraint)."""
+
     time: sp.Expr
     assignments: tuple[tuple[str, sp.Expr], ...]
     text: str = ""
@@ -90,6 +106,8 @@ class KeyCmd:
 
 @dataclass(frozen=True)
 class WindowCmd:
+    """`window NAME [dofs=a,b|all] [[A, B]]`: define a spacetime window and use it."""
+
     name: str
     dofs: tuple[str, ...] | None
     interval: Interval | None
@@ -98,12 +116,16 @@ class WindowCmd:
 
 @dataclass(frozen=True)
 class UseCmd:
+    """`use NAME`: iterate on a defined window."""
+
     name: str
     text: str = ""
 
 
 @dataclass(frozen=True)
 class WeightCmd:
+    """`weight NAME W`: set the weight of a constraint or objective."""
+
     name: str
     weight: sp.Expr
     text: str = ""
@@ -111,6 +133,8 @@ class WeightCmd:
 
 @dataclass(frozen=True)
 class DampCmd:
+    """`damp DOF D`: damp the change of a DOF's control points per iteration."""
+
     dof: str
     amount: sp.Expr
     text: str = ""
@@ -118,6 +142,8 @@ class DampCmd:
 
 @dataclass(frozen=True)
 class FilterCmd:
+    """`filter DOF [PASSES]`: smooth a DOF curve's control points."""
+
     dof: str
     passes: int = 1
     text: str = ""
@@ -125,6 +151,8 @@ class FilterCmd:
 
 @dataclass(frozen=True)
 class ShakeCmd:
+    """`shake [DOF…] amplitude=A [seed=S]`: perturb control points to leave a local minimum."""
+
     dofs: tuple[str, ...]
     amplitude: sp.Expr
     seed: int | None
@@ -133,6 +161,8 @@ class ShakeCmd:
 
 @dataclass(frozen=True)
 class RefineCmd:
+    """`refine DOF [[A, B]]` or `refine DOF @ T [multiplicity=M]`: insert knots in a DOF."""
+
     dof: str
     interval: Interval | None
     text: str = ""
@@ -142,6 +172,8 @@ class RefineCmd:
 
 @dataclass(frozen=True)
 class BackendCmd:
+    """`backend NAME [OPTION=VALUE…]`: choose the solver backend and its options."""
+
     name: str
     options: tuple[tuple[str, str], ...]
     text: str = ""
@@ -149,6 +181,8 @@ class BackendCmd:
 
 @dataclass(frozen=True)
 class SetCmd:
+    """`set OPTION VALUE` (or `set limit NAME VALUE`): change a setting or a limit."""
+
     option: str
     value: str
     text: str = ""
@@ -156,6 +190,8 @@ class SetCmd:
 
 @dataclass(frozen=True)
 class InstancesCmd:
+    """`instances NAME add T[, …]` or `instances NAME clear`: instances added by hand."""
+
     name: str                       # a constraint, or "DOF.bounds"
     action: str                     # "add" or "clear"
     times: tuple[sp.Expr, ...] = ()
@@ -164,6 +200,8 @@ class InstancesCmd:
 
 @dataclass(frozen=True)
 class IterateCmd:
+    """`iterate [N] [adapt=R]`: run up to N SQP iterations on the current window."""
+
     n: int = 1
     text: str = ""
     adapt: int | None = None        # at most this many adaptive re-solves (None: the settings')
@@ -171,6 +209,8 @@ class IterateCmd:
 
 @dataclass(frozen=True)
 class HoldCmd:
+    """`hold P at POINT on [A, B] [weight=W]`: an object carried by a linkage point."""
+
     point: str                      # the held object: DOF PX, PY (, PZ) for point P
     at: str                         # a linkage point, e.g. arm.tip (arm.tip.x, arm.tip.y, …)
     interval: Interval
@@ -180,6 +220,8 @@ class HoldCmd:
 
 @dataclass(frozen=True)
 class BallisticCmd:
+    """`ballistic P on [A, B]`: free flight of the object P under gravity."""
+
     point: str
     interval: Interval
     text: str = ""
@@ -187,6 +229,8 @@ class BallisticCmd:
 
 @dataclass(frozen=True)
 class ContactCmd:
+    """`contact POINT on ground [y=H] on [A, B] [friction=MU] [x=X0]`: a point on the ground."""
+
     point: str                      # a linkage point, e.g. acro.FOOT
     height: sp.Expr | None          # the ground's height (None: 0)
     interval: Interval
@@ -197,6 +241,8 @@ class ContactCmd:
 
 @dataclass(frozen=True)
 class FlightCmd:
+    """`flight LINKAGE on [A, B]`: nothing outside acts on the creature."""
+
     linkage: str
     interval: Interval
     text: str = ""
@@ -204,6 +250,8 @@ class FlightCmd:
 
 @dataclass(frozen=True)
 class LimitCmd:
+    """`limit DOF A B`: a range for a DOF (a joint's limits)."""
+
     dof: str
     lo: sp.Expr
     hi: sp.Expr
@@ -212,6 +260,8 @@ class LimitCmd:
 
 @dataclass(frozen=True)
 class SlideCmd:
+    """`slide WINDOW by DT [to T] [iterate N]`: solve a window moved step by step along time."""
+
     window: str
     by: sp.Expr                     # how far the window moves each time
     to: sp.Expr | None              # where its end stops (None: the end of the animation)
@@ -221,12 +271,16 @@ class SlideCmd:
 
 @dataclass(frozen=True)
 class DeleteCmd:
+    """`delete NAME`: delete a definition that nothing else uses."""
+
     name: str
     text: str = ""
 
 
 @dataclass(frozen=True)
 class PrintCmd:
+    """`print EXPR [@ T | on [A, B]]` or `print CONSTRAINT`: a value, a summary or a check."""
+
     expr: sp.Expr | None            # None: `print NAME` of a constraint (its continuous-time check)
     at: sp.Expr | None
     expr_text: str
@@ -237,6 +291,8 @@ class PrintCmd:
 
 @dataclass(frozen=True)
 class HelpCmd:
+    """`help [COMMAND]`: list the commands, or document one."""
+
     topic: str | None
     text: str = ""
 
@@ -272,17 +328,20 @@ class CommandParser(ExpressionParser):
 
     # --- small pieces ------------------------------------------------------------------------
     def name(self, what: str = "a name") -> Token:
+        """The next token as a name; ``what`` says what was expected if it is not one."""
         if self.token.kind != NAME:
             raise self.unexpected(what)
         return self.advance()
 
     def new_name(self, what: str) -> str:
+        """A name for a new definition: not reserved, without a dot."""
         token = self.name(what)
         if token.text in RESERVED or "." in token.text:
             raise self.error(f"'{token.text}' cannot be used as a name", token, expected=what)
         return token.text
 
     def dof_name(self) -> str:
+        """The name of a declared DOF."""
         token = self.name("a DOF name")
         if self.scope.kind_of(token.text) is not NameKind.DOF:
             raise self.error(f"'{token.text}' is not a DOF", token, expected="a DOF name")
@@ -315,6 +374,7 @@ class CommandParser(ExpressionParser):
             return self.expression()
 
     def interval(self) -> Interval:
+        """An interval ``[A, B]`` of number expressions."""
         self.expect_op("[", "'['")
         a = self.number_expr()
         self.expect_op(",", "',' between the interval's ends")
@@ -323,6 +383,7 @@ class CommandParser(ExpressionParser):
         return a, b
 
     def finish(self) -> None:
+        """Refuse anything left on the line after a complete command."""
         if self.token.kind != END:
             raise self.unexpected("end of line")
 
@@ -342,6 +403,7 @@ class CommandParser(ExpressionParser):
 
     # --- commands ----------------------------------------------------------------------------
     def parse(self):
+        """The line as a command dataclass, or None when it is blank or only a comment."""
         if self.token.kind == END:
             return None
         word = self.token
@@ -356,12 +418,14 @@ class CommandParser(ExpressionParser):
         return command
 
     def p_time(self):
+        """`time START END [knots=N] [samples=K]`."""
         start = self.number_expr()
         end = self.number_expr()
         opts = self.options({"knots": "int", "samples": "int"})
         return TimeCmd(start, end, opts.get("knots"), opts.get("samples"), self.text)
 
     def p_const(self):
+        """`const NAME = VALUE[, NAME = VALUE…]`; later values may use earlier names."""
         items: dict[str, sp.Expr] = {}
         outer = self.scope
         earlier = DictScope({}, parent=outer)   # the items so far, which later ones may use
@@ -388,6 +452,7 @@ class CommandParser(ExpressionParser):
         return ConstCmd(tuple(items.items()), self.text)
 
     def p_dof(self):
+        """`dof NAME[, NAME…] [= EXPR] [knots=N] [lo=A] [hi=B]`."""
         names = [self.new_name("a DOF name")]
         while self.token.is_op(","):
             self.advance()
@@ -405,6 +470,7 @@ class CommandParser(ExpressionParser):
         return DofCmd(tuple(names), init, opts.get("knots"), opts.get("lo"), opts.get("hi"), self.text)
 
     def p_let(self):
+        """`let NAME = EXPR`."""
         name = self.new_name("a subexpression name")
         self.expect_op("=", "'='")
         return LetCmd(name, self.expression(), self.text)
@@ -420,6 +486,7 @@ class CommandParser(ExpressionParser):
         return at, interval
 
     def p_constraint(self):
+        """`constraint NAME: REL[, REL…] (@ T | on [A, B]) [when COND] [OPTION=VALUE…]`."""
         name = self.new_name("a constraint name")
         self.expect_op(":", "':' after the constraint name")
         relations = [self._relation()]
@@ -448,6 +515,7 @@ class CommandParser(ExpressionParser):
         return Relation(left - right, kind, column)
 
     def p_objective(self):
+        """`objective NAME: EXPR[, EXPR…] [on [A, B]] [weight=W]`."""
         name = self.new_name("an objective name")
         self.expect_op(":", "':' after the objective name")
         exprs = [self.expression()]
@@ -462,6 +530,7 @@ class CommandParser(ExpressionParser):
         return ObjectiveCmd(name, tuple(exprs), interval, weight, self.text)
 
     def p_key(self):
+        """`key T DOF=V[, DOF=V…]`."""
         time = self.number_expr()
         assignments = []
         while self.token.kind == NAME:
@@ -477,6 +546,7 @@ class CommandParser(ExpressionParser):
         return KeyCmd(time, tuple(assignments), self.text)
 
     def p_window(self):
+        """`window NAME [dofs=a,b|all] [[A, B]]`."""
         name = self.new_name("a window name") if not self.token.is_word("all") else self.advance().text
         dofs: tuple[str, ...] | None = None
         if self.token.is_word("dofs"):
@@ -494,21 +564,26 @@ class CommandParser(ExpressionParser):
         return WindowCmd(name, dofs, interval, self.text)
 
     def p_use(self):
+        """`use NAME`."""
         return UseCmd(self.name("a window name").text, self.text)
 
     def p_weight(self):
+        """`weight NAME W`."""
         return WeightCmd(self.name("a constraint or objective name").text, self.number_expr(), self.text)
 
     def p_damp(self):
+        """`damp DOF D`."""
         return DampCmd(self.dof_name(), self.number_expr(), self.text)
 
     def p_filter(self):
+        """`filter DOF [PASSES]`."""
         dof = self.dof_name()
         passes = self.integer("a number of passes", limit_name="filter_passes") \
             if self.token.kind == NUMBER else 1
         return FilterCmd(dof, passes, self.text)
 
     def p_shake(self):
+        """`shake [DOF…] amplitude=A [seed=S]`."""
         names = []
         while self.token.kind == NAME and self.token.text not in ("amplitude", "seed"):
             names.append(self.dof_name())
@@ -520,6 +595,7 @@ class CommandParser(ExpressionParser):
         return ShakeCmd(tuple(names), opts["amplitude"], opts.get("seed"), self.text)
 
     def p_refine(self):
+        """`refine DOF [[A, B]]` or `refine DOF @ T [multiplicity=M]`."""
         dof = self.dof_name()
         if self.token.is_op("@"):
             self.advance()
@@ -530,6 +606,7 @@ class CommandParser(ExpressionParser):
         return RefineCmd(dof, interval, self.text)
 
     def p_backend(self):
+        """`backend NAME [OPTION=VALUE…]`; a value is a name or a signed number."""
         name = self.name("a backend name").text
         options = []
         while self.token.kind == NAME:
@@ -548,6 +625,7 @@ class CommandParser(ExpressionParser):
         return BackendCmd(name, tuple(options), self.text)
 
     def p_set(self):
+        """`set OPTION VALUE`, and `set limit NAME VALUE`."""
         option = self.name("a setting name").text
         if option == "limit":
             return self._set_limit()
@@ -576,12 +654,14 @@ class CommandParser(ExpressionParser):
         return SetCmd("limit", f"{name.text} {value}", self.text)
 
     def p_iterate(self):
+        """`iterate [N] [adapt=R]`."""
         n = self.integer("a number of iterations", limit_name="iterations") \
             if self.token.kind == NUMBER else 1
         opts = self.options({"adapt": "int"})
         return IterateCmd(n, self.text, opts.get("adapt"))
 
     def p_hold(self):
+        """`hold P at POINT on [A, B] [weight=W]`."""
         point = self.new_name("the held object (P for DOF PX, PY)")
         if not self.token.is_word("at"):
             raise self.unexpected("'at POINT' (a linkage point such as arm.tip)")
@@ -595,6 +675,7 @@ class CommandParser(ExpressionParser):
         return HoldCmd(point, at, interval, opts.get("weight"), self.text)
 
     def p_ballistic(self):
+        """`ballistic P on [A, B]`."""
         point = self.new_name("the flying object (P for DOF PX, PY)")
         if not self.token.is_word("on"):
             raise self.unexpected("'on [A, B]'")
@@ -602,6 +683,7 @@ class CommandParser(ExpressionParser):
         return BallisticCmd(point, self.interval(), self.text)
 
     def p_contact(self):
+        """`contact POINT on ground [y=H] on [A, B] [friction=MU] [x=X0]`."""
         point = self.name("a linkage point such as acro.FOOT").text
         for word, expected in (("on", "'on ground'"), ("ground", "'ground' (the surface y = H)")):
             if not self.token.is_word(word):
@@ -616,6 +698,7 @@ class CommandParser(ExpressionParser):
         return ContactCmd(point, height, interval, opts.get("friction"), opts.get("x"), self.text)
 
     def p_flight(self):
+        """`flight LINKAGE on [A, B]`."""
         linkage = self.name("a linkage name").text
         if not self.token.is_word("on"):
             raise self.unexpected("'on [A, B]'")
@@ -623,12 +706,14 @@ class CommandParser(ExpressionParser):
         return FlightCmd(linkage, self.interval(), self.text)
 
     def p_limit(self):
+        """`limit DOF A B`."""
         dof = self.dof_name()
         lo = self.number_expr()
         hi = self.number_expr()
         return LimitCmd(dof, lo, hi, self.text)
 
     def p_slide(self):
+        """`slide WINDOW by DT [to T] [iterate N]`."""
         window = self.name("a window name").text
         if not self.token.is_word("by"):
             raise self.unexpected("'by DT'")
@@ -645,6 +730,7 @@ class CommandParser(ExpressionParser):
         return SlideCmd(window, by, to, n, self.text)
 
     def p_instances(self):
+        """`instances NAME add T[, T…]` or `instances NAME clear`."""
         name = self.name("a constraint name (or DOF.bounds)").text
         action = self.token
         if not (action.is_word("add") or action.is_word("clear")):
@@ -659,9 +745,11 @@ class CommandParser(ExpressionParser):
         return InstancesCmd(name, action.text, tuple(times), self.text)
 
     def p_delete(self):
+        """`delete NAME`."""
         return DeleteCmd(self.name("the name of something to delete").text, self.text)
 
     def p_print(self):
+        """`print EXPR [@ T | on [A, B]]`, or `print NAME` of a constraint (its check)."""
         first = self.token
         if (first.kind == NAME and self.scope.kind_of(first.text) is None
                 and ("." not in first.text or first.text.endswith(".bounds"))
@@ -676,10 +764,12 @@ class CommandParser(ExpressionParser):
         return PrintCmd(expr, at, expr_text, self.text, interval, start)
 
     def p_help(self):
+        """`help [COMMAND]`."""
         topic = self.advance().text if self.token.kind == NAME else None
         return HelpCmd(topic, self.text)
 
     def p_linkage(self):
+        """Refuse `linkage` as one line: the session reads the block over several lines."""
         raise self.error("a `linkage` block spans several lines; it is read by the session, "
                          "not as a single command")
 

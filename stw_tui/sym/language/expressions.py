@@ -38,6 +38,8 @@ from stw_tui.sym.symbols import TIME, dof_symbol, named_symbol
 
 
 class NameKind(enum.Enum):
+    """What a name in an expression stands for; the value is what messages call it."""
+
     DOF = "DOF"
     CONST = "constant"
     LET = "subexpression"
@@ -47,7 +49,8 @@ class Scope(Protocol):
     """What the parser asks of the world: the kind of a name, None if unknown. A scope may also
     offer ``names() -> list[str]``, used only to suggest close matches."""
 
-    def kind_of(self, name: str) -> NameKind | None: ...
+    def kind_of(self, name: str) -> NameKind | None:
+        """The kind of ``name``, or None if it is not defined."""
 
 
 class DictScope:
@@ -134,25 +137,30 @@ class ExpressionParser:
     # --- token helpers -----------------------------------------------------------------------
     @property
     def token(self) -> Token:
+        """The current token, not consumed."""
         return self.tokens[self.pos]
 
     def advance(self) -> Token:
+        """Consume the current token and return it (the end of line is never passed)."""
         token = self.tokens[self.pos]
         if token.kind != END:
             self.pos += 1
         return token
 
     def error(self, message: str, token: Token | None = None, expected: str | None = None) -> SourceError:
+        """A SourceError at ``token`` (default: the current one), for the caller to raise."""
         token = token or self.token
         return SourceError(message, line=self.line, column=token.column, source=self.source,
                            expected=expected)
 
     def unexpected(self, expected: str) -> SourceError:
+        """A SourceError for the current token, saying what was ``expected`` instead."""
         t = self.token
         what = "end of line" if t.kind == END else repr(t.text)
         return self.error(f"unexpected {what}", expected=expected)
 
     def expect_op(self, op: str, expected: str | None = None) -> Token:
+        """Consume the operator ``op``, or raise an error saying it was expected."""
         if not self.token.is_op(op):
             if op in (")", "]") and self.token.kind == END:
                 raise self.error(f"missing '{op}'", expected=expected or f"'{op}'")
@@ -204,6 +212,7 @@ class ExpressionParser:
 
     # --- expressions -------------------------------------------------------------------------
     def expression(self) -> sp.Expr:
+        """Parse an arithmetic expression (``sum`` in the grammar) into sympy."""
         return self._sum()
 
     def _sum(self) -> sp.Expr:
@@ -363,6 +372,7 @@ class ExpressionParser:
 
     # --- conditions --------------------------------------------------------------------------
     def condition(self) -> sp.Basic:
+        """Parse a condition (comparisons joined by and, or, not) into a sympy boolean."""
         left = self._conjunction()
         while self.token.is_word("or"):
             self.advance()

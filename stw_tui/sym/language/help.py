@@ -12,6 +12,8 @@ from stw_tui.sym.language.expressions import FUNCTIONS
 
 @dataclass(frozen=True)
 class CommandHelp:
+    """One command's help: its synopsis, what it does, and an example."""
+
     synopsis: str
     summary: str
     example: str

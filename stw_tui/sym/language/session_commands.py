@@ -27,39 +27,53 @@ MAX_FPS = 10_000
 
 @dataclass(frozen=True)
 class UndoCmd:
+    """`undo`: take back the last command that changed the scene."""
+
     text: str = ""
 
 
 @dataclass(frozen=True)
 class RedoCmd:
+    """`redo`: do again what `undo` took back."""
+
     text: str = ""
 
 
 @dataclass(frozen=True)
 class SnapshotCmd:
+    """`snapshot NAME`: keep the scene as it is now under NAME."""
+
     name: str
     text: str = ""
 
 
 @dataclass(frozen=True)
 class RestoreCmd:
+    """`restore NAME`: make the scene what it was at `snapshot NAME`."""
+
     name: str
     text: str = ""
 
 
 @dataclass(frozen=True)
 class SnapshotsCmd:
+    """`snapshots`: list the snapshots with their objective and violation."""
+
     text: str = ""
 
 
 @dataclass(frozen=True)
 class DiffCmd:
+    """`diff NAME`: compare the scene with snapshot NAME."""
+
     name: str
     text: str = ""
 
 
 @dataclass(frozen=True)
 class ExportCmd:
+    """`export csv|json|bvh FILE [fps=N] [what=NAME,…]`: write the sampled motion to a file."""
+
     format: str          # one of EXPORT_FORMATS
     path: str
     fps: int = 30
@@ -69,6 +83,8 @@ class ExportCmd:
 
 @dataclass(frozen=True)
 class SaveCmd:
+    """`save FILE`: write the session so far as a replayable .stw file."""
+
     path: str
     text: str = ""
 

@@ -24,6 +24,8 @@ SURVEY_OPTIONS = ("seed", "from", "amplitude", "window", "workers", "iterate")
 
 @dataclass(frozen=True)
 class SurveyCmd:
+    """`survey N [OPTION=VALUE…]`: solve N starts made from the scene and rank their optima."""
+
     n: int
     seed: int = 0
     source: str = "shake"
@@ -36,12 +38,16 @@ class SurveyCmd:
 
 @dataclass(frozen=True)
 class AdoptCmd:
+    """`adopt K`: make optimum K of the last survey the scene."""
+
     rank: int
     text: str = ""
 
 
 @dataclass(frozen=True)
 class SchedulerCmd:
+    """`set scheduler ADDRESS`: where `survey` sends its starts."""
+
     address: str           # a Dask scheduler; "pool", "serial"; or "" (local: Dask's LocalCluster, else a pool)
     text: str = ""
 
@@ -87,6 +93,7 @@ def _option_value(p, key: str):
 
 
 def p_adopt(p) -> AdoptCmd:
+    """`adopt K`, with K a rank of the last survey (from 1)."""
     token = p.token
     rank = p.integer("the rank of an optimum of the last survey", MAX_STARTS)
     if rank < 1:

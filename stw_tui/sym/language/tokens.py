@@ -20,14 +20,18 @@ _TOKEN = re.compile(r"""
 
 @dataclass(frozen=True)
 class Token:
+    """One token of a line: its kind (number, name, op or end), its text and its 1-based column."""
+
     kind: str
     text: str
     column: int  # 1-based
 
     def is_op(self, *ops: str) -> bool:
+        """Whether this is one of the operators ``ops``."""
         return self.kind == OP and self.text in ops
 
     def is_word(self, *words: str) -> bool:
+        """Whether this is a name and one of ``words`` (keywords such as ``on``, ``when``)."""
         return self.kind == NAME and self.text in words
 
 

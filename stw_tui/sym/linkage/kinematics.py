@@ -52,10 +52,12 @@ SYMENGINE = Lib("symengine", se.Integer(0), se.Integer(1), se.cos, se.sin, se.In
 
 
 def zero_vec(lib: Lib = SYMPY) -> Vec:
+    """The zero 3-vector in ``lib``'s numbers."""
     return (lib.zero, lib.zero, lib.zero)
 
 
 def identity(lib: Lib = SYMPY) -> Mat:
+    """The 3x3 identity matrix in ``lib``'s numbers."""
     o, z = lib.one, lib.zero
     return ((o, z, z), (z, o, z), (z, z, o))
 
@@ -136,12 +138,15 @@ class Step:
 
 @dataclass(frozen=True)
 class Chain:
+    """A linkage lowered to elementary steps, with the frames where joints sit and links attach."""
+
     steps: tuple[Step, ...]
     joint_frames: tuple[int, ...]  # index (into frames 0..len(steps)) where joint i sits
     link_frames: tuple[int, ...]  # index of the frame link i is attached to (DH frame i)
 
 
 def chain(spec: LinkageSpec) -> Chain:
+    """Lower a linkage to its elementary steps: the base axes, then each DH row's nonzero steps."""
     steps: list[Step] = [Step(b.kind, b.index, 0.0, b.dof) for b in spec.base]
     joint_frames, link_frames = [], []
     for j in spec.joints:
@@ -164,6 +169,7 @@ def chain(spec: LinkageSpec) -> Chain:
 
 
 def add(*vs: Vec) -> Vec:
+    """The sum of 3-vectors."""
     return tuple(reduce(_plus, (v[i] for v in vs)) for i in range(3))
 
 
@@ -182,23 +188,28 @@ def mul(a, b):
 
 
 def neg(a):
+    """``-a``, distributed over a symengine sum as sympy does (see :func:`mul`)."""
     return se.Add(*(-t for t in a.args)) if isinstance(a, se.Add) else -a
 
 
 def scale(k, v: Vec) -> Vec:
+    """``k v`` for a 3-vector ``v``."""
     return (mul(k, v[0]), mul(k, v[1]), mul(k, v[2]))
 
 
 def dot(u: Vec, v: Vec):
+    """The dot product of two 3-vectors."""
     return mul(u[0], v[0]) + mul(u[1], v[1]) + mul(u[2], v[2])
 
 
 def cross(u: Vec, v: Vec) -> Vec:
+    """The cross product ``u × v`` of two 3-vectors."""
     return (mul(u[1], v[2]) + neg(mul(u[2], v[1])), mul(u[2], v[0]) + neg(mul(u[0], v[2])),
             mul(u[0], v[1]) + neg(mul(u[1], v[0])))
 
 
 def matvec(m: Mat, v: Vec) -> Vec:
+    """``m v`` for a 3x3 matrix and a 3-vector."""
     return tuple(dot(row, v) for row in m)
 
 
@@ -208,10 +219,12 @@ def tmatvec(m: Mat, v: Vec) -> Vec:
 
 
 def matmul(a: Mat, b: Mat) -> Mat:
+    """``a b`` for two 3x3 matrices."""
     return tuple(tuple(dot(a[r], (b[0][c], b[1][c], b[2][c])) for c in range(3)) for r in range(3))
 
 
 def unit(axis: int, lib: Lib = SYMPY) -> Vec:
+    """The unit vector along ``axis`` (0, 1, 2: x, y, z)."""
     return tuple(lib.one if i == axis else lib.zero for i in range(3))
 
 
@@ -243,6 +256,7 @@ def step_transform(step: Step, lib: Lib = SYMPY) -> tuple[Mat, Vec]:
 
 
 def gravity_vector(spec: LinkageSpec, lib: Lib = SYMPY) -> Vec:
+    """Gravity's acceleration in world coordinates: g along the spec's signed axis (zero for none)."""
     if spec.gravity_axis is None:
         return zero_vec(lib)
     g = lib.symbol(named_symbol("g").name)
@@ -278,6 +292,7 @@ def link_com_world(spec: LinkageSpec, frames, ch: Chain, lib: Lib = SYMPY) -> li
 
 
 def link_inertia_sym(joint, lib: Lib = SYMPY) -> Mat:
+    """A link's inertia tensor (:func:`link_inertia`) in ``lib``'s numbers."""
     return tuple(tuple(num(c, lib) for c in row) for row in link_inertia(joint))
 
 

@@ -82,15 +82,19 @@ class BaseAxis:
 
     @property
     def kind(self) -> str:
+        """``prismatic`` for a translation (``t…``), ``revolute`` for a rotation (``r…``)."""
         return "prismatic" if self.axis[0] == "t" else "revolute"
 
     @property
     def index(self) -> int:
+        """The axis moved along or about: 0, 1, 2 for x, y, z."""
         return "xyz".index(self.axis[1])
 
 
 @dataclass(frozen=True)
 class LinkageSpec:
+    """A parsed `linkage` block: its joints, base axes, gravity and centroidal DOF."""
+
     name: str
     joints: tuple[JointSpec, ...]
     base: tuple[BaseAxis, ...] = ()
