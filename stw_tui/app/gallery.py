@@ -91,6 +91,7 @@ class GalleryScreen(ModalScreen[None]):
 
     @property
     def selected(self) -> int | None:
+        """The rank (from 1) of the optimum under the cursor; None while the table is empty."""
         grid = self.query_one(DataTable)
         if not grid.row_count:
             return None

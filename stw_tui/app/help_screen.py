@@ -46,6 +46,7 @@ class SearchField(Input):
     """The search field: it lets the screen have q (close) while it is empty."""
 
     def check_consume_key(self, key: str, character: str | None) -> bool:
+        """Let q through to the screen (close) while the field is empty."""
         if key == "q" and not self.value:
             return False
         return super().check_consume_key(key, character)
@@ -59,6 +60,7 @@ class HelpSection:
     body: str
 
     def matches(self, query: str) -> bool:
+        """Whether ``query`` occurs in the title or the body, ignoring case."""
         query = query.lower()
         return query in self.title.lower() or query in self.body.lower()
 
@@ -155,6 +157,7 @@ class HelpScreen(Screen[None]):
 
     @property
     def query_text(self) -> str:
+        """What the search field holds, without surrounding blanks."""
         return self.query_one("#help-search", Input).value.strip()
 
     def show_matches(self, query: str) -> list[HelpSection]:

@@ -74,6 +74,7 @@ class ScenePanel(DataTable):
             self.move_cursor(row=min(row, self.row_count - 1))
 
     def table_rows(self, scene: "Scene", info: SceneInfo) -> Iterable[tuple[str, tuple]]:
+        """(row key, cells) of every row the panel shows for ``scene``."""
         raise NotImplementedError
 
     @property
@@ -84,6 +85,7 @@ class ScenePanel(DataTable):
         return self.coordinate_to_cell_key(self.cursor_coordinate).row_key.value
 
     def emit(self, line: str) -> None:
+        """Ask the app to run ``line`` as if typed in the console (journalled, undoable)."""
         self.post_message(CommandRequested(line))
 
     def ask(self, title: str, value: str, build: Callable[[str], str | None]) -> None:
@@ -124,13 +126,16 @@ class SettingsPanel(ScenePanel):
     COLUMNS = ("setting", "value", "")
 
     def settings(self, scene: "Scene", info: SceneInfo) -> list[SettingRow]:
+        """The panel's rows for ``scene``: what each shows and the command an edit runs."""
         raise NotImplementedError
 
     def table_rows(self, scene, info):
+        """One row per setting: label, value and help."""
         self._settings_by_key = {row.key: row for row in self.settings(scene, info)}
         return [(row.key, (row.label, row.value, row.help)) for row in self._settings_by_key.values()]
 
     def activate(self, key: str) -> None:
+        """Edit the setting under the cursor through a dialog, unless it is read-only."""
         row = self._settings_by_key[key]
         if row.build is None:
             self.app.notify(f"{row.label} is read-only here", severity="warning")

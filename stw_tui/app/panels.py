@@ -35,6 +35,7 @@ class DofPanel(ScenePanel):
     ]
 
     def table_rows(self, scene: "Scene", info: SceneInfo):
+        """One row per DOF: in the window or not, bounds, spans, control points, damping, keys."""
         window = scene.window
         for name, dof in scene.dofs.items():
             inside = window.dofs is None or name in window.dofs
@@ -42,6 +43,7 @@ class DofPanel(ScenePanel):
                          str(dof.curve.n_coef), show(dof.damp), str(len(dof.keys)))
 
     def activate(self, key: str) -> None:
+        """Choose the DOF for the curve plot."""
         self.post_message(ItemChosen("dof", key))
 
     def action_include(self) -> None:
@@ -112,6 +114,7 @@ class EquationsPanel(ScenePanel):
     ]
 
     def table_rows(self, scene: "Scene", info: SceneInfo):
+        """Constraints and objectives, a verb's parts grouped under a heading row for the verb."""
         shown: set[str] = set()
         for name in [*scene.constraints, *scene.objectives]:
             if name in shown:
@@ -157,6 +160,7 @@ class EquationsPanel(ScenePanel):
         return Text(group, style="bold"), Text(line.split()[0], style="bold"), "", scope, worst, line
 
     def activate(self, key: str) -> None:
+        """Enter on a verb shows its expansion; on a constraint or objective, plots its values."""
         if key.startswith(VERB_KEY):     # a verb: its line and expansion, in the console
             self.emit(f"show {key[len(VERB_KEY):]}")
         else:
@@ -197,6 +201,7 @@ class ConstantsPanel(SettingsPanel):
     BINDINGS = [Binding("n", "new", "New constant")]
 
     def settings(self, scene: "Scene", info: SceneInfo) -> list[SettingRow]:
+        """One editable row per constant (`const NAME = VALUE`)."""
         return [SettingRow(name, name, num(value), lambda v, n=name: f"const {n} = {v}")
                 for name, value in scene.constants.items()]
 
@@ -211,12 +216,14 @@ class WindowsPanel(ScenePanel):
     BINDINGS = [Binding("n", "new", "New window")]
 
     def table_rows(self, scene: "Scene", info: SceneInfo):
+        """One row per window: in use or not, its name, its DOF and its interval."""
         for w in scene.windows.values():
             interval = f"[{w.interval[0]:g}, {w.interval[1]:g}]" if w.interval else "span"
             yield w.name, ("▶" if w.name == scene.active_window else "", w.name,
                            ",".join(w.dofs) if w.dofs else "all", interval)
 
     def activate(self, key: str) -> None:
+        """Make the window under the cursor the active one (`use NAME`)."""
         self.emit(f"use {key}")
 
     def action_new(self) -> None:
@@ -232,6 +239,7 @@ class TimePanel(SettingsPanel):
     """Span, knot spans, constraint samples, frame time, quadrature."""
 
     def settings(self, scene: "Scene", info: SceneInfo) -> list[SettingRow]:
+        """Span, knot spans, samples, frame time and quadrature, each editable."""
         span = f"{num(scene.t0)} {num(scene.t1)}"
         return [
             SettingRow("span", "span", span, lambda v: f"time {v}", "start end"),
@@ -260,6 +268,7 @@ class OptimizationPanel(SettingsPanel):
         self.iterations = 10    # what F5 / i runs
 
     def settings(self, scene: "Scene", info: SceneInfo) -> list[SettingRow]:
+        """The backend, its declared options, iterations per run, merit weight and tolerances."""
         rows = [SettingRow("backend", "backend", scene.backend, lambda v: f"backend {v}", "name")]
         for opt in info.backend_options:
             value = scene.backend_options.get(opt.name, opt.default)
