@@ -113,7 +113,10 @@ class StwApp(App[int]):
         self._views_shown = 0.0
         self._views_timer = None
         self._stale: set[str] = set()     # ids of views in hidden tabs that missed a refresh
-        self._live: "Scene | None" = None  # a copy of the scene with a running solve's coefficients
+        # What the views show: the worker's copy of the scene after the last command (the
+        # session's own scene belongs to the worker), and a running solve's control points.
+        self._shown: "Scene | None" = None
+        self._coefficients = None
 
     def compose(self) -> ComposeResult:
         with Horizontal(id="main"):
@@ -268,20 +271,18 @@ class StwApp(App[int]):
     def show_iteration(self, coefficients) -> None:
         """Redraw the curves, expression values and figure from the running solve's coefficients.
 
-        They are drawn from a copy of the scene: the session's scene belongs to the worker.
+        The plots compute them in the background, over the scene of the last command with these
+        control points (plot_data.live_scene).
         """
-        try:
-            live = self.session.scene.copy()
-            live.with_coefficients(coefficients)
-        except Exception:  # a redraw while solving is best effort
+        if self._shown is None:
             return
-        self._live = live
+        self._coefficients = coefficients
         tabs = self.query_one("#plots", TabbedContent)
         for pane in tabs.query(TabPane):
             for widget in pane.query(".scene-view"):
                 if isinstance(widget, self.LIVE_PLOTS):
                     if pane.id == tabs.active:
-                        widget.set_scene(live)
+                        widget.set_scene(self._shown, coefficients=coefficients)
                     else:
                         self._stale.add(widget.id)
 
@@ -317,7 +318,7 @@ class StwApp(App[int]):
         figure = self.query_one(FigurePlot)
         self._stale.discard(figure.id)   # showing its tab must not put the scene back over the preview
         self.query_one("#plots", TabbedContent).active = "tab-figure"
-        preview = preview_scene(self.session.scene, best)
+        preview = preview_scene(self._shown, best)
         figure.set_scene(preview)
         figure.t = preview.t0
         if not figure.playing:
@@ -347,8 +348,10 @@ class StwApp(App[int]):
                 self.script.running = False
                 self.repl.write_note(f"replay halted: the solve at line {job.number} was stopped "
                                      "before it ended; F6 runs the next line, F7 the rest")
-        self._live = None
-        if self.session is None:   # the core failed to load
+        self._coefficients = None
+        if event.scene is not None:
+            self._shown = event.scene
+        if self.session is None or self._shown is None:   # the core failed to load
             self.runner.finished()
             self._show_state()
             return
@@ -389,7 +392,7 @@ class StwApp(App[int]):
     def _show_views(self) -> None:
         self._views_timer = None
         self._views_shown = time.monotonic()
-        scene = self.session.scene
+        scene = self._shown
         for tabs in self.query(TabbedContent):
             for pane in tabs.query(TabPane):
                 # Hidden tabs are brought up to date when shown: rebuilding them all costs layout.
@@ -403,10 +406,12 @@ class StwApp(App[int]):
 
     def on_tabbed_content_tab_activated(self, event: TabbedContent.TabActivated) -> None:
         for widget in event.pane.query(".scene-view"):
-            if widget.id in self._stale and self.session is not None:
+            if widget.id in self._stale and self._shown is not None:
                 self._stale.discard(widget.id)
-                live = self._live is not None and isinstance(widget, self.LIVE_PLOTS)
-                widget.set_scene(self._live if live else self.session.scene, self._info)
+                if isinstance(widget, self.LIVE_PLOTS):
+                    widget.set_scene(self._shown, self._info, coefficients=self._coefficients)
+                else:
+                    widget.set_scene(self._shown, self._info)
 
     def on_item_chosen(self, event: ItemChosen) -> None:
         if event.kind == "dof":
@@ -416,7 +421,7 @@ class StwApp(App[int]):
             plot, tab = self.query_one(ExpressionPlot), "tab-expr"
             plot.name_shown = event.name
         self.query_one("#plots", TabbedContent).active = tab
-        plot.request_draw()
+        plot.request_data()
 
     # --- focus and keys ----------------------------------------------------------------------
     def on_descendant_focus(self, event: events.DescendantFocus) -> None:

@@ -10,6 +10,7 @@ from textual.message import Message
 
 if TYPE_CHECKING:
     from ..backend import StepReport
+    from ..scene import Scene
     from .runner import Job
     from .values import SceneInfo
 
@@ -53,12 +54,14 @@ class CommandStarted(Message):
 
 @dataclass
 class CommandFinished(Message):
-    """The worker finished a command, successfully (outcome) or not (error); info describes the scene."""
+    """The worker finished a command, successfully (outcome) or not (error); info describes the
+    scene, and ``scene`` is a copy of it that the views may read while the worker goes on."""
 
     job: "Job"
     outcome: Any
     error: BaseException | None
     info: "SceneInfo"
+    scene: "Scene | None" = None
 
 
 @dataclass
@@ -86,3 +89,16 @@ class SurveyProgressed(Message):
 
     def can_replace(self, message: Message) -> bool:
         return isinstance(message, SurveyProgressed)
+
+
+@dataclass
+class PlotDataComputed(Message):
+    """A plot's data came back from its background computation (posted to that plot); later
+    ones replace unhandled earlier ones. ``sequence`` orders them (see background.LatestOnly)."""
+
+    sequence: int
+    data: Any
+    error: BaseException | None
+
+    def can_replace(self, message: Message) -> bool:
+        return isinstance(message, PlotDataComputed)
