@@ -417,6 +417,25 @@ def test_views_never_compile_or_evaluate_on_the_ui_thread(monkeypatch):
     assert {"Scene.evaluate", "DofCurve.evaluate", "scene_figure"} <= views, elsewhere   # the watch works
 
 
+def test_keys_typed_fast_in_a_plot_all_reach_the_console_in_order():
+    """Keys that arrive before the focus has moved (a fast typist, a paste over SSH) are not lost."""
+    from textual import events
+
+    app = create_app()
+
+    async def scenario(pilot):
+        await pilot.press("f3")
+        assert app.focused is app.query_one("#curves-plot")
+        for character in "print":     # one loop turn apart: the later ones are already queued for the plot
+            app.post_message(events.Key(character, character))
+            await asyncio.sleep(0)
+        await pilot.pause(0.2)
+        assert app.focused is app.repl.input
+        assert app.repl.input.value == "print"
+
+    run(scenario, app)
+
+
 def test_compare_key_in_the_opt_panel_shows_a_row_per_installed_backend():
     from stw_tui.app.dialogs import CompareScreen
     from stw_tui.backend import available_backends

@@ -431,17 +431,22 @@ class StwApp(App[int]):
             for tabs in self.query(TabbedContent):
                 tabs.set_class(focused is not None and tabs in focused.ancestors, "-has-focus")
 
-    def on_key(self, event: events.Key) -> None:
-        """A printable key that nothing bound (typed while a panel or plot has the focus) is typing
-        meant for the console: focus it and type the character there, rather than lose it."""
-        if not event.is_printable or event.character is None or len(self.screen_stack) > 1:
-            return
-        field = self.repl.input
-        if self.focused is field or event.key in self.active_bindings:
-            return
-        event.stop()
-        field.focus()
-        field.insert_text_at_cursor(event.character)
+    async def on_event(self, event: events.Event) -> None:
+        """A printable key that nothing binds, typed while a panel or plot has the focus, is
+        typing meant for the console: focus the console *before* Textual hands the key to the
+        focused widget, so this key and the ones right behind it land there, in order.
+
+        (Moving the focus once the key had bubbled back up to the app lost keys typed fast: the
+        next ones were already on their way to the panel, and reached the app after the focus.)
+        """
+        if isinstance(event, events.Key) and not event.is_forwarded and self._typed_for_console(event):
+            self.screen.set_focus(self.repl.input)
+        await super().on_event(event)
+
+    def _typed_for_console(self, key: events.Key) -> bool:
+        if not key.is_printable or key.character is None or len(self.screen_stack) > 1:
+            return False
+        return self.focused is not self.repl.input and key.key not in self.active_bindings
 
     def check_action(self, action: str, parameters: tuple) -> bool | None:
         if action in ("step", "run_rest"):
