@@ -595,6 +595,33 @@ def test_command_palette_offers_actions_commands_and_scene_names():
     run(scenario, app)
 
 
+def test_command_palette_offers_the_session_files_at_hand(tmp_path, monkeypatch):
+    from textual.command import CommandPalette
+
+    (tmp_path / "sessions").mkdir()
+    (tmp_path / "sessions" / "throw.stw").write_text("dof x\n")
+    (tmp_path / "mine.stw").write_text("dof y\n")
+    (tmp_path / "two words.stw").write_text("dof z\n")       # `open` takes one word: not offered
+    monkeypatch.chdir(tmp_path)
+    from stw_tui.app.palette import session_files
+
+    assert [str(p) for p in session_files()] == ["mine.stw", "sessions/throw.stw"]
+    app = create_app()
+
+    async def scenario(pilot):
+        await pilot.press("ctrl+p", *"open session throw")
+        await pilot.pause(0.3)
+        assert isinstance(app.screen, CommandPalette)
+        await pilot.press("enter")
+        await pilot.pause(0.1)
+        assert app.focused is app.repl.input and app.repl.input.value == "open sessions/throw.stw "
+        await pilot.press("enter")                             # runs its lines here, journalled
+        await support.settle(pilot)
+        assert "x" in app.session.scene.dofs and app.session.journal.replayable()[-1] == "dof x"
+
+    run(scenario, app)
+
+
 def test_status_marks_the_last_solve_stale_after_a_change_and_fits_80_columns():
     app = create_app(JET, show_timing=False)
 
