@@ -135,11 +135,12 @@ def test_stw_help_starts_with_how_to_open_the_tui(capsys):
 
 def test_latest_only_runs_one_computation_at_a_time_and_keeps_only_the_newest_request():
     import threading
+    import time
 
     from stw_tui.app.background import LatestOnly
 
     delivered, done = [], threading.Event()
-    release = threading.Event()
+    started, release = threading.Event(), threading.Event()
 
     def deliver(sequence, result, error):
         delivered.append((sequence, result, None if error is None else str(error)))
@@ -149,10 +150,12 @@ def test_latest_only_runs_one_computation_at_a_time_and_keeps_only_the_newest_re
     computer = LatestOnly(deliver)
 
     def blocked():
+        started.set()
         release.wait(5)
         return "first"
 
     first = computer.submit(blocked)
+    assert started.wait(5)                             # running: what comes next has to wait
     replaced = computer.submit(lambda: "replaced")     # waits behind `blocked`...
     last = computer.submit(lambda: "last")             # ...and is replaced by this one
     release.set()
@@ -165,9 +168,13 @@ def test_latest_only_runs_one_computation_at_a_time_and_keeps_only_the_newest_re
 
     done.clear()
     failed = computer.submit(broken)
+    for _ in range(500):                                     # the thread is idle: it takes it at once
+        if len(delivered) == 3:
+            break
+        time.sleep(0.01)
     computer.submit(lambda: "last")
     assert done.wait(5)
-    assert (failed, None, "no such DOF") in delivered          # an error is delivered, the thread goes on
+    assert delivered[2:] == [(failed, None, "no such DOF"), (failed + 1, "last", None)]   # and goes on
 
 
 def test_plot_data_is_computed_from_a_scene_with_a_solves_coefficients(jet):
