@@ -622,6 +622,28 @@ def test_command_palette_offers_the_session_files_at_hand(tmp_path, monkeypatch)
     run(scenario, app)
 
 
+def test_key_hints_list_the_app_keys_first_and_a_click_presses_one():
+    from stw_tui.app.key_hints import KeyHints
+
+    app = create_app()
+
+    async def scenario(pilot):
+        hints = app.query_one(KeyHints)
+        keys = [key for key, *_ in hints.hints()]
+        assert keys[:5] == ["f1", "f2", "f3", "f4", "f5"] and keys[-1] == "ctrl+q", keys
+        assert "f6" not in keys                                 # no session file to step through
+        await pilot.press("f3")                                 # the Curves plot's keys come after
+        await pilot.pause()
+        keys = [key for key, *_ in hints.hints()]
+        assert keys.index("ctrl+q") < keys.index("left_square_bracket") < keys.index("v"), keys
+        line = str(hints.render())
+        assert line.startswith("f1 Help f2 Panels f3 Plots f4 Stop f5 Iterate ^q Quit [ Prev DOF")
+        await pilot.click(KeyHints, offset=(line.index("f2") + 1, 0))
+        assert app.focused is app.query_one("#dof-panel")
+
+    run(scenario, app, size=(80, 24))
+
+
 def test_status_marks_the_last_solve_stale_after_a_change_and_fits_80_columns():
     app = create_app(JET, show_timing=False)
 

@@ -16,12 +16,13 @@ from textual.app import App, ComposeResult
 from textual.binding import Binding
 from textual.containers import Horizontal
 from textual.widget import Widget
-from textual.widgets import Footer, TabbedContent, TabPane
+from textual.widgets import TabbedContent, TabPane
 
 from ..language import classify_line
 from .console import Console
 from .dialogs import CompareScreen
 from .help_screen import HelpScreen, help_sections
+from .key_hints import KeyHints
 from .palette import SceneCommands, app_commands
 from .gallery import GalleryScreen, OptimumChosen
 from .messages import (CommandFinished, CommandRequested, CommandStarted, IterationReported, ItemChosen,
@@ -45,20 +46,6 @@ VIEW_INTERVAL = 0.1   # seconds between refreshes of the panels and plots
 PLOTS = (("Curves", DofPlot), ("Expr", ExpressionPlot), ("Figure", FigurePlot), ("Conv", ConvergencePlot))
 
 
-class StwFooter(Footer):
-    """The footer with the app's keys first: the focused widget's own keys come after them, so
-    at 80 columns it is those that are cut, never F1-F5 or Ctrl+Q."""
-
-    def compose(self) -> ComposeResult:
-        items = list(super().compose())
-        order = {(binding.key, binding.action): i for i, binding in enumerate(StwApp.BINDINGS)}
-
-        def place(item) -> int:
-            return order.get((getattr(item, "key", None), getattr(item, "action", None)), len(order))
-
-        yield from sorted(items, key=place)   # stable: the widget's own keys keep their order
-
-
 class StwApp(App[int]):
     """Spacetime Windows in the terminal.
 
@@ -78,7 +65,7 @@ class StwApp(App[int]):
     CSS_PATH = "app.tcss"
     TITLE = "stw"
     COMMANDS = App.COMMANDS | {SceneCommands}
-    # App keys first in the footer (see StwFooter), short enough to fit 80 columns with room left
+    # App keys first in the key hints (see KeyHints), short enough to fit 80 columns with room left
     # for the focused panel's or plot's own keys; F1 lists them all.
     BINDINGS = [
         Binding("f1", "help", "Help"),
@@ -130,7 +117,7 @@ class StwApp(App[int]):
                         yield cls(id=f"{title.lower()}-plot", classes="scene-view")
         yield Console(lambda: self.scene, self._backend_names, blink=self.blink, id="console")
         yield StatusLine(show_timing=self.show_timing, id="status")
-        yield StwFooter(compact=True, show_command_palette=False)
+        yield KeyHints([(binding.key, binding.action) for binding in self.BINDINGS], id="keys")
 
     def get_system_commands(self, screen) -> "Iterable[SystemCommand]":
         if screen is self.screen_stack[0]:   # not from the help screen: there only Textual's own
