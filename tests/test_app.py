@@ -341,34 +341,99 @@ def test_figure_scrubs_and_plays():
 def test_curves_are_redrawn_from_each_iteration_while_a_solve_runs():
     import numpy as np
 
-    session = jet_without_iterate()
-    for line in ("set tol_violation 0", "set tol_kkt 0", "set tol_step 0"):   # runs all 30 iterations
-        session.execute(line)
+    from stw_tui.app.messages import PlotDataComputed
+    from stw_tui.sos.spline import DofCurve
+
+    session = endless_jet()
     before = session.scene.dofs["x"].curve
     app = create_app(session=session)
-    calls = []
-    show = app.show_iteration
+    computed = []   # (data, solving) of each result the Curves plot received
 
-    def spy(coefficients):
-        calls.append((coefficients, app.runner.busy))
-        show(coefficients)
-        calls[-1] += (app.query_one("#curves-plot").scene,)
+    def hook(message):
+        if isinstance(message, PlotDataComputed) and message.data is not None:
+            computed.append((message.data, app.runner.solving))
 
-    app.show_iteration = spy
+    async def main():
+        async with app.run_test(size=SIZE, message_hook=hook) as pilot:
+            await support.settle(pilot)
+            await support.submit(pilot, "iterate 30")
+            await support.settle(pilot)
+            return app.query_one("#curves-plot").data
+
+    final = asyncio.run(main())
+    live = [data for data, solving in computed if solving and data.name == "x"]
+    assert live, "no live redraw while solving"
+    # Each live curve is the spline of one reported iterate's control points, computed here anew.
+    reported = [r.coefficients for r in app.session.runs[-1].reports]
+    times = np.asarray(live[0].series.times)
+    curves = [DofCurve(before.knots, c).evaluate(times) for c in reported]
+    assert any(np.allclose(live[0].series.values, c, atol=1e-12) for c in curves)
+    assert not np.allclose(live[0].series.values, before.evaluate(times))   # not the scene before
+    assert session.scene.dofs["x"].curve is not before                      # the worker's solve moved on
+    # After the solve the plot shows the solved scene.
+    assert np.allclose(final.series.values, app.session.scene.dofs["x"].curve.evaluate(times), atol=1e-12)
+
+
+def test_views_never_compile_or_evaluate_on_the_ui_thread(monkeypatch):
+    """Plots only render: terms are compiled and evaluated by the worker and in the plots'
+    background threads, never on the UI thread, whatever the keys (scrub, play, switch, solve)."""
+    import threading
+
+    from stw_tui.session import figure
+    from stw_tui.sos import scene, spline
+    from stw_tui.sym import compiler
+
+    on_ui, elsewhere = [], []
+
+    def watch(name, function):
+        def watched(*args, **kwargs):
+            thread = threading.current_thread()
+            (on_ui if thread is threading.main_thread() else elsewhere).append((name, thread.name))
+            return function(*args, **kwargs)
+        return watched
+
+    monkeypatch.setattr(compiler, "compile_term", watch("compile_term", compiler.compile_term))
+    monkeypatch.setattr(scene.Scene, "evaluate", watch("Scene.evaluate", scene.Scene.evaluate))
+    monkeypatch.setattr(spline.DofCurve, "evaluate", watch("DofCurve.evaluate", spline.DofCurve.evaluate))
+    monkeypatch.setattr(figure, "scene_figure", watch("scene_figure", figure.scene_figure))
+    app = create_app(support.SESSIONS / "cat_mouse.stw")
 
     async def scenario(pilot):
-        await support.submit(pilot, "iterate 30")
+        await pilot.press("f3", "v", "right_square_bracket")     # Curves: velocity, next DOF
         await support.settle(pilot)
-        assert calls, "no live redraw while solving"
-        reported = [r.coefficients for r in app.session.runs[-1].reports]
-        coefficients, busy, plotted = calls[0]
-        assert busy                                      # before the command finished
-        assert any(c is coefficients for c in reported)
-        assert plotted is not app.session.scene          # a copy, with the report's coefficients
-        assert np.array_equal(plotted.dofs["x"].curve.coef, coefficients)
-        assert session.scene is not plotted and before is not plotted.dofs["x"].curve
-        # After the solve the plot shows the session's scene again.
-        assert app.query_one("#curves-plot").scene is app.session.scene
+        await pilot.press("f3", "right_square_bracket")          # Expr: the next equation
+        await support.settle(pilot)
+        await pilot.press("f3", "right", "right", "end")         # Figure: scrub
+        await pilot.press("space")
+        await pilot.pause(0.3)                                   # playing
+        await pilot.press("space", "f3")                         # Conv
+        await support.submit(pilot, "iterate 5")
+        await pilot.press("f3", "f3")                            # Curves, Expr while it solves
+        await support.settle(pilot)
+        await pilot.press("f3")                                  # Figure after the solve
+        await support.settle(pilot)
+
+    run(scenario, app)
+    assert not on_ui, on_ui
+    views = {name for name, thread in elsewhere if thread.startswith("stw-") and thread != "stw-session"}
+    assert {"Scene.evaluate", "DofCurve.evaluate", "scene_figure"} <= views, elsewhere   # the watch works
+
+
+def test_keys_typed_fast_in_a_plot_all_reach_the_console_in_order():
+    """Keys that arrive before the focus has moved (a fast typist, a paste over SSH) are not lost."""
+    from textual import events
+
+    app = create_app()
+
+    async def scenario(pilot):
+        await pilot.press("f3")
+        assert app.focused is app.query_one("#curves-plot")
+        for character in "print":     # one loop turn apart: the later ones are already queued for the plot
+            app.post_message(events.Key(character, character))
+            await asyncio.sleep(0)
+        await pilot.pause(0.2)
+        assert app.focused is app.repl.input
+        assert app.repl.input.value == "print"
 
     run(scenario, app)
 
@@ -530,6 +595,55 @@ def test_command_palette_offers_actions_commands_and_scene_names():
         assert isinstance(app.screen, HelpScreen)
 
     run(scenario, app)
+
+
+def test_command_palette_offers_the_session_files_at_hand(tmp_path, monkeypatch):
+    from textual.command import CommandPalette
+
+    (tmp_path / "sessions").mkdir()
+    (tmp_path / "sessions" / "throw.stw").write_text("dof x\n")
+    (tmp_path / "mine.stw").write_text("dof y\n")
+    (tmp_path / "two words.stw").write_text("dof z\n")       # `open` takes one word: not offered
+    monkeypatch.chdir(tmp_path)
+    from stw_tui.app.palette import session_files
+
+    assert [str(p) for p in session_files()] == ["mine.stw", "sessions/throw.stw"]
+    app = create_app()
+
+    async def scenario(pilot):
+        await pilot.press("ctrl+p", *"open session throw")
+        await pilot.pause(0.3)
+        assert isinstance(app.screen, CommandPalette)
+        await pilot.press("enter")
+        await pilot.pause(0.1)
+        assert app.focused is app.repl.input and app.repl.input.value == "open sessions/throw.stw "
+        await pilot.press("enter")                             # runs its lines here, journalled
+        await support.settle(pilot)
+        assert "x" in app.session.scene.dofs and app.session.journal.replayable()[-1] == "dof x"
+
+    run(scenario, app)
+
+
+def test_key_hints_list_the_app_keys_first_and_a_click_presses_one():
+    from stw_tui.app.key_hints import KeyHints
+
+    app = create_app()
+
+    async def scenario(pilot):
+        hints = app.query_one(KeyHints)
+        keys = [key for key, *_ in hints.hints()]
+        assert keys[:5] == ["f1", "f2", "f3", "f4", "f5"] and keys[-1] == "ctrl+q", keys
+        assert "f6" not in keys                                 # no session file to step through
+        await pilot.press("f3")                                 # the Curves plot's keys come after
+        await pilot.pause()
+        keys = [key for key, *_ in hints.hints()]
+        assert keys.index("ctrl+q") < keys.index("left_square_bracket") < keys.index("v"), keys
+        line = str(hints.render())
+        assert line.startswith("f1 Help f2 Panels f3 Plots f4 Stop f5 Iterate ^q Quit [ Prev DOF")
+        await pilot.click(KeyHints, offset=(line.index("f2") + 1, 0))
+        assert app.focused is app.query_one("#dof-panel")
+
+    run(scenario, app, size=(80, 24))
 
 
 def test_status_marks_the_last_solve_stale_after_a_change_and_fits_80_columns():

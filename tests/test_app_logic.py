@@ -140,3 +140,69 @@ def test_stw_help_starts_with_how_to_open_the_tui(capsys):
     with pytest.raises(SystemExit):
         main(["run", "--help"])
     assert capsys.readouterr().out.startswith("usage: stw run ")
+
+
+def test_latest_only_runs_one_computation_at_a_time_and_keeps_only_the_newest_request():
+    import threading
+    import time
+
+    from stw_tui.app.background import LatestOnly
+
+    delivered, done = [], threading.Event()
+    started, release = threading.Event(), threading.Event()
+
+    def deliver(sequence, result, error):
+        delivered.append((sequence, result, None if error is None else str(error)))
+        if result == "last":
+            done.set()
+
+    computer = LatestOnly(deliver)
+
+    def blocked():
+        started.set()
+        release.wait(5)
+        return "first"
+
+    first = computer.submit(blocked)
+    assert started.wait(5)                             # running: what comes next has to wait
+    replaced = computer.submit(lambda: "replaced")     # waits behind `blocked`...
+    last = computer.submit(lambda: "last")             # ...and is replaced by this one
+    release.set()
+    assert done.wait(5)
+    assert first < replaced < last
+    assert delivered == [(first, "first", None), (last, "last", None)]
+
+    def broken():
+        raise ValueError("no such DOF")
+
+    done.clear()
+    failed = computer.submit(broken)
+    for _ in range(500):                                     # the thread is idle: it takes it at once
+        if len(delivered) == 3:
+            break
+        time.sleep(0.01)
+    computer.submit(lambda: "last")
+    assert done.wait(5)
+    assert delivered[2:] == [(failed, None, "no such DOF"), (failed + 1, "last", None)]   # and goes on
+
+
+def test_plot_data_is_computed_from_a_scene_with_a_solves_coefficients(jet):
+    from stw_tui.app.plot_data import dof_plot_data, expression_plot_data, figure_data, live_scene
+
+    scene = jet.scene
+    coefficients = scene.coefficient_vector() + 1.0          # the curve shifted up by one
+    live = live_scene(scene, coefficients)
+    assert live is not scene
+    assert np.array_equal(scene.dofs["x"].curve.coef + 1.0, live.dofs["x"].curve.coef)
+    assert live_scene(scene, None) is scene and live_scene(scene, coefficients[:-1]) is scene
+    data = dof_plot_data(live, "x", 0)
+    base = dof_plot_data(scene, "x", 0)
+    # B-splines are a partition of unity: every value moves by exactly one.
+    assert np.allclose(np.subtract(data.series.values, base.series.values), 1.0, atol=1e-12)
+    assert data.inside and data.span == (0.0, 1.0) and data.window == "all"
+    end = expression_plot_data(live, "end")
+    assert end.scope == (1.0, 1.0) and abs(abs(end.series[0].values[-1]) - 1.0) < 1e-6   # x = 1 is off by one
+    dot = figure_data(scene, 2.0)                            # clamped to the span; a lone DOF is a dot
+    assert dot.t == 1.0 and dot.points[0][0] == "x" and abs(dot.points[0][1][1] - 1.0) < 1e-6
+    lo, hi = dot.bounds[2], dot.bounds[3]
+    assert lo < min(base.series.values) and hi > max(base.series.values)

@@ -1,4 +1,8 @@
-"""The real `stw` command in a real terminal (tmux): it starts, replays, draws, quits on Ctrl+Q."""
+"""The real `stw` command in a real terminal (tmux): it starts, replays, draws, quits on Ctrl+Q.
+
+Key latency and solve time in tmux are measured by tests/tmux_latency.py (a script that prints
+figures, not a test).
+"""
 
 from __future__ import annotations
 
@@ -97,50 +101,6 @@ def test_stw_runs_in_tmux_replays_a_session_and_quits():
         while name in tmux(*base, "list-sessions") and time.monotonic() < deadline:
             time.sleep(0.2)
         assert name not in tmux(*base, "list-sessions"), "stw did not quit on Ctrl+Q"
-    finally:
-        tmux(*base, "kill-server")
-
-
-@pytest.mark.skipif(not os.environ.get("STW_LATENCY"), reason="a measurement (about a minute): STW_LATENCY=1")
-def test_key_latency_while_basketball_solves():
-    """Prints key-to-screen latencies at 80x24 while sessions/basketball.stw solves (run with -s).
-
-    A latency is the time from `tmux send-keys` until `capture-pane` shows the change, so it
-    includes tmux's own delays and the capture interval (a few ms each).
-    """
-    name = f"stw-test-{uuid.uuid4().hex[:8]}"
-    base = ["-L", name]
-    subprocess.run(["tmux", *base, "new-session", "-d", "-s", name, "-x", "80", "-y", "24",
-                    f"env -u COLUMNS -u LINES {STW} sessions/basketball.stw"], cwd=ROOT, check=True)
-
-    def capture() -> str:
-        return tmux(*base, "capture-pane", "-p", "-t", name)
-
-    def timed(keys: list[str], changed) -> float:
-        before = capture()
-        sent = time.monotonic()
-        tmux(*base, "send-keys", "-t", name, *keys)
-        while time.monotonic() - sent < 5:
-            if changed(before, capture()):
-                return time.monotonic() - sent
-        return float("inf")
-
-    def percentiles(values: list[float]) -> str:
-        ordered = sorted(values)
-        pick = lambda q: ordered[min(len(ordered) - 1, int(q * len(ordered)))] * 1000
-        return f"median {pick(0.5):.0f} ms, p95 {pick(0.95):.0f} ms, max {ordered[-1] * 1000:.0f} ms"
-
-    try:
-        assert "solving" in wait_for(base, name, "solving", timeout=60)
-        prompt = lambda screen: next((line for line in screen.splitlines() if line.startswith("stw>")), "")
-        echo = [timed(["-l", "x"], lambda old, new: prompt(new).count("x") > prompt(old).count("x"))
-                for _ in range(20)]
-        tmux(*base, "send-keys", "-t", name, "C-u")
-        title = lambda screen: screen.splitlines()[2][40:] if len(screen.splitlines()) > 2 else ""
-        switch = [timed(["F3"], lambda old, new: title(new) != title(old)) for _ in range(12)]
-        solving = "solving" in capture()
-        print(f"\nconsole echo while solving: {percentiles(echo)}")
-        print(f"F3 plot switch while solving: {percentiles(switch)} (still solving at the end: {solving})")
     finally:
         tmux(*base, "kill-server")
 

@@ -16,12 +16,13 @@ from textual.app import App, ComposeResult
 from textual.binding import Binding
 from textual.containers import Horizontal
 from textual.widget import Widget
-from textual.widgets import Footer, TabbedContent, TabPane
+from textual.widgets import TabbedContent, TabPane
 
 from stw_tui.app.console import Console
 from stw_tui.app.dialogs import CompareScreen
 from stw_tui.app.gallery import GalleryScreen, OptimumChosen
 from stw_tui.app.help_screen import HelpScreen, help_sections
+from stw_tui.app.key_hints import KeyHints
 from stw_tui.app.palette import SceneCommands, app_commands
 from stw_tui.sym.language import classify_line
 from stw_tui.app.messages import (CommandFinished, CommandRequested, CommandStarted, IterationReported, ItemChosen,
@@ -45,20 +46,6 @@ VIEW_INTERVAL = 0.1   # seconds between refreshes of the panels and plots
 PLOTS = (("Curves", DofPlot), ("Expr", ExpressionPlot), ("Figure", FigurePlot), ("Conv", ConvergencePlot))
 
 
-class StwFooter(Footer):
-    """The footer with the app's keys first: the focused widget's own keys come after them, so
-    at 80 columns it is those that are cut, never F1-F5 or Ctrl+Q."""
-
-    def compose(self) -> ComposeResult:
-        items = list(super().compose())
-        order = {(binding.key, binding.action): i for i, binding in enumerate(StwApp.BINDINGS)}
-
-        def place(item) -> int:
-            return order.get((getattr(item, "key", None), getattr(item, "action", None)), len(order))
-
-        yield from sorted(items, key=place)   # stable: the widget's own keys keep their order
-
-
 class StwApp(App[int]):
     """Spacetime Windows in the terminal.
 
@@ -78,7 +65,7 @@ class StwApp(App[int]):
     CSS_PATH = "app.tcss"
     TITLE = "stw"
     COMMANDS = App.COMMANDS | {SceneCommands}
-    # App keys first in the footer (see StwFooter), short enough to fit 80 columns with room left
+    # App keys first in the key hints (see KeyHints), short enough to fit 80 columns with room left
     # for the focused panel's or plot's own keys; F1 lists them all.
     BINDINGS = [
         Binding("f1", "help", "Help"),
@@ -113,7 +100,10 @@ class StwApp(App[int]):
         self._views_shown = 0.0
         self._views_timer = None
         self._stale: set[str] = set()     # ids of views in hidden tabs that missed a refresh
-        self._live: "Scene | None" = None  # a copy of the scene with a running solve's coefficients
+        # What the views show: the worker's copy of the scene after the last command (the
+        # session's own scene belongs to the worker), and a running solve's control points.
+        self._shown: "Scene | None" = None
+        self._coefficients = None
 
     def compose(self) -> ComposeResult:
         with Horizontal(id="main"):
@@ -127,7 +117,7 @@ class StwApp(App[int]):
                         yield cls(id=f"{title.lower()}-plot", classes="scene-view")
         yield Console(lambda: self.scene, self._backend_names, blink=self.blink, id="console")
         yield StatusLine(show_timing=self.show_timing, id="status")
-        yield StwFooter(compact=True, show_command_palette=False)
+        yield KeyHints([(binding.key, binding.action) for binding in self.BINDINGS], id="keys")
 
     def get_system_commands(self, screen) -> "Iterable[SystemCommand]":
         if screen is self.screen_stack[0]:   # not from the help screen: there only Textual's own
@@ -268,20 +258,18 @@ class StwApp(App[int]):
     def show_iteration(self, coefficients) -> None:
         """Redraw the curves, expression values and figure from the running solve's coefficients.
 
-        They are drawn from a copy of the scene: the session's scene belongs to the worker.
+        The plots compute them in the background, over the scene of the last command with these
+        control points (plot_data.live_scene).
         """
-        try:
-            live = self.session.scene.copy()
-            live.with_coefficients(coefficients)
-        except Exception:  # a redraw while solving is best effort
+        if self._shown is None:
             return
-        self._live = live
+        self._coefficients = coefficients
         tabs = self.query_one("#plots", TabbedContent)
         for pane in tabs.query(TabPane):
             for widget in pane.query(".scene-view"):
                 if isinstance(widget, self.LIVE_PLOTS):
                     if pane.id == tabs.active:
-                        widget.set_scene(live)
+                        widget.set_scene(self._shown, coefficients=coefficients)
                     else:
                         self._stale.add(widget.id)
 
@@ -317,7 +305,7 @@ class StwApp(App[int]):
         figure = self.query_one(FigurePlot)
         self._stale.discard(figure.id)   # showing its tab must not put the scene back over the preview
         self.query_one("#plots", TabbedContent).active = "tab-figure"
-        preview = preview_scene(self.session.scene, best)
+        preview = preview_scene(self._shown, best)
         figure.set_scene(preview)
         figure.t = preview.t0
         if not figure.playing:
@@ -347,8 +335,10 @@ class StwApp(App[int]):
                 self.script.running = False
                 self.repl.write_note(f"replay halted: the solve at line {job.number} was stopped "
                                      "before it ended; F6 runs the next line, F7 the rest")
-        self._live = None
-        if self.session is None:   # the core failed to load
+        self._coefficients = None
+        if event.scene is not None:
+            self._shown = event.scene
+        if self.session is None or self._shown is None:   # the core failed to load
             self.runner.finished()
             self._show_state()
             return
@@ -389,7 +379,7 @@ class StwApp(App[int]):
     def _show_views(self) -> None:
         self._views_timer = None
         self._views_shown = time.monotonic()
-        scene = self.session.scene
+        scene = self._shown
         for tabs in self.query(TabbedContent):
             for pane in tabs.query(TabPane):
                 # Hidden tabs are brought up to date when shown: rebuilding them all costs layout.
@@ -403,10 +393,12 @@ class StwApp(App[int]):
 
     def on_tabbed_content_tab_activated(self, event: TabbedContent.TabActivated) -> None:
         for widget in event.pane.query(".scene-view"):
-            if widget.id in self._stale and self.session is not None:
+            if widget.id in self._stale and self._shown is not None:
                 self._stale.discard(widget.id)
-                live = self._live is not None and isinstance(widget, self.LIVE_PLOTS)
-                widget.set_scene(self._live if live else self.session.scene, self._info)
+                if isinstance(widget, self.LIVE_PLOTS):
+                    widget.set_scene(self._shown, self._info, coefficients=self._coefficients)
+                else:
+                    widget.set_scene(self._shown, self._info)
 
     def on_item_chosen(self, event: ItemChosen) -> None:
         if event.kind == "dof":
@@ -416,7 +408,7 @@ class StwApp(App[int]):
             plot, tab = self.query_one(ExpressionPlot), "tab-expr"
             plot.name_shown = event.name
         self.query_one("#plots", TabbedContent).active = tab
-        plot.request_draw()
+        plot.request_data()
 
     # --- focus and keys ----------------------------------------------------------------------
     def on_descendant_focus(self, event: events.DescendantFocus) -> None:
@@ -426,17 +418,22 @@ class StwApp(App[int]):
             for tabs in self.query(TabbedContent):
                 tabs.set_class(focused is not None and tabs in focused.ancestors, "-has-focus")
 
-    def on_key(self, event: events.Key) -> None:
-        """A printable key that nothing bound (typed while a panel or plot has the focus) is typing
-        meant for the console: focus it and type the character there, rather than lose it."""
-        if not event.is_printable or event.character is None or len(self.screen_stack) > 1:
-            return
-        field = self.repl.input
-        if self.focused is field or event.key in self.active_bindings:
-            return
-        event.stop()
-        field.focus()
-        field.insert_text_at_cursor(event.character)
+    async def on_event(self, event: events.Event) -> None:
+        """A printable key that nothing binds, typed while a panel or plot has the focus, is
+        typing meant for the console: focus the console *before* Textual hands the key to the
+        focused widget, so this key and the ones right behind it land there, in order.
+
+        (Moving the focus once the key had bubbled back up to the app lost keys typed fast: the
+        next ones were already on their way to the panel, and reached the app after the focus.)
+        """
+        if isinstance(event, events.Key) and not event.is_forwarded and self._typed_for_console(event):
+            self.screen.set_focus(self.repl.input)
+        await super().on_event(event)
+
+    def _typed_for_console(self, key: events.Key) -> bool:
+        if not key.is_printable or key.character is None or len(self.screen_stack) > 1:
+            return False
+        return self.focused is not self.repl.input and key.key not in self.active_bindings
 
     def check_action(self, action: str, parameters: tuple) -> bool | None:
         if action in ("step", "run_rest"):

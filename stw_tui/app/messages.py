@@ -12,6 +12,7 @@ if TYPE_CHECKING:
     from stw_tui.app.runner import Job
     from stw_tui.app.values import SceneInfo
     from stw_tui.sos.backend import StepReport
+    from stw_tui.sos.scene import Scene
 
 
 class Origin(enum.StrEnum):
@@ -53,12 +54,14 @@ class CommandStarted(Message):
 
 @dataclass
 class CommandFinished(Message):
-    """The worker finished a command, successfully (outcome) or not (error); info describes the scene."""
+    """The worker finished a command, successfully (outcome) or not (error); info describes the
+    scene, and ``scene`` is a copy of it that the views may read while the worker goes on."""
 
     job: "Job"
     outcome: Any
     error: BaseException | None
     info: "SceneInfo"
+    scene: "Scene | None" = None
 
 
 @dataclass
@@ -86,3 +89,16 @@ class SurveyProgressed(Message):
 
     def can_replace(self, message: Message) -> bool:
         return isinstance(message, SurveyProgressed)
+
+
+@dataclass
+class PlotDataComputed(Message):
+    """A plot's data came back from its background computation (posted to that plot); later
+    ones replace unhandled earlier ones. ``sequence`` orders them (see background.LatestOnly)."""
+
+    sequence: int
+    data: Any
+    error: BaseException | None
+
+    def can_replace(self, message: Message) -> bool:
+        return isinstance(message, PlotDataComputed)

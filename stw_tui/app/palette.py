@@ -2,12 +2,14 @@
 
 The app's actions are :class:`~textual.app.SystemCommand` entries (:func:`app_commands`, yielded
 by ``StwApp.get_system_commands``); :class:`SceneCommands` provides what the scene holds (a DOF
-or equation to plot) and the commands of the language (choosing one starts it at the prompt).
+or equation to plot), the commands of the language and the session files at hand (choosing one
+starts it at the prompt).
 """
 
 from __future__ import annotations
 
 from functools import partial
+from pathlib import Path
 from typing import TYPE_CHECKING, Iterator
 
 from textual.app import SystemCommand
@@ -56,8 +58,25 @@ def scene_entries(scene: "Scene | None") -> Iterator[tuple[str, str, str, str]]:
         yield f"Plot {kinds.get(name, 'equation')} {name}", "its values over time (Expr plot)", "equation", name
 
 
+MAX_SESSION_FILES = 200   # a folder of thousands of .stw files must not slow the palette
+
+
+def session_files(folder: Path | None = None) -> list[Path]:
+    """The .stw files in ``folder`` (the current directory) and its ``sessions/``, as relative
+    paths that `open` accepts (names with spaces left out: `open` takes one word)."""
+    folder = Path.cwd() if folder is None else folder
+    found: list[Path] = []
+    for where in (folder, folder / "sessions"):
+        try:
+            found += sorted(p.relative_to(folder) for p in where.glob("*.stw") if p.is_file())
+        except OSError:   # unreadable: nothing to offer from there
+            continue
+    return [p for p in found if not any(c.isspace() for c in str(p))][:MAX_SESSION_FILES]
+
+
 class SceneCommands(Provider):
-    """DOF and equations of the scene (plot one), and the language's commands (start one)."""
+    """DOF and equations of the scene (plot one), the language's commands and the session files
+    (start one at the prompt)."""
 
     def _entries(self) -> list[tuple[str, str, object]]:
         from stw_tui.sym.language.help import COMMAND_HELP   # here: the language loads sympy
@@ -68,10 +87,13 @@ class SceneCommands(Provider):
         for command, info in COMMAND_HELP.items():
             # Help is markup to the palette: synopses hold [brackets].
             entries.append((f"Command {command}", info.synopsis.replace("[", "\\["), partial(self._start, command)))
+        for path in session_files():
+            entries.append((f"Open session {path}", "`open` it at the prompt: Enter runs its lines here",
+                            partial(self._start, f"open {path}")))
         return entries
 
     def _start(self, command: str) -> None:
-        """Put ``command`` at the console prompt for the user to complete."""
+        """Put ``command`` at the console prompt for the user to complete (or Enter)."""
         field = self.app.repl.input
         field.value = f"{command} "
         field.cursor_position = len(field.value)

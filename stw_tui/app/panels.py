@@ -1,7 +1,7 @@
 """The panels of the paper's interface (Cohen 1992, section 4), each emitting command lines.
 
 DOF · Equations · Constants · Windows · Time · Optimization. Keys act on the row under the
-cursor; the Footer lists them while a panel has the focus.
+cursor; the key hints line lists them while a panel has the focus.
 """
 
 from __future__ import annotations

@@ -1,23 +1,30 @@
 """Plots (textual-plotext): DOF curves, equation values, the stick figure, solver convergence.
 
-Every plot keeps the data it draws and redraws at most ~10 times a second (plotext costs ~30 ms a
-draw). They are touched only on the UI thread: the app feeds them from message handlers.
+Plots only render. What they show is computed from a scene snapshot in a background thread
+(plot_data.py, through background.LatestOnly) and comes back in a :class:`PlotDataComputed`
+message, so the UI thread never compiles or evaluates a term. Every plot redraws at most ~10
+times a second (plotext costs ~30 ms a draw). They are touched only on the UI thread: the app
+feeds them from message handlers.
 """
 
 from __future__ import annotations
 
 import math
 import time
-from typing import TYPE_CHECKING
+from typing import TYPE_CHECKING, Any, Callable
 
 from textual.binding import Binding
 from textual_plotext import PlotextPlot
 
 from stw_tui.app.axes import fit_title, nice_ticks, title_room, value_limits
-from stw_tui.app.messages import ItemChosen
-from stw_tui.app.values import QUANTITIES, SceneInfo, dof_series, equation_names, equation_series
+from stw_tui.app.background import LatestOnly
+from stw_tui.app.messages import ItemChosen, PlotDataComputed
+from stw_tui.app.plot_data import dof_plot_data, expression_plot_data, figure_data, live_scene
+from stw_tui.app.values import QUANTITIES, SceneInfo, equation_names
 
 if TYPE_CHECKING:
+    import numpy as np
+
     from stw_tui.sos.backend import StepReport
     from stw_tui.sos.scene import Scene
 
@@ -25,24 +32,67 @@ REDRAW_INTERVAL = 0.1   # seconds: at most ~10 redraws a second
 
 
 class ScenePlot(PlotextPlot, can_focus=True):
-    """A plot of some aspect of the scene; subclasses implement :meth:`draw`."""
+    """A plot of some aspect of the scene.
+
+    Subclasses say what to compute in :meth:`data_request` (run in a background thread) and
+    draw the result, ``self.data``, in :meth:`draw`.
+    """
 
     def __init__(self, **kwargs):
         super().__init__(**kwargs)
         self.scene: "Scene | None" = None
+        self.coefficients: "np.ndarray | None" = None   # a running solve's, drawn over the scene
         self.info = SceneInfo()
+        self.data: Any = None
+        self.data_error: BaseException | None = None
         self._last_draw = 0.0
         self._pending = None
+        self._computer = LatestOnly(self._deliver, name=f"stw-{self.id or 'plot'}")
+        self._requested = 0   # sequence number of the newest request
+        self._received = 0    # ... and of the newest result shown
 
-    def set_scene(self, scene: "Scene", info: SceneInfo | None = None) -> None:
+    def set_scene(self, scene: "Scene", info: SceneInfo | None = None, coefficients=None) -> None:
+        """Show ``scene`` (a snapshot nobody changes), with a running solve's ``coefficients``."""
         self.scene = scene
+        self.coefficients = coefficients
         if info is not None:
             self.info = info
+        self.request_data()
+
+    # --- data, computed in the background ----------------------------------------------------
+    def data_request(self) -> "Callable[[Scene], Any] | None":
+        """What to compute from the scene, as a function of it; None: nothing to compute (draw
+        says why). Called on the UI thread: choose here, do the work in the function."""
+        return None
+
+    def request_data(self) -> None:
+        """Compute the data for the current scene and choices, then redraw."""
+        compute = self.data_request() if self.scene is not None else None
+        if compute is None:
+            self._requested = self._received = self._computer.next_sequence()   # drops older results
+            self.data, self.data_error = None, None
+            self.request_draw()
+            return
+        scene, coefficients = self.scene, self.coefficients
+        self._requested = self._computer.submit(lambda: compute(live_scene(scene, coefficients)))
+
+    def _deliver(self, sequence: int, data: Any, error: BaseException | None) -> None:
+        """In the background thread: hand the result to the UI thread."""
+        self.post_message(PlotDataComputed(sequence, data, error))
+
+    def on_plot_data_computed(self, message: PlotDataComputed) -> None:
+        message.stop()
+        if message.sequence <= self._received:   # older than what is shown
+            return
+        self._received = message.sequence
+        self.data, self.data_error = message.data, message.error
         self.request_draw()
 
+    # --- drawing -----------------------------------------------------------------------------
     @property
     def redraw_pending(self) -> bool:
-        return self._pending is not None
+        """Data being computed, or a redraw waiting for its turn."""
+        return self._pending is not None or self._received < self._requested
 
     def request_draw(self) -> None:
         """Redraw now, or once the 0.1 s since the last redraw have passed."""
@@ -58,6 +108,8 @@ class ScenePlot(PlotextPlot, can_focus=True):
         plt = self.plt
         plt.clear_figure()
         try:
+            if self.data_error is not None:
+                raise self.data_error
             self.draw(plt)
         except Exception as exc:  # a plot must never take the app down; say what went wrong
             plt.clear_figure()
@@ -65,6 +117,7 @@ class ScenePlot(PlotextPlot, can_focus=True):
         self.refresh()
 
     def draw(self, plt) -> None:
+        """Render ``self.data`` (and the plot's own state) with plotext; compute nothing."""
         raise NotImplementedError
 
     _label_width = 5   # of the y tick labels of the last draw (the title's room depends on it)
@@ -117,29 +170,32 @@ class DofPlot(ScenePlot):
 
     def action_quantity(self) -> None:
         self.order = (self.order + 1) % 3
-        self.request_draw()
+        self.request_data()
+
+    def data_request(self):
+        if not self.scene.dofs:
+            return None
+        if self.dof not in self.scene.dofs:
+            self.dof = next(iter(self.scene.dofs))
+        name, order = self.dof, self.order
+        return lambda live: dof_plot_data(live, name, order)
 
     def draw(self, plt) -> None:
-        scene = self.scene
-        if scene is None or not scene.dofs:
+        data = self.data
+        if data is None:
             plt.title("no DOF yet: `dof x`")
             return
-        if self.dof not in scene.dofs:
-            self.dof = next(iter(scene.dofs))
-        series = dof_series(scene, self.dof, self.order)
+        series, keys = data.series, data.keys
         plt.plot(series.times, series.values, label=series.label, color="cyan")
-        window = scene.window
-        inside = window.dofs is None or self.dof in window.dofs
-        self.mark_interval(plt, window.interval, "orange")
-        keys = scene.dofs[self.dof].keys if self.order == 0 else []
+        self.mark_interval(plt, data.interval, "orange")
         if keys:
             plt.scatter([k[0] for k in keys], [k[1] for k in keys], marker="dot", color="red", label="keys")
-        self.set_axes(plt, (scene.t0, scene.t1), value_limits([*series.values, *(k[1] for k in keys)]))
-        name, quantity = self.dof, QUANTITIES[self.order]
-        note, short = ("", "") if inside else (" (outside window)", " (out)")
-        self.set_title(plt, f"{name} {quantity} · window {window.name}{note}  [ ] v",
-                       f"{name} {quantity} · window {window.name}{short}", f"{name} {quantity}{short}",
-                       f"{name}{chr(39) * self.order}{short}")
+        self.set_axes(plt, data.span, value_limits([*series.values, *(k[1] for k in keys)]))
+        name, quantity, window = data.name, QUANTITIES[data.order], data.window
+        note, short = ("", "") if data.inside else (" (outside window)", " (out)")
+        self.set_title(plt, f"{name} {quantity} · window {window}{note}  [ ] v",
+                       f"{name} {quantity} · window {window}{short}", f"{name} {quantity}{short}",
+                       f"{name}{chr(39) * data.order}{short}")
 
 
 class ExpressionPlot(ScenePlot):
@@ -160,20 +216,25 @@ class ExpressionPlot(ScenePlot):
             index = names.index(self.name_shown) if self.name_shown in names else 0
             self.post_message(ItemChosen("equation", names[(index + step) % len(names)]))
 
-    def draw(self, plt) -> None:
-        scene = self.scene
-        names = equation_names(scene) if scene else []
+    def data_request(self):
+        names = equation_names(self.scene)
         if not names:
-            plt.title("no constraints, objectives or lets yet")
-            return
+            return None
         if self.name_shown not in names:
             self.name_shown = names[0]
-        series, scope = equation_series(scene, self.name_shown)
-        for s in series:
+        name = self.name_shown
+        return lambda live: expression_plot_data(live, name)
+
+    def draw(self, plt) -> None:
+        data = self.data
+        if data is None:
+            plt.title("no constraints, objectives or lets yet")
+            return
+        for s in data.series:
             plt.plot(s.times, s.values, label=s.label)
-        self.mark_interval(plt, scope, "orange")
-        self.set_axes(plt, (scene.t0, scene.t1), value_limits(v for one in series for v in one.values))
-        name, violation = self.name_shown, self.info.violations.get(self.name_shown)
+        self.mark_interval(plt, data.scope, "orange")
+        self.set_axes(plt, data.span, value_limits(v for one in data.series for v in one.values))
+        name, violation = data.name, self.info.violations.get(data.name)
         if violation is None:
             self.set_title(plt, f"{name}  [ ]", name)
         else:
@@ -206,6 +267,7 @@ class FigurePlot(ScenePlot):
         if self._timer is not None:
             self._timer.stop()
             self._timer = None
+            self.request_draw()   # the title says so
         else:
             self._timer = self.set_interval(REDRAW_INTERVAL, lambda: self.action_scrub(1, wrap=True))
 
@@ -218,45 +280,40 @@ class FigurePlot(ScenePlot):
         if wrap and t > scene.t1 + 1e-9:
             t = scene.t0
         self.t = min(max(t, scene.t0), scene.t1)
-        self.request_draw()
+        self.request_data()
 
     def action_jump(self, end: int) -> None:
         if self.scene is not None:
             self.t = self.scene.t1 if end else self.scene.t0
-            self.request_draw()
+            self.request_data()
 
-    def draw(self, plt) -> None:
-        from stw_tui.session.figure import scene_figure
-
+    def data_request(self):
         scene = self.scene
-        if scene is None or not scene.dofs:
-            plt.title("no creature yet")
-            return
+        if not scene.dofs:
+            return None
         if self.t is None:
             self.t = scene.settings.get("frame", scene.t0)
-        t = min(max(self.t, scene.t0), scene.t1)
-        figure = scene_figure(scene, t)
-        for (x0, y0), (x1, y1) in figure.segments:
+        t = self.t
+        return lambda live: figure_data(live, t)
+
+    def draw(self, plt) -> None:
+        data = self.data
+        if data is None:
+            plt.title("no creature yet")
+            return
+        for (x0, y0), (x1, y1) in data.segments:
             plt.plot([x0, x1], [y0, y1], color="cyan", marker="braille")
-        points = figure.points
-        if not figure.segments and not points:
-            # A lone DOF (the jet particle) is drawn as a dot at its height.
-            name = next(iter(scene.dofs))
-            points = [(name, (0.0, float(scene.dofs[name].curve.evaluate([t])[0])))]
-            values = dof_series(scene, name, 0).values
-            pad = 0.1 * max(max(values) - min(values), 0.2)
-            bounds = (-1.0, 1.0, min(values) - pad, max(values) + pad)
-        else:
-            bounds = self.info.figure_bounds
-        for label, (x, y) in points:
+        for label, (x, y) in data.points:
             plt.scatter([x], [y], marker="●", color="red")
             plt.text(label, x, y, color="white")
+        bounds = data.bounds if data.bounds is not None else self.info.figure_bounds
         if bounds is not None and all(map(math.isfinite, bounds)):
             self.set_axes(plt, (bounds[0], bounds[1]), (bounds[2], bounds[3]))
+        t, (t0, t1) = data.t, data.span
         state = "playing" if self.playing else "space plays"
-        self.set_title(plt, f"t = {t:.3f} of [{scene.t0:g}, {scene.t1:g}] · {state} · ← →",
-                       f"t = {t:.3f} of [{scene.t0:g}, {scene.t1:g}] · {state}",
-                       f"t = {t:.3f} of [{scene.t0:g}, {scene.t1:g}]", f"t = {t:.3f}", f"t={t:.2f}")
+        self.set_title(plt, f"t = {t:.3f} of [{t0:g}, {t1:g}] · {state} · ← →",
+                       f"t = {t:.3f} of [{t0:g}, {t1:g}] · {state}",
+                       f"t = {t:.3f} of [{t0:g}, {t1:g}]", f"t = {t:.3f}", f"t={t:.2f}")
 
 
 class ConvergencePlot(ScenePlot):

@@ -191,7 +191,9 @@ class Runner:
             info = scene_info(self.session.scene)
         except Exception:  # measuring is best effort
             info = SceneInfo()
-        self._post(CommandFinished(job, outcome, error, info))
+        # The views read this copy (in the UI thread and in their background computations)
+        # while the next command changes the session's scene.
+        self._post(CommandFinished(job, outcome, error, info, self.session.scene.copy()))
 
     def _run_task(self, job: Job) -> None:
         result, error = None, None

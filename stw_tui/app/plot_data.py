@@ -1,0 +1,98 @@
+"""What each plot draws, computed from a scene in a background thread (no Textual here).
+
+A plot states what it wants (a DOF and quantity, an equation, a frame time) and one of these
+functions answers from a scene snapshot off the UI thread (see background.py), so plots only
+render: the UI thread never compiles or evaluates a term. Compiling basketball's expressions
+for the Expr plot once held every key for more than a second.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import TYPE_CHECKING
+
+import numpy as np
+
+from stw_tui.app.values import Series, dof_series, equation_series
+
+if TYPE_CHECKING:
+    from stw_tui.sos.scene import Scene
+
+Bounds = tuple[float, float, float, float]
+
+
+@dataclass(frozen=True)
+class DofPlotData:
+    """One DOF's value, velocity or acceleration, with the window and keyframes to mark."""
+
+    name: str
+    order: int
+    series: Series
+    span: tuple[float, float]
+    window: str
+    interval: tuple[float, float] | None
+    inside: bool                   # the DOF is in the active window
+    keys: tuple[tuple[float, float], ...] = ()
+
+
+@dataclass(frozen=True)
+class ExpressionPlotData:
+    """The values of each relation or term of a constraint, objective or subexpression."""
+
+    name: str
+    series: tuple[Series, ...]
+    scope: tuple[float, float] | None
+    span: tuple[float, float]
+
+
+@dataclass(frozen=True)
+class FigureData:
+    """The stick figure at time ``t``; ``bounds`` only for a lone DOF drawn as a dot (a figure
+    uses the bounds the worker measured over the whole span)."""
+
+    t: float
+    span: tuple[float, float]
+    segments: tuple = ()
+    points: tuple = ()
+    bounds: Bounds | None = None
+
+
+def live_scene(scene: "Scene", coefficients) -> "Scene":
+    """``scene`` with a running solve's control points (a copy), or ``scene`` itself when there
+    are none or they no longer fit its curves."""
+    if coefficients is None or len(coefficients) != scene.coefficient_vector().size:
+        return scene
+    live = scene.copy()
+    live.with_coefficients(np.asarray(coefficients, float))
+    return live
+
+
+def dof_plot_data(scene: "Scene", name: str, order: int) -> DofPlotData:
+    window = scene.window
+    keys = tuple((float(t), float(v)) for t, v in scene.dofs[name].keys) if order == 0 else ()
+    return DofPlotData(name, order, dof_series(scene, name, order), (scene.t0, scene.t1), window.name,
+                       window.interval, window.dofs is None or name in window.dofs, keys)
+
+
+def expression_plot_data(scene: "Scene", name: str) -> ExpressionPlotData:
+    """Raises StwError for an expression that no longer compiles (the plot says so)."""
+    series, scope = equation_series(scene, name)
+    return ExpressionPlotData(name, tuple(series), scope, (scene.t0, scene.t1))
+
+
+def figure_data(scene: "Scene", t: float) -> FigureData:
+    from stw_tui.session.figure import scene_figure
+
+    t = min(max(t, scene.t0), scene.t1)
+    figure = scene_figure(scene, t)
+    span = (scene.t0, scene.t1)
+    if figure.segments or figure.points:
+        return FigureData(t, span, tuple(figure.segments), tuple(figure.points))
+    # A lone DOF (the jet particle) is drawn as a dot at its height, within its range.
+    name = next(iter(scene.dofs))
+    values = dof_series(scene, name, 0).values
+    pad = 0.1 * max(max(values) - min(values), 0.2)
+    height = float(scene.dofs[name].curve.evaluate([t])[0])
+    return FigureData(t, span, points=((name, (0.0, height)),),
+                      bounds=(-1.0, 1.0, min(values) - pad, max(values) + pad))
+
