@@ -203,6 +203,40 @@ def test_sparse_gram_and_transposed_products_are_scipys_bit_for_bit():
         assert np.array_equal(la.rmatvec(A, x), A.T @ x)
 
 
+def test_interior_point_kkt_scattered_in_place_is_the_assembled_one_bit_for_bit():
+    """The interior-point systems scattered into a structure placed once per QP (BarrierKKT) hold
+    exactly what the general assembly kkt_matrix(H + gram(Aᵢ, q), Aₑ, e) builds, also when an
+    entry of H + Gram cancels to zero (the sum drops it) or H stores an explicit zero."""
+    import scipy.sparse as sps
+    from stw_scipy.linear import SparseAlgebra, kkt_matrix
+
+    la, rng = SparseAlgebra(), np.random.default_rng(9)
+    for k in range(40):
+        n, me, mi = int(rng.integers(2, 25)), int(rng.integers(0, 8)), int(rng.integers(1, 12))
+        H = sps.random_array((n, n), density=0.3, rng=rng, format="csr")
+        H = sps.csr_array(H + H.T + sps.eye_array(n))   # rows unsorted, as the SQP's sums leave them
+        Ai = sps.random_array((mi, n), density=0.3, rng=rng, format="csr")
+        Ae = sps.random_array((me, n), density=0.4, rng=rng, format="csr")
+        if k % 4 == 1:
+            H.data[0] = 0.0                               # a stored zero of H
+        system = la.barrier_kkt(H, Ai, Ae)
+        for _ in range(3):
+            q = rng.random(mi)
+            e = 1e-10 + rng.random(me)
+            G = la.gram(Ai, q)
+            if k % 4 == 2 and G.nnz:                      # an entry of H + Gram that cancels
+                i = int(np.flatnonzero(np.diff(G.indptr))[0])
+                j = int(G.indices[G.indptr[i]])
+                H = H.tolil()
+                H[i, j] = -G[i, j]
+                H = sps.csr_array(H)
+                system = la.barrier_kkt(H, Ai, Ae)
+            want = kkt_matrix(la.add(H, G), Ae, e)
+            got = system(q, e).K
+            assert np.array_equal(got.indptr, want.indptr) and np.array_equal(got.indices, want.indices)
+            assert np.array_equal(got.data, want.data)
+
+
 def test_a_bound_against_a_constraint_is_infeasible_and_names_both():
     # The hard QP "converged" here with huge multipliers (its equality rows are regularized) to a
     # step that does not meet the linearization; the line search then failed and the advice was

@@ -55,9 +55,10 @@ def kkt_matrix(H, A, e, layouts: list | None = None) -> sps.csc_array:
     return K
 
 
-LAYOUTS_KEPT = 8   # KKT structures remembered per algebra (Newton / Gauss-Newton, correction, IPM)
+LAYOUTS_KEPT = 8   # KKT structures remembered per algebra (Newton / Gauss-Newton, working sets, correction)
 GRAMS_KEPT = 4     # structures of interior-point inequality rows remembered per algebra
 TRANSPOSES_KEPT = 4
+PLACEMENTS_KEPT = 4   # interior-point KKT structures remembered per algebra
 
 
 class _Layout:
@@ -91,10 +92,93 @@ class _Layout:
                 and np.array_equal(H.indices[:H.nnz], h_idx) and np.array_equal(A.indices[:A.nnz], a_idx))
 
 
-def _same_structure(m: sps.csr_array, key) -> bool:
+class BarrierKKT:
+    """The interior-point systems of one QP, K(q, e) = [[H + Aᵢᵀ diag(q) Aᵢ, Aₑᵀ], [Aₑ, -diag(e)]],
+    each bit for bit what ``kkt_matrix(H + gram(Aᵢ, q), Aₑ, e)`` builds.
+
+    H, Aᵢ and Aₑ stay fixed while the method runs: K is their values, kept in place, plus the
+    Gram values scattered into a structure placed once (:class:`_BarrierPlacement`, kept per
+    structure of H, Aᵢ and Aₑ), instead of two sparse sums, a zero-dropping pass and a layout
+    search per iteration. Scipy's sum drops an entry of H + Gram that comes out exactly zero, and
+    SuperLU's ordering would see the difference: such a K (or one with a zero e_i, which
+    kkt_matrix leaves out) is assembled the general way.
+    """
+
+    def __init__(self, algebra: "SparseAlgebra", H, Ai, Ae):
+        self.algebra, self.H, self.Ai, self.Ae = algebra, _csr(H), _csr(Ai), _csr(Ae)
+        self.plan = algebra.gram_plan(self.Ai)
+        self.placed = algebra.barrier_placement(self.H, self.plan, self.Ae)
+        if self.placed is not None:
+            self.base = self.placed.values(self.H, self.Ae)
+
+    def __call__(self, q: np.ndarray, e) -> "SparseKKT":
+        la, placed = self.algebra, self.placed
+        diag = np.broadcast_to(np.asarray(e, float), (self.Ae.shape[0],))
+        if placed is not None and diag.all():
+            data = self.base.copy()
+            data[placed.at_g] += self.plan.values(self.Ai.data[:self.Ai.nnz], np.asarray(q, float))
+            if data[placed.at_s].all():
+                data[placed.at_e] = -diag
+                K = sps.csc_array((data, placed.indices, placed.indptr), shape=placed.shape)
+                K.has_canonical_format = True
+                return SparseKKT(K, "direct", la.rtol, la.maxiter)
+        return la.kkt(la.add(self.H, la.gram(self.Ai, q)), self.Ae, e, exact=True)
+
+
+class _BarrierPlacement:
+    """Where the entries of H, of a Gram plan's structure and of Aₑ (as A and Aᵀ) and the
+    diagonal go in the CSC arrays of K = [[H + Gram, Aₑᵀ], [Aₑ, -diag(e)]], for one structure of
+    each; None from :meth:`of` when H or Aₑ stores an entry twice (kkt_matrix would sum them)."""
+
+    @classmethod
+    def of(cls, H: sps.csr_array, plan: GramPlan, Ae: sps.csr_array) -> "_BarrierPlacement | None":
+        n, m = H.shape[0], Ae.shape[0]
+        h_key = np.repeat(np.arange(n, dtype=np.int64), np.diff(H.indptr)) * n + H.indices[:H.nnz]
+        g_key = np.repeat(np.arange(n, dtype=np.int64), np.diff(plan.indptr)) * n + plan.indices
+        keys = np.concatenate([h_key, g_key])
+        order = np.argsort(keys, kind="stable")
+        first = np.diff(keys[order], prepend=-1) != 0     # the sum's entries, sorted
+        group = np.empty(keys.size, dtype=np.intp)
+        group[order] = np.cumsum(first) - 1
+        if np.bincount(group[:h_key.size]).max(initial=0) > 1:
+            return None                                   # H stores an entry twice
+        union = keys[order][first]
+        indptr = np.zeros(n + 1, dtype=np.intc)
+        np.cumsum(np.bincount(union // n, minlength=n), out=indptr[1:])
+        S = sps.csr_array((np.ones(union.size), (union % n).astype(np.intc), indptr), shape=(n, n))
+        layout = _Layout(S, Ae, np.ones(m, bool))
+        if layout.repeats:                                # Aₑ stores an entry twice
+            return None
+        placed = cls()
+        at = np.empty(layout.order.size, dtype=np.intp)   # where each of K's sources lands
+        at[layout.order] = np.arange(layout.order.size)
+        placed.at_s, placed.at_a, placed.at_e = np.split(at, [union.size, union.size + 2 * Ae.nnz])
+        placed.at_h, placed.at_g = placed.at_s[group[:h_key.size]], placed.at_s[group[h_key.size:]]
+        placed.indices, placed.indptr, placed.shape = layout.indices, layout.indptr, layout.shape
+        placed.key = (_structure(H), _structure(plan), _structure(Ae))
+        return placed
+
+    def fits(self, H: sps.csr_array, plan: GramPlan, Ae: sps.csr_array) -> bool:
+        return all(_same_structure(m, key) for m, key in zip((H, plan, Ae), self.key))
+
+    def values(self, H: sps.csr_array, Ae: sps.csr_array) -> np.ndarray:
+        """K's data with H's and Aₑ's values in place, zeros where the Gram values and -e go."""
+        data = np.zeros(self.at_s.size + self.at_a.size + self.at_e.size)
+        a = Ae.data[:Ae.nnz]
+        data[self.at_a] = np.concatenate([a, a])
+        data[self.at_h] = H.data[:H.nnz]
+        return data
+
+
+def _structure(m) -> tuple:
+    return m.shape, m.indptr.copy(), m.indices[:m.indptr[-1]].copy()
+
+
+def _same_structure(m, key) -> bool:
     shape, indptr, indices = key
-    return (m.shape == shape and m.nnz == indices.size and np.array_equal(m.indptr, indptr)
-            and np.array_equal(m.indices[:m.nnz], indices))
+    nnz = m.indptr[-1]
+    return (m.shape == shape and nnz == indices.size and np.array_equal(m.indptr, indptr)
+            and np.array_equal(m.indices[:nnz], indices))
 
 
 def _csr(m) -> sps.csr_array:
@@ -168,6 +252,7 @@ class SparseAlgebra(LinearAlgebra):
         self._layouts: list = []   # KKT placements by sparsity structure (kkt_matrix)
         self._grams: list = []     # (structure, GramPlan) of recent gram() factors
         self._transposes: list = []   # (matrix, its transpose) of recent rmatvec() calls
+        self._placements: list = []   # interior-point KKT placements (BarrierKKT)
 
     def vector(self, values):
         return np.array(values, dtype=float)
@@ -224,12 +309,31 @@ class SparseAlgebra(LinearAlgebra):
     def gram(self, a, w):
         # sps.csr_array(a.T @ (sps.diags_array(w) @ a)), bitwise, by a plan kept per structure of a
         a = _csr(a)
+        return self.gram_plan(a).matrix(a.data[:a.nnz], np.asarray(w, float))
+
+    def gram_plan(self, a: sps.csr_array) -> GramPlan:
+        """The Gram plan of ``a``'s structure (made once, kept for the next few structures)."""
         plan = next((p for key, p in self._grams if _same_structure(a, key)), None)
         if plan is None:
             plan = GramPlan(a)
             self._grams.insert(0, ((a.shape, a.indptr.copy(), a.indices[:a.nnz].copy()), plan))
             del self._grams[GRAMS_KEPT:]
-        return plan.matrix(a.data[:a.nnz], np.asarray(w, float))
+        return plan
+
+    def barrier_kkt(self, H, Ai, Ae):
+        return BarrierKKT(self, H, Ai, Ae)
+
+    def barrier_placement(self, H, plan, Ae) -> _BarrierPlacement | None:
+        """The placement of K's entries for these structures (worked out once, the last few kept)."""
+        for i, placed in enumerate(self._placements):
+            if placed is not None and placed.fits(H, plan, Ae):
+                self._placements.insert(0, self._placements.pop(i))
+                return placed
+        placed = _BarrierPlacement.of(H, plan, Ae)
+        if placed is not None:
+            self._placements.insert(0, placed)
+            del self._placements[PLACEMENTS_KEPT:]
+        return placed
 
     def max_abs_diagonal(self, m):
         return float(np.abs(m.diagonal()).max(initial=0.0))

@@ -160,8 +160,12 @@ class GramPlan:
         self._sum = sps.csr_array((np.ones(terms.size), np.arange(terms.size), term_ptr),
                                   shape=(start.size, terms.size))
 
+    def values(self, data: np.ndarray, c: np.ndarray) -> np.ndarray:
+        """The values of Jᵀ diag(c) J on the plan's whole structure (``indices``, ``indptr``),
+        exact zeros included, from J's stored values ``data``."""
+        scaled = c[self._row_of_entry] * data             # diag(c) @ J
+        return self._sum @ (scaled[self._q] * data[self._p])
+
     def matrix(self, data: np.ndarray, c: np.ndarray) -> sps.csr_array:
         """Jᵀ diag(c) J from J's stored values ``data`` (on the planned structure)."""
-        scaled = c[self._row_of_entry] * data             # diag(c) @ J
-        values = self._sum @ (scaled[self._q] * data[self._p])
-        return _without_zeros(values, self.indices, self.indptr, self.shape)
+        return _without_zeros(self.values(data, c), self.indices, self.indptr, self.shape)

@@ -15,7 +15,7 @@ below. Nothing here imports torch.
 from __future__ import annotations
 
 from abc import ABC, abstractmethod
-from typing import Any, Sequence
+from typing import Any, Callable, Sequence
 
 import numpy as np
 
@@ -116,6 +116,13 @@ class LinearAlgebra(ABC):
         ``exact``: factorize whatever the backend's preferred solver (interior-point systems
         are too ill-conditioned for unpreconditioned Krylov methods). Raises SingularSystem.
         """
+
+    def barrier_kkt(self, H: Matrix, Ai: Matrix, Ae: Matrix) -> Callable[[Vector, Vector], KKTSystem]:
+        """The interior-point method's systems of one QP, [[H + Aᵢᵀ diag(q) Aᵢ, Aₑᵀ], [Aₑ, -diag(e)]]
+        as a function of (q, e): H, Aᵢ and Aₑ stay fixed while the method runs, so a backend may
+        prepare their assembly once. Each call is :meth:`kkt` with ``exact`` (raises
+        SingularSystem). The default assembles each system anew."""
+        return lambda q, e: self.kkt(self.add(H, self.gram(Ai, q)), Ae, e, exact=True)
 
     @abstractmethod
     def positive_definite(self, m: Matrix) -> bool:

@@ -150,6 +150,7 @@ def _interior_point(la, H, g, Ae, ce, Ai, ci, y0, rho, tol, max_ipm) -> tuple[QP
     # throw the iterates off again (large elastic weights), and an infeasible hard QP never
     # converges; both stall, and the best iterate is what there is to return.
     best, best_error, since_best = (d, y, z, w), np.inf, 0
+    barrier_kkt = la.barrier_kkt(H, Ai, Ae)   # H, Aᵢ, Aₑ fixed: only q and e change below
     k = 0
     for k in range(1, max_ipm + 1):
         r_d = la.matvec(H, d) + g + la.rmatvec(Ae, y) - la.rmatvec(Ai, z)
@@ -178,7 +179,7 @@ def _interior_point(la, H, g, Ae, ce, Ai, ci, y0, rho, tol, max_ipm) -> tuple[QP
             best, best_error = (d, y, z, w), error
         q_inv = z / w if not elastic else 1.0 / (w / z + t / s)
         e = KKT_EPS + (u / a + v / b if elastic else 0.0) + la.zeros(me)
-        system = la.kkt(la.add(H, la.gram(Ai, q_inv)), Ae, e, exact=True)
+        system = barrier_kkt(q_inv, e)
 
         def newton(rc):
             """Newton direction for complementarity targets rc = (w z, t s, u a, v b) - targets."""
