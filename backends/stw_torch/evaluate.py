@@ -64,6 +64,7 @@ class Pattern:
 
     @classmethod
     def build(cls, rows, cols, coef, src, n_src, shape, device) -> "Pattern":
+        """The pattern of a sparse matrix whose entries are sums of coef * source[src] at (rows, cols)."""
         rows, cols = np.asarray(rows, np.int64), np.asarray(cols, np.int64)
         keys = rows * shape[1] + cols
         order = np.argsort(keys, kind="stable")
@@ -81,13 +82,16 @@ class Pattern:
         return cls(shape, as_t(crow), as_t(c), as_t(coef_pad), as_t(src_pad), n_src, crow, c)
 
     def values(self, source: torch.Tensor) -> torch.Tensor:
+        """The matrix's stored values (CSR order) for one vector of source values."""
         ext = torch.cat([source, source.new_zeros(1)])
         return (self.coef_pad * ext[self.src_pad]).sum(1)
 
     def scipy(self, values: torch.Tensor) -> sps.csr_array:
+        """The matrix with these values as a scipy CSR array (for the scipy linear algebra)."""
         return sps.csr_array((values.detach().cpu().numpy(), self.col_np, self.crow_np), shape=self.shape)
 
     def dense(self, values: torch.Tensor) -> torch.Tensor:
+        """The matrix with these values as a dense tensor on the values' device."""
         out = values.new_zeros(self.shape)
         rows = torch.repeat_interleave(torch.arange(self.shape[0], device=values.device),
                                        self.crow[1:] - self.crow[:-1])
@@ -139,10 +143,12 @@ class TorchEvaluation:
 
     @property
     def J_eq(self) -> sps.csr_array:
+        """Jacobian of the equality rows (scipy CSR, built once per evaluation)."""
         return self._jacobian(EQ)
 
     @property
     def J_ge(self) -> sps.csr_array:
+        """Jacobian of the inequality rows (scipy CSR, built once per evaluation)."""
         return self._jacobian(GE)
 
     def _jacobian(self, kind: str) -> sps.csr_array:
@@ -151,9 +157,11 @@ class TorchEvaluation:
         return self._scipy_J[kind]
 
     def dense_jacobian(self, kind: str) -> torch.Tensor:
+        """Jacobian of the ``kind`` rows as a dense tensor on the device (linear=torch)."""
         return self.tp.jac[kind].dense(self.t_J[kind])
 
     def max_violation(self) -> float:
+        """The largest violation of any row at this point, as the window problem defines it."""
         return self.tp.problem.max_violation(self)
 
     def lagrangian_hessian(self, lam_eq: np.ndarray, lam_ge: np.ndarray):
@@ -305,6 +313,7 @@ class TorchProblem:
 
     # --- evaluation --------------------------------------------------------------------------
     def slot_values(self, s: torch.Tensor) -> torch.Tensor:
+        """Every term input slot's value: the fixed part plus the free control points' share."""
         return self.v_fixed + self.Pf @ s
 
     def _block(self, v: torch.Tensor, g: _Group, k: int, offset: int) -> torch.Tensor:

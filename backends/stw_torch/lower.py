@@ -62,6 +62,7 @@ class LoweredTerm:
 
     @property
     def k(self) -> int:
+        """How many variables (values and derivatives) the term takes per instance."""
         return self.term.k
 
     def __call__(self, X: torch.Tensor, times: torch.Tensor, params: list[torch.Tensor]) -> torch.Tensor:

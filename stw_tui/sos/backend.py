@@ -88,6 +88,7 @@ class SolverState:
 
     @classmethod
     def start(cls, problem) -> "SolverState":
+        """The state a first solve of ``problem`` starts from: its control points, zero multipliers."""
         return cls(s=problem.initial(), lam_eq=np.zeros(problem.row_counts[TermKind.EQ]),
                    lam_ge=np.zeros(problem.row_counts[TermKind.GE]),
                    working_set=np.zeros(problem.row_counts[TermKind.GE], bool))
@@ -118,6 +119,7 @@ class StepReport:
 
     @property
     def total_ms(self) -> float:
+        """The iteration's time over all its phases, in ms."""
         return sum(self.ms.values())
 
 
@@ -206,6 +208,7 @@ def create_backend(cls: type[Backend], options: dict[str, Any]) -> Backend:
 # --- the driver ------------------------------------------------------------------------------
 @dataclass
 class RunResult:
+    """What a run of iterations ended with: its status, last state, one report per iteration."""
     status: Status
     state: SolverState
     reports: list[StepReport]
@@ -213,6 +216,7 @@ class RunResult:
 
     @property
     def converged(self) -> bool:
+        """Whether the run ended converged."""
         return self.status is Status.CONVERGED
 
 

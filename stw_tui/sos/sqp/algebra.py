@@ -67,9 +67,11 @@ class LinearAlgebra(ABC):
         """max |v_i| (0 for an empty vector)."""
 
     def dot(self, a: Vector, b: Vector) -> float:
+        """aᵀb as a float."""
         return float(a @ b)
 
     def zeros(self, n: int) -> Vector:
+        """A vector of n zeros."""
         return self.full(n, 0.0)
 
     # --- matrices ---------------------------------------------------------------------------
@@ -130,6 +132,7 @@ class LinearAlgebra(ABC):
         without pivoting meets only positive pivots)."""
 
     def identity(self, n: int) -> Matrix:
+        """The n x n identity matrix."""
         return self.diagonal_matrix(np.ones(n))
 
     def jacobian(self, ev: Any, kind: str) -> Matrix:

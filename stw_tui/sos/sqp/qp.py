@@ -35,6 +35,7 @@ FEASIBLE_TOL = 1e-12       # ... and how far its step may leave another inequali
 
 @dataclass
 class QPResult:
+    """A QP's step and multipliers, with what it cost and how it ended."""
     d: Vector
     y: Vector               # equality multipliers (L = R + yᵀc_e)
     z: Vector               # inequality multipliers, >= 0 (L = R - zᵀc_i)
