@@ -95,6 +95,30 @@ def test_history_and_tab_completion():
     run(scenario, app)
 
 
+def test_tab_completes_a_path_and_open_runs_the_file(tmp_path, monkeypatch):
+    (tmp_path / "jumps").mkdir()
+    (tmp_path / "jumps" / "high.stw").write_text("const h = 2\ndof x\n")
+    (tmp_path / "jumps" / "high.csv").write_text("")
+    monkeypatch.chdir(tmp_path)
+    app = create_app()
+
+    async def scenario(pilot):
+        field = app.repl.input
+        field.focus()
+        await pilot.press(*"open ju", "tab")
+        assert field.value == "open jumps/"                     # a directory: waits for more
+        await pilot.press("tab")
+        assert field.value == "open jumps/high."                # two files: the common prefix...
+        assert "high.stw  high.csv" in support.log_text(app)     # ...and the names, .stw first
+        await pilot.press("s", "tab")
+        assert field.value == "open jumps/high.stw "
+        await pilot.press("enter")
+        await support.settle(pilot)
+        assert "x" in app.session.scene.dofs and "h" in app.session.scene.constants, support.log_text(app)
+
+    run(scenario, app)
+
+
 def test_linkage_block_shows_a_continuation_prompt():
     app = create_app()
 

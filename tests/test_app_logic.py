@@ -7,7 +7,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from stw_tui.app.completion import History, candidates, complete
+from stw_tui.app.completion import History, candidates, complete, path_candidates
 from stw_tui.app.runner import Job, Script
 from stw_tui.app.values import dof_series, equation_series, equation_violations, figure_bounds, scene_info
 from stw_tui.session.session import Session
@@ -42,6 +42,55 @@ def test_completion_offers_verb_groups_once():
     # tip_contact's parts have other names; hop_flight is both a group and its one part.
     assert candidates("delete tip_", s.scene)[1] == ["tip_contact", "tip_planted", "tip_push"]
     assert candidates("delete hop_", s.scene)[1] == ["hop_flight"]
+
+
+@pytest.fixture
+def files(tmp_path, monkeypatch):
+    """A current directory with sessions, exports, a directory, a hidden file and a name with a space."""
+    for name in ("jump.stw", "jump.csv", "jumper.json", "notes.txt", ".hidden.stw", "two words.stw"):
+        (tmp_path / name).write_text("")
+    (tmp_path / "jumps").mkdir()
+    (tmp_path / "jumps" / "high.stw").write_text("")
+    (tmp_path / "jumps" / "long.stw").write_text("")
+    monkeypatch.chdir(tmp_path)
+    return tmp_path
+
+
+def test_path_candidates_list_stw_files_first_and_directories_with_a_slash(files):
+    assert path_candidates("jump") == ["jump.stw", "jump.csv", "jumper.json", "jumps/"]
+    assert path_candidates("jump", suffix=".csv") == ["jump.csv", "jump.stw", "jumper.json", "jumps/"]
+    assert path_candidates("jumps/") == ["jumps/high.stw", "jumps/long.stw"]
+    assert path_candidates("jumps/l") == ["jumps/long.stw"]
+    assert path_candidates("n") == ["notes.txt"]
+    assert path_candidates(".h") == [".hidden.stw"]            # hidden only when asked for
+    assert ".hidden.stw" not in path_candidates("")
+    assert path_candidates("t") == ['"two words.stw']           # a space: quoted
+    assert path_candidates("nothing/") == [] and path_candidates("zzz") == []
+    assert path_candidates("high", cwd=files / "jumps") == ["high.stw"]
+
+
+def test_path_candidates_expand_the_home_directory_and_keep_the_tilde(files, monkeypatch):
+    monkeypatch.setenv("HOME", str(files / "jumps"))
+    assert path_candidates("~") == ["~/"]
+    assert path_candidates("~/h") == ["~/high.stw"]
+    assert path_candidates(str(files / "jumps") + "/lo") == [str(files / "jumps") + "/long.stw"]
+
+
+def test_tab_completes_paths_after_open_save_and_export(files, jet):
+    scene = jet.scene
+    assert complete("open jumps/h", scene) == ("open jumps/high.stw ", [])
+    assert complete("save jumps/l", scene) == ("save jumps/long.stw ", [])
+    assert complete("open jumps", scene) == ("open jumps/", [])       # a directory: no space, Tab again
+    assert complete("open jumps/", scene) == ("open jumps/", ["high.stw", "long.stw"])
+    assert complete("open ju", scene) == ("open jump", ["jump.stw", "jump.csv", "jumper.json", "jumps/"])
+    assert complete("export cs", scene) == ("export csv ", [])
+    assert complete("export ", scene) == ("export ", ["csv", "json", "bvh"])
+    assert complete("export csv jump.", scene) == ("export csv jump.", ["jump.csv", "jump.stw"])
+    assert complete("export json jumpe", scene) == ("export json jumper.json ", [])
+    assert complete("open t", scene) == ('open "two words.stw" ', [])
+    assert complete('open "two', scene) == ('open "two words.stw" ', [])
+    assert complete("print f", scene) == ("print f", ["f", "fuel"])      # not a path: names as before
+    assert complete("export csv out.csv fps", scene) == ("export csv out.csv fps", [])
 
 
 def test_history_browses_back_and_keeps_the_draft():
