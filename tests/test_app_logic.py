@@ -189,3 +189,36 @@ def test_stw_help_starts_with_how_to_open_the_tui(capsys):
     with pytest.raises(SystemExit):
         main(["run", "--help"])
     assert capsys.readouterr().out.startswith("usage: stw run ")
+
+
+def test_a_proposal_is_measured_and_drawn_beside_the_scene():
+    """`set preview on`: the worker's SceneInfo carries the proposal, its objective and violation
+    and the scene's, and figure bounds that hold both motions; the player draws the proposal."""
+    import catalogue
+
+    s = Session()
+    s.run_text(catalogue.problem("analytic_landing").text + "set preview on\n")
+    outcome = s.execute("iterate 30")
+    proposal, scene = s.proposal.scene, s.scene
+    info = scene_info(scene, proposal)
+    view = info.proposal
+    assert view is not None and view.scene is proposal
+    last = outcome.run.reports[-1]
+    assert view.proposed.objective == pytest.approx(last.objective, rel=1e-9)
+    assert view.proposed.dense < 1e-6 < 0.1 < view.current.dense       # solved vs the unsolved start
+    new, now = view.captions(0.5)[0].split(" · ")[1:3]
+    assert new == f"proposal obj {view.proposed.objective:.4g} viol {view.proposed.dense:.1e}"
+    assert now == f"now (dim) obj {view.current.objective:.4g} viol {view.current.dense:.1e}"
+    x0, x1, y0, y1 = info.figure_bounds
+    for t in np.linspace(0, 1, 9):
+        (label, (x, y)), = view.figure(t).points                     # the point mass x, y
+        assert (x, y) == pytest.approx((proposal.dofs["x"].curve.evaluate([t])[0],
+                                        proposal.dofs["y"].curve.evaluate([t])[0]), abs=1e-12)
+        assert x0 < x < x1 and y0 < y < y1
+    assert scene_info(scene).proposal is None
+    # A lone DOF (the jet particle) is a dot at its height, as the player draws it.
+    jet = Session()
+    jet.run_text((SESSIONS / "particle_jet.stw").read_text().split("iterate")[0] + "set preview on\niterate 20\n")
+    view = scene_info(jet.scene, jet.proposal.scene).proposal
+    (label, (x, y)), = view.figure(0.5).points
+    assert label == "x" and x == 0 and y == pytest.approx(jet.proposal.scene.dofs["x"].curve.evaluate([0.5])[0])

@@ -235,9 +235,11 @@ class FigurePlot(ScenePlot):
         if self.t is None:
             self.t = scene.settings.get("frame", scene.t0)
         t = min(max(self.t, scene.t0), scene.t1)
+        ghost = self.info.proposal      # `set preview on`: the proposal beside the scene's motion, dimmed
+        line, dot = ("gray", "gray") if ghost is not None else ("cyan", "red")
         figure = scene_figure(scene, t)
         for (x0, y0), (x1, y1) in figure.segments:
-            plt.plot([x0, x1], [y0, y1], color="cyan", marker="braille")
+            plt.plot([x0, x1], [y0, y1], color=line, marker="braille")
         points = figure.points
         if not figure.segments and not points:
             # A lone DOF (the jet particle) is drawn as a dot at its height.
@@ -249,10 +251,20 @@ class FigurePlot(ScenePlot):
         else:
             bounds = self.info.figure_bounds
         for label, (x, y) in points:
-            plt.scatter([x], [y], marker="●", color="red")
+            plt.scatter([x], [y], marker="●", color=dot)
             plt.text(label, x, y, color="white")
+        if ghost is not None:
+            proposed = ghost.figure(t)
+            for (x0, y0), (x1, y1) in proposed.segments:
+                plt.plot([x0, x1], [y0, y1], color="cyan", marker="braille")
+            for label, (x, y) in proposed.points:
+                plt.scatter([x], [y], marker="●", color="red")
+            bounds = self.info.figure_bounds           # both motions fit
         if bounds is not None and all(map(math.isfinite, bounds)):
             self.set_axes(plt, (bounds[0], bounds[1]), (bounds[2], bounds[3]))
+        if ghost is not None:
+            self.set_title(plt, *ghost.captions(t))
+            return
         state = "playing" if self.playing else "space plays"
         self.set_title(plt, f"t = {t:.3f} of [{scene.t0:g}, {scene.t1:g}] · {state} · ← →",
                        f"t = {t:.3f} of [{scene.t0:g}, {scene.t1:g}] · {state}",
