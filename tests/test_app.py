@@ -95,6 +95,30 @@ def test_history_and_tab_completion():
     run(scenario, app)
 
 
+def test_tab_completes_a_path_and_open_runs_the_file(tmp_path, monkeypatch):
+    (tmp_path / "jumps").mkdir()
+    (tmp_path / "jumps" / "high.stw").write_text("const h = 2\ndof x\n")
+    (tmp_path / "jumps" / "high.csv").write_text("")
+    monkeypatch.chdir(tmp_path)
+    app = create_app()
+
+    async def scenario(pilot):
+        field = app.repl.input
+        field.focus()
+        await pilot.press(*"open ju", "tab")
+        assert field.value == "open jumps/"                     # a directory: waits for more
+        await pilot.press("tab")
+        assert field.value == "open jumps/high."                # two files: the common prefix...
+        assert "high.stw  high.csv" in support.log_text(app)     # ...and the names, .stw first
+        await pilot.press("s", "tab")
+        assert field.value == "open jumps/high.stw "
+        await pilot.press("enter")
+        await support.settle(pilot)
+        assert "x" in app.session.scene.dofs and "h" in app.session.scene.constants, support.log_text(app)
+
+    run(scenario, app)
+
+
 def test_linkage_block_shows_a_continuation_prompt():
     app = create_app()
 
@@ -700,6 +724,39 @@ def test_plot_titles_fit_80_columns_and_a_constant_dof_plots_plainly():
         assert "-1.5" in labels
 
     run(constant, app, size=(80, 24))
+
+
+def test_the_figure_player_shows_a_proposal_beside_the_dimmed_scene_until_accepted():
+    import catalogue
+
+    session = Session()
+    session.run_text(catalogue.problem("analytic_landing").text + "set preview on\n")
+    app = create_app(session=session)
+
+    async def scenario(pilot):
+        app.query_one("#plots").active = "tab-figure"
+        await support.submit(pilot, "iterate 30")
+        await support.settle(pilot)
+        figure = app.query_one("#figure-plot")
+        await pilot.pause(0.2)                                  # past the redraw interval
+        assert figure.info.proposal is not None and figure.info.proposal.scene is app.session.proposal.scene
+        text = plot_text(figure)
+        new, now = figure.info.proposal.proposed, figure.info.proposal.current   # both measured, shown
+        assert f"obj {new.objective:.4g} (now {now.objective:.4g}) · viol {new.dense:.1e} (now {now.dense:.1e})" in text, text
+        figure.focus()
+        await pilot.press(*["right"] * 20)                       # t = 0.5: the two motions apart
+        await pilot.pause(0.2)
+        rows = plot_text(figure).splitlines()
+        moved = [i for i, row in enumerate(rows) if "●" in row]          # the proposal's point
+        kept = [i for i, row in enumerate(rows) if "•" in row]           # the scene's, labelled, dim
+        assert moved and kept and moved != kept, "\n".join(rows)
+        await pilot.press("f9")                                  # accept: one figure again
+        await support.settle(pilot)
+        await pilot.pause(0.2)
+        assert figure.info.proposal is None
+        assert "proposal" not in plot_text(figure) and "t = " in plot_text(figure)
+
+    run(scenario, app, size=(120, 40))
 
 
 def test_the_theme_is_remembered_between_runs(tmp_path):

@@ -7,7 +7,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from stw_tui.app.completion import History, candidates, complete
+from stw_tui.app.completion import History, candidates, complete, path_candidates
 from stw_tui.app.runner import Job, Script
 from stw_tui.app.values import dof_series, equation_series, equation_violations, figure_bounds, scene_info
 from stw_tui.session.session import Session
@@ -42,6 +42,55 @@ def test_completion_offers_verb_groups_once():
     # tip_contact's parts have other names; hop_flight is both a group and its one part.
     assert candidates("delete tip_", s.scene)[1] == ["tip_contact", "tip_planted", "tip_push"]
     assert candidates("delete hop_", s.scene)[1] == ["hop_flight"]
+
+
+@pytest.fixture
+def files(tmp_path, monkeypatch):
+    """A current directory with sessions, exports, a directory, a hidden file and a name with a space."""
+    for name in ("jump.stw", "jump.csv", "jumper.json", "notes.txt", ".hidden.stw", "two words.stw"):
+        (tmp_path / name).write_text("")
+    (tmp_path / "jumps").mkdir()
+    (tmp_path / "jumps" / "high.stw").write_text("")
+    (tmp_path / "jumps" / "long.stw").write_text("")
+    monkeypatch.chdir(tmp_path)
+    return tmp_path
+
+
+def test_path_candidates_list_stw_files_first_and_directories_with_a_slash(files):
+    assert path_candidates("jump") == ["jump.stw", "jump.csv", "jumper.json", "jumps/"]
+    assert path_candidates("jump", suffix=".csv") == ["jump.csv", "jump.stw", "jumper.json", "jumps/"]
+    assert path_candidates("jumps/") == ["jumps/high.stw", "jumps/long.stw"]
+    assert path_candidates("jumps/l") == ["jumps/long.stw"]
+    assert path_candidates("n") == ["notes.txt"]
+    assert path_candidates(".h") == [".hidden.stw"]            # hidden only when asked for
+    assert ".hidden.stw" not in path_candidates("")
+    assert path_candidates("t") == ['"two words.stw']           # a space: quoted
+    assert path_candidates("nothing/") == [] and path_candidates("zzz") == []
+    assert path_candidates("high", cwd=files / "jumps") == ["high.stw"]
+
+
+def test_path_candidates_expand_the_home_directory_and_keep_the_tilde(files, monkeypatch):
+    monkeypatch.setenv("HOME", str(files / "jumps"))
+    assert path_candidates("~") == ["~/"]
+    assert path_candidates("~/h") == ["~/high.stw"]
+    assert path_candidates(str(files / "jumps") + "/lo") == [str(files / "jumps") + "/long.stw"]
+
+
+def test_tab_completes_paths_after_open_save_and_export(files, jet):
+    scene = jet.scene
+    assert complete("open jumps/h", scene) == ("open jumps/high.stw ", [])
+    assert complete("save jumps/l", scene) == ("save jumps/long.stw ", [])
+    assert complete("open jumps", scene) == ("open jumps/", [])       # a directory: no space, Tab again
+    assert complete("open jumps/", scene) == ("open jumps/", ["high.stw", "long.stw"])
+    assert complete("open ju", scene) == ("open jump", ["jump.stw", "jump.csv", "jumper.json", "jumps/"])
+    assert complete("export cs", scene) == ("export csv ", [])
+    assert complete("export ", scene) == ("export ", ["csv", "json", "bvh"])
+    assert complete("export csv jump.", scene) == ("export csv jump.", ["jump.csv", "jump.stw"])
+    assert complete("export json jumpe", scene) == ("export json jumper.json ", [])
+    assert complete("open t", scene) == ('open "two words.stw" ', [])
+    assert complete('open "two', scene) == ('open "two words.stw" ', [])
+    assert complete("print f", scene) == ("print f", ["f", "fuel"])      # not a path: names as before
+    assert complete("export csv out.csv fps", scene) == ("export csv out.csv fps", [])
 
 
 def test_history_browses_back_and_keeps_the_draft():
@@ -206,3 +255,36 @@ def test_plot_data_is_computed_from_a_scene_with_a_solves_coefficients(jet):
     assert dot.t == 1.0 and dot.points[0][0] == "x" and abs(dot.points[0][1][1] - 1.0) < 1e-6
     lo, hi = dot.bounds[2], dot.bounds[3]
     assert lo < min(base.series.values) and hi > max(base.series.values)
+
+
+def test_a_proposal_is_measured_and_drawn_beside_the_scene():
+    """`set preview on`: the worker's SceneInfo carries the proposal, its objective and violation
+    and the scene's, and figure bounds that hold both motions; the player draws the proposal."""
+    import catalogue
+
+    s = Session()
+    s.run_text(catalogue.problem("analytic_landing").text + "set preview on\n")
+    outcome = s.execute("iterate 30")
+    proposal, scene = s.proposal.scene, s.scene
+    info = scene_info(scene, proposal)
+    view = info.proposal
+    assert view is not None and view.scene is proposal
+    last = outcome.run.reports[-1]
+    assert view.proposed.objective == pytest.approx(last.objective, rel=1e-9)
+    assert view.proposed.dense < 1e-6 < 0.1 < view.current.dense       # solved vs the unsolved start
+    new, now = view.captions(0.5)[0].split(" · ")[1:3]
+    assert new == f"proposal obj {view.proposed.objective:.4g} viol {view.proposed.dense:.1e}"
+    assert now == f"now (dim) obj {view.current.objective:.4g} viol {view.current.dense:.1e}"
+    x0, x1, y0, y1 = info.figure_bounds
+    for t in np.linspace(0, 1, 9):
+        (label, (x, y)), = view.figure(t).points                     # the point mass x, y
+        assert (x, y) == pytest.approx((proposal.dofs["x"].curve.evaluate([t])[0],
+                                        proposal.dofs["y"].curve.evaluate([t])[0]), abs=1e-12)
+        assert x0 < x < x1 and y0 < y < y1
+    assert scene_info(scene).proposal is None
+    # A lone DOF (the jet particle) is a dot at its height, as the player draws it.
+    jet = Session()
+    jet.run_text((SESSIONS / "particle_jet.stw").read_text().split("iterate")[0] + "set preview on\niterate 20\n")
+    view = scene_info(jet.scene, jet.proposal.scene).proposal
+    (label, (x, y)), = view.figure(0.5).points
+    assert label == "x" and x == 0 and y == pytest.approx(jet.proposal.scene.dofs["x"].curve.evaluate([0.5])[0])

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import os
 import re
+from pathlib import Path
 
 from typing import TYPE_CHECKING
 
@@ -11,6 +12,8 @@ if TYPE_CHECKING:
     from stw_tui.sos.scene import Scene
 
 _WORD = re.compile(r"[A-Za-z_][A-Za-z0-9_.]*$")
+# The word being typed as a path: a quoted one (may hold spaces, not closed yet) or a plain one.
+_PATH_WORD = re.compile(r'(?:"[^"]*|[^\s"]*)$')
 
 
 class History:
@@ -55,6 +58,13 @@ def candidates(text: str, scene: "Scene | None", backends: list[str] = ()) -> tu
     from stw_tui.sos.scene import DEFAULT_SETTINGS
     from stw_tui.sym.language import COMMAND_NAMES     # the core loads in the worker; see app.StwApp
 
+    path = _path_context(text)
+    if path is not None:
+        partial, suffix = path
+        if suffix is None:
+            from stw_tui.sym.language.session_commands import EXPORT_FORMATS
+            return partial, [f for f in EXPORT_FORMATS if f.startswith(partial)]
+        return partial, path_candidates(partial, suffix)
     match = _WORD.search(text)
     partial = match.group(0) if match else ""
     if match is None and text and not text[-1].isspace():
@@ -83,6 +93,79 @@ def complete(text: str, scene: "Scene | None", backends: list[str] = ()) -> tupl
     if not found:
         return text, []
     stem = text[:len(text) - len(partial)]
+    if _path_context(text) is not None:
+        return _complete_path(stem, found)
     if len(found) == 1:
         return stem + found[0] + " ", []
     return stem + os.path.commonprefix(found), found
+
+
+# --- file paths after `open`, `save` and `export FORMAT` --------------------------------------
+def _path_context(text: str) -> tuple[str, str | None] | None:
+    """Whether the word being typed is a file path (or an export format).
+
+    Returns:
+        None when it is neither; else the partial word and the suffix of the files to list first
+        (``.stw`` for `open` and `save`, ``.csv`` for `export csv`), or None as the suffix when
+        the word is the format of `export`.
+    """
+    from stw_tui.sym.language.session_commands import EXPORT_FORMATS
+
+    partial = _PATH_WORD.search(text).group(0)
+    before = text[:len(text) - len(partial)]
+    if before and not before[-1].isspace():
+        return None
+    words = before.split()
+    if words in (["open"], ["save"]):
+        return partial, ".stw"
+    if words == ["export"]:
+        return partial, None
+    if len(words) == 2 and words[0] == "export" and words[1] in EXPORT_FORMATS:
+        return partial, "." + words[1]
+    return None
+
+
+def path_candidates(partial: str, suffix: str = ".stw", cwd: str | Path | None = None) -> list[str]:
+    """Files and directories whose path starts with ``partial``, as ``partial`` would be completed.
+
+    Relative paths are read from ``cwd`` (the current directory by default), where the session
+    opens them; ``~`` is expanded to look, and kept as typed. Directories end with ``/``. Files
+    ending with ``suffix`` come first, then everything else, each group sorted; hidden entries are
+    listed only when the name typed starts with a dot. A leading ``"`` (a path with spaces) is kept.
+
+    Returns:
+        The candidates, each the whole word to put in place of ``partial``; none when the directory
+        cannot be read.
+    """
+    quote = '"' if partial.startswith('"') else ""
+    typed = partial[len(quote):]
+    if typed.startswith("~") and "/" not in typed:       # the home directory, not other users'
+        return [quote + "~/"] if typed == "~" else []
+    directory, slash, start = typed.rpartition("/")
+    head = directory + slash
+    where = Path(os.path.expanduser(head or "."))
+    if not where.is_absolute() and cwd is not None:
+        where = Path(cwd) / where
+    try:
+        entries = [(entry.name, entry.is_dir()) for entry in os.scandir(where)
+                   if entry.name.startswith(start) and (start.startswith(".") or not entry.name.startswith("."))]
+    except OSError:
+        return []
+    entries.sort(key=lambda e: (e[1] or not e[0].endswith(suffix), e[0]))
+    found = [head + name + ("/" if is_dir else "") for name, is_dir in entries]
+    if any(" " in path for path in found):
+        quote = '"'             # all or none quoted, so their common prefix keeps what was typed
+    return [quote + path for path in found]
+
+
+def _complete_path(stem: str, found: list[str]) -> tuple[str, list[str]]:
+    """Put the one path in (a file closes its quote and takes a space, a directory waits for
+    more), or the longest common prefix, listing the names without their directory part."""
+    if len(found) == 1:
+        path = found[0]
+        if path.endswith("/"):
+            return stem + path, []
+        return stem + path + ('" ' if path.startswith('"') else " "), []
+    prefix = os.path.commonprefix(found)
+    cut = prefix.rfind("/") + 1
+    return stem + prefix, [path[cut:] for path in found]

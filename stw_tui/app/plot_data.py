@@ -16,6 +16,7 @@ import numpy as np
 from stw_tui.app.values import Series, dof_series, equation_series
 
 if TYPE_CHECKING:
+    from stw_tui.session.figure import Figure
     from stw_tui.sos.scene import Scene
 
 Bounds = tuple[float, float, float, float]
@@ -55,6 +56,7 @@ class FigureData:
     segments: tuple = ()
     points: tuple = ()
     bounds: Bounds | None = None
+    ghost: "Figure | None" = None   # the proposal's figure at ``t`` under `set preview on`
 
 
 def live_scene(scene: "Scene", coefficients) -> "Scene":
@@ -80,19 +82,22 @@ def expression_plot_data(scene: "Scene", name: str) -> ExpressionPlotData:
     return ExpressionPlotData(name, tuple(series), scope, (scene.t0, scene.t1))
 
 
-def figure_data(scene: "Scene", t: float) -> FigureData:
+def figure_data(scene: "Scene", t: float, proposal=None) -> FigureData:
+    """The figure player's frame at ``t`` (clamped to the span); with a ProposalView, the proposed
+    motion's figure beside it. Computed off the UI thread: it evaluates the scene's curves."""
     from stw_tui.session.figure import scene_figure
 
     t = min(max(t, scene.t0), scene.t1)
     figure = scene_figure(scene, t)
     span = (scene.t0, scene.t1)
+    ghost = proposal.figure(t) if proposal is not None else None
     if figure.segments or figure.points:
-        return FigureData(t, span, tuple(figure.segments), tuple(figure.points))
+        return FigureData(t, span, tuple(figure.segments), tuple(figure.points), ghost=ghost)
     # A lone DOF (the jet particle) is drawn as a dot at its height, within its range.
     name = next(iter(scene.dofs))
     values = dof_series(scene, name, 0).values
     pad = 0.1 * max(max(values) - min(values), 0.2)
     height = float(scene.dofs[name].curve.evaluate([t])[0])
     return FigureData(t, span, points=((name, (0.0, height)),),
-                      bounds=(-1.0, 1.0, min(values) - pad, max(values) + pad))
+                      bounds=(-1.0, 1.0, min(values) - pad, max(values) + pad), ghost=ghost)
 

@@ -293,22 +293,32 @@ class FigurePlot(ScenePlot):
             return None
         if self.t is None:
             self.t = scene.settings.get("frame", scene.t0)
-        t = self.t
-        return lambda live: figure_data(live, t)
+        t, ghost = self.t, self.info.proposal    # `set preview on`: the proposal, beside the motion
+        return lambda live: figure_data(live, t, ghost)
 
     def draw(self, plt) -> None:
         data = self.data
         if data is None:
             plt.title("no creature yet")
             return
+        line, dot = ("gray", "gray") if data.ghost is not None else ("cyan", "red")   # dim the motion
         for (x0, y0), (x1, y1) in data.segments:
-            plt.plot([x0, x1], [y0, y1], color="cyan", marker="braille")
+            plt.plot([x0, x1], [y0, y1], color=line, marker="braille")
         for label, (x, y) in data.points:
-            plt.scatter([x], [y], marker="●", color="red")
+            plt.scatter([x], [y], marker="●", color=dot)
             plt.text(label, x, y, color="white")
         bounds = data.bounds if data.bounds is not None else self.info.figure_bounds
+        if data.ghost is not None:
+            for (x0, y0), (x1, y1) in data.ghost.segments:
+                plt.plot([x0, x1], [y0, y1], color="cyan", marker="braille")
+            for label, (x, y) in data.ghost.points:
+                plt.scatter([x], [y], marker="●", color="red")
+            bounds = self.info.figure_bounds           # the worker's: both motions fit
         if bounds is not None and all(map(math.isfinite, bounds)):
             self.set_axes(plt, (bounds[0], bounds[1]), (bounds[2], bounds[3]))
+        if data.ghost is not None and self.info.proposal is not None:
+            self.set_title(plt, *self.info.proposal.captions(data.t))
+            return
         t, (t0, t1) = data.t, data.span
         state = "playing" if self.playing else "space plays"
         self.set_title(plt, f"t = {t:.3f} of [{t0:g}, {t1:g}] · {state} · ← →",

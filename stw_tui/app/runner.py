@@ -188,7 +188,8 @@ class Runner:
         except Exception as exc:  # a core bug must reach the console, not kill the worker
             error = exc
         try:
-            info = scene_info(self.session.scene)
+            proposal = self.session.proposal      # `set preview on`: the figure player shows it
+            info = scene_info(self.session.scene, proposal.scene if proposal is not None else None)
         except Exception:  # measuring is best effort
             info = SceneInfo()
         # The views read this copy (in the UI thread and in their background computations)

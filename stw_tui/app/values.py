@@ -16,6 +16,8 @@ import numpy as np
 from stw_tui.sym.kinds import TermKind
 
 if TYPE_CHECKING:
+    from stw_tui.session.figure import Figure
+    from stw_tui.session.snapshots import Measures
     from stw_tui.sos.scene import Scene
 
 QUANTITIES = ("value", "velocity", "acceleration")
@@ -37,7 +39,8 @@ class SceneInfo:
     violations: dict[str, float] = field(default_factory=dict)
     backend_options: tuple = ()          # BackendOption records of the scene's backend
     backend_error: str = ""
-    figure_bounds: tuple[float, float, float, float] | None = None
+    figure_bounds: tuple[float, float, float, float] | None = None   # with a proposal: of both
+    proposal: "ProposalView | None" = None     # a solve's result under `set preview on`
 
 
 def dof_series(scene: "Scene", name: str, order: int, n: int = 161) -> Series:
@@ -91,23 +94,67 @@ def equation_violations(scene: "Scene") -> dict[str, float]:
         return {}
 
 
-def figure_bounds(scene: "Scene", frames: int = 11) -> tuple[float, float, float, float] | None:
-    """Bounds of the stick figure over the whole span, so playback does not rescale the axes."""
-    from stw_tui.session.figure import scene_figure
+def figure_bounds(scene: "Scene", frames: int = 11, proposal: "Scene | None" = None
+                  ) -> tuple[float, float, float, float] | None:
+    """Bounds of the stick figure over the whole span, so playback does not rescale the axes; of
+    the proposal's figure too when one is shown beside it."""
+    from stw_tui.session.figure import player_figure
 
+    scenes = [scene] if proposal is None else [scene, proposal]
     try:
-        boxes = [scene_figure(scene, t).bounds() for t in np.linspace(scene.t0, scene.t1, frames)]
+        boxes = [player_figure(s, t).bounds() for s in scenes for t in np.linspace(s.t0, s.t1, frames)]
     except Exception:  # drawing is best effort; a broken figure must not break the session
         return None
     x0, x1 = min(b[0] for b in boxes), max(b[1] for b in boxes)
     y0, y1 = min(b[2] for b in boxes), max(b[3] for b in boxes)
     pad_x, pad_y = 0.1 * max(x1 - x0, 0.2), 0.1 * max(y1 - y0, 0.2)
+    if x1 == x0:     # a dot moving up and down (the jet particle): a unit box around it
+        pad_x = 1.0
     return (x0 - pad_x, x1 + pad_x, y0 - pad_y, y1 + pad_y)
 
 
-def scene_info(scene: "Scene") -> SceneInfo:
-    """Everything slow the panels need, measured once per command (called in the worker)."""
-    info = SceneInfo(violations=equation_violations(scene), figure_bounds=figure_bounds(scene))
+@dataclass
+class ProposalView:
+    """A solve's proposed motion (`set preview on`) and how it compares with the scene's: the
+    figure player draws the proposal beside the scene's motion, which it dims."""
+
+    scene: "Scene"
+    proposed: "Measures"
+    current: "Measures"
+
+    def figure(self, t: float) -> "Figure":
+        from stw_tui.session.figure import player_figure
+
+        return player_figure(self.scene, t)
+
+    def captions(self, t: float) -> tuple[str, ...]:
+        """Titles for the player, most detailed first: objective and violation of both."""
+        p, c = self.proposed, self.current
+        if p.objective is None or c.objective is None:
+            return (f"t = {t:.3f} · proposal (F9 accept, F10 reject), now dimmed",
+                    f"t = {t:.3f} · proposal, now dimmed", f"t={t:.2f} proposal")
+        new, now = f"obj {p.objective:.4g} viol {p.dense:.1e}", f"obj {c.objective:.4g} viol {c.dense:.1e}"
+        return (f"t = {t:.3f} · proposal {new} · now (dim) {now} · F9 accept, F10 reject",
+                f"t = {t:.3f} · proposal {new} · now (dim) {now}",
+                f"proposal {new} · now {now}",
+                f"obj {p.objective:.4g} (now {c.objective:.4g}) · viol {p.dense:.1e} (now {c.dense:.1e})",
+                f"obj {p.objective:.3g} ({c.objective:.3g}) viol {p.dense:.0e} ({c.dense:.0e})",
+                f"t={t:.2f} proposal")
+
+
+def proposal_view(scene: "Scene", proposal: "Scene") -> ProposalView:
+    """Measure a proposal and the scene it would replace (in the worker: it builds window problems)."""
+    from stw_tui.session.snapshots import measure
+
+    return ProposalView(proposal, measure(proposal), measure(scene))
+
+
+def scene_info(scene: "Scene", proposal: "Scene | None" = None) -> SceneInfo:
+    """Everything slow the panels need, measured once per command (called in the worker); with
+    the scene a solve proposes under `set preview on`, what the figure player shows of it."""
+    info = SceneInfo(violations=equation_violations(scene), figure_bounds=figure_bounds(scene, proposal=proposal))
+    if proposal is not None:
+        info.proposal = proposal_view(scene, proposal)
     try:
         from stw_tui.sos.backend import load_backend
 

@@ -51,6 +51,10 @@ def _run(args: argparse.Namespace) -> int:
         print(JOURNAL_ON_ITSELF.format(args.journal), file=sys.stderr)
         return 2
     session = Session(journal_path=args.journal)
+    if args.journal is not None:   # as the TUI's: `stw --resume JOURNAL` then restores, not re-solves
+        from stw_tui.session.autosave import Checkpoints
+
+        session.checkpoints = Checkpoints(args.journal)
     started = time.perf_counter()
 
     def on_line(number, line, outcome):
@@ -177,7 +181,8 @@ def build_parser() -> argparse.ArgumentParser:
     run.add_argument("--backend", help="backend to use (overridden by `backend` lines in the session)")
     run.add_argument("--json", action="store_true", help="print one JSON object instead of the table")
     run.add_argument("--samples", type=int, default=21, help="DOF samples in the JSON output")
-    run.add_argument("--journal", type=Path, help="append the journal of this run to a file")
+    run.add_argument("--journal", type=Path, help="append the journal of this run to a file "
+                     "(solves checkpointed beside it, for `stw --resume`)")
     run.set_defaults(func=_run)
     bench = sub.add_parser("bench", help="time the solvers against their speed targets (--detail: per solver)")
     bench.add_argument("--sessions", nargs="*", type=Path, help="session files (default: sessions/*.stw)")

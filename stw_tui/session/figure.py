@@ -2,7 +2,8 @@
 
 Linkages give segments (base → joints → tip). Point masses are found by name: a pair of DOF or
 subexpressions ``<prefix>x`` and ``<prefix>y`` (or ``X``/``Y``), such as ``x, y``, ``cx, cy``,
-``BX, BY`` or the mouse's ``mx, my``, is drawn as a dot labelled with the prefix.
+``BX, BY`` or the mouse's ``mx, my``, is drawn as a dot labelled with the prefix. A scene with
+neither (the jet particle's lone ``x``) is played as its first DOF's height (:func:`player_figure`).
 """
 
 from __future__ import annotations
@@ -61,4 +62,14 @@ def scene_figure(scene: Scene, t: float) -> Figure:
             figure.segments.append(((float(start[0]), float(start[1])), (float(end[0]), float(end[1]))))
     for label, xn, yn in point_pairs(scene):
         figure.points.append((label, (_value(scene, xn, t), _value(scene, yn, t))))
+    return figure
+
+
+def player_figure(scene: Scene, t: float) -> Figure:
+    """What the figure player draws at ``t``: :func:`scene_figure`, or, when that is empty, the
+    first DOF as a dot at x = 0 and its value as the height."""
+    figure = scene_figure(scene, t)
+    if not figure.segments and not figure.points and scene.dofs:
+        name = next(iter(scene.dofs))
+        figure.points.append((name, (0.0, _value(scene, name, figure.t))))
     return figure
