@@ -9,7 +9,7 @@ import pytest
 
 from stw_tui.app.completion import History, candidates, complete, path_candidates
 from stw_tui.app.runner import Job, Script
-from stw_tui.app.values import dof_series, equation_series, equation_violations, figure_bounds, scene_info
+from stw_tui.session.queries import dof_series, equation_series, equation_violations, figure_bounds, scene_info
 from stw_tui.session.session import Session
 
 SESSIONS = Path(__file__).resolve().parent.parent / "sessions"

@@ -31,7 +31,7 @@ from stw_tui.app.panels import ConstantsPanel, DofPanel, EquationsPanel, Optimiz
 from stw_tui.app.plots import ConvergencePlot, DofPlot, ExpressionPlot, FigurePlot, ScenePlot
 from stw_tui.app.runner import Job, Runner, Script
 from stw_tui.app.status import StatusLine
-from stw_tui.app.values import SceneInfo
+from stw_tui.session.queries import SceneInfo
 
 if TYPE_CHECKING:
     from textual.app import SystemCommand

@@ -10,7 +10,7 @@ from textual.message import Message
 
 if TYPE_CHECKING:
     from stw_tui.app.runner import Job
-    from stw_tui.app.values import SceneInfo
+    from stw_tui.session.queries import SceneInfo
     from stw_tui.sos.backend import StepReport
     from stw_tui.sos.scene import Scene
 

@@ -16,7 +16,7 @@ from textual.app import SystemCommand
 from textual.command import DiscoveryHit, Hit, Hits, Provider
 
 from stw_tui.app.messages import ItemChosen
-from stw_tui.app.values import equation_names
+from stw_tui.session.queries import equation_names
 
 if TYPE_CHECKING:
     from textual.app import App

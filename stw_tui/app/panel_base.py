@@ -14,7 +14,7 @@ from textual.widgets import DataTable
 
 from stw_tui.app.dialogs import EditDialog
 from stw_tui.app.messages import CommandRequested
-from stw_tui.app.values import SceneInfo
+from stw_tui.session.queries import SceneInfo
 
 if TYPE_CHECKING:
     from stw_tui.sos.scene import Scene

@@ -13,7 +13,7 @@ from textual.binding import Binding
 
 from stw_tui.app.messages import ItemChosen
 from stw_tui.app.panel_base import ScenePanel, SettingRow, SettingsPanel, num, show
-from stw_tui.app.values import SceneInfo
+from stw_tui.session.queries import SceneInfo
 from stw_tui.session.verbs import verb_of
 
 if TYPE_CHECKING:

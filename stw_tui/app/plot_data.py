@@ -13,7 +13,7 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
-from stw_tui.app.values import Series, dof_series, equation_series
+from stw_tui.session.queries import Series, dof_series, equation_series
 
 if TYPE_CHECKING:
     from stw_tui.session.figure import Figure

@@ -20,7 +20,7 @@ from stw_tui.app.axes import fit_title, nice_ticks, title_room, value_limits
 from stw_tui.app.background import LatestOnly
 from stw_tui.app.messages import ItemChosen, PlotDataComputed
 from stw_tui.app.plot_data import dof_plot_data, expression_plot_data, figure_data, live_scene
-from stw_tui.app.values import QUANTITIES, SceneInfo, equation_names
+from stw_tui.session.queries import QUANTITIES, SceneInfo, equation_names
 
 if TYPE_CHECKING:
     import numpy as np

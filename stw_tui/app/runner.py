@@ -20,7 +20,7 @@ from pathlib import Path
 from typing import TYPE_CHECKING, Any, Callable
 
 from stw_tui.app.messages import CommandFinished, CommandStarted, IterationReported, Origin, SurveyProgressed, TaskFinished
-from stw_tui.app.values import SceneInfo, scene_info
+from stw_tui.session.queries import SceneInfo, scene_info
 from stw_tui.sym.errors import StwError
 from stw_tui.sym.language import classify_line
 

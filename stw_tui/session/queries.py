@@ -1,4 +1,4 @@
-"""Numbers the TUI shows, computed from a scene without Textual (testable, and safe in a worker).
+"""Queries for views: the numbers the TUI shows, computed from a scene (no Textual; safe in a worker).
 
 Everything here only *reads* a scene; nothing changes one. The functions are called either on the
 UI thread for cheap things (a DOF curve) or in the session worker after each command for the
@@ -123,6 +123,7 @@ class ProposalView:
     current: "Measures"
 
     def figure(self, t: float) -> "Figure":
+        """The proposed motion's stick figure at ``t`` (its lone DOF as a dot, as the player draws it)."""
         from stw_tui.session.figure import player_figure
 
         return player_figure(self.scene, t)
