@@ -177,6 +177,21 @@ def prompt(screen: list[str]) -> str:
     return next((line for line in screen if line.startswith(("stw>", "...>"))), "")
 
 
+def title(screen: list[str]) -> str:
+    """The plot's title (centred: it moves when a redraw changes the axis labels' width)."""
+    return region(screen, 2, "plots").strip()
+
+
+def show_plot(tui: Tui, marker: str) -> bool:
+    """Press F3 (the plots have the focus) until the plot whose title holds ``marker`` shows."""
+    for _ in range(5):
+        if marker in title(tui.screen()):
+            return True
+        tui.send("F3")
+        time.sleep(0.5)
+    return marker in title(tui.screen())
+
+
 def timed_key(tui: Tui, keys: list[str], area, literal: bool = False) -> tuple[float, bool]:
     """Seconds from sending ``keys`` until the output that changed ``area(screen)`` (once the
     area has been still for 0.1 s: a tab's underline slides); and whether the solve was still
@@ -225,15 +240,13 @@ def measure_keys(tui: Tui, rounds: int) -> tuple[dict[str, list[float]], float]:
         tui.send("F3")                                   # focuses the plots
         for _ in range(4):                               # back to the tab it started on
             record("F3 plot switch", timed_key(tui, ["F3"], lambda s: region(s, 1, "plots")))
-        for _ in range(2):
-            record("] next DOF (Curves)", timed_key(tui, ["]"], lambda s: region(s, 2, "plots"), literal=True))
-        tui.send("F3")
-        tui.send("F3")                                   # Expr, then Figure
-        time.sleep(0.3)
-        for _ in range(2):
-            record("→ scrub (Figure)", timed_key(tui, ["Right"], lambda s: region(s, 2, "plots")))
-        tui.send("F3")
-        tui.send("F3")                                   # Conv, then Curves again
+        if show_plot(tui, "value"):                      # the Curves plot's title
+            for _ in range(2):
+                record("] next DOF (Curves)", timed_key(tui, ["]"], title, literal=True))
+        if show_plot(tui, "t = "):                       # the Figure plot's
+            for _ in range(2):
+                record("→ scrub (Figure)", timed_key(tui, ["Right"], title))
+        show_plot(tui, "value")
         tui.send("Escape")                               # back to the console
         time.sleep(0.2)
     tui.wait(lambda screen: not tui.solving(screen), timeout=600, interval=0.1)
