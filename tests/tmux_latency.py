@@ -4,7 +4,8 @@ the TUI against the same solve headless: the figures and targets of issue 12.
     python tests/tmux_latency.py [SESSION] [--rounds N]
 
 SESSION defaults to sessions/basketball.stw (it must contain an `iterate` line). The TUI runs
-with this interpreter (`python -m stw_tui.cli.main`), so PYTHONPATH picks the tree measured.
+with this interpreter (`python -m stw_tui.cli.main`, started in a temporary folder), so
+PYTHONPATH picks the tree measured.
 
 What is measured, in order:
 
@@ -44,16 +45,14 @@ SIZE = (80, 24)
 TARGETS = {"keys": 0.050, "echo": 0.020, "ratio": 1.2}
 
 HEADLESS = """
-import sys, time
+import re, sys, time
 from stw_tui.session.session import Session
-from stw_tui.sym.language import classify_line
 
 session = Session()
 for number, line in enumerate(open(sys.argv[1], encoding="utf-8").read().splitlines(), start=1):
-    kind = classify_line(line)
-    if kind.is_blank:
+    if not line.split("#")[0].strip():
         continue
-    if kind.verb == "iterate":
+    if re.match(r"\\s*iterate\\b", line):
         start = time.perf_counter()
         outcome = session.execute(line, line=number)
         print(time.perf_counter() - start)
@@ -66,7 +65,9 @@ for number, line in enumerate(open(sys.argv[1], encoding="utf-8").read().splitli
 def headless_solve(session: Path, env: dict) -> float:
     """Seconds of the session's first `iterate`, headless, in a fresh process."""
     done = subprocess.run([sys.executable, "-c", HEADLESS, str(session)], capture_output=True, text=True,
-                          env=env, cwd=ROOT, check=True)
+                          env=env, cwd=env["XDG_STATE_HOME"], check=False)
+    if done.returncode != 0:
+        raise SystemExit(f"the headless solve failed:\n{done.stderr[-2000:]}")
     return float(done.stdout.split()[0])
 
 
@@ -84,7 +85,7 @@ class Tui:
         # COLUMNS/LINES set by a caller would override the pane's size.
         command = f"env -u COLUMNS -u LINES {exports} {sys.executable} -m stw_tui.cli.main {session}"
         subprocess.run([*self.base, "new-session", "-d", "-s", self.name, "-x", str(SIZE[0]), "-y", str(SIZE[1]),
-                        command], cwd=ROOT, check=True, env=env)
+                        command], cwd=env["XDG_STATE_HOME"], check=True, env=env)
         self.control = subprocess.Popen([*self.base, "-C", "attach", "-t", self.name], stdin=subprocess.PIPE,
                                         stdout=subprocess.PIPE, text=True, bufsize=1, errors="replace")
         self.replies: queue.Queue[list[str]] = queue.Queue()
@@ -277,7 +278,10 @@ def main(argv: list[str] | None = None) -> int:
         return 2
     session = args.session.resolve()
     with tempfile.TemporaryDirectory() as state:
-        env = dict(os.environ, XDG_STATE_HOME=state)   # the TUI's autosaved journals go here
+        # The TUI's autosaved journals go to the state folder, and every process starts in it:
+        # `python -m`/`-c` put the working directory first on sys.path, so a checkout there would
+        # win over PYTHONPATH.
+        env = dict(os.environ, XDG_STATE_HOME=state)
         print(f"{session.name}: headless solve…", flush=True)
         headless = [headless_solve(session, env)]
         print(f"  {headless[0]:.1f} s; the TUI solving untouched…", flush=True)
