@@ -272,7 +272,7 @@ def test_ctrl_q_quits_at_once_during_a_solve():
 def test_ctrl_q_does_not_wait_for_a_job_that_cannot_be_stopped():
     import time
 
-    from stw_tui.app.runner import Job
+    from stw_tui.app.messages import Job
 
     app = create_app()
 

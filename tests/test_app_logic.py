@@ -8,7 +8,8 @@ import numpy as np
 import pytest
 
 from stw_tui.app.completion import History, candidates, complete, path_candidates
-from stw_tui.app.runner import Job, Script
+from stw_tui.app.messages import Job
+from stw_tui.app.runner import Script
 from stw_tui.session.queries import dof_series, equation_series, equation_violations, figure_bounds, scene_info
 from stw_tui.session.session import Session
 

@@ -25,11 +25,11 @@ from stw_tui.app.help_screen import HelpScreen, help_sections
 from stw_tui.app.key_hints import KeyHints
 from stw_tui.app.palette import SceneCommands, app_commands
 from stw_tui.sym.language import classify_line
-from stw_tui.app.messages import (CommandFinished, CommandRequested, CommandStarted, IterationReported, ItemChosen,
+from stw_tui.app.messages import (CommandFinished, CommandRequested, CommandStarted, IterationReported, ItemChosen, Job,
                        Origin, SurveyProgressed, TaskFinished)
 from stw_tui.app.panels import ConstantsPanel, DofPanel, EquationsPanel, OptimizationPanel, TimePanel, WindowsPanel
 from stw_tui.app.plots import ConvergencePlot, DofPlot, ExpressionPlot, FigurePlot, ScenePlot
-from stw_tui.app.runner import Job, Runner, Script
+from stw_tui.app.runner import Runner, Script
 from stw_tui.app.status import StatusLine
 from stw_tui.session.queries import SceneInfo
 

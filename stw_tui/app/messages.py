@@ -4,13 +4,15 @@ from __future__ import annotations
 
 import enum
 from dataclasses import dataclass
-from typing import TYPE_CHECKING, Any
+from typing import TYPE_CHECKING, Any, Callable
 
 from textual.message import Message
 
+from stw_tui.sym.language import classify_line
+
 if TYPE_CHECKING:
-    from stw_tui.app.runner import Job
     from stw_tui.session.queries import SceneInfo
+    from stw_tui.session.session import Session
     from stw_tui.sos.backend import StepReport
     from stw_tui.sos.scene import Scene
 
@@ -24,6 +26,24 @@ class Origin(enum.StrEnum):
     FILE = "file"         # the opened session file
     STARTUP = "startup"   # the empty job that loads the core when the app starts
     COMPARE = "compare"   # the backend comparison task
+
+
+@dataclass
+class Job:
+    """One command line to run, and where it came from."""
+
+    line: str
+    number: int | None = None     # its line in the opened session file
+    origin: Origin = Origin.CONSOLE
+    continuation: bool = False    # a row inside an open `linkage` block (set by the worker)
+    # A read-only task instead of a command line (e.g. comparing backends): called with the
+    # session in the worker, not journalled; its result comes back in a TaskFinished message.
+    task: "Callable[[Session], Any] | None" = None
+
+    @property
+    def is_solve(self) -> bool:
+        """A solve that F4 stops: `iterate`, and `survey` and `adopt` (their starts are solves)."""
+        return classify_line(self.line).verb in ("iterate", "survey", "adopt")
 
 
 @dataclass

@@ -15,11 +15,11 @@ from __future__ import annotations
 
 import threading
 from collections import deque
-from dataclasses import dataclass
 from pathlib import Path
-from typing import TYPE_CHECKING, Any, Callable
+from typing import TYPE_CHECKING
 
-from stw_tui.app.messages import CommandFinished, CommandStarted, IterationReported, Origin, SurveyProgressed, TaskFinished
+from stw_tui.app.messages import (CommandFinished, CommandStarted, IterationReported, Job, Origin, SurveyProgressed,
+                                  TaskFinished)
 from stw_tui.session.queries import SceneInfo, scene_info
 from stw_tui.sym.errors import StwError
 from stw_tui.sym.language import classify_line
@@ -30,23 +30,6 @@ if TYPE_CHECKING:
     from stw_tui.session.session import Session
     from stw_tui.sos.backend import StepReport
 
-
-@dataclass
-class Job:
-    """One command line to run, and where it came from."""
-
-    line: str
-    number: int | None = None     # its line in the opened session file
-    origin: Origin = Origin.CONSOLE
-    continuation: bool = False    # a row inside an open `linkage` block (set by the worker)
-    # A read-only task instead of a command line (e.g. comparing backends): called with the
-    # session in the worker, not journalled; its result comes back in a TaskFinished message.
-    task: "Callable[[Session], Any] | None" = None
-
-    @property
-    def is_solve(self) -> bool:
-        """A solve that F4 stops: `iterate`, and `survey` and `adopt` (their starts are solves)."""
-        return classify_line(self.line).verb in ("iterate", "survey", "adopt")
 
 
 class Script:
