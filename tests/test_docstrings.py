@@ -37,7 +37,7 @@ AREAS: dict[str, list[str]] = {
     "stw_tui/session/resume.py": ["stw_tui/session/resume.py"],
     "backends": ["backends/**/*.py"],
 }
-PENDING_AREAS = {"stw_tui/app", "stw_tui/session/autosave.py", "stw_tui/session/interpreter.py"}
+PENDING_AREAS = {"stw_tui/session/autosave.py", "stw_tui/session/interpreter.py"}
 
 
 def _is_hook(name: str) -> bool:

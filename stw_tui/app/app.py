@@ -120,6 +120,7 @@ class StwApp(App[int]):
         yield KeyHints([(binding.key, binding.action) for binding in self.BINDINGS], id="keys")
 
     def get_system_commands(self, screen) -> "Iterable[SystemCommand]":
+        """The palette's commands: the app's own (not from the help screen), then Textual's."""
         if screen is self.screen_stack[0]:   # not from the help screen: there only Textual's own
             yield from app_commands(self)
         yield from super().get_system_commands(screen)
@@ -131,14 +132,17 @@ class StwApp(App[int]):
 
     @property
     def scene(self) -> "Scene | None":
+        """The scene of the session the worker drives (None before the core has loaded)."""
         return self.runner.session.scene if self.runner.session is not None else None
 
     @property
     def repl(self) -> Console:
+        """The console widget."""
         return self.query_one(Console)
 
     @property
     def status_line(self) -> StatusLine:
+        """The status line widget."""
         return self.query_one(StatusLine)
 
     def _backend_names(self) -> list[str]:
@@ -436,6 +440,7 @@ class StwApp(App[int]):
         return self.focused is not self.repl.input and key.key not in self.active_bindings
 
     def check_action(self, action: str, parameters: tuple) -> bool | None:
+        """Enable stepping only while a session file has lines left, the gallery only after a survey."""
         if action in ("step", "run_rest"):
             return self.script is not None and not self.script.done
         if action == "gallery":

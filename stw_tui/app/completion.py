@@ -25,6 +25,7 @@ class History:
         self._draft = ""
 
     def add(self, line: str) -> None:
+        """Remember ``line`` (not blanks, not a repeat of the last one) and go back to the end."""
         if line.strip() and (not self.lines or self.lines[-1] != line):
             self.lines.append(line)
         self._index = len(self.lines)
@@ -37,6 +38,7 @@ class History:
         return self.lines[self._index] if self.lines else current
 
     def next(self) -> str:
+        """The line after the one shown; past the newest, what was being typed."""
         self._index = min(len(self.lines), self._index + 1)
         return self.lines[self._index] if self._index < len(self.lines) else self._draft
 

@@ -78,10 +78,12 @@ class Console(Vertical):
 
     @property
     def input(self) -> CommandInput:
+        """The prompt's input field."""
         return self.query_one(CommandInput)
 
     @property
     def log_widget(self) -> RichLog:
+        """The log that commands, results and notes are written to."""
         return self.query_one(RichLog)
 
     def on_input_submitted(self, event: Input.Submitted) -> None:
@@ -92,11 +94,13 @@ class Console(Vertical):
         self.post_message(CommandRequested(line, origin=Origin.CONSOLE))
 
     def set_prompt(self, continuation: bool) -> None:
+        """Show the continuation prompt inside a `linkage` block, the normal one otherwise."""
         self.query_one("#prompt", Label).update(CONTINUATION if continuation else PROMPT)
 
     # --- writing (Text objects, never markup: user text contains [brackets]) -----------------
     def write_command(self, line: str, number: int | None = None, origin: Origin = Origin.CONSOLE,
                       continuation: bool = False) -> None:
+        """Echo a command line, prefixed by its file line number or where it came from."""
         if number is not None:
             prefix = f"{number:>3}| "
         elif continuation:
@@ -106,10 +110,12 @@ class Console(Vertical):
         self.log_widget.write(Text.assemble((prefix, "dim"), (line, "bold")))
 
     def write_result(self, text: str) -> None:
+        """Write what a command printed (plain text, never markup)."""
         if text:
             self.log_widget.write(Text(text))
 
     def write_note(self, text: str) -> None:
+        """Write a note of the app's own, dimmed."""
         self.log_widget.write(Text(text, style="dim italic"))
 
     def write_error(self, error: BaseException) -> None:

@@ -62,6 +62,7 @@ class IterationReported(Message):
 
     def can_replace(self, message: Message) -> bool:
         # The worker keeps every report; the UI only needs the newest to redraw.
+        """A newer report replaces one the UI has not handled yet."""
         return isinstance(message, IterationReported)
 
 
@@ -108,6 +109,7 @@ class SurveyProgressed(Message):
     table: Any
 
     def can_replace(self, message: Message) -> bool:
+        """A newer table replaces one the UI has not handled yet."""
         return isinstance(message, SurveyProgressed)
 
 
@@ -121,4 +123,5 @@ class PlotDataComputed(Message):
     error: BaseException | None
 
     def can_replace(self, message: Message) -> bool:
+        """Newer plot data replaces data the UI has not handled yet."""
         return isinstance(message, PlotDataComputed)

@@ -100,11 +100,13 @@ class SceneCommands(Provider):
         field.focus()
 
     async def discover(self) -> Hits:
+        """What the palette lists before anything is typed: the plots to show."""
         for title, help, callback in self._entries():
             if title.startswith("Plot "):
                 yield DiscoveryHit(title, callback, help=help)
 
     async def search(self, query: str) -> Hits:
+        """The entries whose title matches what is typed, scored for the palette to rank."""
         matcher = self.matcher(query)
         for title, help, callback in self._entries():
             score = matcher.match(title)

@@ -70,6 +70,7 @@ def live_scene(scene: "Scene", coefficients) -> "Scene":
 
 
 def dof_plot_data(scene: "Scene", name: str, order: int) -> DofPlotData:
+    """A DOF's curve (value, velocity or acceleration), its keys and its window, for the curve plot."""
     window = scene.window
     keys = tuple((float(t), float(v)) for t, v in scene.dofs[name].keys) if order == 0 else ()
     return DofPlotData(name, order, dof_series(scene, name, order), (scene.t0, scene.t1), window.name,

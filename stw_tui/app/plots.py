@@ -143,6 +143,7 @@ class ScenePlot(PlotextPlot, can_focus=True):
 
     @staticmethod
     def mark_interval(plt, interval: tuple[float, float] | None, color: str = "gray") -> None:
+        """Vertical lines at the ends of a time interval (a window, a constraint's scope)."""
         if interval is not None:
             for t in sorted(set(interval)):
                 plt.vline(t, color)
@@ -261,6 +262,7 @@ class FigurePlot(ScenePlot):
 
     @property
     def playing(self) -> bool:
+        """Whether the player is running through the frames."""
         return self._timer is not None
 
     def action_play(self) -> None:
@@ -334,6 +336,7 @@ class ConvergencePlot(ScenePlot):
         self.reports: list["StepReport"] = []
 
     def set_reports(self, reports: list["StepReport"]) -> None:
+        """Show these iteration reports (the running or last solve's)."""
         self.reports = list(reports)
         self.request_draw()
 

@@ -43,6 +43,7 @@ class Script:
 
     @property
     def done(self) -> bool:
+        """Whether every line of the opened file has been run."""
         return self.position >= len(self.lines)
 
     def _is_command(self, index: int) -> bool:
@@ -86,10 +87,12 @@ class Runner:
 
     @property
     def busy(self) -> bool:
+        """Whether a job is running."""
         return self.current is not None
 
     @property
     def solving(self) -> bool:
+        """Whether the running job is a solve (which F4 stops)."""
         return self.current is not None and self.current.is_solve
 
     def submit(self, job: Job) -> bool:
