@@ -225,31 +225,44 @@ CANCELLED = "cancelled"           # ... and this one: a callable, True once the 
 
 
 def run_iterations(backend: Backend, problem, start: SolverState, n: int, settings: dict[str, float],
-                   on_report: Callable[[StepReport], bool | None] | None = None) -> RunResult:
+                   on_report: Callable[[StepReport], bool | None] | None = None,
+                   on_state: Callable[[int, SolverState], None] | None = None) -> RunResult:
     """Run up to ``n`` iterations of ``backend`` on ``problem``.
 
     ``on_report`` is called after every iteration; returning False stops at that boundary. It may
     carry ``on_report.cancelled()`` (the TUI's stop flag): a backend that iterates inside one call
-    (IPOPT) polls it between its own iterations, through ``settings[CANCELLED]``.
+    (IPOPT) polls it between its own iterations, through ``settings[CANCELLED]``. A backend that
+    ignores a stop for ``backend_calls.STOP_GRACE`` seconds is abandoned (stw_tui/sos/backend_calls.py).
+    ``on_state(k, state)`` is called with each finite iterate, before ``on_report`` (the periodic
+    checkpoint of a running solve, stw_tui/session/midsolve.py).
     Raises:
-        SolveError: the backend raised or produced non-finite values; nothing is returned, so the
-            caller's scene is untouched.
+        SolveError: the backend raised, produced non-finite values or hung after a stop (a
+            ``HungBackend``); nothing is returned, so the caller's scene is untouched.
     """
+    from stw_tui.sos.backend_calls import BackendThread
+
     t0 = time.perf_counter()
     reports: list[StepReport] = []
     status = Status.MAX_ITERATIONS
+    cancelled = getattr(on_report, "cancelled", None) or (lambda: False)
+    calls = BackendThread(backend.name, cancelled)
+
+    def advance(inner, k):
+        inner, report = backend.step(problem, inner, k)
+        return inner, report, backend.state(inner)
     try:
         # The budget travels with the settings: a backend that solves in one call (IPOPT) stops there.
-        cancelled = getattr(on_report, "cancelled", None) or (lambda: False)
-        inner = backend.init(problem, start, {**settings, ITERATION_BUDGET: n, CANCELLED: cancelled})
+        inner = calls.call("init", backend.init, problem, start,
+                           {**settings, ITERATION_BUDGET: n, CANCELLED: cancelled})
         state = start
         for k in range(1, n + 1):
-            inner, report = backend.step(problem, inner, k)
-            state = backend.state(inner)
+            inner, report, state = calls.call(f"iteration {k}", advance, inner, k)
             if not (np.all(np.isfinite(state.s)) and np.isfinite(report.objective)
                     and np.isfinite(report.max_violation)):
                 raise SolveError(f"iteration {k} produced non-finite values (diverged); "
                                  "the scene is unchanged — try damping, a smaller window or `shake`")
+            if on_state is not None:
+                on_state(k, state)
             report = replace(report, coefficients=problem.scatter(state.s))
             reports.append(report)
             if report.converged:
@@ -274,4 +287,6 @@ def run_iterations(backend: Backend, problem, start: SolverState, n: int, settin
     except _PLUGIN_FAULTS as exc:  # any bug or numerical failure inside a plugin, or its sys.exit()
         raise SolveError(f"backend {backend.name} raised {type(exc).__name__}: {exc}; "
                          "the scene is unchanged") from exc
+    finally:
+        calls.close()
     return RunResult(status, replace(state), reports, time.perf_counter() - t0)

@@ -1,0 +1,95 @@
+"""A backend's calls on a daemon thread of their own, so that a plugin that ignores a stop can be
+abandoned instead of holding the session (and the process) for ever.
+
+The driver (:func:`stw_tui.sos.backend.run_iterations`) hands each call (``init``, one iteration) to
+the thread and waits for its answer. While it waits it polls the caller's stop flag; once a stop
+has been asked for, a call that has not answered within :data:`STOP_GRACE` seconds is given up:
+:class:`HungBackend` is raised, the solve fails as "hung" and its result, should it ever come, is
+dropped. The thread is a daemon thread, not an executor's worker: ``concurrent.futures`` joins its
+threads at interpreter exit, which a hung call would block for ever.
+
+Each call runs in a copy of the driver's context (``contextvars``), so the scene's limits in force
+(stw_tui/sym/limits.py) and numpy's error state reach the backend as if it ran on the caller's thread.
+Ctrl+C while waiting (headless `stw run`) ends the solve at once with an error: the main thread is
+the one that receives it, the backend's thread never does.
+"""
+
+from __future__ import annotations
+
+import contextvars
+import queue
+import threading
+import time
+from typing import Any, Callable
+
+from stw_tui.sym.errors import SolveError
+
+STOP_GRACE = 5.0   # seconds a backend may take to honour a stop before it is abandoned as hung
+POLL = 0.05        # seconds between looks at the stop flag while a call runs
+
+
+class HungBackend(SolveError):
+    """A backend ignored a stop for :data:`STOP_GRACE` seconds and was abandoned."""
+
+
+class BackendThread:
+    """One daemon thread that runs a backend's calls in order, for one run of iterations.
+
+    Args:
+        name: the backend's name (for messages and the thread's name).
+        cancelled: the caller's stop flag, polled while a call runs.
+    """
+
+    def __init__(self, name: str, cancelled: Callable[[], bool]):
+        self.name = name
+        self.cancelled = cancelled
+        self.context = contextvars.copy_context()
+        self._requests: queue.SimpleQueue = queue.SimpleQueue()
+        self._thread = threading.Thread(target=self._serve, name=f"stw-backend-{name}", daemon=True)
+        self._thread.start()
+
+    def _serve(self) -> None:
+        while True:
+            request = self._requests.get()
+            if request is None:
+                return
+            fn, args, reply = request
+            try:
+                reply.put((True, self.context.run(fn, *args)))
+            except BaseException as exc:  # noqa: BLE001 - the driver decides what a fault means
+                reply.put((False, exc))
+
+    def call(self, what: str, fn: Callable[..., Any], *args: Any) -> Any:
+        """``fn(*args)`` on the backend's thread; its result, or the exception it raised.
+
+        Args:
+            what: what the call does, for the messages ("iteration 3").
+        Raises:
+            HungBackend: a stop was asked for and the call did not answer within STOP_GRACE s.
+            SolveError: Ctrl+C while the call ran.
+        """
+        reply: queue.SimpleQueue = queue.SimpleQueue()
+        self._requests.put((fn, args, reply))
+        stop_asked = None
+        while True:
+            try:
+                ok, value = reply.get(timeout=POLL)
+            except queue.Empty:
+                if stop_asked is None and self.cancelled():
+                    stop_asked = time.monotonic()
+                if stop_asked is not None and time.monotonic() - stop_asked > STOP_GRACE:
+                    raise HungBackend(
+                        f"backend {self.name} hung: it ignored the stop for {STOP_GRACE:g} s during {what} "
+                        "and was abandoned (it may go on running in the background until stw exits); "
+                        "the scene is unchanged") from None
+                continue
+            except KeyboardInterrupt:
+                raise SolveError(f"interrupted (Ctrl+C) during {what} of backend {self.name}; "
+                                 "the scene is unchanged") from None
+            if ok:
+                return value
+            raise value
+
+    def close(self) -> None:
+        """Let the thread end once its current call returns (at once when it is idle)."""
+        self._requests.put(None)

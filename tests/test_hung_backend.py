@@ -1,0 +1,265 @@
+"""A backend that ignores a stop is abandoned (stw_tui/sos/backend_calls.py): the solve is reported as
+hung and the scene stays as it was, in the core, the TUI (F4) and headless (Ctrl+C); Ctrl+Q ends
+the process even while the backend hangs. The faulty plugins are test_guards' and test_plugins'."""
+
+from __future__ import annotations
+
+import asyncio
+import os
+import signal
+import subprocess
+import sys
+import textwrap
+import threading
+import time
+import uuid
+from pathlib import Path
+
+import pytest
+
+import test_app_support as support
+from stw_tui.session.session import Session
+from stw_tui.sos import backend_calls
+from stw_tui.sos.backend_calls import HungBackend
+from test_guards import QUICK, _Entry, _faulty_backend
+
+GRACE = 0.5   # seconds: STOP_GRACE in these tests (5 s in stw)
+
+
+@pytest.fixture
+def release():
+    """Set when the test ends, so that an abandoned backend's thread ends too."""
+    event = threading.Event()
+    yield event
+    event.set()
+
+
+@pytest.fixture
+def hanging(monkeypatch, release):
+    """Install backend `hanging`: its init (`where="init"`) or second iteration (`"step"`) waits
+    for ``release``, ignoring any stop. Returns a function choosing where."""
+    import stw_tui.sos.backend as backend
+
+    monkeypatch.setattr(backend_calls, "STOP_GRACE", GRACE)
+    chosen = {"where": "step"}
+
+    def load():
+        works = _faulty_backend("nowhere", RuntimeError)   # test_guards' plugin, faulty nowhere
+
+        class Hanging(works):
+            name = "hanging"
+
+            def init(self, problem, state, settings):
+                if chosen["where"] == "init":
+                    release.wait()
+                return super().init(problem, state, settings)
+
+            def step(self, problem, state, iteration):
+                if chosen["where"] == "step" and iteration == 2:
+                    release.wait()
+                return super().step(problem, state, iteration)
+        return Hanging
+
+    installed = {**backend.available_backends(), "hanging": _Entry(load)}
+    monkeypatch.setattr(backend, "available_backends", lambda: installed)
+    return lambda where: chosen.update(where=where)
+
+
+def stop_after(seconds: float):
+    """An on_report whose stop flag (polled while the backend runs) is raised after ``seconds``."""
+    asked = time.monotonic() + seconds
+
+    def on_report(report):
+        return True
+    on_report.cancelled = lambda: time.monotonic() > asked
+    return on_report
+
+
+@pytest.mark.parametrize("where", ["init", "step"])
+def test_a_backend_that_ignores_a_stop_is_abandoned_as_hung_and_the_scene_is_unchanged(hanging, where):
+    hanging(where)
+    s = Session()
+    s.run_text("dof x = 0.5\nobjective o: x - 1\nbackend hanging")
+    before, warm = s.scene, s.warm
+    start = time.monotonic()
+    with pytest.raises(HungBackend) as info:
+        s.execute("iterate 100", on_report=stop_after(0.2))
+    took = time.monotonic() - start
+    assert GRACE + 0.2 <= took < QUICK
+    message = str(info.value)
+    assert "backend hanging hung" in message and "ignored the stop" in message
+    assert ("during init" if where == "init" else "during iteration 2") in message
+    assert "the scene is unchanged" in message
+    assert s.scene is before and s.warm is warm
+    assert s.journal.entries[-1].ok is False                  # journalled as failed, never replayed
+    s.execute("backend scipy")
+    assert s.execute("iterate 5").run is not None             # the session goes on
+
+
+def test_without_a_stop_a_slow_backend_is_waited_for(hanging, release):
+    hanging("step")
+    s = Session()
+    s.run_text("dof x = 0.5\nobjective o: x - 1\nbackend hanging")
+    threading.Timer(GRACE * 3, release.set).start()          # a step slower than the grace, no stop
+    outcome = s.execute("iterate 3")
+    assert len(outcome.run.reports) == 3
+
+
+def test_a_backend_answering_a_stop_within_the_grace_is_stopped_not_abandoned(hanging, release):
+    hanging("step")
+    s = Session()
+    s.run_text("dof x = 0.5\nobjective o: x - 1\nbackend hanging")
+    asked = threading.Event()
+    threading.Timer(GRACE / 5, asked.set).start()            # F4 while the second iteration runs
+    threading.Timer(GRACE / 2, release.set).start()          # ... which ends within the grace
+
+    def on_report(report):
+        return not asked.is_set()
+    on_report.cancelled = asked.is_set
+    outcome = s.execute("iterate 100", on_report=on_report)
+    assert outcome.run.status.name == "STOPPED" and len(outcome.run.reports) == 2
+
+
+def test_limits_and_numpy_error_state_reach_the_backend_thread():
+    """Backend calls run in a copy of the caller's context: the scene's limits (a ContextVar) and
+    numpy's error state are those in force where the solve was started."""
+    import numpy as np
+
+    from stw_tui.sym import limits
+
+    with limits.active({"knots": 7}), np.errstate(over="raise"):
+        calls = backend_calls.BackendThread("probe", lambda: False)
+    try:
+        assert calls.call("probe", limits.value, "knots") == 7
+        assert calls.call("probe", np.geterr)["over"] == "raise"
+        with pytest.raises(ZeroDivisionError):                 # what the call raised comes back
+            calls.call("probe", lambda: 1 / 0)
+    finally:
+        calls.close()
+
+
+# --- the TUI: F4, then Ctrl+Q -------------------------------------------------------------------
+
+def test_f4_on_a_hung_backend_reports_it_hung_and_frees_the_console(hanging):
+    from stw_tui.app import create_app
+
+    hanging("step")
+    session = Session()
+    session.run_text("dof x = 0.5\nobjective o: x - 1\nbackend hanging")
+    before = session.scene
+    app = create_app(session=session, show_timing=False, blink=False)
+
+    async def main():
+        async with app.run_test(size=(120, 40)) as pilot:
+            await support.settle(pilot)
+            await support.submit(pilot, "iterate 100")
+            for _ in range(200):
+                await pilot.pause(0.02)
+                if app.runner.reports:
+                    break
+            assert app.runner.solving
+            await pilot.press("f4")
+            await support.settle(pilot, timeout=GRACE + 10)
+            text = " ".join(support.log_text(app).split())     # unwrapped
+            assert "backend hanging hung" in text and "the scene is unchanged" in text, text
+            assert app.session.scene is before
+            printed = len(app.session.prints)
+            await support.submit(pilot, "print 1 + 1")       # the console is free again
+            await support.settle(pilot)
+            assert len(app.session.prints) == printed + 1
+            await support.submit(pilot, "iterate 100")      # hangs again: Ctrl+Q still quits at once
+            await pilot.pause(0.3)
+            pressed = time.monotonic()
+            await pilot.press("ctrl+q")
+        return time.monotonic() - pressed
+
+    assert asyncio.run(main()) < 1.0
+
+
+# --- real processes: headless Ctrl+C, and Ctrl+Q in a terminal ---------------------------------
+
+HANGING_PLUGIN = textwrap.dedent('''
+    """A plugin whose second iteration never returns, whatever it is asked."""
+    import time
+    from stw_tui.sos.backend import Backend, SolverState, StepReport
+
+    class Hanging(Backend):
+        name = "hanging"
+
+        def init(self, problem, state, settings):
+            return state
+
+        def step(self, problem, state, iteration):
+            if iteration == 2:
+                print("hanging now", flush=True)
+                while True:
+                    time.sleep(0.05)
+            return state, StepReport(iteration, 0.0, 0.0, 0.0, 0.0, 0, 0)
+
+        def state(self, inner):
+            return inner
+''')
+
+
+def _install_hanging(tmp_path) -> dict:
+    """test_plugins' way: a real distribution whose entry point names the hanging plugin."""
+    (tmp_path / "stw_hanging.py").write_text(HANGING_PLUGIN)
+    info = tmp_path / "stw_hanging-0.1.dist-info"
+    info.mkdir()
+    (info / "METADATA").write_text("Metadata-Version: 2.1\nName: stw-hanging\nVersion: 0.1\n")
+    (info / "entry_points.txt").write_text("[stw_tui.backends]\nhanging = stw_hanging:Hanging\n")
+    session = tmp_path / "hang.stw"
+    session.write_text("dof x = 0.5\nobjective o: x - 1\nbackend hanging\niterate 100\n")
+    return {**os.environ, "PYTHONPATH": os.pathsep.join([str(tmp_path), *sys.path]), "STW_CACHE_DIR": "off",
+            "XDG_STATE_HOME": str(tmp_path / "state")}
+
+
+def test_headless_ctrl_c_ends_a_hung_solve_at_once_with_an_error(tmp_path):
+    env = _install_hanging(tmp_path)
+    process = subprocess.Popen([sys.executable, "-m", "stw_tui.cli", "run", str(tmp_path / "hang.stw")],
+                               env=env, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    try:
+        for line in process.stdout:                          # `stw run` prints each line's result
+            if line.strip() == "hanging now":
+                break
+        pressed = time.monotonic()
+        process.send_signal(signal.SIGINT)
+        _, err = process.communicate(timeout=QUICK)
+        latency = time.monotonic() - pressed
+    finally:
+        process.kill()
+    assert process.returncode == 1, err
+    assert "interrupted (Ctrl+C) during iteration 2 of backend hanging" in err and "Traceback" not in err
+    print(f"Ctrl+C to exit, hung backend, headless: {latency:.2f} s")
+
+
+@pytest.mark.skipif(not Path("/proc/self/stat").exists(), reason="reads process states in /proc")
+def test_ctrl_q_ends_the_tui_process_while_a_backend_hangs(tmp_path):
+    import shutil
+
+    import test_app_tmux as term
+
+    if shutil.which("tmux") is None:
+        pytest.skip("needs tmux")
+    env = _install_hanging(tmp_path)
+    name = f"stw-hang-{uuid.uuid4().hex[:8]}"
+    command = f"env PYTHONPATH={env['PYTHONPATH']} STW_CACHE_DIR=off XDG_STATE_HOME={tmp_path / 'state'} " \
+              f"{sys.executable} -m stw_tui.cli {tmp_path / 'hang.stw'}"
+    base = term.start(name, command)
+    try:
+        screen = term.wait_for(base, name, "solving")
+        assert "solving" in screen, screen
+        pid = int(term.tmux(*base, "display-message", "-p", "-t", name, "#{pane_pid}").strip())
+        term.tmux(*base, "send-keys", "-t", name, "F4")
+        screen = term.wait_for(base, name, "hung", timeout=backend_calls.STOP_GRACE + 15)
+        assert "hung" in screen, screen
+        term.tmux(*base, "send-keys", "-t", name, "iterate 100", "Enter")   # hangs again
+        term.wait_for(base, name, "solving")
+        pressed = time.monotonic()
+        term.tmux(*base, "send-keys", "-t", name, "C-q")
+        while term.running(pid) and time.monotonic() - pressed < 10:
+            time.sleep(0.01)
+        assert not term.running(pid), "stw did not quit on Ctrl+Q while its backend hung"
+        print(f"Ctrl+Q to process exit, hung backend: {time.monotonic() - pressed:.3f} s")
+    finally:
+        term.tmux(*base, "kill-server")
