@@ -282,7 +282,8 @@ def _resume_tui(args: argparse.Namespace, run_app) -> int:
         print(f"stw: no autosaved session in {state_dir()} to resume", file=sys.stderr)
         return 2
     try:
-        session, restored, solved = resume(path, resolve=args.resolve)
+        session, restored, solved = resume(path, resolve=args.resolve,
+                                           on_note=lambda note: print(f"stw: {note}", file=sys.stderr))
     except (SourceError, StwError) as exc:
         print(f"stw: cannot resume {path}: {exc}", file=sys.stderr)
         return 1

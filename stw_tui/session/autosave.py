@@ -9,11 +9,14 @@ without solving again.
 - After a converged solve, :class:`Checkpoints` appends one JSON line to ``JOURNAL.ckpt``: the
   journal's size once the solve's line was on disk, and everything a solve changes: the control
   points, the instances adaptive refinement added, the windows (`slide` moves one), and the
-  solver's warm start. Numbers are written with ``repr`` precision, so they read back bit for bit.
+  solver's warm start (stw_tui/session/checkpoint_record.py: ``repr`` precision, read back bit
+  for bit). A running solve is checkpointed every few seconds too, in a file of its own
+  (stw_tui/session/midsolve.py).
 - :func:`stw_tui.session.resume.resume` replays the journal line by line through the session, as `stw SESSION` would,
   except that a solve line with a checkpoint at its end is not solved: the checkpoint's state is
   put in its place (a history step, so `undo` still takes it back). Solves without one (stopped,
-  not converged, or killed before their checkpoint was written) are solved again. ``resolve=True``
+  not converged, or killed before their checkpoint was written) are solved again; a solve killed
+  while it ran resumes from its last running checkpoint, as if stopped there. ``resolve=True``
   ignores the checkpoints and solves everything.
 
 A checkpoint holds only numbers, names and flags (JSON), never code; one that does not fit the
@@ -24,101 +27,41 @@ from __future__ import annotations
 
 import json
 import os
-from dataclasses import fields
 from pathlib import Path
 from typing import TYPE_CHECKING
 
-import numpy as np
-
-from stw_tui.session.history import State
-from stw_tui.sos.scene import Window
-from stw_tui.sym.errors import StwError
+from stw_tui.session.checkpoint_record import VERSION, install, restored_scene, scene_record
+from stw_tui.session.midsolve import MidSolve
 
 if TYPE_CHECKING:
     from stw_tui.session.session import Session
 
 SOLVE_COMMANDS = frozenset({"iterate", "slide"})
 SUFFIX = ".ckpt"
-VERSION = 1
 
 
 def checkpoint_path(journal: Path) -> Path:
     return journal.with_name(journal.name + SUFFIX)
 
 
-# --- what a checkpoint holds ------------------------------------------------------------------
-def _plain(value):
-    """JSON-ready form of numpy arrays and numbers, tuples as lists."""
-    if isinstance(value, np.ndarray):
-        return {"array": value.tolist(), "dtype": str(value.dtype)}
-    if isinstance(value, np.generic):
-        return value.item()
-    if isinstance(value, (list, tuple)):
-        return [_plain(v) for v in value]
-    return value
-
-
-def _restored(value):
-    """Inverse of :func:`_plain` (lists back to tuples, for the warm start's signature)."""
-    if isinstance(value, dict) and set(value) == {"array", "dtype"}:
-        return np.array(value["array"], dtype=value["dtype"])
-    if isinstance(value, list):
-        return tuple(_restored(v) for v in value)
-    return value
-
-
-def _warm_record(warm) -> dict | None:
-    if warm is None:
-        return None
-    state = {f.name: _plain(getattr(warm.state, f.name)) for f in fields(warm.state)}
-    return {"signature": _plain(warm.signature), "state": state}
-
-
-def _warm_from(record):
-    if record is None:
-        return None
-    from stw_tui.session.interpreter import WarmStart
-    from stw_tui.sos.backend import SolverState
-
-    state = {name: _restored(value) for name, value in record["state"].items()}
-    return WarmStart(_restored(record["signature"]), SolverState(**state))
-
-
 def snapshot_record(session: "Session", offset: int) -> dict:
     """What a converged solve changed, and where in the journal it ended."""
-    scene = session.scene
-    return {
-        "version": VERSION, "offset": offset,
-        "coef": {name: dof.curve.coef.tolist() for name, dof in scene.dofs.items()},
-        "extra_instances": {k: list(v) for k, v in scene.extra_instances.items()},
-        "windows": {k: [list(w.dofs) if w.dofs else None, list(w.interval) if w.interval else None]
-                    for k, w in scene.windows.items()},
-        "active_window": scene.active_window,
-        "warm": _warm_record(session.warm),
-    }
+    return scene_record(session.scene, session.warm, offset)
 
 
-def apply_record(session: "Session", record: dict, text: str) -> None:
+def apply_record(session: "Session", record: dict, text: str):
     """Put a checkpoint's state in place of solving ``text`` (a history step, like the solve).
 
+    Returns:
+        The journal entry of ``text`` (in memory: the line is in the journal file already).
     Raises:
         StwError: the checkpoint does not fit the scene (other DOF or control point counts).
     """
-    scene = session.scene.copy()
-    coef = record["coef"]
-    if list(coef) != list(scene.dofs) or any(len(coef[n]) != d.curve.n_coef for n, d in scene.dofs.items()):
-        raise StwError("the checkpoint does not fit the replayed scene")
-    for name, dof in scene.dofs.items():
-        dof.curve = dof.curve.with_coef(np.array(coef[name], dtype=float))
-    scene.extra_instances = {k: tuple(float(t) for t in v) for k, v in record["extra_instances"].items()}
-    scene.windows = {k: Window(k, tuple(d) if d else None, tuple(i) if i else None)
-                     for k, (d, i) in record["windows"].items()}
-    scene.active_window = record["active_window"]
-    before = State.of(session)
+    scene = restored_scene(session, record)
     entry = session.journal.append(text, None)
     entry.ok = True
-    session.scene, session.warm = scene, _warm_from(record["warm"])
-    session.history.settled(text, before)
+    install(session, scene, record, text)
+    return entry
 
 
 class Checkpoints:
@@ -127,6 +70,7 @@ class Checkpoints:
     def __init__(self, journal: Path):
         self.path = checkpoint_path(journal)
         self.journal = journal
+        self.midsolve = MidSolve(journal)   # the running solve's, every few seconds (midsolve.py)
 
     def record(self, session: "Session") -> None:
         """Called after a converged solve's journal line is on disk. A failure to write it costs

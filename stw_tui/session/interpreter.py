@@ -12,6 +12,7 @@ from dataclasses import dataclass, replace
 import numpy as np
 import sympy as sp
 
+from stw_tui.session.midsolve import Trail, hook_for
 from stw_tui.session.outcome import Outcome, PrintResult
 from stw_tui.session.protocol import SessionLike
 from stw_tui.session.verbs import owned_by_verb
@@ -641,21 +642,23 @@ class SolveReport:
 def _iterate(session: SessionLike, scene: Scene, cmd, on_report) -> Outcome:
     if cmd.n < 1:
         raise StwError("iterate needs a positive number of iterations")
-    solved = _solve_adaptive(session, scene, cmd.n, cmd.adapt, on_report)
+    solved = _solve_adaptive(session, scene, cmd.n, cmd.adapt, on_report, Trail(cmd.text))
     return Outcome(message=solved.message(), run=solved.run, journal_text=solved.journal_text)
 
 
-def _solve_adaptive(session: SessionLike, scene: Scene, n: int, adapt: int | None, on_report) -> SolveReport:
+def _solve_adaptive(session: SessionLike, scene: Scene, n: int, adapt: int | None, on_report,
+                    trail: Trail) -> SolveReport:
     """Solve, check every constraint densely over the whole animation, and (adaptive) add
     instances where the check fails and solve again, at most ``rounds`` times. A re-solve that
     does not converge (too many instances for the curves' freedom, or a stop) is undone: adaptive
-    refinement never leaves a motion worse than the plain solve."""
+    refinement never leaves a motion worse than the plain solve. ``trail``: the lines that replay
+    what the command kept before this call (for the running solve's checkpoints)."""
     settings = scene.settings
     rounds = adapt if adapt is not None else (int(settings["adaptive_rounds"]) if settings["adaptive"] else 0)
     backend = create_backend(load_backend(scene.backend), scene.backend_options)
     tol = settings["dense_tol"]
     problem = WindowProblem(scene)
-    result = _solve(session, scene, problem, backend, n, on_report)
+    result = _solve(session, scene, problem, backend, n, on_report, trail)
     runs = [result]
     journal = [f"iterate {len(result.reports) if result.status is Status.STOPPED else n} adapt=0"]
     added: dict[str, int] = {}
@@ -675,7 +678,7 @@ def _solve_adaptive(session: SessionLike, scene: Scene, n: int, adapt: int | Non
             scene.extra_instances[name] = tuple(sorted(set(scene.extra_instances.get(name, ())) | set(times.tolist())))
             lines.append(f"instances {name} add " + ", ".join(repr(float(t)) for t in times))
         trial_problem = WindowProblem(scene)
-        trial = _solve(session, scene, trial_problem, backend, n, on_report)
+        trial = _solve(session, scene, trial_problem, backend, n, on_report, trail.then(journal + lines))
         if trial.status is not Status.CONVERGED:
             scene.with_coefficients(saved[0])
             scene.extra_instances, session.warm = saved[1], saved[2]
@@ -766,11 +769,11 @@ def _slide(session: SessionLike, scene: Scene, cmd, on_report) -> Outcome:
         interval = (e - width, e)
         scene.windows[cmd.window] = replace(window, interval=interval)
         scene.active_window = cmd.window
-        solved = _solve_adaptive(session, scene, cmd.n, None, on_report)
+        moved = (f"window {cmd.window}" + (f" dofs={','.join(window.dofs)}" if window.dofs else "")
+                 + f" [{interval[0]!r}, {interval[1]!r}]")
+        solved = _solve_adaptive(session, scene, cmd.n, None, on_report, Trail(cmd.text, journal + [moved]))
         runs.append(solved.run)
-        journal += [f"window {cmd.window}" + (f" dofs={','.join(window.dofs)}" if window.dofs else "")
-                    + f" [{interval[0]!r}, {interval[1]!r}]",
-                    solved.journal_text or f"iterate {cmd.n}"]
+        journal += [moved, solved.journal_text or f"iterate {cmd.n}"]
         last = solved.run.reports[-1] if solved.run.reports else None
         lines.append(f"[{interval[0]:.4g}, {interval[1]:.4g}]: {len(solved.run.reports)} iteration(s), "
                      f"{solved.run.status.value}" + (f", objective {last.objective:.6g}" if last else ""))
@@ -798,9 +801,11 @@ def _check_start(problem: WindowProblem) -> None:
                          "a keyframe, bounds (lo=, hi=) or a different start can keep it defined")
 
 
-def _solve(session: SessionLike, scene: Scene, problem: WindowProblem, backend, n: int, on_report) -> RunResult:
+def _solve(session: SessionLike, scene: Scene, problem: WindowProblem, backend, n: int, on_report,
+           trail: Trail | None = None) -> RunResult:
     """Run the backend on one window problem from the scene's curves (and the last solve's
-    multipliers when its rows are the same), and put the result in the scene."""
+    multipliers when its rows are the same), and put the result in the scene. A journalled
+    session checkpoints the running solve every few seconds (stw_tui/session/midsolve.py)."""
     _check_start(problem)
     signature = (scene.active_window, tuple(problem.free), tuple(g.label for g in problem.groups),
                  tuple(g.n for g in problem.groups))
@@ -809,7 +814,8 @@ def _solve(session: SessionLike, scene: Scene, problem: WindowProblem, backend, 
         start = SolverState(s=start.s, lam_eq=session.warm.state.lam_eq, lam_ge=session.warm.state.lam_ge,
                             working_set=session.warm.state.working_set,
                             merit_weight=session.warm.state.merit_weight)
-    result = run_iterations(backend, problem, start, n, scene.settings, on_report)
+    result = run_iterations(backend, problem, start, n, scene.settings, on_report,
+                            on_state=hook_for(session, scene, problem, lambda state: WarmStart(signature, state), trail))
     scene.with_coefficients(problem.scatter(result.state.s))
     session.warm = WarmStart(signature, result.state)
     return result

@@ -7,13 +7,17 @@ from __future__ import annotations
 from pathlib import Path
 
 from stw_tui.session.autosave import SOLVE_COMMANDS, Checkpoints, apply_record
+from stw_tui.session.midsolve import restore
 from stw_tui.session.session import Session
 from stw_tui.sym.errors import StwError
 from stw_tui.sym.language import classify_line
 
 
-def resume(journal: str | Path, *, resolve: bool = False, on_line=None) -> tuple["Session", int, int]:
-    """A session rebuilt from ``journal``, which it goes on appending to.
+def resume(journal: str | Path, *, resolve: bool = False, on_line=None,
+           on_note=None) -> tuple["Session", int, int]:
+    """A session rebuilt from ``journal``, which it goes on appending to. A solve that was running
+    when the process died is brought back from its last running checkpoint (midsolve.py), and
+    ``on_note`` is called with a sentence saying so.
 
     Returns:
         (session, solves restored from checkpoints, solves run again).
@@ -47,4 +51,7 @@ def resume(journal: str | Path, *, resolve: bool = False, on_line=None) -> tuple
             on_line(number, text, outcome)
     session.journal.path = journal
     session.checkpoints = Checkpoints(journal)
+    note = restore(session, journal, len(data), resolve)
+    if note is not None and on_note is not None:
+        on_note(note)
     return session, restored, solved

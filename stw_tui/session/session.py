@@ -194,6 +194,13 @@ class Session:
         self._block = None
 
     def _apply(self, text: str, line: int | None, on_report, block=None) -> Outcome:
+        try:
+            return self._apply_journalled(text, line, on_report, block)
+        finally:   # the line is journalled (or the journal failed): a running checkpoint is stale
+            if self.checkpoints is not None:
+                self.checkpoints.midsolve.ended()
+
+    def _apply_journalled(self, text: str, line: int | None, on_report, block=None) -> Outcome:
         entry = self.journal.append(text, line)
         before = State.of(self)
         scene = self.scene.copy()

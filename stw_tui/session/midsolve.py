@@ -1,0 +1,189 @@
+"""Checkpoints of a running solve: a kill during a long `iterate` loses at most a few seconds.
+
+While a journalled session solves, the iterate the backend has reached is written every
+:data:`DEFAULT_EVERY` seconds (``$STW_CHECKPOINT_EVERY`` to change it) to ``JOURNAL.solving``,
+which each write replaces atomically (temporary file, fsync, rename, fsync of the folder): a kill
+leaves the previous checkpoint or the new one, never half of one. It holds numbers and names only
+(JSON, stw_tui/session/checkpoint_record.py's, as a finished solve's), plus
+
+- ``offset``: the journal's size when the solve began (its own line is journalled when it ends);
+- ``text``: the lines that replay what the solve had kept at that iterate, as a stopped solve is
+  journalled: ``iterate K adapt=0`` after the lines of the rounds (and `slide` positions) before it;
+- ``command`` and ``iteration``: what was running, to say what was restored.
+
+When the command ends (done, stopped or failed) its line is journalled and the file removed. If the
+process dies first, :func:`restore` (called by :func:`stw_tui.session.resume.resume`) finds the file
+with the offset of the journal's end, journals ``text`` and puts the checkpoint's state in place,
+as if the solve had been stopped there. With `--resolve` the lines are solved again instead.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import time
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import TYPE_CHECKING, Callable
+
+from stw_tui.session.checkpoint_record import VERSION, install, restored_scene, scene_record
+from stw_tui.sym.errors import StwError
+
+if TYPE_CHECKING:
+    from stw_tui.session.session import Session
+
+SUFFIX = ".solving"
+EVERY_VARIABLE = "STW_CHECKPOINT_EVERY"
+DEFAULT_EVERY = 3.0   # seconds between checkpoints of a running solve
+
+
+def midsolve_path(journal: Path) -> Path:
+    return journal.with_name(journal.name + SUFFIX)
+
+
+def _every() -> float:
+    """The period from ``$STW_CHECKPOINT_EVERY`` (seconds; 0: every iteration), else the default."""
+    try:
+        value = float(os.environ.get(EVERY_VARIABLE, DEFAULT_EVERY))
+    except ValueError:
+        return DEFAULT_EVERY
+    return value if value >= 0 else DEFAULT_EVERY
+
+
+@dataclass
+class Trail:
+    """The command a solve belongs to, and the lines that replay what it kept before this solve
+    (the adaptive rounds and `slide` positions already done)."""
+
+    command: str
+    lines: list[str] = field(default_factory=list)
+
+    def then(self, lines: list[str]) -> "Trail":
+        return Trail(self.command, self.lines + list(lines))
+
+
+class MidSolve:
+    """The running-solve checkpoint of one journal.
+
+    Args:
+        journal: the journal file.
+        every: seconds between checkpoints (None: ``$STW_CHECKPOINT_EVERY`` or the default).
+        clock: monotonic seconds (tests pass a fake one).
+    """
+
+    def __init__(self, journal: Path, every: float | None = None, clock: Callable[[], float] = time.monotonic):
+        self.journal = journal
+        self.path = midsolve_path(journal)
+        self.every = _every() if every is None else every
+        self.clock = clock
+        self.written = False   # a checkpoint of the running command is on disk
+
+    def hook(self, scene, problem, warm_of: Callable, trail: Trail) -> Callable:
+        """The ``on_state`` of :func:`stw_tui.sos.backend.run_iterations` for one solve of ``problem``
+        on ``scene`` (the command's working copy): it writes a checkpoint when one is due.
+        ``warm_of(state)`` is the warm start the solve would leave at ``state``."""
+        try:
+            offset = self.journal.stat().st_size
+        except OSError:
+            offset = 0
+        last = self.clock()
+
+        def on_state(k: int, state) -> None:
+            nonlocal last
+            if self.clock() - last < self.every:
+                return
+            last = self.clock()
+            now = scene.copy()
+            now.with_coefficients(problem.scatter(state.s))
+            self.write(now, warm_of(state), offset, trail, k)
+        return on_state
+
+    def write(self, scene, warm, offset: int, trail: Trail, k: int) -> None:
+        """Replace the checkpoint atomically. A failure costs only the checkpoint, not the solve."""
+        record = scene_record(scene, warm, offset)
+        record.update(command=trail.command, iteration=k, time=time.time(),
+                      text="\n".join([*trail.lines, f"iterate {k} adapt=0"]))
+        temporary = self.path.with_name(self.path.name + ".tmp")
+        try:
+            data = json.dumps(record, allow_nan=False)
+            with temporary.open("w", encoding="utf-8") as out:
+                out.write(data)
+                out.flush()
+                os.fsync(out.fileno())
+            os.replace(temporary, self.path)
+            _sync_folder(self.path.parent)
+            self.written = True
+        except (OSError, ValueError):
+            pass
+
+    def ended(self) -> None:
+        """The command is journalled: its running checkpoint is no longer needed."""
+        if self.written:
+            self.written = False
+            try:
+                self.path.unlink(missing_ok=True)
+            except OSError:
+                pass
+
+    def load(self) -> dict | None:
+        """The checkpoint on disk (None: none, or unreadable)."""
+        try:
+            record = json.loads(self.path.read_text(encoding="utf-8"))
+        except (OSError, ValueError):
+            return None
+        ok = isinstance(record, dict) and record.get("version") == VERSION and isinstance(record.get("text"), str)
+        return record if ok else None
+
+
+def _sync_folder(folder: Path) -> None:
+    """fsync a folder, so that a rename in it survives a crash (where the system allows it)."""
+    try:
+        handle = os.open(folder, os.O_RDONLY)
+    except OSError:
+        return
+    try:
+        os.fsync(handle)
+    except OSError:
+        pass
+    finally:
+        os.close(handle)
+
+
+def hook_for(session: "Session", scene, problem, warm_of: Callable, trail: Trail | None):
+    """The checkpointing ``on_state`` for a solve of ``session`` (None: it is not journalled to a
+    file, or `set preview on` makes the solve a proposal, which a resume must not apply)."""
+    checkpoints = getattr(session, "checkpoints", None)
+    if checkpoints is None or trail is None or scene.settings.get("preview"):
+        return None
+    return checkpoints.midsolve.hook(scene, problem, warm_of, trail)
+
+
+def restore(session: "Session", journal: Path, size: int, resolve: bool) -> str | None:
+    """After a resume replayed ``journal`` (``size`` bytes): bring back the solve that was running
+    when the process died, if its checkpoint starts at the journal's end.
+
+    Returns:
+        What was restored, in a sentence (None: nothing to restore).
+    """
+    midsolve = MidSolve(journal)
+    record = midsolve.load()
+    if record is None or record.get("offset") != size or session.in_block:
+        return None
+    when = time.strftime("%H:%M:%S", time.localtime(record.get("time", 0)))
+    what = f"`{record.get('command', 'iterate')}` (killed at iteration {record.get('iteration')}, checkpoint of {when})"
+    if resolve:
+        for line in record["text"].splitlines():
+            session.execute(line)
+        midsolve.path.unlink(missing_ok=True)
+        return f"solved again up to the running solve's last checkpoint: {what}"
+    try:
+        scene = restored_scene(session, record)
+    except (StwError, KeyError, TypeError, ValueError):
+        return f"the running solve's checkpoint does not fit the journal; not restored: {what}"
+    entry = session.journal.append(record["text"], None)
+    session.journal.settle(entry, True)      # on disk first (raises StwError when it cannot be)
+    install(session, scene, record, record["text"])
+    if session.checkpoints is not None:
+        session.checkpoints.record(session)  # a later resume restores it like any finished solve
+    midsolve.path.unlink(missing_ok=True)
+    return f"resumed from the running solve's last checkpoint: {what}; journalled as `{record['text'].splitlines()[-1]}`"
