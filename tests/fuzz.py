@@ -11,12 +11,14 @@ reproducible line for line:
 
 Lines run in batches on a small scene through :meth:`Session.execute`. For each line it records
 an exception other than ``StwError`` (an escape), an ``StwError`` that is only the catch-all's
-"internal error", a failed line that changed the scene, and lines slower than 2 s (``iterate``
-apart: it reports progress and can be stopped).
+"internal error", a failed line that changed the scene, lines slower than 2 s (``iterate``
+apart: it reports progress and can be stopped) and lines that used over 500 MB of their own: the
+peak resident memory during the line (the kernel's high-water mark, reset before each line through
+``/proc/self/clear_refs``) less the resident memory at its start.
 
     python tests/fuzz.py --lines 100000 [--seed 1] [--show 10] [--progress 1000]
 
-prints those counts, the slowest lines and the peak memory, with a progress line (counts so far,
+prints those counts, the slowest and the largest lines and the peak memory, with a progress line (counts so far,
 time left) on stderr every 1000 lines. ``tests/test_fuzz.py`` runs a few
 thousand lines of it in CI.
 """
@@ -24,8 +26,10 @@ thousand lines of it in CI.
 from __future__ import annotations
 
 import argparse
+import heapq
 import os
 import random
+import re
 import resource
 import sys
 import time
@@ -44,6 +48,7 @@ from stw_tui.session.session import Session  # noqa: E402
 from stw_tui.sym.errors import StwError  # noqa: E402
 
 SLOW = 2.0   # seconds: no line but `iterate` may take longer before its first result
+MEMORY_MB = 500.0   # no line may use more memory of its own
 
 PRELUDE = """time 0 1 knots=8
 const m = 1, g = 9.81, T = 0.5
@@ -248,12 +253,25 @@ class Findings:
     internal: Counter = field(default_factory=Counter)
     changed_on_failure: int = 0
     slow: list[tuple[float, str]] = field(default_factory=list)
+    heavy: list[tuple[float, str]] = field(default_factory=list)     # (MB, line) over MEMORY_MB
+    largest: list[tuple[float, str]] = field(default_factory=list)   # a heap of the largest lines
+    memory_exact: bool = True      # per-line peaks from the kernel (False: process-peak growth only)
     examples: dict[str, str] = field(default_factory=dict)
     traces: dict[str, str] = field(default_factory=dict)   # kind -> the scene's lines, the line, the traceback
 
     @property
     def clean(self) -> bool:
-        return not (self.escaped or self.internal or self.changed_on_failure or self.slow)
+        return not (self.escaped or self.internal or self.changed_on_failure or self.slow or self.heavy)
+
+    def measured(self, megabytes: float, line: str, keep: int = 10) -> None:
+        """Record a line's own memory: counted when over the limit, kept among the largest."""
+        if megabytes > MEMORY_MB:
+            self.heavy.append((megabytes, line))
+        entry = (megabytes, line)
+        if len(self.largest) < keep:
+            heapq.heappush(self.largest, entry)
+        elif entry > self.largest[0]:
+            heapq.heapreplace(self.largest, entry)
 
     def report(self, show: int = 5) -> str:
         peak = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024
@@ -262,12 +280,56 @@ class Findings:
                f"internal errors: {sum(self.internal.values())} {dict(self.internal)}",
                f"failed lines that changed the scene: {self.changed_on_failure}",
                f"lines over {SLOW:g} s (iterate apart): {len(self.slow)}",
+               f"lines over {MEMORY_MB:g} MB of their own: {len(self.heavy)}"
+               + ("" if self.memory_exact else " (measured as growth of the process peak only)"),
                f"peak memory: {peak:.0f} MB"]
         for kind, line in list(self.examples.items())[:show]:
             out.append(f"  {kind}: {line[:120]!r}")
         for seconds, line in sorted(self.slow, reverse=True)[:show]:
             out.append(f"  {seconds:.1f} s: {line[:120]!r}")
+        out.append("largest lines (their own peak memory):")
+        for megabytes, line in sorted(self.largest, reverse=True)[:show]:
+            out.append(f"  {megabytes:.0f} MB: {line[:120]!r}")
         return "\n".join(out)
+
+
+class LineMemory:
+    """A line's own memory: the peak resident size while it ran, less the resident size at its
+    start. Linux keeps the peak (VmHWM) and resets it on request (``5`` to clear_refs), so a short
+    spike inside C code that no sampling thread would see is counted too. Elsewhere the growth of
+    the process's peak (``ru_maxrss``) stands in, which misses lines below an earlier peak."""
+
+    STATUS = "/proc/self/status"
+    RESET = "/proc/self/clear_refs"
+
+    def __init__(self):
+        self.exact = self._reset()
+
+    def _reset(self) -> bool:
+        try:
+            with open(self.RESET, "w") as out:
+                out.write("5")
+            return True
+        except OSError:
+            return False
+
+    def _status(self) -> dict[str, float]:
+        with open(self.STATUS) as status:
+            found = re.findall(r"^(VmHWM|VmRSS):\s+(\d+) kB", status.read(), re.M)
+        return {key: int(kb) / 1024 for key, kb in found}
+
+    def start(self) -> float:
+        """Mark a line's start; returns the baseline for :meth:`used`."""
+        if self.exact:
+            self._reset()
+            return self._status()["VmRSS"]
+        return resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024
+
+    def used(self, baseline: float) -> float:
+        """MB the line used beyond its start."""
+        if self.exact:
+            return max(0.0, self._status()["VmHWM"] - baseline)
+        return max(0.0, resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024 - baseline)
 
 
 def run(n_lines: int, seed: int = 1, batch: int = 40, progress=None, every: int = 1000) -> Findings:
@@ -276,13 +338,15 @@ def run(n_lines: int, seed: int = 1, batch: int = 40, progress=None, every: int 
     rng = random.Random(seed)
     units = session_units()
     found = Findings()
+    memory = LineMemory()
+    found.memory_exact = memory.exact
     session = None
     while found.lines < n_lines:
         if session is None or found.lines % batch == 0 or rng.random() < 0.01:
             session = Session()
             session.run_text(PRELUDE)
         for line in generate(rng, units):
-            _one(session, line, found)
+            _one(session, line, found, memory)
             if progress is not None and found.lines % every == 0:
                 progress(found)
             if found.lines >= n_lines:
@@ -290,9 +354,10 @@ def run(n_lines: int, seed: int = 1, batch: int = 40, progress=None, every: int 
     return found
 
 
-def _one(session: Session, line: str, found: Findings) -> None:
+def _one(session: Session, line: str, found: Findings, memory: LineMemory | None = None) -> None:
     found.lines += 1
     before_scene, before = session.scene, fingerprint(session)
+    baseline = memory.start() if memory is not None else 0.0
     start = time.perf_counter()
     np.seterr(all="ignore")
     try:
@@ -315,6 +380,8 @@ def _one(session: Session, line: str, found: Findings) -> None:
         _trace(found, f"escaped {type(exc).__name__}", session, line, exc)
         session.cancel_block()
     seconds = time.perf_counter() - start
+    if memory is not None:
+        found.measured(memory.used(baseline), line)
     if not ok and (session.scene is not before_scene or fingerprint(session) != before):
         found.changed_on_failure += 1
         found.examples.setdefault("changed on failure", line)
@@ -348,7 +415,8 @@ def main(argv: list[str] | None = None) -> int:
         left = (args.lines - found.lines) * seconds / found.lines
         print(f"{found.lines}/{args.lines} lines, {seconds:.0f} s (about {left:.0f} s left): "
               f"{sum(found.escaped.values())} escaped, {sum(found.internal.values())} internal, "
-              f"{found.changed_on_failure} changed on failure, {len(found.slow)} slow",
+              f"{found.changed_on_failure} changed on failure, {len(found.slow)} slow, "
+              f"{len(found.heavy)} over {MEMORY_MB:g} MB",
               file=sys.stderr, flush=True)
 
     found = run(args.lines, args.seed, args.batch, progress=progress if args.progress else None,
