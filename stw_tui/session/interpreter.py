@@ -814,8 +814,8 @@ def _solve(session: SessionLike, scene: Scene, problem: WindowProblem, backend, 
         start = SolverState(s=start.s, lam_eq=session.warm.state.lam_eq, lam_ge=session.warm.state.lam_ge,
                             working_set=session.warm.state.working_set,
                             merit_weight=session.warm.state.merit_weight)
-    result = run_iterations(backend, problem, start, n, scene.settings, on_report,
-                            on_state=hook_for(session, scene, problem, lambda state: WarmStart(signature, state), trail))
+    checkpoint = hook_for(session, scene, problem, lambda state: WarmStart(signature, state), trail)
+    result = run_iterations(backend, problem, start, n, scene.settings, on_report, on_state=checkpoint)
     scene.with_coefficients(problem.scatter(result.state.s))
     session.warm = WarmStart(signature, result.state)
     return result

@@ -116,9 +116,10 @@ class MidSolve:
         except (OSError, ValueError):
             pass
 
-    def ended(self) -> None:
-        """The command is journalled: its running checkpoint is no longer needed."""
-        if self.written:
+    def ended(self, force: bool = False) -> None:
+        """The command is journalled: its running checkpoint is no longer needed (``force``: remove
+        it even if this process did not write it)."""
+        if self.written or force:
             self.written = False
             try:
                 self.path.unlink(missing_ok=True)
@@ -170,11 +171,11 @@ def restore(session: "Session", journal: Path, size: int, resolve: bool) -> str 
     if record is None or record.get("offset") != size or session.in_block:
         return None
     when = time.strftime("%H:%M:%S", time.localtime(record.get("time", 0)))
-    what = f"`{record.get('command', 'iterate')}` (killed at iteration {record.get('iteration')}, checkpoint of {when})"
+    what = f"`{record.get('command', 'iterate')}` at iteration {record.get('iteration')} (checkpoint of {when})"
     if resolve:
         for line in record["text"].splitlines():
             session.execute(line)
-        midsolve.path.unlink(missing_ok=True)
+        midsolve.ended(force=True)
         return f"solved again up to the running solve's last checkpoint: {what}"
     try:
         scene = restored_scene(session, record)
@@ -185,5 +186,6 @@ def restore(session: "Session", journal: Path, size: int, resolve: bool) -> str 
     install(session, scene, record, record["text"])
     if session.checkpoints is not None:
         session.checkpoints.record(session)  # a later resume restores it like any finished solve
-    midsolve.path.unlink(missing_ok=True)
-    return f"resumed from the running solve's last checkpoint: {what}; journalled as `{record['text'].splitlines()[-1]}`"
+    midsolve.ended(force=True)
+    last = record["text"].splitlines()[-1]
+    return f"resumed from the running solve's last checkpoint: {what}; journalled as `{last}`"
