@@ -187,12 +187,12 @@ def test_a_stopped_adaptive_round_is_undone_and_journalled_as_what_was_kept(monk
     s = run_lines(Session(), ADAPT)
     real, calls = interpreter.run_iterations, []
 
-    def stop_the_re_solve(backend, problem, start, n, settings, on_report=None):
+    def stop_the_re_solve(backend, problem, start, n, settings, on_report=None, **hooks):
         calls.append(n)
         if len(calls) == 1:
-            return real(backend, problem, start, n, settings, on_report)
+            return real(backend, problem, start, n, settings, on_report, **hooks)
         # The user presses Esc at the re-solve's first iteration boundary.
-        return replace(real(backend, problem, start, 1, settings, on_report), status=Status.STOPPED)
+        return replace(real(backend, problem, start, 1, settings, on_report, **hooks), status=Status.STOPPED)
     monkeypatch.setattr(interpreter, "run_iterations", stop_the_re_solve)
     outcome = s.execute("iterate 30")
     assert len(calls) == 2 and "undid a re-solve" in outcome.message
