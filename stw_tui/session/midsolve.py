@@ -38,6 +38,7 @@ DEFAULT_EVERY = 3.0   # seconds between checkpoints of a running solve
 
 
 def midsolve_path(journal: Path) -> Path:
+    """Where ``journal``'s running-solve checkpoint lives: beside it, ``JOURNAL.solving``."""
     return journal.with_name(journal.name + SUFFIX)
 
 
@@ -59,6 +60,7 @@ class Trail:
     lines: list[str] = field(default_factory=list)
 
     def then(self, lines: list[str]) -> "Trail":
+        """The trail of a later solve of the same command, after ``lines`` were kept too."""
         return Trail(self.command, self.lines + list(lines))
 
 

@@ -70,25 +70,30 @@ class BackendThread:
         """
         reply: queue.SimpleQueue = queue.SimpleQueue()
         self._requests.put((fn, args, reply))
+        try:
+            ok, value = self._wait(reply, what)
+        except KeyboardInterrupt:   # wherever in the wait it lands
+            raise SolveError(f"interrupted (Ctrl+C) during {what} of backend {self.name}; "
+                             "the scene is unchanged") from None
+        if ok:
+            return value
+        raise value
+
+    def _wait(self, reply: queue.SimpleQueue, what: str) -> tuple[bool, Any]:
+        """The call's (ok, result or exception), watching the stop flag meanwhile."""
         stop_asked = None
         while True:
             try:
-                ok, value = reply.get(timeout=POLL)
+                return reply.get(timeout=POLL)
             except queue.Empty:
-                if stop_asked is None and self.cancelled():
-                    stop_asked = time.monotonic()
-                if stop_asked is not None and time.monotonic() - stop_asked > STOP_GRACE:
-                    raise HungBackend(
-                        f"backend {self.name} hung: it ignored the stop for {STOP_GRACE:g} s during {what} "
-                        "and was abandoned (it may go on running in the background until stw exits); "
-                        "the scene is unchanged") from None
-                continue
-            except KeyboardInterrupt:
-                raise SolveError(f"interrupted (Ctrl+C) during {what} of backend {self.name}; "
-                                 "the scene is unchanged") from None
-            if ok:
-                return value
-            raise value
+                pass
+            if stop_asked is None and self.cancelled():
+                stop_asked = time.monotonic()
+            if stop_asked is not None and time.monotonic() - stop_asked > STOP_GRACE:
+                raise HungBackend(
+                    f"backend {self.name} hung: it ignored the stop for {STOP_GRACE:g} s during {what} "
+                    "and was abandoned (it may go on running in the background until stw exits); "
+                    "the scene is unchanged")
 
     def close(self) -> None:
         """Let the thread end once its current call returns (at once when it is idle)."""
