@@ -41,6 +41,7 @@ SUFFIX = ".ckpt"
 
 
 def checkpoint_path(journal: Path) -> Path:
+    """The checkpoint file beside ``journal`` (``JOURNAL.ckpt``)."""
     return journal.with_name(journal.name + SUFFIX)
 
 

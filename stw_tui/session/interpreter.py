@@ -39,9 +39,11 @@ class SceneScope:
         self.scene = scene
 
     def kind_of(self, name: str):
+        """What ``name`` is in the scene (DOF, constant, subexpression…), as the parser's kinds."""
         return _KINDS.get(self.scene.kind_of(name))
 
     def names(self) -> list[str]:
+        """Every name an expression may use: DOF, constants, subexpressions and linkage quantities."""
         s = self.scene
         return [*s.dofs, *s.constants, *s.lets, *s.derived]
 
