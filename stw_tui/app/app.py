@@ -42,6 +42,11 @@ if TYPE_CHECKING:
 PANELS = (("DOF", DofPanel), ("Eqns", EquationsPanel), ("Const", ConstantsPanel), ("Win", WindowsPanel),
           ("Time", TimePanel), ("Opt", OptimizationPanel))
 VIEW_INTERVAL = 0.1   # seconds between refreshes of the panels and plots
+# Seconds between redraws from a running solve (status, curves, figure). Each redraw takes the
+# interpreter lock from the solver: on basketball in tmux the solve took 21.6 and 22.5 s redrawn
+# at every iteration, 18.1 and 18.5 s with the status line alone, 16.7 and 15.8 s undrawn;
+# 20.0 and 14.5 s at this interval (headless, same minutes: 12.1 and 10.4 s).
+LIVE_INTERVAL = 0.5
 
 PLOTS = (("Curves", DofPlot), ("Expr", ExpressionPlot), ("Figure", FigurePlot), ("Conv", ConvergencePlot))
 
@@ -104,6 +109,9 @@ class StwApp(App[int]):
         # session's own scene belongs to the worker), and a running solve's control points.
         self._shown: "Scene | None" = None
         self._coefficients = None
+        self._latest_report = None       # of the running solve, not shown yet
+        self._live_shown = 0.0           # when a report was last shown
+        self._live_timer = None
 
     def compose(self) -> ComposeResult:
         with Horizontal(id="main"):
@@ -252,10 +260,30 @@ class StwApp(App[int]):
         self._show_state()
 
     def on_iteration_reported(self, event: IterationReported) -> None:
-        self.status_line.show(report=event.report)
+        """Show the newest iterate at once, or when LIVE_INTERVAL has passed since the last."""
+        self._latest_report = event.report
+        wait = LIVE_INTERVAL - (time.monotonic() - self._live_shown)
+        if wait <= 0:
+            self._show_latest_report()
+        elif self._live_timer is None:
+            self._live_timer = self.set_timer(wait, self._show_latest_report)
+
+    def _show_latest_report(self) -> None:
+        self._live_timer = None
+        report, self._latest_report = self._latest_report, None
+        if report is None:
+            return
+        self._live_shown = time.monotonic()
+        self.status_line.show(report=report)
         self.query_one(ConvergencePlot).set_reports(self.runner.reports)
-        if event.report.coefficients is not None and self.session is not None:
-            self.show_iteration(event.report.coefficients)
+        if report.coefficients is not None and self.session is not None:
+            self.show_iteration(report.coefficients)
+
+    def _drop_live_report(self) -> None:
+        """The solve has ended: its final state is shown, not an iterate still waiting."""
+        if self._live_timer is not None:
+            self._live_timer.stop()
+        self._live_timer, self._latest_report, self._live_shown = None, None, 0.0
 
     LIVE_PLOTS = (DofPlot, ExpressionPlot, FigurePlot)
 
@@ -340,6 +368,7 @@ class StwApp(App[int]):
                 self.repl.write_note(f"replay halted: the solve at line {job.number} was stopped "
                                      "before it ended; F6 runs the next line, F7 the rest")
         self._coefficients = None
+        self._drop_live_report()
         if event.scene is not None:
             self._shown = event.scene
         if self.session is None or self._shown is None:   # the core failed to load
@@ -365,7 +394,8 @@ class StwApp(App[int]):
     def settled(self) -> bool:
         """Nothing running, queued, replaying or waiting to be redrawn (tests wait for this)."""
         replaying = self.script is not None and self.script.running
-        if self.runner.busy or self.runner.queue or replaying or self._views_timer is not None:
+        if self.runner.busy or self.runner.queue or replaying or self._views_timer is not None \
+                or self._live_timer is not None:
             return False
         return not any(plot.redraw_pending for plot in self.query(ScenePlot))
 
