@@ -157,3 +157,49 @@ def test_the_architecture_note_names_every_module():
                if p.name not in ("__init__.py", "__main__.py")}
     assert named - present == set(), "named in ARCHITECTURE.md but gone"
     assert present - named == set(), "in the tree but not in ARCHITECTURE.md"
+
+
+def test_no_import_cycle_of_any_length():
+    """No chain of imports leads from a module back to itself, counting imports inside functions
+    and under TYPE_CHECKING: every module has a place above all it imports (ARCHITECTURE.md)."""
+    from pathlib import Path
+
+    root = Path(__file__).resolve().parent.parent
+    paths = {}
+    for path in (root / "stw_tui").rglob("*.py"):
+        rel = path.relative_to(root).with_suffix("")
+        parts = rel.parts[:-1] if rel.name == "__init__" else rel.parts
+        paths[".".join(parts)] = path
+    packages = {name for name, path in paths.items() if path.name == "__init__.py"}
+    edges = {}
+    for name, path in paths.items():
+        targets = set()
+        for imported in _all_imports(path):
+            # `from stw_tui.session import autosave` names the module, not the package
+            while imported and imported not in paths:
+                imported = imported.rpartition(".")[0]
+            if imported and imported != name and imported not in packages:
+                targets.add(imported)
+        edges[name] = targets
+    for name, path in paths.items():          # `from PACKAGE import module` lines
+        import ast
+        for node in ast.walk(ast.parse(path.read_text(encoding="utf-8"))):
+            if isinstance(node, ast.ImportFrom) and node.level == 0 and node.module in packages:
+                edges[name] |= {f"{node.module}.{a.name}" for a in node.names} & set(paths)
+    state, stack, cycles = {}, [], []
+
+    def visit(node):
+        state[node] = "open"
+        stack.append(node)
+        for nxt in sorted(edges[node]):
+            if state.get(nxt) == "open":
+                cycles.append(stack[stack.index(nxt):] + [nxt])
+            elif nxt not in state:
+                visit(nxt)
+        stack.pop()
+        state[node] = "done"
+
+    for node in sorted(edges):
+        if node not in state:
+            visit(node)
+    assert cycles == []

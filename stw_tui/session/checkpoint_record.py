@@ -8,16 +8,13 @@ checkpoints of finished solves (stw_tui/session/autosave.py) and of running ones
 from __future__ import annotations
 
 from dataclasses import fields
-from typing import TYPE_CHECKING
 
 import numpy as np
 
 from stw_tui.session.history import State
+from stw_tui.session.protocol import SessionLike
 from stw_tui.sos.scene import Window
 from stw_tui.sym.errors import StwError
-
-if TYPE_CHECKING:
-    from stw_tui.session.session import Session
 
 VERSION = 1
 
@@ -52,8 +49,7 @@ def _warm_record(warm) -> dict | None:
 def _warm_from(record):
     if record is None:
         return None
-    from stw_tui.session.interpreter import WarmStart
-    from stw_tui.sos.backend import SolverState
+    from stw_tui.sos.backend import SolverState, WarmStart
 
     state = {name: _restored(value) for name, value in record["state"].items()}
     return WarmStart(_restored(record["signature"]), SolverState(**state))
@@ -72,7 +68,7 @@ def scene_record(scene, warm, offset: int) -> dict:
     }
 
 
-def restored_scene(session: "Session", record: dict):
+def restored_scene(session: SessionLike, record: dict):
     """A copy of the session's scene with a checkpoint's state in it; the session is not changed.
 
     Raises:
@@ -91,7 +87,7 @@ def restored_scene(session: "Session", record: dict):
     return scene
 
 
-def install(session: "Session", scene, record: dict, text: str) -> None:
+def install(session: SessionLike, scene, record: dict, text: str) -> None:
     """Make ``scene`` (from :func:`restored_scene`) and the record's warm start the session's, as
     the solve ``text`` would have: a history step that `undo` takes back."""
     before = State.of(session)

@@ -37,7 +37,7 @@ class State:
     """A scene and the warm start of the solve that produced it. Neither is changed once kept."""
 
     scene: Scene
-    warm: Any = None     # interpreter.WarmStart | None
+    warm: Any = None     # backend.WarmStart | None
 
     @classmethod
     def of(cls, session: SessionLike) -> "State":

@@ -16,7 +16,8 @@ from stw_tui.session.midsolve import Trail, hook_for
 from stw_tui.session.outcome import Outcome, PrintResult
 from stw_tui.session.protocol import SessionLike
 from stw_tui.session.verbs import owned_by_verb
-from stw_tui.sos.backend import RunResult, Status, SolverState, create_backend, load_backend, run_iterations
+from stw_tui.sos.backend import (RunResult, SolverState, Status, WarmStart, create_backend, load_backend,
+                                 run_iterations)
 from stw_tui.sos.continuous import DenseReport, check_scene, survey
 from stw_tui.sos.scene import DEFAULT_SETTINGS, Constraint, Dof, Objective, Relation, Scene, Window
 from stw_tui.sos.spline import DofCurve
@@ -46,14 +47,6 @@ class SceneScope:
         """Every name an expression may use: DOF, constants, subexpressions and linkage quantities."""
         s = self.scene
         return [*s.dofs, *s.constants, *s.lets, *s.derived]
-
-
-@dataclass
-class WarmStart:
-    """Multipliers and working set of the last solve, reused when the next problem has the same rows."""
-
-    signature: tuple
-    state: SolverState
 
 
 def apply_line(session: SessionLike, scene: Scene, text: str, line: int | None, on_report,

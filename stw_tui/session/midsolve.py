@@ -12,7 +12,7 @@ leaves the previous checkpoint or the new one, never half of one. It holds numbe
 - ``command`` and ``iteration``: what was running, to say what was restored.
 
 When the command ends (done, stopped or failed) its line is journalled and the file removed. If the
-process dies first, :func:`restore` (called by :func:`stw_tui.session.resume.resume`) finds the file
+process dies first, :func:`stw_tui.session.resume.restore` (called by its ``resume``) finds the file
 with the offset of the journal's end, journals ``text`` and puts the checkpoint's state in place,
 as if the solve had been stopped there. With `--resolve` the lines are solved again instead.
 """
@@ -24,13 +24,10 @@ import os
 import time
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import TYPE_CHECKING, Callable
+from typing import Callable
 
-from stw_tui.session.checkpoint_record import VERSION, install, restored_scene, scene_record
-from stw_tui.sym.errors import StwError
-
-if TYPE_CHECKING:
-    from stw_tui.session.session import Session
+from stw_tui.session.checkpoint_record import VERSION, scene_record
+from stw_tui.session.protocol import SessionLike
 
 SUFFIX = ".solving"
 EVERY_VARIABLE = "STW_CHECKPOINT_EVERY"
@@ -152,42 +149,10 @@ def _sync_folder(folder: Path) -> None:
         os.close(handle)
 
 
-def hook_for(session: "Session", scene, problem, warm_of: Callable, trail: Trail | None):
+def hook_for(session: SessionLike, scene, problem, warm_of: Callable, trail: Trail | None):
     """The checkpointing ``on_state`` for a solve of ``session`` (None: it is not journalled to a
     file, or `set preview on` makes the solve a proposal, which a resume must not apply)."""
     checkpoints = getattr(session, "checkpoints", None)
     if checkpoints is None or trail is None or scene.settings.get("preview"):
         return None
     return checkpoints.midsolve.hook(scene, problem, warm_of, trail)
-
-
-def restore(session: "Session", journal: Path, size: int, resolve: bool) -> str | None:
-    """After a resume replayed ``journal`` (``size`` bytes): bring back the solve that was running
-    when the process died, if its checkpoint starts at the journal's end.
-
-    Returns:
-        What was restored, in a sentence (None: nothing to restore).
-    """
-    midsolve = MidSolve(journal)
-    record = midsolve.load()
-    if record is None or record.get("offset") != size or session.in_block:
-        return None
-    when = time.strftime("%H:%M:%S", time.localtime(record.get("time", 0)))
-    what = f"`{record.get('command', 'iterate')}` at iteration {record.get('iteration')} (checkpoint of {when})"
-    if resolve:
-        for line in record["text"].splitlines():
-            session.execute(line)
-        midsolve.ended(force=True)
-        return f"solved again up to the running solve's last checkpoint: {what}"
-    try:
-        scene = restored_scene(session, record)
-    except (StwError, KeyError, TypeError, ValueError):
-        return f"the running solve's checkpoint does not fit the journal; not restored: {what}"
-    entry = session.journal.append(record["text"], None)
-    session.journal.settle(entry, True)      # on disk first (raises StwError when it cannot be)
-    install(session, scene, record, record["text"])
-    if session.checkpoints is not None:
-        session.checkpoints.record(session)  # a later resume restores it like any finished solve
-    midsolve.ended(force=True)
-    last = record["text"].splitlines()[-1]
-    return f"resumed from the running solve's last checkpoint: {what}; journalled as `{last}`"

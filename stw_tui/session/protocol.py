@@ -16,7 +16,7 @@ class SessionLike(Protocol):
     """The state a session keeps between commands (see ``Session`` for what each holds)."""
 
     scene: Scene          # the scene every command reads and (on a copy) changes
-    warm: Any             # the solver's warm start (interpreter.WarmStart) or None
+    warm: Any             # the solver's warm start (backend.WarmStart) or None
     history: Any          # undo/redo and named snapshots (history.History)
     journal: Any          # the lines applied so far (session.Journal)
     proposal: Any         # a solve's result awaiting accept/reject (history.State) or None

@@ -4,10 +4,12 @@ session imports it."""
 
 from __future__ import annotations
 
+import time
 from pathlib import Path
 
 from stw_tui.session.autosave import SOLVE_COMMANDS, Checkpoints, apply_record
-from stw_tui.session.midsolve import restore
+from stw_tui.session.checkpoint_record import install, restored_scene
+from stw_tui.session.midsolve import MidSolve
 from stw_tui.session.session import Session
 from stw_tui.sym.errors import StwError
 from stw_tui.sym.language import classify_line
@@ -55,3 +57,35 @@ def resume(journal: str | Path, *, resolve: bool = False, on_line=None,
     if note is not None and on_note is not None:
         on_note(note)
     return session, restored, solved
+
+
+def restore(session: Session, journal: Path, size: int, resolve: bool) -> str | None:
+    """After a resume replayed ``journal`` (``size`` bytes): bring back the solve that was running
+    when the process died, if its checkpoint starts at the journal's end.
+
+    Returns:
+        What was restored, in a sentence (None: nothing to restore).
+    """
+    midsolve = MidSolve(journal)
+    record = midsolve.load()
+    if record is None or record.get("offset") != size or session.in_block:
+        return None
+    when = time.strftime("%H:%M:%S", time.localtime(record.get("time", 0)))
+    what = f"`{record.get('command', 'iterate')}` at iteration {record.get('iteration')} (checkpoint of {when})"
+    if resolve:
+        for line in record["text"].splitlines():
+            session.execute(line)
+        midsolve.ended(force=True)
+        return f"solved again up to the running solve's last checkpoint: {what}"
+    try:
+        scene = restored_scene(session, record)
+    except (StwError, KeyError, TypeError, ValueError):
+        return f"the running solve's checkpoint does not fit the journal; not restored: {what}"
+    entry = session.journal.append(record["text"], None)
+    session.journal.settle(entry, True)      # on disk first (raises StwError when it cannot be)
+    install(session, scene, record, record["text"])
+    if session.checkpoints is not None:
+        session.checkpoints.record(session)  # a later resume restores it like any finished solve
+    midsolve.ended(force=True)
+    last = record["text"].splitlines()[-1]
+    return f"resumed from the running solve's last checkpoint: {what}; journalled as `{last}`"

@@ -20,7 +20,7 @@ from stw_tui.session.history import NOT_STEPS, History, State
 from stw_tui.session.outcome import Outcome, PrintResult
 from stw_tui.session.preview import propose
 from stw_tui.session.session_commands import SESSION_HANDLERS
-from stw_tui.sos.backend import RunResult, StepReport
+from stw_tui.sos.backend import RunResult, StepReport, WarmStart
 from stw_tui.sos.scene import Scene
 from stw_tui.sym import limits
 from stw_tui.sym.errors import SourceError, StwError
@@ -98,7 +98,7 @@ class Session:
         self.journal = Journal(path=Path(journal_path) if journal_path else None)
         self.prints: list[PrintResult] = []
         self.runs: list[RunResult] = []
-        self.warm: interpreter.WarmStart | None = None
+        self.warm: WarmStart | None = None
         self._block: list[tuple[int | None, str]] | None = None   # lines of an open `linkage` block
         self.history = History()    # undo, redo and named snapshots (history.py)
         self.survey = None          # the last survey's table, for `adopt` (survey_session.py)

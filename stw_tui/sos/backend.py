@@ -94,6 +94,14 @@ class SolverState:
                    working_set=np.zeros(problem.row_counts[TermKind.GE], bool))
 
 
+
+@dataclass
+class WarmStart:
+    """Multipliers and working set of the last solve, reused when the next problem has the same rows."""
+
+    signature: tuple
+    state: SolverState
+
 @dataclass(frozen=True)
 class StepReport:
     """What one iteration did (one row of the iteration table)."""
