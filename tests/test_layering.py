@@ -39,9 +39,8 @@ def _imports_of(path, package: str, modules: set[str]) -> set[str]:
     return found & modules
 
 
-def test_no_two_core_modules_import_each_other():
-    """A module that imports one that imports it back (even lazily, inside a function) hides
-    which of the two is the lower layer; session -> interpreter -> outcome, never back."""
+def _core_modules() -> dict:
+    """Dotted module name -> file, for every module of stw_tui (a package is its __init__.py)."""
     from pathlib import Path
 
     root = Path(__file__).resolve().parent.parent
@@ -50,6 +49,13 @@ def test_no_two_core_modules_import_each_other():
         rel = path.relative_to(root).with_suffix("")
         parts = rel.parts[:-1] if rel.name == "__init__" else rel.parts
         paths[".".join(parts)] = path
+    return paths
+
+
+def test_no_two_core_modules_import_each_other():
+    """A module that imports one that imports it back (even lazily, inside a function) hides
+    which of the two is the lower layer; session -> interpreter -> outcome, never back."""
+    paths = _core_modules()
     imports = {}
     for name, path in paths.items():
         package = name if path.name == "__init__.py" else name.rpartition(".")[0]
@@ -162,14 +168,7 @@ def test_the_architecture_note_names_every_module():
 def test_no_import_cycle_of_any_length():
     """No chain of imports leads from a module back to itself, counting imports inside functions
     and under TYPE_CHECKING: every module has a place above all it imports (ARCHITECTURE.md)."""
-    from pathlib import Path
-
-    root = Path(__file__).resolve().parent.parent
-    paths = {}
-    for path in (root / "stw_tui").rglob("*.py"):
-        rel = path.relative_to(root).with_suffix("")
-        parts = rel.parts[:-1] if rel.name == "__init__" else rel.parts
-        paths[".".join(parts)] = path
+    paths = _core_modules()
     packages = {name for name, path in paths.items() if path.name == "__init__.py"}
     edges = {}
     for name, path in paths.items():
