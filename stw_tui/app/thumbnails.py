@@ -9,6 +9,8 @@ from __future__ import annotations
 
 from collections.abc import Sequence
 
+from stw_tui.session.figure import Figure
+
 BRAILLE = 0x2800
 # Bit of the dot at (column, row) of one character (Unicode's numbering: 1-2-3 down the left
 # column, 4-5-6 down the right, then 7 and 8 on the bottom row).
@@ -78,18 +80,6 @@ def strip(frames: Sequence, width: int = 5, height: int = 2) -> str:
     return "\n".join(" ".join(lines[row] for lines in drawn) for row in range(height))
 
 
-class _Drawing:
-    """Segments and points in the plane: what :func:`render` draws (a Figure without a time)."""
-
-    def __init__(self, segments, points=()):
-        self.segments, self.points = list(segments), list(points)
-
-    def bounds(self) -> tuple[float, float, float, float]:
-        xs = [p[0] for s in self.segments for p in s] + [p[0] for _, p in self.points]
-        ys = [p[1] for s in self.segments for p in s] + [p[1] for _, p in self.points]
-        return (min(xs), max(xs), min(ys), max(ys)) if xs else (-1.0, 1.0, -1.0, 1.0)
-
-
 def has_geometry(frames: Sequence) -> bool:
     """Whether the frames hold anything to draw (a scene without a linkage or a point has none)."""
     return any(frame.segments or frame.points for frame in frames)
@@ -110,4 +100,4 @@ def curves(values: Sequence[Sequence[float]], width: int, height: int) -> str:
         xs = [k * cols / (len(row) - 1) for k in range(len(row))]
         ys = [(v - low) * scale if scale else dots_high / 2 for v in row]
         segments += list(zip(zip(xs, ys), zip(xs[1:], ys[1:])))
-    return "\n".join(render(_Drawing(segments), width, height, (0.0, cols, 0.0, dots_high)))
+    return "\n".join(render(Figure(0.0, segments), width, height, (0.0, cols, 0.0, dots_high)))
