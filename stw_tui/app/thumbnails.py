@@ -9,8 +9,6 @@ from __future__ import annotations
 
 from collections.abc import Sequence
 
-from stw_tui.session.figure import Figure
-
 BRAILLE = 0x2800
 # Bit of the dot at (column, row) of one character (Unicode's numbering: 1-2-3 down the left
 # column, 4-5-6 down the right, then 7 and 8 on the bottom row).
@@ -88,6 +86,8 @@ def has_geometry(frames: Sequence) -> bool:
 def curves(values: Sequence[Sequence[float]], width: int, height: int) -> str:
     """Each row of ``values`` (one DOF's samples over time) as a line across the whole thumbnail,
     all on one value scale and stretched over the width: the motion when there is no figure."""
+    from stw_tui.session.figure import Figure   # here: importing the app must not load sympy/scipy
+
     rows = [list(map(float, row)) for row in values if len(row) > 1]
     if not rows:
         return ""
