@@ -358,6 +358,23 @@ def test_convexify_shifts_just_enough_for_the_null_space_of_the_binding_rows():
     assert convexify(la, H, None)[1] == pytest.approx(10.0)
 
 
+def test_convexify_sees_through_rows_far_narrower_than_the_widest():
+    import scipy.sparse as sps
+    from stw_scipy.linear import SparseAlgebra
+    from stw_tui.sos.sqp.curvature import convexify
+
+    la = SparseAlgebra()
+    # The rows pin x₀ and x₁, so only e₂ is free, where H is +1: convex on the null space, no
+    # shift. The row on x₁ is 1000x narrower than the one on x₀ (different units), and H is
+    # -1000 along x₁: a penalty that only outweighs H on the widest row calls this indefinite.
+    H = sps.csr_array(np.diag([1.0, -1000.0, 1.0]))
+    A = sps.csr_array([[1.0, 0.0, 0.0], [0.0, 1e-3, 0.0]])
+    model, shift = convexify(la, H, A)
+    assert shift == 0.0 and model is H
+    # Take the narrow row away and x₁ is free: the -1000 is then the model's, and it is shifted.
+    assert convexify(la, H, sps.csr_array([[1.0, 0.0, 0.0]]))[1] > 0
+
+
 @pytest.mark.parametrize("name", ["arm", "sine"])
 def test_scipy_and_torch_reach_the_same_motion_on_the_reproductions(name):
     # Issue 8: the same optimum from the same start (motion difference <= 1e-5), with the default

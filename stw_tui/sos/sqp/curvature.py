@@ -17,7 +17,13 @@ import numpy as np
 from stw_tui.sos.sqp.algebra import LinearAlgebra, Matrix
 
 # Relative to max(1, max |H_ii|):
-CURVATURE_PENALTY = 1e4   # ρ·max (AᵀA)_ii in the test H + ρAᵀA > 0
+# ρ·max (AᵀA)_ii in the test H + ρAᵀA > 0. Debreu's ρ must outweigh H along every direction the
+# rows constrain, also the weakly constrained ones: rows in different units (a planted foot in
+# metres beside flight torques in N·m, sessions/acrobat.stw) leave some 1e-3 of the widest, and
+# with 1e4 a model convex on the null space was taken for indefinite and shifted ~300x, turning
+# Newton's steps into a linear crawl (60 steps, KKT 8e-4, against 13 steps to convergence).
+# Rounding limits how far it can go: 1e8 still sees curvature above ~1e-8 of H's scale.
+CURVATURE_PENALTY = 1e8
 SHIFT_FIRST, SHIFT_MAX = 1e-10, 1e-1   # first and largest shift δI tried; each try is 10x the last ...
 SHIFT_BISECTIONS = 3      # ... then geometric bisections bring it within a factor 10^(1/8) of the least
 
