@@ -491,6 +491,25 @@ dof CY = 0.5 + 2*t - 4.9*t^2
     np.testing.assert_allclose(at("acro.com.x"), val["CX"], atol=1e-12)
     np.testing.assert_allclose(at("tau_X"), 2.0 * acc["CX"], atol=1e-9)
     np.testing.assert_allclose(at("tau_Y"), 2.0 * (acc["CY"] + 9.81), atol=1e-9)
+    # The scene states the base forces in that linear form; the recursive Newton–Euler forces of
+    # the foot-based creature, with the foot substituted (differentiated twice), agree with it.
+    from stw_tui.sym.linkage import derive, time_derivative
+
+    spec = sc.linkages["acro"]
+    names = ["CX", "CY", "FOOT", "WAIST"]
+    foot = {n: sc.derived[n] for n in ("X", "Y")}
+    subs = {}
+    for n, e in foot.items():
+        d1 = time_derivative(e, names)
+        subs.update({dof_symbol(n): e, dof_symbol(n, 1): d1, dof_symbol(n, 2): time_derivative(d1, names)})
+    vel = {n: sc.dofs[n].curve.evaluate(times, 1) for n in names}
+    symbols = [dof_symbol(n, k) for n in names for k in range(3)] + [named_symbol("g")]
+    for axis in ("X", "Y"):
+        newton_euler = derive(spec)[f"tau_{axis}"].xreplace(subs)
+        fn = sp.lambdify(symbols, newton_euler, "numpy")   # our own expression, not user text
+        args = [v[n] for n in names for v in (val, vel, acc)] + [9.81]
+        np.testing.assert_allclose(fn(*args), at(f"tau_{axis}"), atol=1e-9)
+    assert sc.derived["tau_Y"].free_symbols == {dof_symbol("CY", 2), named_symbol("g")}
     s.execute("linkage twin base=tx:Q com=CX")        # CX is taken: refused at `end`, nothing added
     s.execute("A revolute a=0.5")
     with pytest.raises(StwError, match="already exist"):

@@ -27,7 +27,7 @@ from stw_tui.sym import limits
 from stw_tui.sym.compiler import compile_term
 from stw_tui.sym.errors import LimitError, SolveError, SourceError, StwError
 from stw_tui.sym.kinds import Capability, TermKind
-from stw_tui.sym.symbols import dof_symbol, dof_symbols
+from stw_tui.sym.symbols import dof_symbol, dof_symbols, named_symbol
 
 
 _KINDS = {"dof": lang.NameKind.DOF, "const": lang.NameKind.CONST, "let": lang.NameKind.LET}
@@ -104,12 +104,18 @@ def apply_linkage(session: SessionLike, scene: Scene, block) -> Outcome:
 
 def _base_from_com(spec, derived: dict) -> dict:
     """With ``com=CX,CY``: each base variable as a subexpression, the centroidal DOF minus where
-    the centre of mass sits relative to the base (which depends on the joints only)."""
+    the centre of mass sits relative to the base (which depends on the joints only); and each base
+    force as what it is, the total outside force along its axis, M·(C'' - gravity). That equals
+    the Newton–Euler expression with the base substituted, which only cancels to it numerically
+    and grows with every link (a three-link lamp's tau_Y: 68k nodes); this one is linear."""
     out = {}
+    total = sum(sp.nsimplify(j.mass) for j in spec.joints)
     for axis, com in zip(spec.base, spec.com):
         base = dof_symbol(axis.dof)
         offset = sp.expand(derived[f"{spec.name}.com.{'xyz'[axis.index]}"] - base)
         out[axis.dof] = dof_symbol(com) - offset
+        gravity = spec.gravity_sign * named_symbol("g") if spec.gravity_axis == axis.index else 0
+        out[f"tau_{axis.dof}"] = total * (dof_symbol(com, 2) - gravity)
     return out
 
 
@@ -693,6 +699,11 @@ def _solve_adaptive(session: SessionLike, scene: Scene, n: int, adapt: int | Non
                        "\n".join(journal) if stopped else None)
 
 
+def _option(scene: Scene, expr, what: str) -> float | None:
+    """A verb's numeric option (None when not given)."""
+    return scene.numeric(expr, what) if expr is not None else None
+
+
 def _verb(scene: Scene, cmd) -> str:
     """A motion verb: expand it into named constraints and objectives (stw_tui.session.verbs), applied as
     their own lines would be, and remember them as one group that `delete` removes."""
@@ -703,11 +714,11 @@ def _verb(scene: Scene, cmd) -> str:
         weight = _weight_value(scene, cmd.weight, True) if cmd.weight is not None else None
         group, lines = verbs.hold_lines(scene, cmd.point, cmd.at, a, b, weight)
     elif isinstance(cmd, lang.ContactCmd):
-        opt = lambda e, what: scene.numeric(e, what) if e is not None else None
-        group, lines = verbs.contact_lines(scene, cmd.point, opt(cmd.height, "ground height") or 0.0, a, b,
-                                           opt(cmd.friction, "friction coefficient"), opt(cmd.x, "x"))
+        group, lines = verbs.contact_lines(scene, cmd.point, _option(scene, cmd.height, "ground height") or 0.0,
+                                           a, b, _option(scene, cmd.friction, "friction coefficient"),
+                                           _option(scene, cmd.x, "x"), _option(scene, cmd.dense_tol, "dense_tol"))
     elif isinstance(cmd, lang.FlightCmd):
-        group, lines = verbs.flight_lines(scene, cmd.linkage, a, b)
+        group, lines = verbs.flight_lines(scene, cmd.linkage, a, b, _option(scene, cmd.dense_tol, "dense_tol"))
     else:
         group, lines = verbs.ballistic_lines(scene, cmd.point, a, b)
     members = []
