@@ -195,6 +195,26 @@ def test_contact_and_flight_expand_into_named_constraints_grouped_under_the_verb
     assert "FOOT_planted2" in s.scene.constraints
 
 
+def test_contact_and_flight_state_their_own_dense_tolerance_on_their_nonlinear_parts():
+    # With a com base the planted foot and the flight torque are trigonometry of the joints (they
+    # hold at their instances only); dense_tol= is their stated tolerance. The push and the
+    # friction cone are linear and keep the scene's.
+    s = run_lines(Session(), ACRO + "contact acro.FOOT on ground on [0, 0.5] friction=0.8 x=0 dense_tol=0.01\n"
+                  "flight acro on [0.5, 1] dense_tol=0.5\n")
+    c = s.scene.constraints
+    assert c["FOOT_planted"].dense_tol == 0.01 and c["acro_flight"].dense_tol == 0.5
+    assert c["FOOT_push"].dense_tol is None and c["FOOT_friction"].dense_tol is None
+    assert "dense_tol=0.01" in c["FOOT_planted"].text
+    assert s.scene.verbs["FOOT_contact"][0].endswith("dense_tol=0.01")    # the journal keeps the verb
+    for bad, why in (("flight acro on [0.5, 1] dense_tol=-1", "dense_tol must be > 0"),
+                     ("contact acro.FOOT on ground on [1, 1.5] dense_tol=0", "dense_tol must be > 0"),
+                     ("contact acro.FOOT on ground on [0, 0.5] dense_tol=x", "unknown name 'x'")):
+        before = set(s.scene.constraints)
+        with pytest.raises(StwError, match=why):
+            s.execute(bad)
+        assert set(s.scene.constraints) == before
+
+
 def _values(scene, expr_text, times):
     from stw_tui.session.session import SceneScope
     from stw_tui.sos.continuous import expression_values

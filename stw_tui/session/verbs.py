@@ -82,6 +82,11 @@ def _t(value: float) -> str:
     return repr(float(value))
 
 
+def _tol(dense_tol: float | None) -> str:
+    """A generated constraint's own continuous-time tolerance, as its line states it."""
+    return f" dense_tol={float(dense_tol)!r}" if dense_tol is not None else ""
+
+
 def hold_lines(scene, point: str, at: str, a: float, b: float, weight: float | None) -> tuple[str, list[str]]:
     """(group name, command lines) of ``hold``."""
     axes = point_axes(scene, point)
@@ -121,7 +126,8 @@ def _free_linkage(scene, name: str, what: str):
 
 
 def contact_lines(scene, point: str, height: float, a: float, b: float,
-                  friction: float | None, x: float | None) -> tuple[str, list[str]]:
+                  friction: float | None, x: float | None,
+                  dense_tol: float | None = None) -> tuple[str, list[str]]:
     """(group name, command lines) of ``contact``."""
     spec = _free_linkage(scene, point.split(".")[0], "a contact with the ground")
     if f"{point}.y" not in scene.derived:
@@ -144,7 +150,7 @@ def contact_lines(scene, point: str, height: float, a: float, b: float,
     planted = [f"{point}.y = {height!r}"] + [
         f"{point}.x = {x!r}" if ax == "x" and x is not None else f"{point}.{ax}' = 0" for ax, _ in tangential]
     normal = f"tau_{axes['ty']}"
-    lines = [f"constraint {fresh_name(scene, f'{short}_planted')}: {', '.join(planted)} {on}",
+    lines = [f"constraint {fresh_name(scene, f'{short}_planted')}: {', '.join(planted)} {on}{_tol(dense_tol)}",
              f"constraint {fresh_name(scene, f'{short}_push')}: {normal} >= 0 {on}"]
     if friction is not None and tangential:
         cone = ", ".join(f"{friction!r}*{normal} {sign} tau_{dof} >= 0" for _, dof in tangential for sign in "-+")
@@ -152,7 +158,7 @@ def contact_lines(scene, point: str, height: float, a: float, b: float,
     return fresh_name(scene, f"{short}_contact"), lines
 
 
-def flight_lines(scene, name: str, a: float, b: float) -> tuple[str, list[str]]:
+def flight_lines(scene, name: str, a: float, b: float, dense_tol: float | None = None) -> tuple[str, list[str]]:
     """(group name, command lines) of ``flight``: the unactuated DOF's forces vanish on [A, B]."""
     spec = _free_linkage(scene, name, "flight")
     free = [axis.dof for axis in spec.base]
@@ -161,4 +167,5 @@ def flight_lines(scene, name: str, a: float, b: float) -> tuple[str, list[str]]:
         if joint.mass > 0:
             break
     group = fresh_name(scene, f"{name}_flight")
-    return group, [f"constraint {group}: {', '.join(f'tau_{d} = 0' for d in free)} on [{_t(a)}, {_t(b)}]"]
+    return group, [f"constraint {group}: {', '.join(f'tau_{d} = 0' for d in free)} on [{_t(a)}, {_t(b)}]"
+                   + _tol(dense_tol)]

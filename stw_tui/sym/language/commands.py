@@ -229,7 +229,7 @@ class BallisticCmd:
 
 @dataclass(frozen=True)
 class ContactCmd:
-    """`contact POINT on ground [y=H] on [A, B] [friction=MU] [x=X0]`: a point on the ground."""
+    """`contact POINT on ground [y=H] on [A, B] [friction=MU] [x=X0] [dense_tol=D]`: a point on the ground."""
 
     point: str                      # a linkage point, e.g. acro.FOOT
     height: sp.Expr | None          # the ground's height (None: 0)
@@ -237,15 +237,17 @@ class ContactCmd:
     friction: sp.Expr | None        # Coulomb coefficient (None: no friction cone)
     x: sp.Expr | None               # where the point is planted (None: wherever it lands)
     text: str = ""
+    dense_tol: sp.Expr | None = None   # the planted point's own continuous-time tolerance
 
 
 @dataclass(frozen=True)
 class FlightCmd:
-    """`flight LINKAGE on [A, B]`: nothing outside acts on the creature."""
+    """`flight LINKAGE on [A, B] [dense_tol=D]`: nothing outside acts on the creature."""
 
     linkage: str
     interval: Interval
     text: str = ""
+    dense_tol: sp.Expr | None = None   # its own continuous-time tolerance
 
 
 @dataclass(frozen=True)
@@ -683,7 +685,7 @@ class CommandParser(ExpressionParser):
         return BallisticCmd(point, self.interval(), self.text)
 
     def p_contact(self):
-        """`contact POINT on ground [y=H] on [A, B] [friction=MU] [x=X0]`."""
+        """`contact POINT on ground [y=H] on [A, B] [friction=MU] [x=X0] [dense_tol=D]`."""
         point = self.name("a linkage point such as acro.FOOT").text
         for word, expected in (("on", "'on ground'"), ("ground", "'ground' (the surface y = H)")):
             if not self.token.is_word(word):
@@ -694,16 +696,19 @@ class CommandParser(ExpressionParser):
             raise self.unexpected("'on [A, B]'")
         self.advance()
         interval = self.interval()
-        opts = self.options({"friction": "expr", "x": "expr"})
-        return ContactCmd(point, height, interval, opts.get("friction"), opts.get("x"), self.text)
+        opts = self.options({"friction": "expr", "x": "expr", "dense_tol": "expr"})
+        return ContactCmd(point, height, interval, opts.get("friction"), opts.get("x"), self.text,
+                          opts.get("dense_tol"))
 
     def p_flight(self):
-        """`flight LINKAGE on [A, B]`."""
+        """`flight LINKAGE on [A, B] [dense_tol=D]`."""
         linkage = self.name("a linkage name").text
         if not self.token.is_word("on"):
             raise self.unexpected("'on [A, B]'")
         self.advance()
-        return FlightCmd(linkage, self.interval(), self.text)
+        interval = self.interval()
+        opts = self.options({"dense_tol": "expr"})
+        return FlightCmd(linkage, interval, self.text, opts.get("dense_tol"))
 
     def p_limit(self):
         """`limit DOF A B`."""

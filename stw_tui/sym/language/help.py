@@ -65,20 +65,25 @@ COMMAND_HELP: dict[str, CommandHelp] = {
                              "PX'' = 0, PY'' + g = 0 (PZ'' = 0), exact between the samples. "
                              "`delete P_flight` removes it.",
                              "ballistic B on [0.55, 1.5]"),
-    "contact": CommandHelp("contact POINT on ground [y=H] on [A, B] [friction=MU] [x=X0]",
+    "contact": CommandHelp("contact POINT on ground [y=H] on [A, B] [friction=MU] [x=X0] [dense_tol=D]",
                            "The linkage point stays on the ground y = H (default 0), planted at x = X0 or "
                            "wherever it lands (POINT_planted), and the ground only pushes: its force on "
                            "the free base, tau of the base's y translation, is >= 0 (POINT_push); with "
                            "friction=MU the tangential force stays in the friction cone (POINT_friction). "
                            "With `com=CX,CY` the push and the cone are linear and hold everywhere. "
                            "One contact at a time per creature: the base force is their sum. "
+                           "With `com=` the planted point is trigonometry of the joint curves, so it "
+                           "holds exactly only at its instances; dense_tol=D states how far it may stray between "
+                           "them (metres), checked after each solve. "
                            "`delete POINT_contact` (FOOT_contact) removes all of it.",
                            "contact acro.FOOT on ground on [0, 0.5] friction=1 x=0"),
-    "flight": CommandHelp("flight LINKAGE on [A, B]",
+    "flight": CommandHelp("flight LINKAGE on [A, B] [dense_tol=D]",
                           "Nothing outside acts on the creature: the forces of its base DOF and the "
                           "torques of the joints up to its first massive link (which hang on the "
                           "massless base) are 0 (LINKAGE_flight). With `com=CX,CY` the base part is "
-                          "linear (CX'' = 0, CY'' + g = 0) and holds everywhere. "
+                          "linear (CX'' = 0, CY'' + g = 0) and holds everywhere; the torques are "
+                          "nonlinear, and dense_tol=D states how large they may grow between the "
+                          "instances. "
                           "`delete LINKAGE_flight` removes it.",
                           "flight acro on [0.5, 1]"),
     "limit": CommandHelp("limit DOF A B",
