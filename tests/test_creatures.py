@@ -251,3 +251,62 @@ def test_basketball_player_catches_its_own_throw_and_scores():
     assert turn.min() >= -1.6 - 1e-9 and turn.max() <= 1.6 + 1e-9   # ... and the base's
     figure = scene_figure(s.scene, 1.7)
     assert len(figure.segments) == 3                   # the arm is drawn (a side view)
+
+
+LAMP = ((0.15, 1.5), (0.4, 0.3), (0.4, 0.4))     # (length, mass) of BASE, LOWER, UPPER
+
+
+def _lamp_points(scene, t):
+    """Heel, toe, elbow and head of the lamp at times t, written out independently of the
+    linkage module: headings add up along the chain, each link's mass sits at its middle, and
+    the heel is the centre of mass (the CX, CY curves) minus where the links put it."""
+    cx, cy, *angles = (scene.dofs[n].curve.evaluate(t) for n in ("CX", "CY", "BASE", "LOWER", "UPPER"))
+    heading, joint = np.zeros_like(t), np.zeros((2, t.size))
+    points, moment = [joint], np.zeros((2, t.size))
+    for (length, mass), angle in zip(LAMP, angles):
+        heading = heading + angle
+        step = length * np.array([np.cos(heading), np.sin(heading)])
+        moment += mass * (joint + step / 2)
+        joint = joint + step
+        points.append(joint)
+    offset = moment / sum(m for _, m in LAMP)
+    return [np.array([cx, cy]) - offset + p for p in points]
+
+
+def test_luxo_jumps_with_squash_stretch_and_follow_through_from_the_objective():
+    s = Session()
+    s.run_file(SESSIONS / "luxo.stw")
+    scene = s.scene
+    assert len(s.runs) == 2 and all(run.converged for run in s.runs)
+    assert s.runs[-1].reports[-1].max_violation <= 1e-8
+    assert not any(d.keys for d in scene.dofs.values())           # nothing keyframed
+    report = check_scene(scene)
+    assert report.failing(scene.settings["dense_tol"]) == []      # each within its stated tolerance
+    assert report.checks["BASE_planted"].tol <= 0.02 and report.checks["luxo_flight"].tol <= 0.5
+    for name in ("BASE_push", "BASE_push2", "flat", "flat2", "above", "clear", "rest", "settle"):
+        assert report.checks[name].dense <= 1e-6, name
+
+    t = np.linspace(0.0, 1.6, 3201)
+    ground, air = (t <= 0.6) | (t >= 0.9), (t > 0.6) & (t < 0.9)
+    mass = sum(m for _, m in LAMP)
+    # Newton on the whole lamp, from the centre of mass curves: the ground only pushes, and
+    # nothing acts in the air.
+    push = mass * (scene.dofs["CY"].curve.evaluate(t, 2) + G)
+    shove = mass * scene.dofs["CX"].curve.evaluate(t, 2)
+    assert push[ground].min() >= -1e-8
+    assert np.abs(push[air]).max() <= 1e-8 and np.abs(shove[air]).max() <= 1e-8
+    heel, toe, elbow, head = _lamp_points(scene, t)
+    # Planted where it stands and where it lands (to the sessions' 2 cm), off the ground between.
+    before, after = t <= 0.6, t >= 0.9
+    assert np.abs(heel[:, before] - np.array([[0.0], [0.0]])).max() <= 0.02
+    assert np.abs(heel[:, after] - np.array([[0.5], [0.0]])).max() <= 0.02
+    assert heel[1, air].max() > 0.03 and heel[1, air].min() >= -1e-6
+    assert min(p[1].min() for p in (elbow, head)) >= -1e-6
+    # Squash, stretch, follow-through: the heel-to-head reach dips before take-off, grows in
+    # the air and gives way again on landing, all from least torque.
+    reach = np.hypot(*(head - heel))
+    rest = reach[0]
+    assert reach[(t > 0.2) & (t < 0.6)].min() < 0.97 * rest
+    assert reach[air].max() > 1.05 * rest
+    assert reach[(t > 0.9) & (t < 1.4)].min() < 0.95 * rest
+    assert reach[-1] == pytest.approx(rest, abs=1e-6)
