@@ -304,6 +304,11 @@ def test_dof_initial_curve_may_not_use_dofs():
 def test_source_error_caret_points_at_column():
     err = cmd_error("damp m 1")
     assert err.caret() == "damp m 1\n     ^"
+    # What the command line prints: where, then the caret lines; without a column, one line.
+    assert err.report("s.stw") == f"s.stw: {err}\ndamp m 1\n     ^"
+    from stw_tui.sym.errors import SourceError
+
+    assert SourceError("no time", line=3).report("s.stw") == "s.stw: line 3: no time"
 
 
 # --- code injection is rejected -----------------------------------------------------------------------

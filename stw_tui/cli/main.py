@@ -71,9 +71,7 @@ def _run(args: argparse.Namespace) -> int:
     try:
         session.run_file(args.session, on_line=on_line)
     except SourceError as exc:
-        print(f"{args.session}: {exc}", file=sys.stderr)
-        if exc.caret():
-            print(exc.caret(), file=sys.stderr)
+        print(exc.report(str(args.session)), file=sys.stderr)
         return 2
     except StwError as exc:
         print(f"{args.session}: {exc}", file=sys.stderr)
@@ -153,7 +151,7 @@ def _export(args: argparse.Namespace) -> int:
         what = tuple(n for n in (args.what or "").split(",") if n)
         target = write_text(args.output, export_text(session, args.format, args.fps, what))
     except SourceError as exc:
-        print(f"{args.session}: {exc}", file=sys.stderr)
+        print(exc.report(str(args.session)), file=sys.stderr)
         return 2
     except StwError as exc:
         print(f"stw export: {exc}", file=sys.stderr)

@@ -40,9 +40,7 @@ def run_survey_command(args) -> int:
         outcome = session.execute(line, on_report=on_report)
         print(file=sys.stderr)
     except SourceError as exc:
-        print(f"\nstw survey: {exc}", file=sys.stderr)
-        if exc.caret():
-            print(exc.caret(), file=sys.stderr)
+        print("\n" + exc.report("stw survey"), file=sys.stderr)
         return 2
     except StwError as exc:
         print(f"\nstw survey: {exc}", file=sys.stderr)

@@ -63,6 +63,11 @@ class SourceError(StwError):
         before = printable(self.source[:self.column - 1])
         return f"{printable(self.source)}\n{' ' * len(before)}^"
 
+    def report(self, prefix: str) -> str:
+        """What a command line prints: ``prefix: message``, then the caret lines when known."""
+        caret = self.caret()
+        return f"{prefix}: {self}" + (f"\n{caret}" if caret else "")
+
     def at_line(self, line: int) -> "SourceError":
         """Copy of this error placed at a session line number."""
         return SourceError(self.message, line=line, column=self.column, source=self.source,
