@@ -86,19 +86,18 @@ def expression_plot_data(scene: "Scene", name: str) -> ExpressionPlotData:
 def figure_data(scene: "Scene", t: float, proposal=None) -> FigureData:
     """The figure player's frame at ``t`` (clamped to the span); with a ProposalView, the proposed
     motion's figure beside it. Computed off the UI thread: it evaluates the scene's curves."""
-    from stw_tui.session.figure import scene_figure
+    from stw_tui.session.figure import player_figure, point_pairs
 
     t = min(max(t, scene.t0), scene.t1)
-    figure = scene_figure(scene, t)
+    figure = player_figure(scene, t)
     span = (scene.t0, scene.t1)
     ghost = proposal.figure(t) if proposal is not None else None
-    if figure.segments or figure.points:
+    if scene.linkages or point_pairs(scene) or not figure.points:
         return FigureData(t, span, tuple(figure.segments), tuple(figure.points), ghost=ghost)
-    # A lone DOF (the jet particle) is drawn as a dot at its height, within its range.
-    name = next(iter(scene.dofs))
-    values = dof_series(scene, name, 0).values
+    # A lone DOF (the jet particle), which player_figure draws as a dot at its height: keep the
+    # plot's range to the whole curve's, so the dot moves instead of the axes.
+    values = dof_series(scene, figure.points[0][0], 0).values
     pad = 0.1 * max(max(values) - min(values), 0.2)
-    height = float(scene.dofs[name].curve.evaluate([t])[0])
-    return FigureData(t, span, points=((name, (0.0, height)),),
+    return FigureData(t, span, points=tuple(figure.points),
                       bounds=(-1.0, 1.0, min(values) - pad, max(values) + pad), ghost=ghost)
 
