@@ -251,7 +251,9 @@ COMMAND_HELP.update({
                           "run on Dask (K worker processes, default one per core), or on a local process pool "
                           "without it; `set scheduler tcp://HOST:PORT` sends them to an existing Dask cluster "
                           "(`set scheduler local`: back to this machine; `pool`: a process pool even with Dask; "
-                          "`serial`: one start after another in this process). The scene does not change.",
+                          "`serial`: one start after another in this process; `batch`: all starts as one batch on the "
+                          "torch backend, vectorized over starts, on a GPU when torch sees one, K starts at "
+                          "a time, default 64). The scene does not change.",
                           "survey 40 seed=1 amplitude=0.8 window=all"),
     "adopt": CommandHelp("adopt K",
                          "Make optimum K of the last survey the scene: its start is applied and solved again "
