@@ -44,7 +44,7 @@ def structure_key(tp: TorchProblem) -> str:
 def _slot_values(tp: TorchProblem, members: list[TorchProblem], S: torch.Tensor) -> torch.Tensor:
     """(B, slots): each start's fixed slot values plus its free control points' share."""
     fixed = torch.stack([m.v_fixed for m in members])
-    return fixed + (tp.Pf @ S.T).T
+    return fixed + (tp.Pf @ S.T.contiguous()).T
 
 
 def _tile(V: torch.Tensor, g, k: int, offset: int) -> torch.Tensor:
@@ -173,7 +173,7 @@ def evaluate_batch(members: list[TorchProblem], points: list[np.ndarray]) -> lis
     w_f = tp.w_inst * f_all
     objective = (w_f[:, obj] * f_all[:, obj]).sum(1)
     scale = torch.cat([torch.where(obj, 2.0 * w_f, 0.0), V.new_zeros(B, 1)], 1)[:, tp.slot_owner]
-    gradient = (tp.PfT @ (g_slot * scale).T).T
+    gradient = (tp.PfT @ (g_slot * scale).T.contiguous()).T
     gw = g_slot * tp.w_slot
     c, J = {}, {}
     for kind in (EQ, GE):

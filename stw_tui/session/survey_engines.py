@@ -293,15 +293,16 @@ class DaskEngine:
         return now
 
 
-def choose_engine(workers: int | None = None, scheduler: str | None = None):
+def choose_engine(workers: int | None = None, scheduler: str | None = None, torch_options: dict | None = None):
     """(engine, note) for `set scheduler`'s value: "serial", "pool", "batch", a Dask scheduler address, or
-    None (Dask's LocalCluster when Dask is installed, else a local pool)."""
+    None (Dask's LocalCluster when Dask is installed, else a local pool). ``torch_options``: the
+    scene's torch backend options (`backend torch device=cpu`), which a batch honours."""
     if scheduler == "serial":
         return SerialEngine(), ""
     if scheduler == "pool":
         return PoolEngine(workers), ""
     if scheduler == "batch":
-        return BatchEngine(workers), ""
+        return BatchEngine(workers, options=torch_options), ""
     if scheduler:
         return DaskEngine(workers, scheduler), ""
     if dask_available():
@@ -326,7 +327,9 @@ def run_survey(session, plan: SurveyPlan, engine=None, *, scheduler: str | None 
     """
     tasks = plan_tasks(session, plan)
     if engine is None:
-        engine, note = choose_engine(plan.workers, scheduler)
+        scene = session.scene
+        engine, note = choose_engine(plan.workers, scheduler,
+                                     scene.backend_options if scene.backend == "torch" else None)
     else:
         note = ""
     table = SurveyTable(plan, tasks[0].base_text, engine.describe(), notes=[note] if note else [])
