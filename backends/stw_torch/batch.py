@@ -38,9 +38,12 @@ from stw_tui.sos.sqp.algebra import KKTSystem, SingularSystem
 from stw_tui.sym.errors import StwError
 
 from .backend import TorchBackend
-from .batch_evaluate import evaluate_batch, merit_values_batch, structure_key
+from .batch_evaluate import evaluate_batch, merit_values_batch, problem_key
 from .evaluate import TorchProblem
 from .linalg import DenseAlgebra
+
+
+LOWERINGS_KEPT = 8   # lowerings a batch keeps (adaptive re-solves make new structures)
 
 
 class Cancelled(StwError):
@@ -102,6 +105,8 @@ class TorchBatch(BatchSolver):
         self._running: set[int] = set()
         self._finished: list[tuple[int, Any]] = []
         self._cancelled = False
+        self._lowerings: dict[str, TorchProblem] = {}   # by problem_key: shared by starts
+        self._lowering_lock = threading.Lock()
 
     def describe(self) -> str:
         """Where the batch runs."""
@@ -130,6 +135,20 @@ class TorchBatch(BatchSolver):
             chosen = {k: v for k, v in {**self.options, **options}.items() if k in known}
             return BatchMember(self, job, **chosen)
         return make
+
+    def lowering(self, problem, host_linear: bool) -> tuple[TorchProblem, str]:
+        """``problem`` lowered to torch, and its batching key. Starts whose problems have the
+        same structure share one lowering (building an arm's took 0.45 s, per start and solve)."""
+        key = problem_key(problem, self.device, host_linear)
+        with self._lowering_lock:
+            template = self._lowerings.get(key)
+            if template is None:
+                while len(self._lowerings) >= LOWERINGS_KEPT:
+                    self._lowerings.pop(next(iter(self._lowerings)))
+                template = self._lowerings[key] = TorchProblem(problem, self.device, host_linear)
+        # Every start, the first too, takes its fixed slot values the same way: the numbers do
+        # not depend on which start happened to build the lowering.
+        return template.with_problem(problem), key
 
     def _job(self, index: int, job: Callable[[], Any]) -> None:
         token = join_batch(self.member(index))
@@ -262,10 +281,9 @@ class BatchAlgebra(DenseAlgebra):
 class BatchEvaluator:
     """A start's window problem on torch, evaluated in the batch's rounds."""
 
-    def __init__(self, batch: TorchBatch, job: int, tp: TorchProblem):
-        self.batch, self.job, self.tp = batch, job, tp
+    def __init__(self, batch: TorchBatch, job: int, tp: TorchProblem, key: str):
+        self.batch, self.job, self.tp, self.key = batch, job, tp, key
         self.damping = tp.damping
-        self.key = structure_key(tp)
 
     def evaluate(self, s):
         """:meth:`TorchProblem.evaluate`, batched with the other starts'."""
@@ -290,5 +308,5 @@ class BatchMember(TorchBackend):
         return BatchAlgebra(self.batch, self.job)
 
     def evaluator(self, problem, algebra):
-        tp = TorchProblem(problem, self.device, host_linear=self.linear == "scipy")
-        return BatchEvaluator(self.batch, self.job, tp)
+        tp, key = self.batch.lowering(problem, host_linear=self.linear == "scipy")
+        return BatchEvaluator(self.batch, self.job, tp, key)

@@ -24,20 +24,26 @@ from stw_tui.sos.window import EQ, GE, OBJ, MeritValues, evaluate_condition_tree
 from .evaluate import TorchEvaluation, TorchProblem
 
 
-def structure_key(tp: TorchProblem) -> str:
-    """A digest of everything but the control points: problems with equal keys batch together."""
-    h = hashlib.sha256()
-    problem = tp.problem
-    for array in (tp.Pf.crow_indices(), tp.Pf.col_indices(), tp.Pf.values()):
-        h.update(array.cpu().numpy().tobytes())
+def problem_key(problem, device: torch.device, host_linear: bool) -> str:
+    """A digest of everything of a window problem but its control points: problems with equal
+    keys share one lowering (:meth:`TorchProblem.with_problem`) and batch together. Compiled terms
+    are named by identity (the core caches them, so the starts of a survey share them; printing
+    an arm's torque expressions to hash them took 0.3 s)."""
+    h = hashlib.sha256(repr((str(device), host_linear, type(problem.Pf).__name__, problem.Pf.shape,
+                             sorted(problem.row_counts.items()))).encode())
+    Pf = problem.Pf
+    for array in (Pf.indptr, Pf.indices, Pf.data) if hasattr(Pf, "indptr") else (Pf.toarray(),):
+        h.update(np.ascontiguousarray(array).tobytes())
     h.update(np.asarray(problem.free, np.int64).tobytes())
+    h.update(np.ascontiguousarray(problem.damping, float).tobytes())
     for g in problem.groups:
-        h.update(repr((g.label, g.kind, g.n, g.slot_offset, g.row_offset, str(g.term.expr),
-                       tuple(float(p) for p in g.params), str(g.condition.tree) if g.condition else "")).encode())
+        leaves = [(str(node), id(term), offset, tuple(problem.term_parameters(term)))
+                  for node, term, offset in g.condition.leaves] if g.condition is not None else []
+        h.update(repr((g.label, str(g.kind), g.n, g.slot_offset, g.row_offset, id(g.term),
+                       tuple(float(p) for p in g.params),
+                       str(g.condition.tree) if g.condition is not None else "", leaves)).encode())
         h.update(np.ascontiguousarray(g.times, float).tobytes())
         h.update(np.ascontiguousarray(g.weights, float).tobytes())
-    h.update(np.ascontiguousarray(tp.damping, float).tobytes())
-    h.update(str(tp.device).encode())
     return h.hexdigest()
 
 
@@ -157,6 +163,10 @@ def _hessian_rows(tp: TorchProblem, X: torch.Tensor, grad: torch.Tensor, seeds: 
 
 def _pattern_values(pattern, source: torch.Tensor) -> torch.Tensor:
     """:meth:`Pattern.values` for (B, n_src) sources: (B, nnz)."""
+    if pattern.operator is not None:
+        if not pattern.operator.shape[0]:
+            return source.new_zeros(source.shape[0], 0)
+        return (pattern.operator @ source.T.contiguous()).T
     ext = torch.cat([source, source.new_zeros(source.shape[0], 1)], 1)
     return (pattern.coef_pad * ext[:, pattern.src_pad]).sum(-1)
 
