@@ -12,7 +12,8 @@ Hessian of the Lagrangian. Per evaluation:
   seed per variable) gives all local second derivatives;
 - Jacobians ``G @ Pf`` and the Hessian ``Pfᵀ D Pf + Jₒᵀ W Jₒ`` are assembled on fixed patterns
   by gathering products of ``Pf`` entries with local derivatives and summing a fixed, padded
-  list of contributions per nonzero: vectorized, and deterministic on every device (no atomics).
+  list of contributions per nonzero: vectorized, and deterministic on every device (no atomics);
+  on the CPU the same sums are one sparse product, which skips the padding (Pattern).
 
 A Python loop runs over term groups only, never over instances or control points.
 """

@@ -114,7 +114,8 @@ COMMAND_HELP: dict[str, CommandHelp] = {
                        "violation allowed between instances), adaptive on|off (add instances where "
                        "the continuous-time check fails, and re-solve), adaptive_rounds. "
                        "`set limit NAME N` changes a limit (`help limits` lists them); "
-                       "`set scheduler tcp://HOST:PORT` sends surveys to a Dask cluster.",
+                       "`set scheduler tcp://HOST:PORT` sends surveys to a Dask cluster (`set scheduler batch`: "
+                       "solves their starts as one batch on the torch backend).",
                        "set dense_tol 1e-7"),
     "iterate": CommandHelp("iterate [N] [adapt=R]",
                            "Run up to N SQP iterations on the current window (stops early on convergence). "
