@@ -180,3 +180,28 @@ def test_batched_evaluations_are_each_starts_own():
         np.testing.assert_allclose(ev.lagrangian_hessian(lam_eq, lam_ge).numpy(),
                                    own.lagrangian_hessian(lam_eq, lam_ge).numpy(), rtol=1e-12, atol=1e-12)
     assert abs(members[0].v_fixed - members[1].v_fixed).max() > 0.01   # y differs between the starts
+
+
+def test_a_cancelled_batch_reports_nothing_more_and_ends_its_threads(monkeypatch):
+    import threading
+
+    monkeypatch.setitem(torch_batch._KINDS, "echo", lambda items: list(items))
+    solver = TorchBatch(3, torch.device("cpu"))
+    stop = {"asked": False}
+
+    def job(i, n):
+        def run():
+            for k in range(n):
+                solver.request(i, "echo", "echo", k)
+            return i
+        return run
+
+    done = []
+
+    def on_done(index, result):
+        done.append((index, result))
+        stop["asked"] = True    # cancel once the short job is back
+
+    solver.run([job(0, 1), job(1, 10**6), job(2, 10**6), job(3, 1)], on_done, lambda: stop["asked"])
+    assert done == [(0, 0)]
+    assert not [t for t in threading.enumerate() if t.name.startswith("stw-batch-")]

@@ -171,11 +171,21 @@ class TorchBatch(BatchSolver):
         if self.device.type == "cpu":
             torch.set_num_threads(1)   # small batched work on 2 cores: threads cost ~50x (DESIGN.md)
         self.rounds, self._cancelled = 0, False
+        threads: list[threading.Thread] = []
+        try:
+            self._loop(jobs, on_done, cancelled, threads)
+        finally:   # also when on_done raised: fail the jobs' requests, so that none waits for ever
+            with self._cond:
+                if self._running:
+                    self._cancel()
+            for thread in threads:
+                thread.join()
+
+    def _loop(self, jobs, on_done, cancelled, threads: list) -> None:
         waiting = list(range(len(jobs)))
-        threads = []
         while True:
             with self._cond:
-                while not self._wakes(waiting):
+                while not self._wakes():
                     self._cond.wait(timeout=0.2)
                     if cancelled() and not self._cancelled:
                         self._cancel()
@@ -183,7 +193,7 @@ class TorchBatch(BatchSolver):
                 idle = not self._running
                 round_ = [] if finished or idle else sorted(self._pending.values(), key=lambda r: r.job)
             if idle and not finished and (not waiting or self._cancelled):
-                break
+                return
             for index, result in sorted(finished, key=lambda item: item[0]):
                 if not self._cancelled:
                     on_done(index, result)
@@ -202,10 +212,8 @@ class TorchBatch(BatchSolver):
                                           name=f"stw-batch-{index}", daemon=True)
                 threads.append(thread)
                 thread.start()
-        for thread in threads:
-            thread.join()
 
-    def _wakes(self, waiting: list[int]) -> bool:
+    def _wakes(self) -> bool:
         """Whether the calling thread has work: a job finished, every running job waits on a
         request (a round), or none runs (start some, or stop). The lock is held."""
         return bool(self._finished or not self._running or len(self._pending) == len(self._running))

@@ -62,7 +62,7 @@ def main(argv: list[str] | None = None) -> int:
     if "torch" in available_backends() and "batch" in wanted:
         engines.append(BatchEngine())
     print(f"{args.session}: survey {args.n} {' '.join(args.options)}")
-    print(f"{'engine':<50} {'run':>3} {'s':>7} {'starts/s':>9} {'ratio':>6} {'optima':>6}  same table as serial")
+    print(f"{'engine':<62} {'run':>3} {'s':>7} {'starts/s':>9} {'ratio':>6} {'optima':>6}  same table as serial")
     serial, first = {}, None
     for engine in engines:
         note = ""
@@ -80,7 +80,7 @@ def main(argv: list[str] | None = None) -> int:
             serial.setdefault(run, (rate, _rows(table)))
             first = first or table
             same = "yes" if _rows(table) == serial[1][1] else "NO"
-            print(f"{engine.describe():<50} {run:>3} {table.seconds:>7.1f} {rate:>9.3f} {rate / serial[run][0]:>6.2f} "
+            print(f"{engine.describe():<62} {run:>3} {table.seconds:>7.1f} {rate:>9.3f} {rate / serial[run][0]:>6.2f} "
                   f"{len(table.optima):>6}  {same}{note if run == 1 else ''}", flush=True)
     print()
     print(first.describe(limit=40))
