@@ -160,6 +160,7 @@ def test_batched_evaluations_are_each_starts_own():
     for seed in (1, 2):
         session = Session()
         session.run_text(catalogue.problem("analytic_landing").text
+                         + "constraint lift: x >= 0.2 on [0, 1] when y > 0\n"   # a `when` condition
                          + f"shake amplitude=0.3 seed={seed}\nwindow wx dofs=x\nuse wx\n")
         problems.append(WindowProblem(session.scene))
     cpu = torch.device("cpu")
@@ -176,6 +177,11 @@ def test_batched_evaluations_are_each_starts_own():
         np.testing.assert_allclose(ev.gradient, own.gradient, rtol=1e-12, atol=1e-12)
         np.testing.assert_allclose(ev.c_eq, own.c_eq, rtol=1e-12, atol=1e-12)
         np.testing.assert_allclose(merit.c_eq, own.c_eq, rtol=1e-12, atol=1e-12)
+        np.testing.assert_allclose(ev.c_ge, own.c_ge, rtol=1e-12, atol=1e-12)
+        np.testing.assert_array_equal(ev.active_ge, own.active_ge)
+        np.testing.assert_array_equal(merit.active_ge, own.active_ge)
+        assert 0 < own.active_ge.sum() < own.active_ge.size   # the condition holds at some instances
+        np.testing.assert_allclose(ev.J_ge.toarray(), own.J_ge.toarray(), rtol=1e-12, atol=1e-12)
         np.testing.assert_allclose(ev.J_eq.toarray(), own.J_eq.toarray(), rtol=1e-12, atol=1e-12)
         np.testing.assert_allclose(ev.lagrangian_hessian(lam_eq, lam_ge).numpy(),
                                    own.lagrangian_hessian(lam_eq, lam_ge).numpy(), rtol=1e-12, atol=1e-12)
