@@ -31,17 +31,21 @@ class TorchBackend(SQPBackend):
                       ("auto", "scipy", "torch")),
         *ScipyBackend.options,
     )
-    capabilities = SQPBackend.capabilities | {Capability.AUTOGRAD, Capability.GPU}
+    capabilities = SQPBackend.capabilities | {Capability.AUTOGRAD, Capability.GPU, Capability.BATCH}
+
+    @classmethod
+    def batch_solver(cls, size, options=None):
+        """Many starts as one batch (batch.py), on cuda when torch sees one, else on the CPU."""
+        from .batch import TorchBatch
+
+        options = dict(options or {})
+        cls(**options)   # validates the options
+        return TorchBatch(size, _device(options.get("device", "auto")), options)
 
     def algebra(self, problem):
         import torch
 
-        want = self.config["device"]
-        if want == "auto":
-            want = "cuda" if torch.cuda.is_available() else "cpu"
-        if want == "cuda" and not torch.cuda.is_available():
-            raise StwError("device=cuda, but torch sees no CUDA device (use device=cpu or auto)")
-        self.device = torch.device(want)
+        self.device = _device(self.config["device"])
         if self.device.type == "cpu":
             torch.set_num_threads(1)  # small batched work on 2 cores: threads cost ~50x (DESIGN.md)
         linear = self.config["linear"]
@@ -63,3 +67,18 @@ class TorchBackend(SQPBackend):
         inner = super().init(problem, state, settings)
         check_finite(inner.ev, problem)
         return inner
+
+
+def _device(want: str):
+    """The torch device of option ``device`` (auto: cuda when torch sees one).
+
+    Raises:
+        StwError: device=cuda without a CUDA device.
+    """
+    import torch
+
+    if want == "auto":
+        want = "cuda" if torch.cuda.is_available() else "cpu"
+    if want == "cuda" and not torch.cuda.is_available():
+        raise StwError("device=cuda, but torch sees no CUDA device (use device=cpu or auto)")
+    return torch.device(want)

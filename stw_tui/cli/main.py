@@ -212,7 +212,8 @@ def build_parser() -> argparse.ArgumentParser:
     survey.add_argument("n", metavar="N", help="the number of starts")
     survey.add_argument("options", nargs="*", metavar="OPTION=VALUE",
                         help="seed=S from=shake|sketch|random amplitude=A window=W workers=K iterate=M")
-    survey.add_argument("--scheduler", metavar="ADDR", help="an existing Dask cluster, tcp://HOST:PORT (or pool, serial)")
+    survey.add_argument("--scheduler", metavar="ADDR", help="an existing Dask cluster, tcp://HOST:PORT (or pool, serial, or batch: "
+                        "the starts as one batch on the torch backend, on a GPU when there is one)")
     survey.add_argument("--json", action="store_true", help="print the table as one JSON object")
     survey.set_defaults(func=_survey)
     backends = sub.add_parser("backends", help="list installed solver backends and their options")

@@ -3,10 +3,12 @@
     python -m stw_tui.cli.survey_bench SESSION N [OPTION=VALUE…] [--workers K]
 
 The session is replayed, then the same survey (`survey N OPTIONS`, the console's parser) runs on
-each engine: serial in this process, a local process pool of K workers, and a Dask LocalCluster of
-K workers when Dask is installed. Each engine pays what a user pays for its first survey, except
-the LocalCluster's own start-up (a TUI session starts it once), which is timed apart: every worker
-process replays the session once, and the pool's processes start with the survey. The machines
+each engine: serial in this process, a local process pool of K workers, a Dask LocalCluster of
+K workers when Dask is installed, and the starts as one batch on the torch backend (on cuda when
+torch sees a GPU, else on the CPU) when it is installed. Each engine pays what a user pays for its
+first survey, except the LocalCluster's own start-up (a TUI session starts it once) and the import
+of torch by the batch, which are timed apart: every worker process replays the session once, the
+pool's processes start with the survey, and the batch lowers the terms to torch in it. The machines
 are shared and noisy, so only the ratios of one run mean much. The tables must agree (the same
 optima from the same starts); the last column says whether they do.
 """
@@ -17,13 +19,16 @@ import argparse
 import time
 
 from stw_tui.session.session import Session
-from stw_tui.session.survey_engines import DaskEngine, PoolEngine, SerialEngine, dask_available, run_survey
+from stw_tui.session.survey_engines import (BatchEngine, DaskEngine, PoolEngine, SerialEngine, dask_available,
+                                            run_survey)
+from stw_tui.sos.backend import available_backends
 from stw_tui.session.survey_session import plan_of
 from stw_tui.sym.errors import StwError
 
 
 def _rows(table) -> list:
-    return [(round(o.best.objective, 6), tuple(m.index for m in o.members)) for o in table.optima]
+    # members in index order: starts whose objectives agree to 1e-12 may rank either way
+    return [(round(o.best.objective, 6), tuple(sorted(m.index for m in o.members))) for o in table.optima]
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -33,6 +38,11 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("n", metavar="N")
     parser.add_argument("options", nargs="*", metavar="OPTION=VALUE")
     parser.add_argument("--workers", type=int, default=None, help="pool and cluster size (default: cores)")
+    parser.add_argument("--engines", default="serial,pool,dask,batch",
+                        help="which engines to run, of serial,pool,dask,batch (serial always runs: the reference)")
+    parser.add_argument("--repeat", type=int, default=1,
+                        help="surveys per engine: the first pays what a user's first survey pays, later ones "
+                             "find caches warm (ratios are to serial's run of the same number)")
     args = parser.parse_args(argv)
     from stw_tui.session.interpreter import SceneScope
     from stw_tui.sym.language import parse_command
@@ -45,24 +55,33 @@ def main(argv: list[str] | None = None) -> int:
         print(f"survey_bench: {exc}")
         return 1
     plan = plan_of(session.scene, command)
-    engines = [SerialEngine(), PoolEngine(args.workers)]
-    if dask_available():
+    wanted = set(args.engines.split(","))
+    engines = [SerialEngine()] + ([PoolEngine(args.workers)] if "pool" in wanted else [])
+    if dask_available() and "dask" in wanted:
         engines.append(DaskEngine(args.workers))
+    if "torch" in available_backends() and "batch" in wanted:
+        engines.append(BatchEngine())
     print(f"{args.session}: survey {args.n} {' '.join(args.options)}")
-    print(f"{'engine':<36} {'s':>8} {'starts/s':>9} {'ratio':>6} {'optima':>6}  same table as serial")
-    serial, first = None, None
+    print(f"{'engine':<62} {'run':>3} {'s':>7} {'starts/s':>9} {'ratio':>6} {'optima':>6}  same table as serial")
+    serial, first = {}, None
     for engine in engines:
         note = ""
         if isinstance(engine, DaskEngine):
             started = time.perf_counter()
             engine.client()
             note = f"  (cluster start-up {time.perf_counter() - started:.1f} s, not counted)"
-        table = run_survey(session, plan, engine)
-        rate = len(table.results) / table.seconds
-        serial, first = serial or (rate, _rows(table)), first or table
-        same = "yes" if _rows(table) == serial[1] else "NO"
-        print(f"{engine.describe():<36} {table.seconds:>8.1f} {rate:>9.3f} {rate / serial[0]:>6.2f} "
-              f"{len(table.optima):>6}  {same}{note}", flush=True)
+        if isinstance(engine, BatchEngine):
+            started = time.perf_counter()
+            engine.solver()
+            note = f"  (importing torch {time.perf_counter() - started:.1f} s, not counted)"
+        for run in range(1, max(1, args.repeat) + 1):
+            table = run_survey(session, plan, engine)
+            rate = len(table.results) / table.seconds
+            serial.setdefault(run, (rate, _rows(table)))
+            first = first or table
+            same = "yes" if _rows(table) == serial[1][1] else "NO"
+            print(f"{engine.describe():<62} {run:>3} {table.seconds:>7.1f} {rate:>9.3f} {rate / serial[run][0]:>6.2f} "
+                  f"{len(table.optima):>6}  {same}{note if run == 1 else ''}", flush=True)
     print()
     print(first.describe(limit=40))
     return 0

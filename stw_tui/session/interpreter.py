@@ -18,6 +18,7 @@ from stw_tui.session.protocol import SessionLike
 from stw_tui.session.verbs import owned_by_verb
 from stw_tui.sos.backend import (RunResult, SolverState, Status, WarmStart, create_backend, load_backend,
                                  run_iterations)
+from stw_tui.sos.batch import joined_backend
 from stw_tui.sos.continuous import DenseReport, check_scene, survey
 from stw_tui.sos.scene import DEFAULT_SETTINGS, Constraint, Dof, Objective, Relation, Scene, Window
 from stw_tui.sos.spline import DofCurve
@@ -656,7 +657,7 @@ def _solve_adaptive(session: SessionLike, scene: Scene, n: int, adapt: int | Non
     what the command kept before this call (for the running solve's checkpoints)."""
     settings = scene.settings
     rounds = adapt if adapt is not None else (int(settings["adaptive_rounds"]) if settings["adaptive"] else 0)
-    backend = create_backend(load_backend(scene.backend), scene.backend_options)
+    backend = joined_backend(scene.backend, scene.backend_options)   # a batch job's member backend
     tol = settings["dense_tol"]
     problem = WindowProblem(scene)
     result = _solve(session, scene, problem, backend, n, on_report, trail)

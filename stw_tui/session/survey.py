@@ -214,6 +214,11 @@ def _base(text: str, session_class: type):
     return _BASES[key]
 
 
+def replay_base(task: StartTask) -> None:
+    """Replay ``task``'s base text into this process's cache now (before starts run on threads)."""
+    _base(task.base_text, task.session_class)
+
+
 def solve_start(task: StartTask) -> StartResult:
     """Replay the base text, apply the start's lines and report what the solve reached.
     Never raises for a bad start: the error is in the result."""

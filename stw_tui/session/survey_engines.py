@@ -4,6 +4,8 @@
 * :class:`PoolEngine`: a local pool of worker processes (``concurrent.futures``), the default when
   Dask is not installed. A worker process that dies breaks the pool: a new pool takes over the
   unfinished starts (each start at most ``MAX_ATTEMPTS`` times), and the loss is reported.
+* :class:`BatchEngine`: the starts as one batch on the torch backend, vectorized over starts
+  (on cuda when torch sees a GPU), in this process; the backend plugin supplies the batch solver.
 * :class:`DaskEngine`: an embedded ``dask.distributed.LocalCluster`` (one single-threaded worker
   process per core), or an existing cluster at a scheduler address. Dask itself reschedules the
   tasks of a lost worker; the engine reports the loss.
@@ -16,6 +18,7 @@ Tasks are plain text (:class:`~stw_tui.session.survey.StartTask`), so any engine
 from __future__ import annotations
 
 import atexit
+import functools
 import importlib.util
 import logging
 import multiprocessing
@@ -26,7 +29,8 @@ from concurrent.futures import FIRST_COMPLETED, ProcessPoolExecutor, wait
 from concurrent.futures.process import BrokenProcessPool
 from typing import Callable
 
-from stw_tui.session.survey import StartResult, StartTask, SurveyPlan, SurveyTable, plan_tasks, solve_start
+from stw_tui.session.survey import (StartResult, StartTask, SurveyPlan, SurveyTable, plan_tasks, replay_base,
+                                   solve_start)
 from stw_tui.sym.errors import StwError
 
 MAX_ATTEMPTS = 2      # a start whose worker dies this many times is counted as lost
@@ -128,6 +132,56 @@ class PoolEngine:
                 pending.pop(index)
                 on_result(result)
         return broken
+
+
+BATCH_SIZE = 64       # starts a batch solves at once by default (more wait for a place)
+
+
+class BatchEngine:
+    """The starts as one batch on a backend that solves batches (the torch backend: vectorized
+    evaluations and batched KKT factorizations, on cuda when torch sees a GPU), in this process.
+    Each start still replays, shakes, solves and is checked densely as in :func:`solve_start`."""
+
+    def __init__(self, size: int | None = None, backend: str = "torch", options: dict | None = None):
+        self.size = size
+        self.backend = backend
+        self.options = dict(options or {})
+        self._solver = None
+
+    def solver(self):
+        """The backend's batch solver (made on first use).
+
+        Raises:
+            StwError: the backend is not installed or cannot solve batches.
+        """
+        from stw_tui.sos.backend import create_backend, load_backend
+        from stw_tui.sym.kinds import Capability
+
+        if self._solver is None:
+            cls = load_backend(self.backend)
+            if Capability.BATCH not in cls.capabilities:
+                raise StwError(f"backend {self.backend} cannot solve a batch of starts (the torch backend can)")
+            create_backend(cls, self.options)   # bad options fail here, as a message
+            self._solver = cls.batch_solver(self.size or BATCH_SIZE, self.options)
+        return self._solver
+
+    def describe(self) -> str:
+        """Where the starts run, for the table and messages."""
+        return self.solver().describe()
+
+    def run(self, tasks: list[StartTask], on_result: OnResult, on_note: OnNote, cancelled: Cancelled) -> None:
+        """Solve the starts as one batch, reporting each result as its start finishes."""
+        solver = self.solver()
+        if tasks:   # replay the session once here, not on every start's thread at once
+            replay_base(tasks[0])
+        solver.run([functools.partial(solve_start, task) for task in tasks],
+                   lambda index, result: on_result(result if isinstance(result, StartResult) else
+                                                    _failed(tasks[index], result)), cancelled)
+
+
+def _failed(task: StartTask, error: BaseException) -> StartResult:
+    return StartResult(task.index, task.seed, task.lines, "failed",
+                       error=f"internal error ({type(error).__name__}: {error})")
 
 
 # One embedded cluster per worker count, kept for the next survey and closed at exit.
@@ -239,13 +293,16 @@ class DaskEngine:
         return now
 
 
-def choose_engine(workers: int | None = None, scheduler: str | None = None):
-    """(engine, note) for `set scheduler`'s value: "serial", "pool", a Dask scheduler address, or
-    None (Dask's LocalCluster when Dask is installed, else a local pool)."""
+def choose_engine(workers: int | None = None, scheduler: str | None = None, torch_options: dict | None = None):
+    """(engine, note) for `set scheduler`'s value: "serial", "pool", "batch", a Dask scheduler address, or
+    None (Dask's LocalCluster when Dask is installed, else a local pool). ``torch_options``: the
+    scene's torch backend options (`backend torch device=cpu`), which a batch honours."""
     if scheduler == "serial":
         return SerialEngine(), ""
     if scheduler == "pool":
         return PoolEngine(workers), ""
+    if scheduler == "batch":
+        return BatchEngine(workers, options=torch_options), ""
     if scheduler:
         return DaskEngine(workers, scheduler), ""
     if dask_available():
@@ -270,7 +327,9 @@ def run_survey(session, plan: SurveyPlan, engine=None, *, scheduler: str | None 
     """
     tasks = plan_tasks(session, plan)
     if engine is None:
-        engine, note = choose_engine(plan.workers, scheduler)
+        scene = session.scene
+        engine, note = choose_engine(plan.workers, scheduler,
+                                     scene.backend_options if scene.backend == "torch" else None)
     else:
         note = ""
     table = SurveyTable(plan, tasks[0].base_text, engine.describe(), notes=[note] if note else [])

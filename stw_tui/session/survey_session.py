@@ -99,6 +99,9 @@ def set_scheduler(session: SessionLike, scene, cmd) -> Outcome:
     from stw_tui.session.survey_engines import dask_available
 
     scene.scheduler = cmd.address
+    if cmd.address == "batch":
+        return Outcome(message="surveys solve their starts as one batch on the torch backend "
+                               "(on a GPU when torch sees one, else on the CPU), in this process")
     if cmd.address in ("serial", "pool"):
         return Outcome(message="surveys run " + ("one start after another in this process" if cmd.address == "serial"
                                                  else "on a local process pool"))

@@ -164,6 +164,16 @@ class Backend(ABC):
     def state(self, inner: Any) -> SolverState:
         """The backend-neutral state of ``inner`` (control points and multipliers)."""
 
+    @classmethod
+    def batch_solver(cls, size: int, options: dict[str, Any] | None = None):
+        """A :class:`~stw_tui.sos.batch.BatchSolver` that solves up to ``size`` jobs at once,
+        for a backend with :attr:`Capability.BATCH`; None (the default) for one without.
+
+        Raises:
+            StwError: bad ``options``, or the batch cannot run here (no device).
+        """
+        return None
+
 
 # What a plugin may raise that must stop at the boundary: any error, and also SystemExit and
 # KeyboardInterrupt raised by the plugin's own code (a stray sys.exit() must not end stw).

@@ -26,3 +26,4 @@ class Capability(enum.StrEnum):
     ELASTIC = "elastic"             # an elastic QP when the linearized constraints conflict
     AUTOGRAD = "autograd"           # derivatives by automatic differentiation
     GPU = "gpu"                     # can run on a GPU
+    BATCH = "batch"                 # solves many starts as one batch (Backend.batch_solver)

@@ -119,7 +119,8 @@ COMMAND_HELP: dict[str, CommandHelp] = {
                        "violation allowed between instances), adaptive on|off (add instances where "
                        "the continuous-time check fails, and re-solve), adaptive_rounds. "
                        "`set limit NAME N` changes a limit (`help limits` lists them); "
-                       "`set scheduler tcp://HOST:PORT` sends surveys to a Dask cluster.",
+                       "`set scheduler tcp://HOST:PORT` sends surveys to a Dask cluster (`set scheduler batch`: "
+                       "solves their starts as one batch on the torch backend).",
                        "set dense_tol 1e-7"),
     "iterate": CommandHelp("iterate [N] [adapt=R]",
                            "Run up to N SQP iterations on the current window (stops early on convergence). "
@@ -256,7 +257,9 @@ COMMAND_HELP.update({
                           "run on Dask (K worker processes, default one per core), or on a local process pool "
                           "without it; `set scheduler tcp://HOST:PORT` sends them to an existing Dask cluster "
                           "(`set scheduler local`: back to this machine; `pool`: a process pool even with Dask; "
-                          "`serial`: one start after another in this process). The scene does not change.",
+                          "`serial`: one start after another in this process; `batch`: all starts as one batch on the "
+                          "torch backend, vectorized over starts, on a GPU when torch sees one, K starts at "
+                          "a time, default 64). The scene does not change.",
                           "survey 40 seed=1 amplitude=0.8 window=all"),
     "adopt": CommandHelp("adopt K",
                          "Make optimum K of the last survey the scene: its start is applied and solved again "

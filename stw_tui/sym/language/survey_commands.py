@@ -48,7 +48,7 @@ class AdoptCmd:
 class SchedulerCmd:
     """`set scheduler ADDRESS`: where `survey` sends its starts."""
 
-    address: str           # a Dask scheduler; "pool", "serial"; or "" (local: Dask's LocalCluster, else a pool)
+    address: str           # a Dask scheduler; "pool", "serial", "batch"; or "" (local: Dask's LocalCluster, else a pool)
     text: str = ""
 
 
@@ -104,13 +104,14 @@ def p_adopt(p) -> AdoptCmd:
 # host: a name, an IPv4 address or a bracketed IPv6 address; then a port
 _ADDRESS = re.compile(r"(tcp|tls)://([A-Za-z0-9.-]+|\[[0-9A-Fa-f:]+\]):([0-9]{1,5})\Z")
 # local: an embedded Dask cluster (a process pool without Dask); pool: a process pool even with
-# Dask; serial: one start after another in this process (to debug, and the benchmark's baseline)
-LOCAL_SCHEDULERS = ("local", "pool", "serial")
+# Dask; serial: one start after another in this process (to debug, and the benchmark's baseline);
+# batch: the starts as one batch on the torch backend (vectorized over starts; cuda when there is one)
+LOCAL_SCHEDULERS = ("local", "pool", "serial", "batch")
 _SET_SCHEDULER = re.compile(r"\s*set\s+scheduler(?=\s|#|\Z)")
 
 
 def parse_scheduler_command(text: str, line: int | None = None) -> SchedulerCmd | None:
-    """`set scheduler tcp://HOST:PORT|local|pool|serial`; None for any other line.
+    """`set scheduler tcp://HOST:PORT|local|pool|serial|batch`; None for any other line.
 
     Raises:
         SourceError: a malformed address, with its column.
@@ -121,7 +122,7 @@ def parse_scheduler_command(text: str, line: int | None = None) -> SchedulerCmd 
     rest = text[match.end():].split("#", 1)[0]
     words = rest.split()
     column = match.end() + len(rest) - len(rest.lstrip()) + 1
-    expected = "tcp://HOST:PORT (a Dask scheduler), local, pool or serial"
+    expected = "tcp://HOST:PORT (a Dask scheduler), local, pool, serial or batch"
     if len(words) != 1:
         raise SourceError("set scheduler needs one address" if not words else
                           f"unexpected '{words[1]}' after the address", line=line, column=column,

@@ -1,0 +1,206 @@
+"""Evaluation of many starts' window problems at once: one pass over the term groups for the whole
+batch, instead of one per start.
+
+Starts of one survey solve window problems of the same structure (same free variables, term
+groups, instance times and basis matrices); only their control points differ, and the fixed ones
+too when the window leaves some DOF out. Stacked, the slot values of B starts are a (B, slots)
+matrix ``V = V_fixed + (Pf Sᵀ)ᵀ``; a group's (k, n) input block becomes a (k, B·n) block with the
+instance times repeated B times, so its lowered torch function, the backward pass of its local
+gradients and the batched backward pass of its local Hessian rows run once for the batch (every
+instance still depends on its own slots only). Gradients, constraint values and Jacobian and
+Hessian values on the fixed patterns are then per-start rows of (B, ·) tensors; each start gets
+an ordinary :class:`~.evaluate.TorchEvaluation` of its own, so the SQP cannot tell the difference.
+"""
+
+from __future__ import annotations
+
+import hashlib
+
+import numpy as np
+import torch
+
+from stw_tui.sos.window import EQ, GE, OBJ, MeritValues, evaluate_condition_tree
+
+from .evaluate import TorchEvaluation, TorchProblem
+
+
+def problem_key(problem, device: torch.device, host_linear: bool) -> str:
+    """A digest of everything of a window problem but its control points: problems with equal
+    keys share one lowering (:meth:`TorchProblem.with_problem`) and batch together. Compiled terms
+    are named by identity (the core caches them, so the starts of a survey share them; printing
+    an arm's torque expressions to hash them took 0.3 s)."""
+    h = hashlib.sha256(repr((str(device), host_linear, type(problem.Pf).__name__, problem.Pf.shape,
+                             sorted(problem.row_counts.items()))).encode())
+    Pf = problem.Pf
+    for array in (Pf.indptr, Pf.indices, Pf.data) if hasattr(Pf, "indptr") else (Pf.toarray(),):
+        h.update(np.ascontiguousarray(array).tobytes())
+    h.update(np.asarray(problem.free, np.int64).tobytes())
+    h.update(np.ascontiguousarray(problem.damping, float).tobytes())
+    for g in problem.groups:
+        leaves = [(str(node), id(term), offset, tuple(problem.term_parameters(term)))
+                  for node, term, offset in g.condition.leaves] if g.condition is not None else []
+        h.update(repr((g.label, str(g.kind), g.n, g.slot_offset, g.row_offset, id(g.term),
+                       tuple(float(p) for p in g.params),
+                       str(g.condition.tree) if g.condition is not None else "", leaves)).encode())
+        h.update(np.ascontiguousarray(g.times, float).tobytes())
+        h.update(np.ascontiguousarray(g.weights, float).tobytes())
+    return h.hexdigest()
+
+
+def _slot_values(tp: TorchProblem, members: list[TorchProblem], S: torch.Tensor) -> torch.Tensor:
+    """(B, slots): each start's fixed slot values plus its free control points' share."""
+    fixed = torch.stack([m.v_fixed for m in members])
+    return fixed + (tp.Pf @ S.T.contiguous()).T
+
+
+def _tile(V: torch.Tensor, g, k: int, offset: int) -> torch.Tensor:
+    """A group's (k, n) input block of every start side by side: (k, B·n), start-major."""
+    B = V.shape[0]
+    return V[:, offset:offset + k * g.n].reshape(B, k, g.n).permute(1, 0, 2).reshape(k, B * g.n)
+
+
+def _untile(x: torch.Tensor, B: int, n: int) -> torch.Tensor:
+    """(r, B·n) -> (B, r·n), each start's rows in the layout of a single evaluation."""
+    r = x.shape[0]
+    return x.reshape(r, B, n).permute(1, 0, 2).reshape(B, r * n)
+
+
+def _conditions(tp: TorchProblem, V: torch.Tensor) -> dict[str, torch.Tensor]:
+    B = V.shape[0]
+    masks = {kind: torch.ones(B, tp.row_counts[kind], dtype=torch.bool, device=tp.device) for kind in (EQ, GE)}
+    for g in tp.groups:
+        if g.condition is None:
+            continue
+
+        def filled(flag, n=B * g.n):
+            return torch.full((n,), flag, dtype=torch.bool, device=tp.device)
+        times = g.times.repeat(B)
+        leaf = {node: term(_tile(V, g, term.k, offset), times, params)
+                for node, term, offset, params in g.leaves}
+        mask = evaluate_condition_tree(g.condition.tree, leaf, filled)
+        masks[g.kind][:, g.row:g.row + g.n] = mask.reshape(B, g.n)
+    return masks
+
+
+def merit_values_batch(members: list[TorchProblem], points: list[np.ndarray]) -> list[MeritValues]:
+    """:meth:`TorchProblem.merit_values` of every (problem, point), the problems of one structure."""
+    tp = members[0]
+    B = len(members)
+    with torch.no_grad():
+        S = torch.as_tensor(np.stack(points), **tp._dev)
+        V = _slot_values(tp, members, S)
+        c = {kind: V.new_empty(B, tp.row_counts[kind]) for kind in (EQ, GE)}
+        objective = V.new_zeros(B)
+        for g in tp.groups:
+            f = g.term(_tile(V, g, g.term.k, g.slot), g.times.repeat(B), g.params).reshape(B, g.n)
+            if g.kind == OBJ:
+                objective = objective + (g.weights * f * f).sum(1)
+            else:
+                c[g.kind][:, g.row:g.row + g.n] = g.weights * f
+        masks = _conditions(tp, V)
+    host = [objective.cpu().numpy(), c[EQ].cpu().numpy(), c[GE].cpu().numpy(),
+            masks[EQ].cpu().numpy(), masks[GE].cpu().numpy()]
+    return [MeritValues(float(host[0][b]), host[1][b], host[2][b], host[3][b], host[4][b]) for b in range(B)]
+
+
+def _local_derivatives(tp: TorchProblem, V: torch.Tensor):
+    """(B, inst) values, (B, slots) local gradients and (B, pairs) local second derivatives:
+    :meth:`TorchProblem._local_derivatives` for every start in one pass per group."""
+    B = V.shape[0]
+    f_all = V.new_empty(B, tp.n_inst)
+    g_slot = V.new_zeros(B, tp.n_slots)
+    inputs, values = [], []
+    with torch.enable_grad():
+        for g in tp.groups:
+            X = _tile(V, g, g.term.k, g.slot).detach().requires_grad_(True)
+            f = g.term(X, g.times.repeat(B), g.params)
+            f_all[:, g.inst:g.inst + g.n] = f.detach().reshape(B, g.n)
+            inputs.append(X)
+            values.append(f)
+        grads = [None] * len(tp.groups)
+        for curved in (False, True):
+            chosen = [i for i, g in enumerate(tp.groups) if bool(g.pairs) == curved and values[i].requires_grad]
+            if not chosen:
+                continue
+            total = torch.stack([values[i].sum() for i in chosen]).sum()
+            parts = torch.autograd.grad(total, [inputs[i] for i in chosen], create_graph=curved,
+                                        allow_unused=True, materialize_grads=True)
+            for i, part in zip(chosen, parts):
+                grads[i] = part
+        h_parts = []
+        for i, g in enumerate(tp.groups):
+            grad = grads[i]
+            if grad is None:
+                continue
+            g_slot[:, g.slot:g.slot + grad.numel() // B] = _untile(grad.detach(), B, g.n)
+            if not g.pairs:
+                continue
+            if grad.requires_grad:
+                rows = _hessian_rows(tp, inputs[i], grad, g.seeds.repeat(1, 1, B))
+            else:  # every first derivative is constant
+                rows = grad.new_zeros(g.seeds.shape[0], g.term.k, B * g.n)
+            h_parts.append(_untile(rows[g.pair_a, g.pair_b], B, g.n))
+    h_flat = torch.cat(h_parts, 1) if h_parts else V.new_zeros(B, 0)
+    return f_all, g_slot, h_flat
+
+
+def _hessian_rows(tp: TorchProblem, X: torch.Tensor, grad: torch.Tensor, seeds: torch.Tensor) -> torch.Tensor:
+    """(m, k, B·n) second derivatives, one seeded variable a per row (as the single evaluation)."""
+    if tp._batched:
+        try:
+            (rows,) = torch.autograd.grad(grad, X, grad_outputs=seeds, is_grads_batched=True,
+                                          retain_graph=True, allow_unused=True, materialize_grads=True)
+            return rows.detach()
+        except RuntimeError:  # an op vmap cannot batch: one backward pass per variable
+            tp._batched = False
+    rows = []
+    for seed in seeds:
+        (row,) = torch.autograd.grad(grad, X, grad_outputs=seed, retain_graph=True,
+                                     allow_unused=True, materialize_grads=True)
+        rows.append(row.detach())
+    return torch.stack(rows)
+
+
+def _pattern_values(pattern, source: torch.Tensor) -> torch.Tensor:
+    """:meth:`Pattern.values` for (B, n_src) sources: (B, nnz)."""
+    if pattern.operator is not None:
+        if not pattern.operator.shape[0]:
+            return source.new_zeros(source.shape[0], 0)
+        return (pattern.operator @ source.T.contiguous()).T
+    ext = torch.cat([source, source.new_zeros(source.shape[0], 1)], 1)
+    return (pattern.coef_pad * ext[:, pattern.src_pad]).sum(-1)
+
+
+def evaluate_batch(members: list[TorchProblem], points: list[np.ndarray]) -> list[TorchEvaluation]:
+    """:meth:`TorchProblem.evaluate` of every (problem, point), the problems of one structure."""
+    tp = members[0]
+    B = len(members)
+    S = torch.as_tensor(np.stack([np.asarray(p, float) for p in points]), **tp._dev)
+    with torch.no_grad():
+        V = _slot_values(tp, members, S)
+    f_all, g_slot, h_flat = _local_derivatives(tp, V)
+    obj = tp.is_obj
+    w_f = tp.w_inst * f_all
+    objective = (w_f[:, obj] * f_all[:, obj]).sum(1)
+    scale = torch.cat([torch.where(obj, 2.0 * w_f, 0.0), V.new_zeros(B, 1)], 1)[:, tp.slot_owner]
+    gradient = (tp.PfT @ (g_slot * scale).T.contiguous()).T
+    gw = g_slot * tp.w_slot
+    c, J = {}, {}
+    for kind in (EQ, GE):
+        c[kind] = torch.cat([g.weights * f_all[:, g.inst:g.inst + g.n] for g in tp.groups if g.kind == kind]
+                            or [V.new_zeros(B, 0)], 1)
+        J[kind] = _pattern_values(tp.jac[kind], gw)
+    masks = _conditions(tp, V)
+    host = {name: t.cpu().numpy() for name, t in (("objective", objective), ("gradient", gradient),
+                                                  ("c_eq", c[EQ]), ("c_ge", c[GE]),
+                                                  ("active_eq", masks[EQ]), ("active_ge", masks[GE]))}
+    out = []
+    for b, member in enumerate(members):
+        out.append(TorchEvaluation(
+            tp=member, s=np.asarray(points[b], float).copy(), objective=float(host["objective"][b]),
+            gradient=host["gradient"][b], c_eq=host["c_eq"][b], c_ge=host["c_ge"][b],
+            active_eq=host["active_eq"][b], active_ge=host["active_ge"][b],
+            t_s=S[b], t_gradient=gradient[b], t_c={kind: c[kind][b] for kind in (EQ, GE)},
+            t_active={kind: masks[kind][b] for kind in (EQ, GE)}, t_J={kind: J[kind][b] for kind in (EQ, GE)},
+            t_local={"f": f_all[b], "g": g_slot[b], "h": h_flat[b]}))
+    return out

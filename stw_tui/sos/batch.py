@@ -1,0 +1,62 @@
+"""Batched solving: many independent solves (a survey's starts) run as one batch by a backend that
+can vectorize their numerical work over the batch (the torch backend: ``solve_batch``).
+
+The core stays backend-neutral. A backend offers the capability :attr:`Capability.BATCH` and a
+classmethod ``batch_solver(size)`` returning a :class:`BatchSolver`. The solver runs plain Python
+jobs (a start: replay, shake, `iterate`, dense check), each on its own thread, and while a job
+runs, every backend the interpreter creates for it is the solver's member backend
+(:func:`joined_backend`), whose evaluations and KKT factorizations the solver gathers from all
+jobs and computes as one batch. So each job takes exactly the steps of a serial solve, and only
+where its numbers are computed changes.
+"""
+
+from __future__ import annotations
+
+import contextvars
+from abc import ABC, abstractmethod
+from typing import Any, Callable, Sequence
+
+from stw_tui.sos.backend import Backend, create_backend, load_backend
+
+# Set on a batch job's thread: (backend name, options) -> the member backend to solve with.
+_MEMBER: contextvars.ContextVar[Callable[[str, dict], Backend] | None] = contextvars.ContextVar(
+    "stw_batch_member", default=None)
+
+
+def joined_backend(name: str, options: dict[str, Any]) -> Backend:
+    """The backend a solve uses: the batch's member backend inside a batch job, else a new
+    instance of backend ``name`` with ``options``.
+
+    Raises:
+        StwError: an unknown backend or bad options (see :func:`~stw_tui.sos.backend.create_backend`).
+    """
+    member = _MEMBER.get()
+    if member is not None:
+        return member(name, options)
+    return create_backend(load_backend(name), options)
+
+
+def join_batch(member: Callable[[str, dict], Backend]) -> contextvars.Token:
+    """Make ``member`` the backend factory of the calling thread's solves (a batch job's first
+    call); returns the token that :func:`leave_batch` takes."""
+    return _MEMBER.set(member)
+
+
+def leave_batch(token: contextvars.Token) -> None:
+    """Undo :func:`join_batch`."""
+    _MEMBER.reset(token)
+
+
+class BatchSolver(ABC):
+    """Runs jobs concurrently and solves their window problems as one batch."""
+
+    @abstractmethod
+    def describe(self) -> str:
+        """Where the batch runs ("torch batch of 12 on cpu"), for tables and messages."""
+
+    @abstractmethod
+    def run(self, jobs: Sequence[Callable[[], Any]], on_done: Callable[[int, Any], None],
+            cancelled: Callable[[], bool]) -> None:
+        """Run every job, calling ``on_done(index, result)`` in the calling thread as each one
+        finishes. Once ``cancelled()`` is true no result is reported and no job is started.
+        A job that raises is the job's own business: jobs must catch their errors."""
