@@ -142,6 +142,20 @@ def test_importing_the_app_loads_neither_the_solver_stack_nor_torch():
     assert out.stdout.strip() == ""
 
 
+def test_the_stw_command_starts_without_the_numeric_stack():
+    """`stw --help` answers at once: the command's module loads no numpy, sympy or solver; the
+    subcommands that solve import them when they run."""
+    import subprocess
+    import sys
+
+    code = ("import sys, stw_tui.cli.main\n"
+            "print(','.join(m for m in ('numpy', 'sympy', 'scipy', 'textual', 'stw_tui.sos.backend') if m in sys.modules))")
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True)
+    assert out.stdout.strip() == ""
+    usage = subprocess.run([sys.executable, "-m", "stw_tui.cli", "--help"], capture_output=True, text=True)
+    assert usage.returncode == 0 and "stw" in usage.stdout
+
+
 def test_equation_violations_cover_every_constraint_densely_whatever_the_window():
     s = Session()
     s.run_text("time 0 1 knots=20\ndof x = 0.3 + 0.1*sin(40*t)\nconstraint pin: x = 0.3 @ 0.02\n"

@@ -9,9 +9,12 @@ import os
 import sys
 import time
 from pathlib import Path
+from typing import TYPE_CHECKING
 
-from stw_tui.sos.backend import StepReport
 from stw_tui.sym.errors import SourceError, StwError
+
+if TYPE_CHECKING:   # numpy and the solver stack load only for the commands that solve
+    from stw_tui.sos.backend import StepReport
 
 SUBCOMMANDS = ("run", "bench", "backends", "compare", "export", "survey")
 
