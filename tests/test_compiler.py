@@ -49,6 +49,31 @@ def test_terms_are_cached_by_expression_and_constants_are_parameters():
     assert (one[0], three[0]) == (2.0, 6.0)
 
 
+def test_waypoints_that_differ_only_in_their_number_share_one_compiled_term():
+    # `x = 0.25`, `x = -1.5` (g*x - 0.7 with a constant too): one skeleton, x + __lit0, compiled
+    # once; each term keeps its own expression and number, and computes bitwise what a term
+    # compiled with the number inlined computes (one addition, the same in either order).
+    from stw_tui.sym import compiler
+
+    rng = np.random.default_rng(3)
+    values, times = rng.normal(size=(40, 1)), rng.uniform(0, 1, 40)
+    terms = [compile_term(x - c, {"x"}, set()) for c in (0.25, -1.5, 3.0e-7)]
+    assert len({id(t.core) for t in terms}) == 1 and len({id(t) for t in terms}) == 3
+    for term, c in zip(terms, (0.25, -1.5, 3.0e-7)):
+        assert term.expr == x - c and term.parameters == () and list(term.literals) == [-c]
+        inlined = compiler._compile(x - c, term.variables, ())
+        for mine, theirs in zip(term.full(values, times, np.zeros(0)), inlined.full(values, times, np.zeros(0))):
+            assert np.array_equal(mine, theirs)
+        assert np.array_equal(term.value(values, times, np.zeros(0)), values[:, 0] - c)
+    scaled = compile_term(g * x - 0.7, {"x"}, {"g"})
+    assert scaled.parameters == ("g",)
+    assert scaled.value(values[:3], times[:3], np.array([2.0])).tolist() == (2.0 * values[:3, 0] - 0.7).tolist()
+    # Numbers elsewhere stay inlined (reordering a longer sum or a product would change its last
+    # bits): a coefficient, an exponent, a three-term sum.
+    for expr in (0.5 * x, x ** 1.5, x + y - 0.25, x - 0.25 * y):
+        assert not isinstance(compile_term(expr, {"x", "y"}, set()), compiler.LiteralTerm)
+
+
 def test_an_undefined_symbol_is_a_clear_error():
     from stw_tui.sym.errors import StwError
 
