@@ -397,7 +397,7 @@ def test_replayed_column_ordering_factorizes_bit_for_bit_as_colamd():
     import scipy.sparse as sps
     import scipy.sparse.linalg as spla
     from stw_scipy.linear import kkt_matrix
-    from stw_scipy.ordering import PermutedLU, factorize
+    from stw_scipy.ordering import factorize
 
     rng = np.random.default_rng(10)
     structures = []
@@ -421,6 +421,22 @@ def test_replayed_column_ordering_factorizes_bit_for_bit_as_colamd():
                 factorize(K, orderings)
             continue
         lu = factorize(K, orderings)
-        replayed += isinstance(lu, PermutedLU)
+        replayed += lu.perm is not None
         assert np.array_equal(lu.solve(b), want)
     assert len(orderings) == len(structures) and replayed >= 20
+    # The positive-definiteness test's factorization (symmetric ordering, diagonal pivots): the
+    # same pivots, bit for bit, at the same places (in K's labels and in the replay's).
+    spd = dict(diag_pivot_thresh=0.0, options={"SymmetricMode": True})
+    for k in range(20):
+        H, A = structures[k % len(structures)]
+        M = sps.csc_array(H + 3.0 * (A.T @ A))
+        M.data[:] = rng.standard_normal(M.nnz)
+        M = sps.csc_array(M + M.T + (4.0 if k % 2 else 0.0) * sps.eye_array(M.shape[0]))
+        want = spla.splu(M, permc_spec="MMD_AT_PLUS_A", **spd)
+        replay = factorize(M, orderings, "MMD_AT_PLUS_A", **spd)
+        replayed += replay.perm is not None
+        lu = replay.lu
+        assert np.array_equal(lu.perm_r == lu.perm_c, (want.perm_r == want.perm_c)[np.argsort(want.perm_c)]) \
+            if replay.perm is not None else np.array_equal(lu.perm_r, want.perm_r)
+        assert np.array_equal(lu.U.diagonal(), want.U.diagonal())
+    assert replayed >= 20 + 10

@@ -347,9 +347,10 @@ class SparseAlgebra(LinearAlgebra):
         # LDLᵀ in SuperLU's clothes: a symmetric ordering and the diagonal always taken as pivot
         # (SuperLU leaves it only for an exact zero, which perm_r != perm_c then shows). All
         # pivots positive <=> all leading minors positive <=> positive definite (Sylvester).
+        # (The pivots are the same in the replay of the ordering, ordering.py, at the same places.)
         try:
-            lu = spla.splu(sps.csc_array(m), permc_spec="MMD_AT_PLUS_A", diag_pivot_thresh=0.0,
-                           options={"SymmetricMode": True})
+            lu = factorize(sps.csc_array(m), self._orderings, "MMD_AT_PLUS_A", diag_pivot_thresh=0.0,
+                           options={"SymmetricMode": True}).lu
         except RuntimeError:   # an exactly zero pivot
             return False
         return bool(np.array_equal(lu.perm_r, lu.perm_c) and np.all(lu.U.diagonal() > 0))

@@ -16,6 +16,9 @@ permuted K' = P K Pᵀ in NATURAL order does exactly the same arithmetic, bit fo
 
 splu sorts the rows of a matrix not marked canonical (``sum_duplicates``): K' is marked so. It has
 no duplicates, and its rows are left in K's order on purpose.
+
+The same holds for the positive-definiteness test's symmetric MMD_AT_PLUS_A ordering (its other
+options are kept in the replay).
 """
 
 from __future__ import annotations
@@ -24,13 +27,15 @@ import numpy as np
 import scipy.sparse as sps
 import scipy.sparse.linalg as spla
 
-ORDERINGS_KEPT = 8   # KKT structures whose ordering is remembered (interior point, working sets)
+ORDERINGS_KEPT = 12   # structures whose ordering is remembered (interior point, working sets, tests)
 
 
 class Ordering:
-    """The replay of one COLAMD factorization's column order, for K's of one sparsity structure."""
+    """The replay of one factorization's column order (``spec``), for K's of one sparsity
+    structure; ``options``: splu's other keyword arguments, the same in the replay."""
 
-    def __init__(self, K: sps.csc_array, perm_c: np.ndarray):
+    def __init__(self, K: sps.csc_array, perm_c: np.ndarray, spec: str, options: dict):
+        self.spec, self.options = spec, options
         n, nnz = K.shape[0], K.indptr[-1]
         self.perm = np.asarray(perm_c, dtype=np.intp)   # column (and row) i of K is perm[i] of K'
         old = np.empty(n, dtype=np.intp)
@@ -43,46 +48,49 @@ class Ordering:
         self.indices = self.perm[K.indices[self.source]].astype(np.intc)
         self.key = (K.shape, K.indptr.copy(), K.indices[:nnz].copy())
 
-    def fits(self, K: sps.csc_array) -> bool:
+    def fits(self, K: sps.csc_array, spec: str, options: dict) -> bool:
         shape, indptr, indices = self.key
         nnz = K.indptr[-1]
-        return (K.shape == shape and nnz == indices.size and np.array_equal(K.indptr, indptr)
+        return (spec == self.spec and options == self.options and K.shape == shape and nnz == indices.size and np.array_equal(K.indptr, indptr)
                 and np.array_equal(K.indices[:nnz], indices))
 
     def factorize(self, K: sps.csc_array) -> "PermutedLU":
-        """What ``splu(K, permc_spec="COLAMD")`` gives, bit for bit, without the ordering."""
+        """What ``splu(K, permc_spec=spec, **options)`` gives, bit for bit, without the ordering."""
         Kp = sps.csc_array((K.data[self.source], self.indices, self.indptr), shape=K.shape)
         Kp.has_canonical_format = True   # no duplicates; rows in K's order on purpose (see above)
-        return PermutedLU(spla.splu(Kp, permc_spec="NATURAL"), self.perm)
+        return PermutedLU(spla.splu(Kp, permc_spec="NATURAL", **self.options), self.perm)
 
 
 class PermutedLU:
-    """Solves K x = b with the factorization of K' = P K Pᵀ."""
+    """Solves K x = b with ``lu``, the factorization of K' = P K Pᵀ (perm None: of K itself)."""
 
-    def __init__(self, lu, perm: np.ndarray):
+    def __init__(self, lu, perm: np.ndarray | None):
         self.lu, self.perm = lu, perm
 
     def solve(self, rhs: np.ndarray) -> np.ndarray:
+        if self.perm is None:
+            return self.lu.solve(rhs)
         b = np.empty(np.shape(rhs))
         b[self.perm] = rhs
         return self.lu.solve(b)[self.perm]
 
 
-def factorize(K: sps.csc_array, orderings: list | None):
-    """splu(K, COLAMD), replaying the ordering of K's structure when ``orderings`` (most recent
-    first) holds it, and remembering it there otherwise. K must be canonical (splu would sort it
-    in place first).
+def factorize(K: sps.csc_array, orderings: list | None, spec: str = "COLAMD",
+              **options) -> PermutedLU:
+    """splu(K, permc_spec=spec, **options), replaying the ordering of K's structure when
+    ``orderings`` (most recent first) holds it, and remembering it there otherwise (splu sorts a
+    non-canonical K in place first: its ordering is not remembered).
 
     Raises:
         RuntimeError: SuperLU's "Factor is exactly singular".
     """
     if orderings is None or not K.has_canonical_format:
-        return spla.splu(K, permc_spec="COLAMD")
+        return PermutedLU(spla.splu(K, permc_spec=spec, **options), None)
     for i, ordering in enumerate(orderings):
-        if ordering.fits(K):
+        if ordering.fits(K, spec, options):
             orderings.insert(0, orderings.pop(i))
             return ordering.factorize(K)
-    lu = spla.splu(K, permc_spec="COLAMD")
-    orderings.insert(0, Ordering(K, lu.perm_c))
+    lu = spla.splu(K, permc_spec=spec, **options)
+    orderings.insert(0, Ordering(K, lu.perm_c, spec, options))
     del orderings[ORDERINGS_KEPT:]
-    return lu
+    return PermutedLU(lu, None)
