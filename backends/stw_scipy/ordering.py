@@ -27,7 +27,7 @@ import numpy as np
 import scipy.sparse as sps
 import scipy.sparse.linalg as spla
 
-ORDERINGS_KEPT = 12   # structures whose ordering is remembered (interior point, working sets, tests)
+ORDERINGS_KEPT = 12   # structures remembered: interior point, working sets, curvature tests
 
 
 class Ordering:
@@ -49,9 +49,11 @@ class Ordering:
         self.key = (K.shape, K.indptr.copy(), K.indices[:nnz].copy())
 
     def fits(self, K: sps.csc_array, spec: str, options: dict) -> bool:
+        """Whether K has this structure and is to be factorized the same way."""
         shape, indptr, indices = self.key
         nnz = K.indptr[-1]
-        return (spec == self.spec and options == self.options and K.shape == shape and nnz == indices.size and np.array_equal(K.indptr, indptr)
+        return (spec == self.spec and options == self.options and K.shape == shape
+                and nnz == indices.size and np.array_equal(K.indptr, indptr)
                 and np.array_equal(K.indices[:nnz], indices))
 
     def factorize(self, K: sps.csc_array) -> "PermutedLU":
@@ -68,6 +70,7 @@ class PermutedLU:
         self.lu, self.perm = lu, perm
 
     def solve(self, rhs: np.ndarray) -> np.ndarray:
+        """x with K x = rhs (rhs a vector, or a matrix of right-hand sides in columns)."""
         if self.perm is None:
             return self.lu.solve(rhs)
         b = np.empty(np.shape(rhs))
