@@ -388,3 +388,55 @@ def test_scipy_and_torch_reach_the_same_motion_on_the_reproductions(name):
     worst = max(np.abs(np.asarray(ref_motion[d]["value"]) - np.asarray(got_motion[d]["value"])).max()
                 for d in ref_motion)
     assert worst <= 1e-5, worst
+
+
+def test_replayed_column_ordering_factorizes_bit_for_bit_as_colamd():
+    """SuperLU's ordering of a KKT structure, worked out by the first factorization and replayed
+    for the next K's of that structure (ordering.py), solves exactly as splu(K, COLAMD) does,
+    pivoting included (indefinite K, tiny -ε block), and it is replayed, not recomputed."""
+    import scipy.sparse as sps
+    import scipy.sparse.linalg as spla
+    from stw_scipy.linear import kkt_matrix
+    from stw_scipy.ordering import factorize
+
+    rng = np.random.default_rng(10)
+    structures = []
+    for _ in range(3):
+        n, m = int(rng.integers(20, 60)), int(rng.integers(5, 20))
+        H = sps.random_array((n, n), density=0.1, rng=rng, format="csr")
+        structures.append((sps.csr_array(H + H.T + sps.eye_array(n)),
+                           sps.random_array((m, n), density=0.15, rng=rng, format="csr")))
+    orderings: list = []
+    replayed = 0
+    for k in range(30):
+        H, A = (M.copy() for M in structures[k % len(structures)])
+        H.data[:] = rng.standard_normal(H.nnz)
+        A.data[:] = rng.standard_normal(A.nnz)
+        K = kkt_matrix(H, A, 1e-10)
+        b = rng.standard_normal(K.shape[0])
+        try:
+            want = spla.splu(K, permc_spec="COLAMD").solve(b)
+        except RuntimeError:   # exactly singular: the replay must say so too
+            with pytest.raises(RuntimeError):
+                factorize(K, orderings)
+            continue
+        lu = factorize(K, orderings)
+        replayed += lu.perm is not None
+        assert np.array_equal(lu.solve(b), want)
+    assert len(orderings) == len(structures) and replayed >= 20
+    # The positive-definiteness test's factorization (symmetric ordering, diagonal pivots): the
+    # same pivots, bit for bit, at the same places (in K's labels and in the replay's).
+    spd = dict(diag_pivot_thresh=0.0, options={"SymmetricMode": True})
+    for k in range(20):
+        H, A = structures[k % len(structures)]
+        M = sps.csc_array(H + 3.0 * (A.T @ A))
+        M.data[:] = rng.standard_normal(M.nnz)
+        M = sps.csc_array(M + M.T + (4.0 if k % 2 else 0.0) * sps.eye_array(M.shape[0]))
+        want = spla.splu(M, permc_spec="MMD_AT_PLUS_A", **spd)
+        replay = factorize(M, orderings, "MMD_AT_PLUS_A", **spd)
+        replayed += replay.perm is not None
+        lu = replay.lu
+        assert np.array_equal(lu.perm_r == lu.perm_c, (want.perm_r == want.perm_c)[np.argsort(want.perm_c)]) \
+            if replay.perm is not None else np.array_equal(lu.perm_r, want.perm_r)
+        assert np.array_equal(lu.U.diagonal(), want.U.diagonal())
+    assert replayed >= 20 + 10

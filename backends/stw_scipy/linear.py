@@ -17,6 +17,7 @@ import scipy.sparse.linalg as spla
 
 from stw_tui.sos.products import GramPlan
 from stw_tui.sos.sqp.algebra import KKTSystem, LinearAlgebra, SingularSystem
+from stw_scipy.ordering import factorize
 
 SOLVERS = ("direct", "minres", "cg")
 FALLBACK_RESIDUAL = 1e-6   # relative KKT residual above which an iterative solve is not trusted
@@ -121,7 +122,7 @@ class BarrierKKT:
                 data[placed.at_e] = -diag
                 K = sps.csc_array((data, placed.indices, placed.indptr), shape=placed.shape)
                 K.has_canonical_format = True
-                return SparseKKT(K, "direct", la.rtol, la.maxiter)
+                return SparseKKT(K, "direct", la.rtol, la.maxiter, la._orderings)
         return la.kkt(la.add(self.H, la.gram(self.Ai, q)), self.Ae, e, exact=True)
 
 
@@ -194,10 +195,13 @@ def _canonical(m):
 
 
 class SparseKKT(KKTSystem):
-    """K solved by SuperLU (``direct``) or by MINRES / CG with a factorization as fallback."""
+    """K solved by SuperLU (``direct``) or by MINRES / CG with a factorization as fallback;
+    with ``orderings`` (ordering.py), SuperLU's column ordering of K's structure is replayed."""
 
-    def __init__(self, K: sps.csc_array, method: str, rtol: float, maxiter: int):
+    def __init__(self, K: sps.csc_array, method: str, rtol: float, maxiter: int,
+                 orderings: list | None = None):
         self.K, self.method, self.rtol, self.maxiter = K, method, rtol, maxiter
+        self.orderings = orderings
         self.iterations = self.fallbacks = 0
         self._lu = None
         if method == "direct":
@@ -206,7 +210,7 @@ class SparseKKT(KKTSystem):
     def _factorize(self):
         if self._lu is None:
             try:
-                self._lu = spla.splu(self.K, permc_spec="COLAMD")
+                self._lu = factorize(self.K, self.orderings)
             except RuntimeError as exc:   # "Factor is exactly singular"
                 raise SingularSystem(str(exc)) from exc
             self.iterations += 1
@@ -253,6 +257,7 @@ class SparseAlgebra(LinearAlgebra):
         self._grams: list = []     # (structure, GramPlan) of recent gram() factors
         self._transposes: list = []   # (matrix, its transpose) of recent rmatvec() calls
         self._placements: list = []   # interior-point KKT placements (BarrierKKT)
+        self._orderings: list = []    # SuperLU column orderings by KKT structure (ordering.py)
 
     def vector(self, values):
         return np.array(values, dtype=float)
@@ -342,12 +347,14 @@ class SparseAlgebra(LinearAlgebra):
         # LDLᵀ in SuperLU's clothes: a symmetric ordering and the diagonal always taken as pivot
         # (SuperLU leaves it only for an exact zero, which perm_r != perm_c then shows). All
         # pivots positive <=> all leading minors positive <=> positive definite (Sylvester).
+        # (The pivots are the same in the replay of the ordering, ordering.py, at the same places.)
         try:
-            lu = spla.splu(sps.csc_array(m), permc_spec="MMD_AT_PLUS_A", diag_pivot_thresh=0.0,
-                           options={"SymmetricMode": True})
+            lu = factorize(sps.csc_array(m), self._orderings, "MMD_AT_PLUS_A", diag_pivot_thresh=0.0,
+                           options={"SymmetricMode": True}).lu
         except RuntimeError:   # an exactly zero pivot
             return False
         return bool(np.array_equal(lu.perm_r, lu.perm_c) and np.all(lu.U.diagonal() > 0))
 
     def kkt(self, H, A, e, exact=False):
-        return SparseKKT(kkt_matrix(H, A, e, self._layouts), "direct" if exact else self.method, self.rtol, self.maxiter)
+        return SparseKKT(kkt_matrix(H, A, e, self._layouts), "direct" if exact else self.method,
+                         self.rtol, self.maxiter, self._orderings)

@@ -1,0 +1,99 @@
+"""SuperLU's column ordering of a KKT structure, worked out once and replayed bit for bit.
+
+``splu(K, permc_spec="COLAMD")`` orders K's columns (COLAMD, then a postorder of the column
+elimination tree) on every call; on the interior-point KKT systems of a few hundred rows that is
+about 40% of the factorization, and the order depends on K's sparsity structure only, which stays
+fixed while the method runs. scipy takes no ordering of ours, but factorizing the symmetrically
+permuted K' = P K Pᵀ in NATURAL order does exactly the same arithmetic, bit for bit, when:
+
+* P is the final ``perm_c`` of a COLAMD factorization of that structure (the postorder included):
+  NATURAL keeps it as it is (scipy sets SymmetricMode for NATURAL, so no postorder of its own);
+* rows move with their columns: SuperLU prefers the diagonal as pivot (for column j, row
+  perm_c⁻¹[j] of K), which stays K's diagonal entry;
+* each column of K' keeps K's stored order of its rows (relabelled, not re-sorted): SuperLU's
+  depth-first searches visit a column's rows in stored order, and that order decides the order
+  of its updates (sorted rows give other round-off: iterates that drift apart, more iterations).
+
+splu sorts the rows of a matrix not marked canonical (``sum_duplicates``): K' is marked so. It has
+no duplicates, and its rows are left in K's order on purpose.
+
+The same holds for the positive-definiteness test's symmetric MMD_AT_PLUS_A ordering (its other
+options are kept in the replay).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import scipy.sparse as sps
+import scipy.sparse.linalg as spla
+
+ORDERINGS_KEPT = 12   # structures remembered: interior point, working sets, curvature tests
+
+
+class Ordering:
+    """The replay of one factorization's column order (``spec``), for K's of one sparsity
+    structure; ``options``: splu's other keyword arguments, the same in the replay."""
+
+    def __init__(self, K: sps.csc_array, perm_c: np.ndarray, spec: str, options: dict):
+        self.spec, self.options = spec, options
+        n, nnz = K.shape[0], K.indptr[-1]
+        self.perm = np.asarray(perm_c, dtype=np.intp)   # column (and row) i of K is perm[i] of K'
+        old = np.empty(n, dtype=np.intp)
+        old[self.perm] = np.arange(n)                    # column k of K' is column old[k] of K
+        counts = np.diff(K.indptr)[old]
+        self.indptr = np.zeros(n + 1, dtype=np.intc)
+        np.cumsum(counts, out=self.indptr[1:])
+        # K's storage position of each entry of K', column by column in K's stored row order
+        self.source = np.repeat(K.indptr[old] - self.indptr[:-1], counts) + np.arange(nnz)
+        self.indices = self.perm[K.indices[self.source]].astype(np.intc)
+        self.key = (K.shape, K.indptr.copy(), K.indices[:nnz].copy())
+
+    def fits(self, K: sps.csc_array, spec: str, options: dict) -> bool:
+        """Whether K has this structure and is to be factorized the same way."""
+        shape, indptr, indices = self.key
+        nnz = K.indptr[-1]
+        return (spec == self.spec and options == self.options and K.shape == shape
+                and nnz == indices.size and np.array_equal(K.indptr, indptr)
+                and np.array_equal(K.indices[:nnz], indices))
+
+    def factorize(self, K: sps.csc_array) -> "PermutedLU":
+        """What ``splu(K, permc_spec=spec, **options)`` gives, bit for bit, without the ordering."""
+        Kp = sps.csc_array((K.data[self.source], self.indices, self.indptr), shape=K.shape)
+        Kp.has_canonical_format = True   # no duplicates; rows in K's order on purpose (see above)
+        return PermutedLU(spla.splu(Kp, permc_spec="NATURAL", **self.options), self.perm)
+
+
+class PermutedLU:
+    """Solves K x = b with ``lu``, the factorization of K' = P K Pᵀ (perm None: of K itself)."""
+
+    def __init__(self, lu, perm: np.ndarray | None):
+        self.lu, self.perm = lu, perm
+
+    def solve(self, rhs: np.ndarray) -> np.ndarray:
+        """x with K x = rhs (rhs a vector, or a matrix of right-hand sides in columns)."""
+        if self.perm is None:
+            return self.lu.solve(rhs)
+        b = np.empty(np.shape(rhs))
+        b[self.perm] = rhs
+        return self.lu.solve(b)[self.perm]
+
+
+def factorize(K: sps.csc_array, orderings: list | None, spec: str = "COLAMD",
+              **options) -> PermutedLU:
+    """splu(K, permc_spec=spec, **options), replaying the ordering of K's structure when
+    ``orderings`` (most recent first) holds it, and remembering it there otherwise (splu sorts a
+    non-canonical K in place first: its ordering is not remembered).
+
+    Raises:
+        RuntimeError: SuperLU's "Factor is exactly singular".
+    """
+    if orderings is None or not K.has_canonical_format:
+        return PermutedLU(spla.splu(K, permc_spec=spec, **options), None)
+    for i, ordering in enumerate(orderings):
+        if ordering.fits(K, spec, options):
+            orderings.insert(0, orderings.pop(i))
+            return ordering.factorize(K)
+    lu = spla.splu(K, permc_spec=spec, **options)
+    orderings.insert(0, Ordering(K, lu.perm_c, spec, options))
+    del orderings[ORDERINGS_KEPT:]
+    return PermutedLU(lu, None)
