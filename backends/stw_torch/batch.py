@@ -40,7 +40,7 @@ from stw_tui.sym.errors import StwError
 from .backend import TorchBackend
 from .batch_evaluate import evaluate_batch, merit_values_batch, problem_key
 from .evaluate import TorchProblem
-from .linalg import DenseAlgebra
+from .linalg import DenseAlgebra, kkt_matrix
 
 
 LOWERINGS_KEPT = 8   # lowerings a batch keeps (adaptive re-solves make new structures)
@@ -256,12 +256,7 @@ class BatchKKT(KKTSystem):
     """K = [[H, Aᵀ], [A, -diag(e)]] factorized and solved in the batch's rounds."""
 
     def __init__(self, batch: TorchBatch, job: int, H: torch.Tensor, A: torch.Tensor, e):
-        m = A.shape[0]
-        if m:
-            E = torch.diag(torch.as_tensor(e, dtype=H.dtype, device=H.device).expand(m))
-            K = torch.cat([torch.cat([H, A.T], 1), torch.cat([A, -E], 1)], 0)
-        else:
-            K = H
+        K = kkt_matrix(H, A, e)
         self.batch, self.job = batch, job
         self.LU, self.pivots, info = batch.request(job, "factor", ("factor", K.shape), K)
         if info > 0:

@@ -21,7 +21,7 @@ import torch
 
 from stw_tui.sos.window import EQ, GE, OBJ, MeritValues, evaluate_condition_tree
 
-from .evaluate import TorchEvaluation, TorchProblem
+from .evaluate import TorchEvaluation, TorchProblem, group_gradients
 
 
 def problem_key(problem, device: torch.device, host_linear: bool) -> str:
@@ -117,16 +117,7 @@ def _local_derivatives(tp: TorchProblem, V: torch.Tensor):
             f_all[:, g.inst:g.inst + g.n] = f.detach().reshape(B, g.n)
             inputs.append(X)
             values.append(f)
-        grads = [None] * len(tp.groups)
-        for curved in (False, True):
-            chosen = [i for i, g in enumerate(tp.groups) if bool(g.pairs) == curved and values[i].requires_grad]
-            if not chosen:
-                continue
-            total = torch.stack([values[i].sum() for i in chosen]).sum()
-            parts = torch.autograd.grad(total, [inputs[i] for i in chosen], create_graph=curved,
-                                        allow_unused=True, materialize_grads=True)
-            for i, part in zip(chosen, parts):
-                grads[i] = part
+        grads = group_gradients(tp.groups, inputs, values)
         h_parts = []
         for i, g in enumerate(tp.groups):
             grad = grads[i]

@@ -191,6 +191,23 @@ class TorchEvaluation:
         return self.tp.hess.scipy(values) if self.tp.host_linear else self.tp.hess.dense(values)
 
 
+def group_gradients(groups, inputs: list, values: list) -> list:
+    """d(sum of each group's values)/d(its inputs), per group (None where nothing depends on
+    them): the groups without second derivatives in one backward pass, those with them in
+    another that keeps the graph for their Hessian rows."""
+    grads = [None] * len(groups)
+    for curved in (False, True):
+        chosen = [i for i, g in enumerate(groups) if bool(g.pairs) == curved and values[i].requires_grad]
+        if not chosen:
+            continue
+        total = torch.stack([values[i].sum() for i in chosen]).sum()
+        parts = torch.autograd.grad(total, [inputs[i] for i in chosen], create_graph=curved,
+                                    allow_unused=True, materialize_grads=True)
+        for i, part in zip(chosen, parts):
+            grads[i] = part
+    return grads
+
+
 class TorchProblem:
     """A WindowProblem lowered to torch; evaluated many times during one run of iterations."""
 
@@ -419,17 +436,7 @@ class TorchProblem:
                 f_all[g.inst:g.inst + g.n] = f.detach()
                 inputs.append(X)
                 values.append(f)
-            grads = [None] * len(self.groups)
-            for curved in (False, True):
-                chosen = [i for i, g in enumerate(self.groups)
-                          if bool(g.pairs) == curved and values[i].requires_grad]
-                if not chosen:
-                    continue
-                total = torch.stack([values[i].sum() for i in chosen]).sum()
-                parts = torch.autograd.grad(total, [inputs[i] for i in chosen], create_graph=curved,
-                                            allow_unused=True, materialize_grads=True)
-                for i, part in zip(chosen, parts):
-                    grads[i] = part
+            grads = group_gradients(self.groups, inputs, values)
             h_parts = []
             for i, g in enumerate(self.groups):
                 grad = grads[i]

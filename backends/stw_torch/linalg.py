@@ -15,16 +15,20 @@ import torch
 from stw_tui.sos.sqp.algebra import KKTSystem, LinearAlgebra, SingularSystem
 
 
+def kkt_matrix(H: torch.Tensor, A: torch.Tensor, e) -> torch.Tensor:
+    """The dense K = [[H, Aᵀ], [A, -diag(e)]] (H itself without rows)."""
+    m = A.shape[0]
+    if not m:
+        return H
+    E = torch.diag(torch.as_tensor(e, dtype=H.dtype, device=H.device).expand(m))
+    return torch.cat([torch.cat([H, A.T], 1), torch.cat([A, -E], 1)], 0)
+
+
 class DenseKKT(KKTSystem):
     """An LU factorization of K = [[H, Aᵀ], [A, -diag(e)]] that solves for any right-hand side."""
 
     def __init__(self, H: torch.Tensor, A: torch.Tensor, e):
-        m = A.shape[0]
-        if m:
-            E = torch.diag(torch.as_tensor(e, dtype=H.dtype, device=H.device).expand(m))
-            K = torch.cat([torch.cat([H, A.T], 1), torch.cat([A, -E], 1)], 0)
-        else:
-            K = H
+        K = kkt_matrix(H, A, e)
         self.LU, self.pivots, info = torch.linalg.lu_factor_ex(K)
         if int(info) > 0:
             raise SingularSystem("KKT matrix is exactly singular")
