@@ -144,6 +144,7 @@ class StwApp(App[int]):
         yield KeyHints([(binding.key, binding.action) for binding in self.BINDINGS], id="keys")
 
     def get_default_screen(self) -> Screen:
+        """The first screen: a :class:`MainScreen` (no full repaint per focus change)."""
         return MainScreen(id="_default")
 
     def get_system_commands(self, screen) -> "Iterable[SystemCommand]":
