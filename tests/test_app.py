@@ -801,6 +801,55 @@ def test_page_up_at_the_prompt_scrolls_the_console_log():
     run(scenario, app, size=(80, 24))
 
 
+def test_a_line_longer_than_the_prompt_scrolls_to_keep_the_cursor_in_view():
+    # CommandInput sets its scroll width without a layout (console.py): the scrolling must still follow.
+    app = create_app()
+
+    async def scenario(pilot):
+        field = app.repl.input
+        await pilot.press(*"print " + "x" * 90)
+        await pilot.pause()
+        assert field.value == "print " + "x" * 90
+        assert field.virtual_size.width == len(field.value) + 1
+        assert field.scroll_x > 0 and field.scroll_x == field.max_scroll_x     # the cursor's end shows
+        await pilot.press("home")
+        await pilot.pause()
+        assert field.scroll_x == 0
+
+    run(scenario, app, size=(80, 24))
+
+
+def test_a_plot_builds_its_figure_once_per_change_off_the_ui_thread(monkeypatch):
+    import threading
+
+    from textual_plotext.plot import Plot
+
+    builds = []   # the thread of each build
+    original = Plot.build
+    monkeypatch.setattr(Plot, "build", lambda self: builds.append(threading.current_thread()) or original(self))
+    app = create_app(JET)
+
+    async def scenario(pilot):
+        await pilot.press("f3", "f3", "f3", "f3", "f3")    # every plot shown once (and built for its size)
+        await support.settle(pilot)
+        shown = len(builds)
+        await pilot.press("f3", "f3", "f3", "f3", "f2", "escape", "f3")
+        await support.settle(pilot)
+        assert len(builds) == shown          # the kept text is rendered again, not rebuilt
+        figure = app.query_one("#figure-plot")
+        app.query_one("#plots").active = "tab-figure"
+        figure.focus()
+        await support.settle(pilot)
+        t = figure.t
+        await pilot.press("right")           # a new frame: one new figure, built in the background
+        await support.settle(pilot)
+        assert figure.t > t and len(builds) == shown + 1
+        assert builds[-1] is not threading.main_thread()     # plotext's build is not UI time
+        assert f"t = {figure.t:.3f}" in plot_text(figure)
+
+    run(scenario, app, size=(80, 24))
+
+
 def test_ctrl_z_and_ctrl_y_undo_and_redo_through_the_journal():
     app = create_app()
 

@@ -7,6 +7,7 @@ Widgets post messages; the app turns each requested command into a :class:`Job` 
 from __future__ import annotations
 
 import json
+import os
 import time
 from pathlib import Path
 from typing import TYPE_CHECKING, Iterable
@@ -15,8 +16,10 @@ from textual import events
 from textual.app import App, ComposeResult
 from textual.binding import Binding
 from textual.containers import Horizontal
+from textual.reactive import Reactive
+from textual.screen import Screen
 from textual.widget import Widget
-from textual.widgets import TabbedContent, TabPane
+from textual.widgets import TabbedContent, TabPane, Tabs
 
 from stw_tui.app.console import Console
 from stw_tui.app.dialogs import CompareScreen
@@ -47,6 +50,14 @@ VIEW_INTERVAL = 0.1   # seconds between refreshes of the panels and plots
 # at every iteration, 18.1 and 18.5 s with the status line alone, 16.7 and 15.8 s undrawn;
 # 20.0 and 14.5 s at this interval (headless, same minutes: 12.1 and 10.4 s).
 LIVE_INTERVAL = 0.5
+
+class MainScreen(Screen):
+    """The app's screen. A focus change repaints only what it restyles: Textual's Screen
+    repaints itself whole when the focus moves (its ``focused`` reactive), and that full
+    update was the largest part of an F2/F3/Esc (~40% of their UI time on basketball at 80x24)."""
+
+    focused: Reactive[Widget | None] = Reactive(None, repaint=False)
+
 
 PLOTS = (("Curves", DofPlot), ("Expr", ExpressionPlot), ("Figure", FigurePlot), ("Conv", ConvergencePlot))
 
@@ -94,6 +105,11 @@ class StwApp(App[int]):
                  step: bool = False, show_timing: bool = True, blink: bool = True,
                  settings_path: str | Path | None = None):
         super().__init__()
+        if "TEXTUAL_ANIMATIONS" not in os.environ:
+            # The tab underline slides for 0.3 s after F2/F3: ~18 frames of the whole screen's
+            # compositor, UI time that keys typed meanwhile wait for (and, during a solve, that
+            # the solver loses). It jumps instead; TEXTUAL_ANIMATIONS=full brings it back.
+            self.animation_level = "none"
         self.settings_path = Path(settings_path) if settings_path else None
         self.runner = Runner(self, session)
         self.session_path = Path(session_path) if session_path else None
@@ -126,6 +142,10 @@ class StwApp(App[int]):
         yield Console(lambda: self.scene, self._backend_names, blink=self.blink, id="console")
         yield StatusLine(show_timing=self.show_timing, id="status")
         yield KeyHints([(binding.key, binding.action) for binding in self.BINDINGS], id="keys")
+
+    def get_default_screen(self) -> Screen:
+        """The first screen: a :class:`MainScreen` (no full repaint per focus change)."""
+        return MainScreen(id="_default")
 
     def get_system_commands(self, screen) -> "Iterable[SystemCommand]":
         """The palette's commands: the app's own (not from the help screen), then Textual's."""
@@ -446,11 +466,12 @@ class StwApp(App[int]):
 
     # --- focus and keys ----------------------------------------------------------------------
     def on_descendant_focus(self, event: events.DescendantFocus) -> None:
-        """Mark the tab group that holds the focus (see app.tcss)."""
+        """Mark the tab bar of the tab group that holds the focus (see app.tcss)."""
         if len(self.screen_stack) == 1:
             focused = self.focused
             for tabs in self.query(TabbedContent):
-                tabs.set_class(focused is not None and tabs in focused.ancestors, "-has-focus")
+                bar = tabs.query_one(Tabs)   # the ContentTabs
+                bar.set_class(focused is not None and tabs in focused.ancestors, "-has-focus")
 
     async def on_event(self, event: events.Event) -> None:
         """A printable key that nothing binds, typed while a panel or plot has the focus, is

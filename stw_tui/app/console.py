@@ -8,6 +8,8 @@ from rich.text import Text
 from textual.app import ComposeResult
 from textual.binding import Binding
 from textual.containers import Horizontal, Vertical
+from textual.geometry import Size
+from textual.widget import Widget
 from textual.widgets import Input, Label, RichLog
 
 from stw_tui.app.completion import History, complete
@@ -38,6 +40,14 @@ class CommandInput(Input):
         self.history = History()
         self._scene_of = scene_of
         self._backends = backends
+
+    def _watch_value(self, value: str) -> None:
+        # Input makes its virtual width the text's width through a layout reactive: a layout of
+        # the whole screen at every keystroke, about half of a typed key's UI time (basketball,
+        # 80x24). The width only bounds horizontal scrolling, which needs no layout: set it
+        # quietly first, so Input's own assignment finds nothing to change.
+        self.set_reactive(Widget.virtual_size, Size(self.content_width, 1))
+        super()._watch_value(value)
 
     def action_history(self, direction: int) -> None:
         self.value = self.history.previous(self.value) if direction < 0 else self.history.next()

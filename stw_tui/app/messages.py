@@ -125,3 +125,17 @@ class PlotDataComputed(Message):
     def can_replace(self, message: Message) -> bool:
         """Newer plot data replaces data the UI has not handled yet."""
         return isinstance(message, PlotDataComputed)
+
+
+@dataclass
+class PlotBuilt(Message):
+    """A plot's figure came back from its background build (posted to that plot): ``built`` is
+    (render key, rich Text); later ones replace unhandled earlier ones."""
+
+    sequence: int
+    built: Any
+    error: BaseException | None
+
+    def can_replace(self, message: Message) -> bool:
+        """A newer figure replaces one the UI has not handled yet."""
+        return isinstance(message, PlotBuilt)

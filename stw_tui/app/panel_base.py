@@ -10,6 +10,7 @@ from __future__ import annotations
 from dataclasses import dataclass
 from typing import TYPE_CHECKING, Callable, Iterable
 
+from rich.text import Text
 from textual.widgets import DataTable
 
 from stw_tui.app.dialogs import EditDialog
@@ -31,6 +32,13 @@ def show(value: float | None) -> str:
 
 
 MAX_WIDTH = 48   # longest cell shown in full
+
+
+def _cell(value) -> "Text | object":
+    """A cell as plain text. DataTable reads a str cell as Rich markup: user text with [brackets]
+    would be restyled or rejected, and parsing every cell again at each focus change (which
+    clears the table's caches) was most of an F2's UI time on basketball at 80x24."""
+    return Text(value, no_wrap=True, end="") if isinstance(value, str) else value
 
 
 class ScenePanel(DataTable):
@@ -69,7 +77,7 @@ class ScenePanel(DataTable):
         else:
             self.clear()
         for key, cells in rows:
-            self.add_row(*cells, key=key)
+            self.add_row(*map(_cell, cells), key=key)
         if self.row_count:
             self.move_cursor(row=min(row, self.row_count - 1))
 

@@ -3,8 +3,14 @@
 Plots only render. What they show is computed from a scene snapshot in a background thread
 (plot_data.py, through background.LatestOnly) and comes back in a :class:`PlotDataComputed`
 message, so the UI thread never compiles or evaluates a term. Every plot redraws at most ~10
-times a second (plotext costs ~30 ms a draw). They are touched only on the UI thread: the app
-feeds them from message handlers.
+times a second. They are touched only on the UI thread: the app feeds them from message handlers.
+
+Drawing is split the same way: the UI thread only states the figure (cheap plotext calls) into a
+fresh plotext Plot; turning it into text (``build``, ~10-25 ms, several times that while a solve
+holds the interpreter) happens in another background thread, and comes back in a
+:class:`PlotBuilt` message. The widget keeps that text and renders it until the data, size or
+theme change: textual-plotext's PlotextPlot rebuilds the figure at every render, and a tab switch
+or focus change renders a plot again (on basketball at 80x24, half of an F3's UI time).
 """
 
 from __future__ import annotations
@@ -13,12 +19,15 @@ import math
 import time
 from typing import TYPE_CHECKING, Any, Callable
 
+from rich.text import Text
 from textual.binding import Binding
+from textual.geometry import Size
 from textual_plotext import PlotextPlot
+from textual_plotext.plot import Plot
 
 from stw_tui.app.axes import fit_title, nice_ticks, title_room, value_limits
 from stw_tui.app.background import LatestOnly
-from stw_tui.app.messages import ItemChosen, PlotDataComputed
+from stw_tui.app.messages import ItemChosen, PlotBuilt, PlotDataComputed
 from stw_tui.app.plot_data import dof_plot_data, expression_plot_data, figure_data, live_scene
 from stw_tui.session.queries import QUANTITIES, SceneInfo, equation_names
 
@@ -50,6 +59,10 @@ class ScenePlot(PlotextPlot, can_focus=True):
         self._computer = LatestOnly(self._deliver, name=f"stw-{self.id or 'plot'}")
         self._requested = 0   # sequence number of the newest request
         self._received = 0    # ... and of the newest result shown
+        self._builder = LatestOnly(self._deliver_built, name=f"stw-{self.id or 'plot'}-build")
+        self._build_requested = 0   # as _requested and _received, for the figure's text
+        self._build_received = 0
+        self._built: tuple[tuple, Text] | None = None   # (render key, text) of the newest figure
 
     def set_scene(self, scene: "Scene", info: SceneInfo | None = None, coefficients=None) -> None:
         """Show ``scene`` (a snapshot nobody changes), with a running solve's ``coefficients``."""
@@ -92,7 +105,7 @@ class ScenePlot(PlotextPlot, can_focus=True):
     @property
     def redraw_pending(self) -> bool:
         """Data being computed, or a redraw waiting for its turn."""
-        return self._pending is not None or self._received < self._requested
+        return self._pending is not None or self._received < self._requested or self.build_pending
 
     def request_draw(self) -> None:
         """Redraw now, or once the 0.1 s since the last redraw have passed."""
@@ -102,11 +115,29 @@ class ScenePlot(PlotextPlot, can_focus=True):
         elif self._pending is None:
             self._pending = self.set_timer(wait, self._redraw)
 
+    @property
+    def build_pending(self) -> bool:
+        """The newest figure's text still being built in the background."""
+        return self._build_received < self._build_requested
+
     def _redraw(self) -> None:
+        """State the figure now (on the UI thread: cheap); build its text in the background."""
         self._pending = None
         self._last_draw = time.monotonic()
-        plt = self.plt
-        plt.clear_figure()
+        key = self._render_key(self._expected_size())
+        plt = self._figure(key)
+        if not all(key[:2]):   # in a tab never shown: built when first rendered
+            self._build_requested = self._build_received = self._builder.next_sequence()
+            self._built = None
+            return
+        self._build_requested = self._builder.submit(lambda: (key, Text.from_ansi(plt.build())))
+
+    def _figure(self, key: tuple) -> Plot:
+        """A new plotext figure of ``self.data`` at the size and theme of ``key``."""
+        width, height, theme = key
+        plt = Plot()
+        self._plot = plt    # `plt`: the newest figure (tests read it)
+        self._draw_size = Size(width, height)
         try:
             if self.data_error is not None:
                 raise self.data_error
@@ -114,17 +145,60 @@ class ScenePlot(PlotextPlot, can_focus=True):
         except Exception as exc:  # a plot must never take the app down; say what went wrong
             plt.clear_figure()
             plt.title(f"cannot draw: {exc}")
+        plt.plotsize(width, height)
+        plt._set_size(width, height)   # as PlotextPlot.render does (textual-plotext issue 5)
+        plt.theme(theme)
+        return plt
+
+    def _deliver_built(self, sequence: int, built: Any, error: BaseException | None) -> None:
+        """In the builder thread: hand the figure's text to the UI thread."""
+        self.post_message(PlotBuilt(sequence, built, error))
+
+    def on_plot_built(self, message: PlotBuilt) -> None:
+        message.stop()
+        if message.sequence <= self._build_received:   # older than what is shown
+            return
+        self._build_received = message.sequence
+        self._built = message.built if message.error is None else None
         self.refresh()
+
+    def _expected_size(self):
+        """The size the plot has, or will have when its tab is shown (the tab switcher's)."""
+        for node in self.ancestors_with_self:
+            if not getattr(node, "display", True):
+                continue
+            size = getattr(node, "content_size", None)
+            if size is not None and size.width and size.height:
+                return size
+        return self.size
+
+    def _render_key(self, size) -> tuple:
+        return size.width, size.height, self._get_plotext_theme_name(self.app.theme)
+
+    def render(self) -> Text:
+        """The newest figure's text; built here only when the size or theme changed since."""
+        key = self._render_key(self.size)
+        if self._built is not None and self._built[0] == key:
+            return self._built[1]
+        # First shown, resized or a new theme: build now, and drop builds still under way.
+        self._build_requested = self._build_received = self._builder.next_sequence()
+        try:
+            text = Text.from_ansi(self._figure(key).build())
+        except Exception as exc:   # never take the app down
+            text = Text(f"cannot draw: {exc}")
+        self._built = (key, text)
+        return text
 
     def draw(self, plt) -> None:
         """Render ``self.data`` (and the plot's own state) with plotext; compute nothing."""
         raise NotImplementedError
 
     _label_width = 5   # of the y tick labels of the last draw (the title's room depends on it)
+    _draw_size = Size(0, 0)   # of the figure being drawn
 
     def set_axes(self, plt, xlim: tuple[float, float], ylim: tuple[float, float], xinteger: bool = False) -> None:
         """Limits and round tick labels for both axes, as many as the plot's size allows."""
-        width, height = self.size
+        width, height = self._draw_size
         xticks, xlabels = nice_ticks(*xlim, count=max(2, min(9, width // 8)), integer=xinteger)
         yticks, ylabels = nice_ticks(*ylim, count=max(3, min(8, (height - 2) // 2)))
         plt.xlim(*xlim)
@@ -137,7 +211,7 @@ class ScenePlot(PlotextPlot, can_focus=True):
 
     def set_title(self, plt, *variants: str) -> None:
         """The most detailed of ``variants`` that fits (plotext would drop one that does not)."""
-        width = self.size.width
+        width = self._draw_size.width
         room = title_room(width, self._label_width) if width else len(variants[0])
         plt.title(fit_title(variants, room))
 
