@@ -108,6 +108,7 @@ def test_quick_mode_measures_the_quick_sessions_and_fits_80_columns(monkeypatch,
     monkeypatch.setattr(targets, "basketball_quick_figure", lambda text: Figure("ball", 30.0, "ms", 20.0))
     monkeypatch.setattr(targets, "pendulum_figures", lambda repeat, anchors: [])
     monkeypatch.setattr(targets, "window_figure", lambda repeat: Figure("window", 1.0, "x", 1.1))
+    monkeypatch.setattr(targets, "waypoint_figure", lambda: Figure("waypoints", 2.0, "", 2.0))
     monkeypatch.setattr(targets, "cold_start_figures", lambda text, repeat: [])
     monkeypatch.setattr(targets, "gpu_figure", lambda: Figure("gpu", None, "x", 0.1, "no CUDA device"))
     figures = targets.run_targets(quick=True, anchors=False, repeat=5)
@@ -115,13 +116,13 @@ def test_quick_mode_measures_the_quick_sessions_and_fits_80_columns(monkeypatch,
     assert seen == {"sessions": list(targets.QUICK_SESSIONS), "repeat": 1}
     assert {p.stem for p in bench.bundled_sessions()} >= set(targets.QUICK_SESSIONS)
     assert "basketball" not in targets.QUICK_SESSIONS                  # its full solve takes minutes
-    assert [f.label for f in figures] == ["arm", "ball", "acrobat: time / ipopt", "window", "gpu"]
+    assert [f.label for f in figures] == ["arm", "ball", "acrobat: time / ipopt", "window", "waypoints", "gpu"]
     assert all(len(line) <= 80 for line in out.splitlines())
     table = out[out.index("figure "):].splitlines()
     assert next(r for r in table if r.startswith("acrobat")).endswith("missed")
     assert next(r for r in table if r.startswith("ball")).endswith("missed")
     assert next(r for r in table if r.startswith("arm ")).endswith("met")
-    assert "2 of 4 judged targets met; 1 not judged" in out
+    assert "3 of 5 judged targets met; 1 not judged" in out
 
 
 def test_slsqp_in_numpy_reaches_stws_pendulum_optimum():
@@ -157,3 +158,11 @@ def test_stw_bench_prints_the_targets_unless_sessions_or_detail_are_asked(monkey
         args = build_parser().parse_args(argv)
         assert args.func(args) == 0
     assert calls == [("targets", True, False, 3), ("targets", False, True, 2), ("detail",), ("detail",)]
+
+
+def test_waypoints_that_differ_only_in_their_number_compile_one_term_between_them():
+    # The figure counts real compiles (caches off): the 200 waypoint constraints share one
+    # skeleton, and the objective is the other. Made to compile each on its own, they count ~200.
+    figure = targets.waypoint_figure()
+    assert figure.value == 2.0 and figure.verdict() == "met"
+    assert targets.format_figure(figure).split()[-4:] == ["2", "≤", "2", "met"]

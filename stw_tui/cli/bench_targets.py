@@ -94,13 +94,15 @@ class Figure:
 def _amount(value: float, unit: str) -> str:
     if unit == "x":
         return f"{value:.2f}x"
+    if not unit:                                             # a count
+        return f"{value:g}"
     return f"{value:.1f} ms" if unit == "ms" else f"{value:.2f} s"
 
 
 def format_figure(f: Figure) -> str:
     """One row of the target table, at most WIDTH characters."""
     value = "-" if f.value is None else _amount(f.value, f.unit)
-    target = "≤ " + (f"{f.limit:g}x" if f.unit == "x" else f"{f.limit:g} {f.unit}")
+    target = "≤ " + (f"{f.limit:g}x" if f.unit == "x" else f"{f.limit:g} {f.unit}".rstrip())
     room = WIDTH - LABEL - VALUE - TARGET - 3
     return (f"{f.label[:LABEL]:<{LABEL}} {value:>{VALUE}} {target:>{TARGET}} "
             f"{f.verdict()[:room]}").rstrip()
@@ -281,6 +283,43 @@ def window_figure(repeat: int) -> Figure:
     return Figure("1 s window: in 100 s / 10 s", times[1] / times[0], "x", 1.1)
 
 
+WAYPOINTS = 200
+
+
+def waypoint_session(n: int) -> str:
+    """A curve through ``n`` waypoints, each a constraint with a number of its own."""
+    rng = np.random.default_rng(7)
+    lines = ["time 0 10 knots=100", "dof x"]
+    lines += [f"constraint w{k}: x = {v:.4f} @ {t:.4f}"
+              for k, (t, v) in enumerate(zip(np.linspace(0.02, 9.98, n), rng.uniform(-1, 1, n)))]
+    return "\n".join(lines + ["objective smooth: x''"])
+
+
+def waypoint_figure() -> Figure:
+    """How many terms setting up 200 waypoints compiles afresh (no cache): the waypoints differ
+    only in their number and share one compiled term, so 2 with the objective (199 when each
+    compiled its own)."""
+    label = f"{WAYPOINTS} waypoints: terms compiled"
+    saved_dir, build = os.environ.get("STW_CACHE_DIR"), compiler._build
+    built = []
+    os.environ["STW_CACHE_DIR"] = "off"
+    compiler._build = lambda *args: built.append(args) or build(*args)
+    try:
+        compiler._CACHE.clear()                              # the in-memory cache too
+        session = Session()
+        session.run_text(waypoint_session(WAYPOINTS))
+        WindowProblem(session.scene)
+    except StwError as exc:
+        return Figure(label, None, "", 2.0, str(exc)[:40])
+    finally:
+        compiler._build = build
+        if saved_dir is None:
+            os.environ.pop("STW_CACHE_DIR", None)
+        else:
+            os.environ["STW_CACHE_DIR"] = saved_dir
+    return Figure(label, float(len(built)), "", 2.0)
+
+
 def cold_start_figures(text: str, repeat: int) -> list[Figure]:
     """`stw run` of the arm up to its first iteration in a new process, and its cached compile."""
     prefix = split_at_first_iterate(text)[0]
@@ -346,6 +385,7 @@ def run_targets(quick: bool, anchors: bool, repeat: int, out=None) -> list[Figur
     figures += session_figures([(n, texts[n]) for n in names], repeat, out)
     figures += pendulum_figures(repeat, anchors)
     figures.append(window_figure(repeat))
+    figures.append(waypoint_figure())
     if "arm_throw" in texts:
         figures += cold_start_figures(texts["arm_throw"], repeat)
     figures.append(gpu_figure())
