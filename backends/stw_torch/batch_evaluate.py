@@ -127,29 +127,12 @@ def _local_derivatives(tp: TorchProblem, V: torch.Tensor):
             if not g.pairs:
                 continue
             if grad.requires_grad:
-                rows = _hessian_rows(tp, inputs[i], grad, g.seeds.repeat(1, 1, B))
+                rows = tp.hessian_rows(inputs[i], grad, g.seeds.repeat(1, 1, B))
             else:  # every first derivative is constant
                 rows = grad.new_zeros(g.seeds.shape[0], g.term.k, B * g.n)
             h_parts.append(_untile(rows[g.pair_a, g.pair_b], B, g.n))
     h_flat = torch.cat(h_parts, 1) if h_parts else V.new_zeros(B, 0)
     return f_all, g_slot, h_flat
-
-
-def _hessian_rows(tp: TorchProblem, X: torch.Tensor, grad: torch.Tensor, seeds: torch.Tensor) -> torch.Tensor:
-    """(m, k, B·n) second derivatives, one seeded variable a per row (as the single evaluation)."""
-    if tp._batched:
-        try:
-            (rows,) = torch.autograd.grad(grad, X, grad_outputs=seeds, is_grads_batched=True,
-                                          retain_graph=True, allow_unused=True, materialize_grads=True)
-            return rows.detach()
-        except RuntimeError:  # an op vmap cannot batch: one backward pass per variable
-            tp._batched = False
-    rows = []
-    for seed in seeds:
-        (row,) = torch.autograd.grad(grad, X, grad_outputs=seed, retain_graph=True,
-                                     allow_unused=True, materialize_grads=True)
-        rows.append(row.detach())
-    return torch.stack(rows)
 
 
 def _pattern_values(pattern, source: torch.Tensor) -> torch.Tensor:

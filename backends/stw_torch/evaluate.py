@@ -446,24 +446,25 @@ class TorchProblem:
                 if not g.pairs:
                     continue
                 if grad.requires_grad:
-                    rows = self._hessian_rows(inputs[i], grad, g)
+                    rows = self.hessian_rows(inputs[i], grad, g.seeds)
                 else:  # every first derivative is constant
                     rows = grad.new_zeros(g.seeds.shape)
                 h_parts.append(rows[g.pair_a, g.pair_b].reshape(-1))
         h_flat = torch.cat(h_parts) if h_parts else v.new_zeros(0)
         return f_all, g_slot, h_flat
 
-    def _hessian_rows(self, X: torch.Tensor, grad: torch.Tensor, g: _Group) -> torch.Tensor:
-        """(m, k, n): for each seeded variable a, ∂(∂f/∂x_a)/∂x_b at every instance."""
+    def hessian_rows(self, X: torch.Tensor, grad: torch.Tensor, seeds: torch.Tensor) -> torch.Tensor:
+        """(m, k, n): for each seeded variable a, ∂(∂f/∂x_a)/∂x_b at every instance (n is the
+        group's instances, or a batch's B·n for seeds repeated B times)."""
         if self._batched:
             try:
-                (rows,) = torch.autograd.grad(grad, X, grad_outputs=g.seeds, is_grads_batched=True,
+                (rows,) = torch.autograd.grad(grad, X, grad_outputs=seeds, is_grads_batched=True,
                                               retain_graph=True, allow_unused=True, materialize_grads=True)
                 return rows.detach()
             except RuntimeError:  # an op vmap cannot batch: one backward pass per variable
                 self._batched = False
         rows = []
-        for seed in g.seeds:
+        for seed in seeds:
             (row,) = torch.autograd.grad(grad, X, grad_outputs=seed, retain_graph=True,
                                          allow_unused=True, materialize_grads=True)
             rows.append(row.detach())
