@@ -138,6 +138,11 @@ def _evaluate_curve_expr(scene: Scene, expr: sp.Expr):
     return curve
 
 
+def _option(scene: Scene, expr, what: str) -> float | None:
+    """An optional number of a command (None when not given)."""
+    return scene.numeric(expr, what) if expr is not None else None
+
+
 def _time_in_span(scene: Scene, value: float, what: str) -> float:
     if not scene.t0 - 1e-12 <= value <= scene.t1 + 1e-12:
         raise StwError(f"{what} {value:g} is outside the animation span [{scene.t0:g}, {scene.t1:g}]")
@@ -247,8 +252,7 @@ def _dof(scene: Scene, cmd) -> str:
 def _bounds(scene: Scene, lo_expr, hi_expr) -> tuple[float | None, float | None]:
     """A DOF's lower and upper bound, as `dof … lo= hi=` and `limit DOF LO HI` give them (None:
     not given); an empty range is refused."""
-    lo = scene.numeric(lo_expr, "lo") if lo_expr is not None else None
-    hi = scene.numeric(hi_expr, "hi") if hi_expr is not None else None
+    lo, hi = _option(scene, lo_expr, "lo"), _option(scene, hi_expr, "hi")
     if lo is not None and hi is not None and not lo < hi:
         raise StwError(f"bounds lo={lo:g} hi={hi:g} are empty: the lower limit must be below the upper")
     return lo, hi
@@ -312,7 +316,7 @@ def _constraint(scene: Scene, cmd) -> str:
     interval = _interval(scene, cmd.interval, "interval") if cmd.interval is not None else None
     if cmd.samples is not None and cmd.samples < 1:
         raise StwError("samples must be at least 1")
-    dense_tol = scene.numeric(cmd.dense_tol, "dense_tol") if cmd.dense_tol is not None else None
+    dense_tol = _option(scene, cmd.dense_tol, "dense_tol")
     if dense_tol is not None and dense_tol <= 0:
         raise StwError(f"dense_tol must be > 0, not {dense_tol:g}")
     scene.extra_instances.pop(cmd.name, None)   # placed for the old definition
@@ -698,11 +702,6 @@ def _solve_adaptive(session: SessionLike, scene: Scene, n: int, adapt: int | Non
     # A stopped solve is journalled as what it kept, so a replay reaches the same scene.
     return SolveReport(_merged(runs), problem, backend.name, report, tol, added, len(runs) - 1, undone,
                        "\n".join(journal) if stopped else None)
-
-
-def _option(scene: Scene, expr, what: str) -> float | None:
-    """A verb's numeric option (None when not given)."""
-    return scene.numeric(expr, what) if expr is not None else None
 
 
 def _verb(scene: Scene, cmd) -> str:

@@ -207,7 +207,7 @@ def lift_literals(expr: sp.Expr) -> tuple[sp.Expr, list[float]]:
     if not (isinstance(expr, sp.Add) and len(expr.args) == 2):
         return expr, []
     number, rest = expr.as_coeff_Add()
-    if not isinstance(number, sp.Float) or rest.has(number):
+    if not isinstance(number, sp.Float):
         return expr, []
     return sp.Add(rest, sp.Symbol(f"{LITERAL}0", real=True)), [float(number)]
 
