@@ -9,7 +9,6 @@ from pathlib import Path
 
 from stw_tui.session.autosave import SOLVE_COMMANDS, Checkpoints, apply_record
 from stw_tui.session.checkpoint_record import install, restored_scene
-from stw_tui.session.midsolve import MidSolve
 from stw_tui.session.session import Session
 from stw_tui.sym.errors import StwError
 from stw_tui.sym.language import classify_line
@@ -66,7 +65,7 @@ def restore(session: Session, journal: Path, size: int, resolve: bool) -> str | 
     Returns:
         What was restored, in a sentence (None: nothing to restore).
     """
-    midsolve = MidSolve(journal)
+    midsolve = session.checkpoints.midsolve   # resume() set them up for this journal
     record = midsolve.load()
     if record is None or record.get("offset") != size or session.in_block:
         return None
