@@ -79,6 +79,14 @@ class SceneCommands(Provider):
     (start one at the prompt)."""
 
     def _entries(self) -> list[tuple[str, str, object]]:
+        """Every entry, gathered once per palette opening (Textual makes a provider for each),
+        not on every keystroke: the session files are a folder listing."""
+        cached = getattr(self, "_gathered", None)
+        if cached is None:
+            cached = self._gathered = self._gather()
+        return cached
+
+    def _gather(self) -> list[tuple[str, str, object]]:
         from stw_tui.sym.language.help import COMMAND_HELP   # here: the language loads sympy
 
         app = self.app
