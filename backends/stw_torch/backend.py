@@ -48,8 +48,7 @@ class TorchBackend(SQPBackend):
         self.device = _device(self.config["device"])
         if self.device.type == "cpu":
             torch.set_num_threads(1)  # small batched work on 2 cores: threads cost ~50x (DESIGN.md)
-        linear = self.config["linear"]
-        self.linear = ("torch" if self.device.type == "cuda" else "scipy") if linear == "auto" else linear
+        self.linear = _linear(self.config["linear"], self.device)
         if self.linear == "scipy":
             return ScipyBackend.algebra(self, problem)
         from .linalg import DenseAlgebra
@@ -67,6 +66,11 @@ class TorchBackend(SQPBackend):
         inner = super().init(problem, state, settings)
         check_finite(inner.ev, problem)
         return inner
+
+
+def _linear(want: str, device) -> str:
+    """The KKT solves of option ``linear`` on ``device`` (auto: torch on cuda, scipy on the CPU)."""
+    return ("torch" if device.type == "cuda" else "scipy") if want == "auto" else want
 
 
 def _device(want: str):

@@ -37,7 +37,7 @@ from stw_tui.sos.batch import BatchSolver, join_batch, leave_batch
 from stw_tui.sos.sqp.algebra import KKTSystem, SingularSystem
 from stw_tui.sym.errors import StwError
 
-from .backend import TorchBackend
+from .backend import TorchBackend, _linear
 from .batch_evaluate import evaluate_batch, merit_values_batch, problem_key
 from .evaluate import TorchProblem
 from .linalg import DenseAlgebra, kkt_matrix
@@ -97,8 +97,7 @@ class TorchBatch(BatchSolver):
         # KKT systems: dense LU on the device, batched over starts (linear=torch, the default on
         # cuda), or each start's own sparse factorization on the host (linear=scipy, the default
         # on the CPU, where it measured faster: banded KKT systems of a few hundred rows).
-        linear = self.options.get("linear", "auto")
-        self.linear = ("torch" if device.type == "cuda" else "scipy") if linear == "auto" else linear
+        self.linear = _linear(self.options.get("linear", "auto"), device)
         self.rounds = 0            # rounds served in the last run (the benchmark shows it)
         self._cond = threading.Condition()
         self._pending: dict[int, _Request] = {}
