@@ -6,6 +6,9 @@ There is no async test plugin here, so each test runs its scenario with ``asynci
 from __future__ import annotations
 
 import asyncio
+import os
+
+import pytest
 
 import test_app_support as support
 from stw_tui.app import create_app
@@ -260,13 +263,18 @@ def test_ctrl_q_quits_at_once_during_a_solve():
     async def start(pilot):
         await support.submit(pilot, "iterate 100000")
         await wait_for_reports(pilot)
+        pids.append(app.runner.solver.pid)                    # the process that solves
         await pilot.press("f3")                               # from a plot too
 
+    pids = []
     assert quit_latency(app, start) < 1.0
     thread = app.runner.thread
-    thread.join(timeout=10)                                   # told to stop: ends at the next iteration
+    thread.join(timeout=10)                 # the solve's process was killed: its wait ends at once
     assert not thread.is_alive()
-    assert app.session.runs[-1].status is Status.STOPPED
+    assert pids[0] is not None and app.runner.solver.pid is None
+    with pytest.raises(ProcessLookupError):                   # the solve is gone with it, and ...
+        os.kill(pids[0], 0)
+    assert app.session.runs == []                             # ... the session is as before it
 
 
 def test_ctrl_q_does_not_wait_for_a_job_that_cannot_be_stopped():
@@ -393,7 +401,7 @@ def test_curves_are_redrawn_from_each_iteration_while_a_solve_runs():
     curves = [DofCurve(before.knots, c).evaluate(times) for c in reported]
     assert any(np.allclose(live[0].series.values, c, atol=1e-12) for c in curves)
     assert not np.allclose(live[0].series.values, before.evaluate(times))   # not the scene before
-    assert session.scene.dofs["x"].curve is not before                      # the worker's solve moved on
+    assert app.session.scene.dofs["x"].curve is not before                  # the solve moved on
     # After the solve the plot shows the solved scene.
     assert np.allclose(final.series.values, app.session.scene.dofs["x"].curve.evaluate(times), atol=1e-12)
 

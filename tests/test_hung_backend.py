@@ -147,7 +147,8 @@ def test_f4_on_a_hung_backend_reports_it_hung_and_frees_the_console(hanging):
     session = Session()
     session.run_text("dof x = 0.5\nobjective o: x - 1\nbackend hanging")
     before = session.scene
-    app = create_app(session=session, show_timing=False, blink=False)
+    # The monkeypatched plugin exists in this process only: the solve runs in a thread here.
+    app = create_app(session=session, show_timing=False, blink=False, solver_process=False)
 
     async def main():
         async with app.run_test(size=(120, 40)) as pilot:
@@ -247,7 +248,7 @@ def test_ctrl_q_ends_the_tui_process_while_a_backend_hangs(tmp_path):
               f"{sys.executable} -m stw_tui.cli {tmp_path / 'hang.stw'}"
     base = term.start(name, command)
     try:
-        screen = term.wait_for(base, name, "solving")
+        screen = term.wait_for(base, name, "iter 1")       # the first iteration is done: the second hangs
         assert "solving" in screen, screen
         pid = int(term.tmux(*base, "display-message", "-p", "-t", name, "#{pane_pid}").strip())
         term.tmux(*base, "send-keys", "-t", name, "F4")

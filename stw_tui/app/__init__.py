@@ -25,7 +25,8 @@ def settings_file() -> Path:
 
 
 def create_app(session_path: str | Path | None = None, step: bool = False, session: "Session | None" = None,
-               *, show_timing: bool = True, blink: bool = True, settings_path: str | Path | None = None) -> StwApp:
+               *, show_timing: bool = True, blink: bool = True, settings_path: str | Path | None = None,
+               solver_process: bool = True) -> StwApp:
     """A ready-to-run app.
 
     Args:
@@ -35,9 +36,11 @@ def create_app(session_path: str | Path | None = None, step: bool = False, sessi
         show_timing: show ms per iteration in the status line (False: deterministic snapshots).
         blink: blink the text cursor (False: deterministic snapshots).
         settings_path: a JSON file that remembers the theme between runs (None: not remembered).
+        solver_process: run solves in a child process (False: in a thread of this one, where a
+            plugin installed only in this process, as tests do, is found).
     """
     return StwApp(session=session, session_path=session_path, step=step, show_timing=show_timing, blink=blink,
-                  settings_path=settings_path)
+                  settings_path=settings_path, solver_process=solver_process)
 
 
 # Seconds a thread may hold the interpreter lock while another waits for it (Python's default is
@@ -70,8 +73,10 @@ def run_app(session_path: str | Path | None = None, step: bool = False,
 
         session = Session(journal_path=journal)
         session.checkpoints = Checkpoints(Path(journal))
+    from stw_tui.session.child_process import start_helpers
+
     app = create_app(session_path, step=step, session=session, settings_path=settings_file())
-    _start_resource_tracker()
+    start_helpers()   # before Textual replaces stderr
     sys.setswitchinterval(SWITCH_INTERVAL)
     app.run()
     code = app.return_code or 0
@@ -87,15 +92,3 @@ def run_app(session_path: str | Path | None = None, step: bool = False,
         sys.stderr.flush()
         os._exit(code)
     return code
-
-
-def _start_resource_tracker() -> None:
-    """Start multiprocessing's resource tracker while stderr is still the terminal: started later
-    from inside Textual (by a survey's process pool or Dask cluster) it passes Textual's stderr,
-    which has no file descriptor, and the pool fails with "bad value(s) in fds_to_keep"."""
-    from multiprocessing import resource_tracker
-
-    try:
-        resource_tracker.ensure_running()
-    except Exception:  # surveys then report their own error; the TUI must start regardless
-        pass

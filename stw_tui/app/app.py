@@ -103,7 +103,7 @@ class StwApp(App[int]):
 
     def __init__(self, session: "Session | None" = None, session_path: str | Path | None = None,
                  step: bool = False, show_timing: bool = True, blink: bool = True,
-                 settings_path: str | Path | None = None):
+                 settings_path: str | Path | None = None, solver_process: bool = True):
         super().__init__()
         if "TEXTUAL_ANIMATIONS" not in os.environ:
             # The tab underline slides for 0.3 s after F2/F3: ~18 frames of the whole screen's
@@ -111,7 +111,7 @@ class StwApp(App[int]):
             # the solver loses). It jumps instead; TEXTUAL_ANIMATIONS=full brings it back.
             self.animation_level = "none"
         self.settings_path = Path(settings_path) if settings_path else None
-        self.runner = Runner(self, session)
+        self.runner = Runner(self, session, solver_process=solver_process)
         self.session_path = Path(session_path) if session_path else None
         self.stepping = step
         self.show_timing = show_timing

@@ -20,6 +20,7 @@ from typing import TYPE_CHECKING
 
 from stw_tui.app.messages import (CommandFinished, CommandStarted, IterationReported, Job, Origin, SurveyProgressed,
                                   TaskFinished)
+from stw_tui.session.child_process import NotPortable, SolverProcess, runs_in_solver_process, start_helpers
 from stw_tui.session.queries import SceneInfo, scene_info
 from stw_tui.sym.errors import StwError
 from stw_tui.sym.language import classify_line
@@ -76,9 +77,14 @@ class Script:
 class Runner:
     """The queue of jobs and the state of the one running in the worker."""
 
-    def __init__(self, app: "App", session: "Session | None" = None):
+    def __init__(self, app: "App", session: "Session | None" = None, solver_process: bool = True):
         self.app = app
         self.session = session
+        # Solves run in a child process: the UI thread then never waits for the solver's
+        # interpreter lock (stw_tui/session/child_process.py).
+        self.solver = SolverProcess() if solver_process else None
+        if self.solver is not None:
+            start_helpers()
         self.queue: deque[Job] = deque()
         self.current: Job | None = None
         self.stop_requested = threading.Event()
@@ -127,6 +133,8 @@ class Runner:
         """
         self.queue.clear()
         self.stop_requested.set()
+        if self.solver is not None:
+            self.solver.close()
 
     def finished(self) -> None:
         """The worker's job is done (its message was handled): start the next one."""
@@ -168,7 +176,7 @@ class Runner:
 
         outcome, error = None, None
         try:
-            outcome = self.session.execute(job.line, line=job.number, on_report=on_report)
+            outcome = self._execute(job, on_report)
         except StwError as exc:
             error = exc
         except Exception as exc:  # a core bug must reach the console, not kill the worker
@@ -181,6 +189,21 @@ class Runner:
         # The views read this copy (in the UI thread and in their background computations)
         # while the next command changes the session's scene.
         self._post(CommandFinished(job, outcome, error, info, self.session.scene.copy()))
+
+    def _execute(self, job: Job, on_report):
+        """Apply the job's line: a solve in the solver process, anything else here."""
+        if self.solver is not None and not self.session.in_block and runs_in_solver_process(job.line):
+            try:
+                session, outcome, error = self.solver.execute(self.session, job.line, job.number, on_report,
+                                                              self.stop_requested.is_set)
+            except NotPortable:   # a session that does not pickle still solves, here
+                pass
+            else:
+                self.session = session
+                if error is not None:
+                    raise error
+                return outcome
+        return self.session.execute(job.line, line=job.number, on_report=on_report)
 
     def _run_task(self, job: Job) -> None:
         result, error = None, None

@@ -21,7 +21,6 @@ import atexit
 import functools
 import importlib.util
 import logging
-import multiprocessing
 import os
 import signal
 import time
@@ -29,6 +28,7 @@ from concurrent.futures import FIRST_COMPLETED, ProcessPoolExecutor, wait
 from concurrent.futures.process import BrokenProcessPool
 from typing import Callable
 
+from stw_tui.session.child_process import process_context, quiet_child
 from stw_tui.session.survey import (StartResult, StartTask, SurveyPlan, SurveyTable, plan_tasks, replay_base,
                                    solve_start)
 from stw_tui.sym.errors import StwError
@@ -65,24 +65,6 @@ class SerialEngine:
             on_result(solve_start(task))
 
 
-def _quiet_worker() -> None:
-    """A worker writes nothing to the terminal (it would draw over the TUI)."""
-    devnull = os.open(os.devnull, os.O_WRONLY)
-    os.dup2(devnull, 1)
-    os.dup2(devnull, 2)
-
-
-def _context():
-    """Forkserver where there is one: a clean, single-threaded parent that has imported the core
-    once, so a pool (and the new pool after a lost worker) starts in a fraction of a second
-    instead of importing sympy and scipy again in every process. Spawn elsewhere."""
-    if "forkserver" not in multiprocessing.get_all_start_methods():
-        return multiprocessing.get_context("spawn")
-    context = multiprocessing.get_context("forkserver")
-    context.set_forkserver_preload(["stw_tui.session.survey", "stw_tui.session.session", "stw_tui.session.interpreter"])
-    return context
-
-
 class PoolEngine:
     """A local pool of ``workers`` processes (forked from a clean server, or spawned: no state of
     this process, and none of its threads, leak into them)."""
@@ -99,9 +81,9 @@ class PoolEngine:
         """Solve the starts on the pool, retrying those whose worker died in a new pool."""
         pending = {t.index: t for t in tasks}
         attempts = dict.fromkeys(pending, 0)
-        context = _context()
+        context = process_context()
         while pending and not cancelled():
-            pool = ProcessPoolExecutor(self.workers, mp_context=context, initializer=_quiet_worker)
+            pool = ProcessPoolExecutor(self.workers, mp_context=context, initializer=quiet_child)
             broken = self._drain(pool, pending, on_result, cancelled)
             pool.shutdown(wait=not cancelled(), cancel_futures=True)
             if not broken:
@@ -248,7 +230,7 @@ class DaskEngine:
             if not _CLUSTERS:
                 atexit.register(close_local_clusters)
             _CLUSTERS[self.workers] = Client(cluster, set_as_default=False)
-            _CLUSTERS[self.workers].run(_quiet_worker)   # no worker output over the TUI
+            _CLUSTERS[self.workers].run(quiet_child)   # no worker output over the TUI
             _WORKER_PIDS.extend(_CLUSTERS[self.workers].run(os.getpid).values())
         return _CLUSTERS[self.workers]
 

@@ -1,0 +1,195 @@
+"""Child processes of stw: how they start, and the solver process that runs the TUI's solves.
+
+A solve run in a thread of the TUI's own process competes with the event loop for the interpreter
+lock: every key then waits for the solver's Python between its numpy calls (tests/tmux_latency.py
+measured p95 key latencies of 400 ms while basketball solved). :class:`SolverProcess` runs a
+solve in a process of its own instead. The session goes there as a pickle (a scene pickles in
+milliseconds: its compiled terms are plain data plus generated code that is cached on disk), the
+iteration reports stream back through a pipe as they come, and the session comes back, changed by
+the command exactly as it would have been here. The same code runs on the same state, so the
+result is bit for bit the one of a solve in this process.
+
+A process that dies (killed, out of memory, a crashing backend) costs only the command: the
+session here is the one from before it, and the journal on disk never saw the line (an entry is
+written when it is settled, at the end).
+"""
+
+from __future__ import annotations
+
+import multiprocessing
+import os
+import pickle
+from typing import Callable
+
+from stw_tui.sym.errors import StwError
+from stw_tui.sym.language import classify_line
+
+POLL_S = 0.05          # how often the waiting side looks at cancellation and at the child's health
+SOLVE_VERBS = frozenset({"iterate", "slide"})   # the commands that run in the solver process
+CHILD_NICENESS = 10   # added to the solver process's niceness (see serve)
+PRELOAD = ["stw_tui.session.survey", "stw_tui.session.session", "stw_tui.session.interpreter", "stw_scipy"]
+
+
+def process_context():
+    """Forkserver where there is one: a clean, single-threaded parent that has imported the core
+    once, so a child starts in a fraction of a second instead of importing sympy and scipy again,
+    and none of this process's threads (Textual's) leak into it. Spawn elsewhere."""
+    if "forkserver" not in multiprocessing.get_all_start_methods():
+        return multiprocessing.get_context("spawn")
+    context = multiprocessing.get_context("forkserver")
+    context.set_forkserver_preload(PRELOAD)
+    return context
+
+
+def start_helpers() -> None:
+    """Start multiprocessing's helper processes (the resource tracker, and the fork server with
+    the core imported) now, while stderr is still the terminal's: started later from inside
+    Textual, which replaces stderr with an object that has no file descriptor, a child fails
+    with "bad value(s) in fds_to_keep". The fork server imports in the background meanwhile."""
+    from multiprocessing import forkserver, resource_tracker
+
+    try:
+        resource_tracker.ensure_running()
+        if process_context().get_start_method() == "forkserver":
+            forkserver.ensure_running()
+    except Exception:  # the first child then reports its own error; the TUI must start regardless
+        pass
+
+
+def quiet_child() -> None:
+    """A child writes nothing to the terminal (it would draw over the TUI)."""
+    devnull = os.open(os.devnull, os.O_WRONLY)
+    os.dup2(devnull, 1)
+    os.dup2(devnull, 2)
+
+
+def runs_in_solver_process(text: str) -> bool:
+    """Whether the command line ``text`` is a solve that :class:`SolverProcess` runs."""
+    return classify_line(text).verb in SOLVE_VERBS
+
+
+class NotPortable(Exception):
+    """The session does not pickle, so it cannot be sent to the solver process."""
+
+
+class SolverProcess:
+    """One child process that executes solve commands on a copy of the session, started on the
+    first solve and kept for the next ones (its caches of compiled terms stay warm)."""
+
+    def __init__(self):
+        self._process = None
+        self._conn = None
+        self._cancel = None
+
+    @property
+    def pid(self) -> int | None:
+        """The child's process id while it runs (tests kill it)."""
+        return self._process.pid if self._process is not None and self._process.is_alive() else None
+
+    def execute(self, session, text: str, line: int | None, on_report: Callable, cancelled: Callable[[], bool]):
+        """Run the command ``text`` on a copy of ``session`` (a :class:`~stw_tui.session.session.Session`;
+        not imported here, which the session's own modules import) in the child.
+
+        ``on_report`` gets each iteration's report as it comes (returning False stops the solve,
+        as does ``cancelled()`` turning true). Returns (session, outcome, error): the session as
+        the command left it, with the command's outcome, or its error (the returned session has then recorded the failure,
+        as one in this process would have).
+
+        Raises:
+            StwError: the child died; ``session`` is as it was.
+            NotPortable: the session cannot be copied to a process (the caller then runs the
+                command itself).
+        """
+        try:
+            payload = pickle.dumps(session, protocol=pickle.HIGHEST_PROTOCOL)
+        except Exception as exc:   # e.g. a plugin's object that does not pickle
+            raise NotPortable(str(exc)) from exc
+        process, conn, cancel = self._ensure_started()
+        cancel.clear()
+        try:
+            conn.send_bytes(pickle.dumps((payload, text, line), protocol=pickle.HIGHEST_PROTOCOL))
+            while True:
+                if not conn.poll(POLL_S):
+                    if cancelled():
+                        cancel.set()
+                    if not process.is_alive():
+                        raise EOFError
+                    continue
+                kind, *rest = pickle.loads(conn.recv_bytes())
+                if kind == "report":
+                    if on_report(rest[0]) is False or cancelled():
+                        cancel.set()
+                    continue
+                new_session, outcome, error = rest
+                return new_session, outcome, error
+        except (EOFError, OSError) as exc:   # it died, or close() (quitting) ended it
+            code = self.close() if process is self._process else process.exitcode
+            how = f" (exit code {code})" if code is not None else ""
+            raise StwError(f"the solver process ended during `{text.strip()}`{how}; "
+                           "the scene is as it was before the command") from exc
+
+    def _ensure_started(self):
+        if self._process is not None and self._process.is_alive():
+            return self._process, self._conn, self._cancel
+        self.close()
+        context = process_context()
+        ours, theirs = context.Pipe()
+        self._cancel = context.Event()
+        self._process = context.Process(target=serve, args=(theirs, self._cancel), name="stw-solver", daemon=True)
+        self._process.start()
+        theirs.close()
+        self._conn = ours
+        return self._process, self._conn, self._cancel
+
+    def close(self) -> int | None:
+        """End the child at once (a solve in it is abandoned: quitting must not wait for it);
+        returns its exit code."""
+        process, conn, self._process, self._conn = self._process, self._conn, None, None
+        if conn is not None:
+            conn.close()
+        if process is None:
+            return None
+        if process.is_alive():
+            process.kill()
+        process.join(timeout=1.0)
+        return process.exitcode
+
+
+def serve(conn, cancel) -> None:
+    """The child: execute each (session, command) it is sent, streaming the reports, until the
+    pipe closes."""
+    quiet_child()
+    try:   # where cores are scarce, the keys come first: the TUI process wins the CPU over the solve
+        os.nice(CHILD_NICENESS)
+    except OSError:
+        pass
+    while True:
+        try:
+            payload, text, line = pickle.loads(conn.recv_bytes())
+        except EOFError:
+            return
+        session = pickle.loads(payload)
+
+        def on_report(report) -> bool:
+            conn.send_bytes(pickle.dumps(("report", report), protocol=pickle.HIGHEST_PROTOCOL))
+            return not cancel.is_set()
+        on_report.cancelled = cancel.is_set   # polled inside one-call backends (IPOPT)
+
+        outcome, error = None, None
+        try:
+            outcome = session.execute(text, line=line, on_report=on_report)
+        except Exception as exc:  # the caller shows it as it would show one raised in its process
+            error = _portable(exc)
+        conn.send_bytes(pickle.dumps(("done", session, outcome, error), protocol=pickle.HIGHEST_PROTOCOL))
+
+
+def _portable(exc: Exception) -> Exception:
+    """``exc``, or an StwError with its message when it does not survive a pickle round trip."""
+    try:
+        pickle.loads(pickle.dumps(exc))
+        return exc
+    except Exception:
+        return StwError(str(exc))
+
+
+__all__ = ["NotPortable", "SolverProcess", "process_context", "quiet_child", "start_helpers", "runs_in_solver_process"]
