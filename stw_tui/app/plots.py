@@ -16,7 +16,6 @@ or focus change renders a plot again (on basketball at 80x24, half of an F3's UI
 from __future__ import annotations
 
 import math
-import time
 from typing import TYPE_CHECKING, Any, Callable
 
 from rich.text import Text
@@ -30,6 +29,7 @@ from stw_tui.app.background import LatestOnly
 from stw_tui.app.messages import ItemChosen, PlotBuilt, PlotDataComputed
 from stw_tui.app.plot_data import dof_plot_data, expression_plot_data, figure_data, live_scene
 from stw_tui.session.queries import QUANTITIES, SceneInfo, equation_names
+from stw_tui.session.throttle import ThrottledCall
 
 if TYPE_CHECKING:
     import numpy as np
@@ -54,8 +54,7 @@ class ScenePlot(PlotextPlot, can_focus=True):
         self.info = SceneInfo()
         self.data: Any = None
         self.data_error: BaseException | None = None
-        self._last_draw = 0.0
-        self._pending = None
+        self._redraws = ThrottledCall(self._redraw, REDRAW_INTERVAL, self.set_timer)
         self._computer = LatestOnly(self._deliver, name=f"stw-{self.id or 'plot'}")
         self._requested = 0   # sequence number of the newest request
         self._received = 0    # ... and of the newest result shown
@@ -105,15 +104,11 @@ class ScenePlot(PlotextPlot, can_focus=True):
     @property
     def redraw_pending(self) -> bool:
         """Data being computed, or a redraw waiting for its turn."""
-        return self._pending is not None or self._received < self._requested or self.build_pending
+        return self._redraws.pending or self._received < self._requested or self.build_pending
 
     def request_draw(self) -> None:
         """Redraw now, or once the 0.1 s since the last redraw have passed."""
-        wait = REDRAW_INTERVAL - (time.monotonic() - self._last_draw)
-        if wait <= 0:
-            self._redraw()
-        elif self._pending is None:
-            self._pending = self.set_timer(wait, self._redraw)
+        self._redraws.request()
 
     @property
     def build_pending(self) -> bool:
@@ -122,8 +117,6 @@ class ScenePlot(PlotextPlot, can_focus=True):
 
     def _redraw(self) -> None:
         """State the figure now (on the UI thread: cheap); build its text in the background."""
-        self._pending = None
-        self._last_draw = time.monotonic()
         key = self._render_key(self._expected_size())
         plt = self._figure(key)
         if not all(key[:2]):   # in a tab never shown: built when first rendered

@@ -28,6 +28,7 @@ from typing import Callable
 
 from stw_tui.session.checkpoint_record import VERSION, scene_record
 from stw_tui.session.protocol import SessionLike
+from stw_tui.session.throttle import Throttle
 
 SUFFIX = ".solving"
 EVERY_VARIABLE = "STW_CHECKPOINT_EVERY"
@@ -85,13 +86,12 @@ class MidSolve:
             offset = self.journal.stat().st_size
         except OSError:
             offset = 0
-        last = self.clock()
+        throttle = Throttle(self.every, self.clock)
+        throttle.mark()   # the first checkpoint is due a period after the start
 
         def on_state(k: int, state) -> None:
-            nonlocal last
-            if self.clock() - last < self.every:
+            if not throttle.due():
                 return
-            last = self.clock()
             now = scene.copy()
             now.with_coefficients(problem.scatter(state.s))
             self.write(now, warm_of(state), offset, trail, k)
