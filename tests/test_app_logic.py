@@ -250,6 +250,42 @@ def test_latest_only_runs_one_computation_at_a_time_and_keeps_only_the_newest_re
     assert delivered[2:] == [(failed, None, "no such DOF"), (failed + 1, "last", None)]   # and goes on
 
 
+def test_latest_only_accepts_only_the_newest_result_and_drop_discards_every_request_so_far():
+    import threading
+
+    from stw_tui.app.background import LatestOnly
+
+    delivered, started, release, done = [], threading.Event(), threading.Event(), threading.Event()
+
+    def deliver(sequence, result, error):
+        delivered.append(sequence)
+        if result == "last":
+            done.set()
+    computer = LatestOnly(deliver)
+    assert not computer.pending
+
+    def blocked():
+        started.set()
+        release.wait(5)
+    running = computer.submit(blocked)
+    assert started.wait(5)
+    waiting = computer.submit(lambda: delivered.append("ran"))
+    assert computer.pending
+    assert computer.accept(running) and computer.pending    # an older result: shown, still pending
+    assert computer.accept(waiting) and not computer.pending
+    assert not computer.accept(running) and not computer.accept(waiting)   # already superseded
+
+    third = computer.submit(lambda: delivered.append("dropped"))
+    computer.drop()                       # while `blocked` still runs and `third` waits
+    assert not computer.pending and not computer.accept(third)
+    release.set()
+    last = computer.submit(lambda: "last")
+    assert done.wait(5)
+    assert "dropped" not in delivered      # the dropped computation never ran
+    assert not computer.accept(running)    # and a result from before the drop is not shown
+    assert computer.pending and computer.accept(last) and not computer.pending
+
+
 def test_plot_data_is_computed_from_a_scene_with_a_solves_coefficients(jet):
     from stw_tui.app.plot_data import dof_plot_data, expression_plot_data, figure_data, live_scene
 
