@@ -306,6 +306,9 @@ def test_plot_data_is_computed_from_a_scene_with_a_solves_coefficients(jet):
     assert dot.t == 1.0 and dot.points[0][0] == "x" and abs(dot.points[0][1][1] - 1.0) < 1e-6
     lo, hi = dot.bounds[2], dot.bounds[3]
     assert lo < min(base.series.values) and hi > max(base.series.values)
+    # During a solve the dot's range follows the live curve: the worker's figure_bounds (measured
+    # on the scene after the last command) would lose the dot shifted up by one.
+    assert figure_data(live, 1.0).bounds[3] > max(data.series.values) > figure_bounds(scene)[3]
 
 
 def test_a_proposal_is_measured_and_drawn_beside_the_scene():
