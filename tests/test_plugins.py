@@ -142,3 +142,25 @@ def test_backend_options_out_of_range_are_refused_and_change_nothing(line, messa
     with pytest.raises(StwError, match=message):
         s.execute(line)
     assert (s.scene.backend, s.scene.backend_options) == ("scipy", {"lin_tol": "1e-10"})
+
+
+def test_a_batch_solver_that_fails_to_start_is_a_message_not_a_crash():
+    from stw_tui.sos.backend import Backend
+    from stw_tui.sos.batch import create_batch_solver
+    from stw_tui.sym.errors import StwError
+
+    class Faulty(Backend):
+        name = "faulty"
+
+        @classmethod
+        def batch_solver(cls, size, options=None):
+            raise SystemExit("a plugin's stray exit")
+
+    class Declines(Faulty):
+        name = "declines"
+        batch_solver = Backend.batch_solver      # the default: None, no batches
+
+    with pytest.raises(StwError, match="backend faulty could not start a batch: SystemExit: a plugin's stray exit"):
+        create_batch_solver(Faulty, 4, {})
+    with pytest.raises(StwError, match="backend declines cannot solve a batch"):
+        create_batch_solver(Declines, 4, {})

@@ -160,16 +160,14 @@ class BatchEngine:
         """The backend's batch solver (made on first use).
 
         Raises:
-            StwError: no installed backend solves batches, or bad options.
+            StwError: no installed backend solves batches, bad options, or no device to run on.
         """
-        from stw_tui.sos.backend import create_backend
-        from stw_tui.sos.batch import batch_backend
+        from stw_tui.sos.batch import batch_backend, create_batch_solver
 
         if self._solver is None:
             cls = batch_backend(self.backend)
             options = self.options if cls.name == self.backend else {}
-            create_backend(cls, options)   # bad options fail here, as a message
-            self._solver = cls.batch_solver(self.size or BATCH_SIZE, options)
+            self._solver = create_batch_solver(cls, self.size or BATCH_SIZE, options)
         return self._solver
 
     def describe(self) -> str:

@@ -17,7 +17,7 @@ import contextvars
 from abc import ABC, abstractmethod
 from typing import Any, Callable, Sequence
 
-from stw_tui.sos.backend import Backend, available_backends, create_backend, load_backend
+from stw_tui.sos.backend import PLUGIN_FAULTS, Backend, available_backends, create_backend, load_backend
 from stw_tui.sym.errors import StwError
 from stw_tui.sym.kinds import Capability
 
@@ -57,6 +57,23 @@ def batch_backend(preferred: str | None = None) -> type[Backend]:
             return cls
     raise StwError("no installed backend can solve a batch of starts "
                    f"(installed: {', '.join(installed) or 'none'})")
+
+
+def create_batch_solver(cls: type[Backend], size: int, options: dict[str, Any]) -> "BatchSolver":
+    """Backend ``cls``'s batch solver of ``size`` jobs; the backend validates ``options``.
+
+    Raises:
+        StwError: bad options, no device to run on, or the plugin raised (SystemExit included).
+    """
+    try:
+        solver = cls.batch_solver(size, options)
+    except StwError:
+        raise
+    except PLUGIN_FAULTS as exc:
+        raise StwError(f"backend {cls.name} could not start a batch: {type(exc).__name__}: {exc}") from exc
+    if solver is None:
+        raise StwError(f"backend {cls.name} cannot solve a batch of starts")
+    return solver
 
 
 def join_batch(member: Callable[[str, dict], Backend]) -> contextvars.Token:
