@@ -311,6 +311,37 @@ def test_plot_data_is_computed_from_a_scene_with_a_solves_coefficients(jet):
     assert figure_data(live, 1.0).bounds[3] > max(data.series.values) > figure_bounds(scene)[3]
 
 
+def test_only_subexpressions_that_are_positions_are_drawn_as_points():
+    """point_mass_2d's thrust (fx, fy use x'' and y'') is a force, not a point: drawn, it put a dot
+    near height 9.81 and squashed the motion (y in [0, 0.5]) to the plot's bottom. cat_mouse's
+    mouse (mx = 1 + t, my = 1) is a position and is drawn where it runs."""
+    from stw_tui.session.figure import player_figure, point_pairs
+
+    thrown = Session()
+    thrown.run_file(SESSIONS / "point_mass_2d.stw")
+    scene = thrown.scene
+    assert point_pairs(scene) == [("•", "x", "y")]
+    (label, (x, y)), = player_figure(scene, 1.0).points
+    assert (x, y) == pytest.approx((scene.dofs["x"].curve.evaluate([1.0])[0],
+                                    scene.dofs["y"].curve.evaluate([1.0])[0]), abs=1e-12)
+    y_values = dof_series(scene, "y", 0).values
+    x0, x1, y0, y1 = figure_bounds(scene)
+    assert y1 < max(y_values) + 0.1 and y0 > min(y_values) - 0.1     # the motion fills the plot
+
+    chase = Session()
+    chase.run_file(SESSIONS / "cat_mouse.stw")
+    assert point_pairs(chase.scene) == [("c", "cx", "cy"), ("m", "mx", "my")]
+    points = dict(player_figure(chase.scene, 1.5).points)
+    assert points["m"] == pytest.approx((2.5, 1.0), abs=1e-12)       # the mouse at 1 + t, 1
+
+    # Through other subexpressions: a position built on a position is one; anything built on a
+    # velocity (a DOF's, or a subexpression's derivative) is not.
+    s = Session()
+    s.run_text("dof x, y\nconst k = 2\nlet ox = k*t\nlet oy = sin(x)\nlet px = x + ox\nlet py = y\n"
+               "let vx = px'\nlet vy = y\nlet wx = vx + 1\nlet wy = y\n")
+    assert point_pairs(s.scene) == [("•", "x", "y"), ("o", "ox", "oy"), ("p", "px", "py")]
+
+
 def test_a_proposal_is_measured_and_drawn_beside_the_scene():
     """`set preview on`: the worker's SceneInfo carries the proposal, its objective and violation
     and the scene's, and figure bounds that hold both motions; the player draws the proposal."""
