@@ -250,6 +250,42 @@ def test_latest_only_runs_one_computation_at_a_time_and_keeps_only_the_newest_re
     assert delivered[2:] == [(failed, None, "no such DOF"), (failed + 1, "last", None)]   # and goes on
 
 
+def test_latest_only_accepts_only_the_newest_result_and_drop_discards_every_request_so_far():
+    import threading
+
+    from stw_tui.app.background import LatestOnly
+
+    delivered, started, release, done = [], threading.Event(), threading.Event(), threading.Event()
+
+    def deliver(sequence, result, error):
+        delivered.append(sequence)
+        if result == "last":
+            done.set()
+    computer = LatestOnly(deliver)
+    assert not computer.pending
+
+    def blocked():
+        started.set()
+        release.wait(5)
+    running = computer.submit(blocked)
+    assert started.wait(5)
+    waiting = computer.submit(lambda: delivered.append("ran"))
+    assert computer.pending
+    assert computer.accept(running) and computer.pending    # an older result: shown, still pending
+    assert computer.accept(waiting) and not computer.pending
+    assert not computer.accept(running) and not computer.accept(waiting)   # already superseded
+
+    third = computer.submit(lambda: delivered.append("dropped"))
+    computer.drop()                       # while `blocked` still runs and `third` waits
+    assert not computer.pending and not computer.accept(third)
+    release.set()
+    last = computer.submit(lambda: "last")
+    assert done.wait(5)
+    assert "dropped" not in delivered      # the dropped computation never ran
+    assert not computer.accept(running)    # and a result from before the drop is not shown
+    assert computer.pending and computer.accept(last) and not computer.pending
+
+
 def test_plot_data_is_computed_from_a_scene_with_a_solves_coefficients(jet):
     from stw_tui.app.plot_data import dof_plot_data, expression_plot_data, figure_data, live_scene
 
@@ -270,6 +306,40 @@ def test_plot_data_is_computed_from_a_scene_with_a_solves_coefficients(jet):
     assert dot.t == 1.0 and dot.points[0][0] == "x" and abs(dot.points[0][1][1] - 1.0) < 1e-6
     lo, hi = dot.bounds[2], dot.bounds[3]
     assert lo < min(base.series.values) and hi > max(base.series.values)
+    # During a solve the dot's range follows the live curve: the worker's figure_bounds (measured
+    # on the scene after the last command) would lose the dot shifted up by one.
+    assert figure_data(live, 1.0).bounds[3] > max(data.series.values) > figure_bounds(scene)[3]
+
+
+def test_only_subexpressions_that_are_positions_are_drawn_as_points():
+    """point_mass_2d's thrust (fx, fy use x'' and y'') is a force, not a point: drawn, it put a dot
+    near height 9.81 and squashed the motion (y in [0, 0.5]) to the plot's bottom. cat_mouse's
+    mouse (mx = 1 + t, my = 1) is a position and is drawn where it runs."""
+    from stw_tui.session.figure import player_figure, point_pairs
+
+    thrown = Session()
+    thrown.run_file(SESSIONS / "point_mass_2d.stw")
+    scene = thrown.scene
+    assert point_pairs(scene) == [("•", "x", "y")]
+    (label, (x, y)), = player_figure(scene, 1.0).points
+    assert (x, y) == pytest.approx((scene.dofs["x"].curve.evaluate([1.0])[0],
+                                    scene.dofs["y"].curve.evaluate([1.0])[0]), abs=1e-12)
+    y_values = dof_series(scene, "y", 0).values
+    x0, x1, y0, y1 = figure_bounds(scene)
+    assert y1 < max(y_values) + 0.1 and y0 > min(y_values) - 0.1     # the motion fills the plot
+
+    chase = Session()
+    chase.run_file(SESSIONS / "cat_mouse.stw")
+    assert point_pairs(chase.scene) == [("c", "cx", "cy"), ("m", "mx", "my")]
+    points = dict(player_figure(chase.scene, 1.5).points)
+    assert points["m"] == pytest.approx((2.5, 1.0), abs=1e-12)       # the mouse at 1 + t, 1
+
+    # Through other subexpressions: a position built on a position is one; anything built on a
+    # velocity (a DOF's, or a subexpression's derivative) is not.
+    s = Session()
+    s.run_text("dof x, y\nconst k = 2\nlet ox = k*t\nlet oy = sin(x)\nlet px = x + ox\nlet py = y\n"
+               "let vx = px'\nlet vy = y\nlet wx = vx + 1\nlet wy = y\n")
+    assert point_pairs(s.scene) == [("•", "x", "y"), ("o", "ox", "oy"), ("p", "px", "py")]
 
 
 def test_a_proposal_is_measured_and_drawn_beside_the_scene():

@@ -218,3 +218,16 @@ def test_what_adds_subexpressions_as_columns(arm, tmp_path):
         arm.execute(f"export csv {out} what=nosuch")
     with pytest.raises(SourceError, match="names separated by commas"):
         arm.execute(f"export csv {out} what=a+b")
+
+
+def test_a_file_that_cannot_be_written_whole_keeps_its_old_text_and_leaves_no_temporary(tmp_path):
+    from stw_tui.session.atomic_file import replace_text
+
+    path = tmp_path / "out.csv"
+    replace_text(path, "old\r\n")                      # newlines as given, not translated
+    assert path.read_bytes() == b"old\r\n"
+    with pytest.raises(UnicodeEncodeError):
+        replace_text(path, "new" + "\ud800")          # fails while writing: after the file exists
+    assert path.read_bytes() == b"old\r\n" and [p.name for p in tmp_path.iterdir()] == ["out.csv"]
+    with pytest.raises(OSError):
+        replace_text(tmp_path / "missing" / "out.csv", "text")

@@ -30,6 +30,35 @@ PLUGIN = textwrap.dedent('''
             return inner
 ''')
 
+BATCHING = textwrap.dedent('''
+    """A third party's backend that solves batches: scipy's SQP, a batch being its jobs in turn."""
+    from stw_scipy.sqp import ScipyBackend
+    from stw_tui.sos.backend import Capability
+    from stw_tui.sos.batch import BatchSolver
+
+    class InTurn(BatchSolver):
+        def __init__(self, size):
+            self.size = size
+
+        def describe(self):
+            return f"herd batch of up to {self.size}"
+
+        def run(self, jobs, on_done, cancelled):
+            for index, job in enumerate(jobs):
+                if cancelled():
+                    return
+                on_done(index, job())
+
+    class Herd(ScipyBackend):
+        name = "herd"
+        capabilities = ScipyBackend.capabilities | {Capability.BATCH}
+
+        @classmethod
+        def batch_solver(cls, size, options=None):
+            cls(**(options or {}))
+            return InTurn(size)
+''')
+
 BROKEN = "raise ImportError('this plugin needs a library that is not installed')\n"
 
 
@@ -37,11 +66,12 @@ def _install(tmp_path):
     """A real distribution on the path: a module plus its .dist-info with entry points."""
     (tmp_path / "stw_descent.py").write_text(PLUGIN)
     (tmp_path / "stw_broken.py").write_text(BROKEN)
+    (tmp_path / "stw_herd.py").write_text(BATCHING)
     info = tmp_path / "stw_descent-0.3.dist-info"
     info.mkdir()
     (info / "METADATA").write_text("Metadata-Version: 2.1\nName: stw-descent\nVersion: 0.3\n")
     (info / "entry_points.txt").write_text(
-        "[stw_tui.backends]\ndescent = stw_descent:Descent\nbroken = stw_broken:Nothing\n")
+        "[stw_tui.backends]\ndescent = stw_descent:Descent\nbroken = stw_broken:Nothing\nherd = stw_herd:Herd\n")
     env = dict(os.environ, PYTHONPATH=str(tmp_path) + os.pathsep + os.environ.get("PYTHONPATH", ""))
     return env
 
@@ -58,6 +88,22 @@ def test_an_installed_third_party_backend_is_listed_and_used(tmp_path):
             "print(s.scene.dofs['x'].curve.evaluate([0.5])[0])\n")
     out = subprocess.run([sys.executable, "-c", code], env=env, capture_output=True, text=True, check=True)
     assert abs(float(out.stdout) - 1.0) < 1e-3     # descent on ∫(x-1)² approaches x = 1 (from 0)
+
+
+def test_a_batch_runs_on_a_backend_found_by_its_capability_not_its_name(tmp_path):
+    """`set scheduler batch` on a scipy scene: the first installed backend that declares batches
+    (herd sorts before torch; broken fails to load and is passed over) solves the survey."""
+    env = _install(tmp_path)
+    code = ("from stw_tui.session.session import Session\n"
+            "s = Session()\n"
+            "s.run_text('time 0 1 knots=6\\ndof x\\nconstraint c: x = 1 @ 1\\nobjective o: x\\'\\'')\n"
+            "print(s.execute('set scheduler batch').message)\n"
+            "s.execute('survey 3 seed=1')\n"
+            "print(s.survey.engine, len(s.survey.results))\n")
+    out = subprocess.run([sys.executable, "-c", code], env=env, capture_output=True, text=True, check=True)
+    lines = out.stdout.splitlines()
+    assert lines[0] == "surveys solve their starts as one batch on the herd backend, in this process"
+    assert lines[1] == "herd batch of up to 64 3"
 
 
 def test_listing_backends_imports_none_of_them(tmp_path):
@@ -96,3 +142,25 @@ def test_backend_options_out_of_range_are_refused_and_change_nothing(line, messa
     with pytest.raises(StwError, match=message):
         s.execute(line)
     assert (s.scene.backend, s.scene.backend_options) == ("scipy", {"lin_tol": "1e-10"})
+
+
+def test_a_batch_solver_that_fails_to_start_is_a_message_not_a_crash():
+    from stw_tui.sos.backend import Backend
+    from stw_tui.sos.batch import create_batch_solver
+    from stw_tui.sym.errors import StwError
+
+    class Faulty(Backend):
+        name = "faulty"
+
+        @classmethod
+        def batch_solver(cls, size, options=None):
+            raise SystemExit("a plugin's stray exit")
+
+    class Declines(Faulty):
+        name = "declines"
+        batch_solver = Backend.batch_solver      # the default: None, no batches
+
+    with pytest.raises(StwError, match="backend faulty could not start a batch: SystemExit: a plugin's stray exit"):
+        create_batch_solver(Faulty, 4, {})
+    with pytest.raises(StwError, match="backend declines cannot solve a batch"):
+        create_batch_solver(Declines, 4, {})

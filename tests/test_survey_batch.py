@@ -134,9 +134,16 @@ def test_a_request_that_raises_fails_its_own_job_only(monkeypatch):
     assert batches[2:5] == [[-1.0], [0.0], [1.0]]
 
 
-def test_a_backend_without_batches_is_refused():
-    with pytest.raises(StwError, match="cannot solve a batch"):
-        BatchEngine(backend="scipy").solver()
+def test_a_scene_backend_without_batches_gives_way_to_one_with_them_and_its_defaults():
+    """Chosen by capability: the scene's scipy (and its options, which are scipy's) cannot batch."""
+    solver = BatchEngine(backend="scipy", options={"solver": "minres", "device": "cuda"}).solver()
+    assert solver.describe().startswith("torch batch of up to 64 on ")
+    assert solver.options["solver"] == "direct" and solver.options["device"] == "auto"   # torch's defaults
+
+
+def test_bad_batch_options_are_one_message():
+    with pytest.raises(StwError, match="option linear: 'dense' is not one of"):
+        BatchEngine(backend="torch", options={"device": "cpu", "linear": "dense"}).solver()
 
 
 def test_console_set_scheduler_batch():

@@ -38,9 +38,8 @@ class TorchBackend(SQPBackend):
         """Many starts as one batch (batch.py), on cuda when torch sees one, else on the CPU."""
         from .batch import TorchBatch
 
-        options = dict(options or {})
-        cls(**options)   # validates the options
-        return TorchBatch(size, _device(options.get("device", "auto")), options)
+        config = cls(**dict(options or {})).config   # the options, validated and parsed (once)
+        return TorchBatch(size, _device(config["device"]), config)
 
     def algebra(self, problem):
         import torch

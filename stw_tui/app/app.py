@@ -8,7 +8,6 @@ from __future__ import annotations
 
 import json
 import os
-import time
 from pathlib import Path
 from typing import TYPE_CHECKING, Iterable
 
@@ -35,6 +34,7 @@ from stw_tui.app.plots import ConvergencePlot, DofPlot, ExpressionPlot, FigurePl
 from stw_tui.app.runner import Runner, Script
 from stw_tui.app.status import StatusLine
 from stw_tui.session.queries import SceneInfo
+from stw_tui.session.throttle import ThrottledCall
 
 if TYPE_CHECKING:
     from textual.app import SystemCommand
@@ -118,16 +118,14 @@ class StwApp(App[int]):
         self.blink = blink
         self.script: Script | None = None
         self._info = SceneInfo()
-        self._views_shown = 0.0
-        self._views_timer = None
+        self._views = ThrottledCall(self._show_views, VIEW_INTERVAL, self.set_timer)
         self._stale: set[str] = set()     # ids of views in hidden tabs that missed a refresh
         # What the views show: the worker's copy of the scene after the last command (the
         # session's own scene belongs to the worker), and a running solve's control points.
         self._shown: "Scene | None" = None
         self._coefficients = None
         self._latest_report = None       # of the running solve, not shown yet
-        self._live_shown = 0.0           # when a report was last shown
-        self._live_timer = None
+        self._live = ThrottledCall(self._show_latest_report, LIVE_INTERVAL, self.set_timer)
 
     def compose(self) -> ComposeResult:
         with Horizontal(id="main"):
@@ -282,18 +280,12 @@ class StwApp(App[int]):
     def on_iteration_reported(self, event: IterationReported) -> None:
         """Show the newest iterate at once, or when LIVE_INTERVAL has passed since the last."""
         self._latest_report = event.report
-        wait = LIVE_INTERVAL - (time.monotonic() - self._live_shown)
-        if wait <= 0:
-            self._show_latest_report()
-        elif self._live_timer is None:
-            self._live_timer = self.set_timer(wait, self._show_latest_report)
+        self._live.request()
 
     def _show_latest_report(self) -> None:
-        self._live_timer = None
         report, self._latest_report = self._latest_report, None
         if report is None:
             return
-        self._live_shown = time.monotonic()
         self.status_line.show(report=report)
         self.query_one(ConvergencePlot).set_reports(self.runner.reports)
         if report.coefficients is not None and self.session is not None:
@@ -301,9 +293,8 @@ class StwApp(App[int]):
 
     def _drop_live_report(self) -> None:
         """The solve has ended: its final state is shown, not an iterate still waiting."""
-        if self._live_timer is not None:
-            self._live_timer.stop()
-        self._live_timer, self._latest_report, self._live_shown = None, None, 0.0
+        self._live.cancel()
+        self._latest_report = None
 
     LIVE_PLOTS = (DofPlot, ExpressionPlot, FigurePlot)
 
@@ -414,8 +405,7 @@ class StwApp(App[int]):
     def settled(self) -> bool:
         """Nothing running, queued, replaying or waiting to be redrawn (tests wait for this)."""
         replaying = self.script is not None and self.script.running
-        if self.runner.busy or self.runner.queue or replaying or self._views_timer is not None \
-                or self._live_timer is not None:
+        if self.runner.busy or self.runner.queue or replaying or self._views.pending or self._live.pending:
             return False
         return not any(plot.redraw_pending for plot in self.query(ScenePlot))
 
@@ -423,16 +413,9 @@ class StwApp(App[int]):
         """Show the scene in the panels and plots, at most ~10 times a second (a replay is fast)."""
         if info is not None:
             self._info = info
-        wait = VIEW_INTERVAL - (time.monotonic() - self._views_shown)
-        if wait > 0:
-            if self._views_timer is None:
-                self._views_timer = self.set_timer(wait, self._show_views)
-            return
-        self._show_views()
+        self._views.request()
 
     def _show_views(self) -> None:
-        self._views_timer = None
-        self._views_shown = time.monotonic()
         scene = self._shown
         for tabs in self.query(TabbedContent):
             for pane in tabs.query(TabPane):

@@ -5,6 +5,10 @@ to): requests made while one is being computed replace each other, and the one l
 next. So there is never more than one thread per view, and a fast solve or a held arrow key does
 not pile up work that competes with the solver for the interpreter.
 
+The caller keeps the other half of "latest only": results come back as messages, and one may
+arrive after a newer request was made (or after the view was cleared). :meth:`LatestOnly.accept`
+says whether a result is still the one to show; :attr:`LatestOnly.pending` whether one is coming.
+
 The threads are daemon threads, as the session worker's (see runner.py): quitting never waits
 for a computation.
 """
@@ -25,6 +29,9 @@ class LatestOnly:
     The thread is started once, at the first request, and then waits for the next: starting a
     thread per request blocked the caller until the new thread got the interpreter lock, tens of
     milliseconds of UI time while a solve held it.
+
+    :meth:`submit`, :meth:`drop`, :meth:`accept` and :attr:`pending` are for the caller's thread
+    (the UI's): they keep which request is the newest and which result was last accepted.
     """
 
     def __init__(self, deliver: Deliver, name: str = "stw-view"):
@@ -34,12 +41,29 @@ class LatestOnly:
         self._waiting: tuple[int, Callable[[], Any]] | None = None
         self._thread: threading.Thread | None = None
         self._sequence = 0
+        self._requested = 0   # sequence number of the newest request
+        self._accepted = 0    # ... and of the newest result accepted
 
-    def next_sequence(self) -> int:
-        """A new sequence number, later than every one handed out so far."""
+    @property
+    def pending(self) -> bool:
+        """The newest request's result has not been accepted yet."""
+        return self._accepted < self._requested
+
+    def accept(self, sequence: int) -> bool:
+        """Whether the result numbered ``sequence`` is to be shown: False when it is older than
+        one accepted or dropped since. Accepting it makes every older result stale."""
+        if sequence <= self._accepted:
+            return False
+        self._accepted = sequence
+        return True
+
+    def drop(self) -> None:
+        """Nothing is to be shown: the waiting computation is not run, and the results of every
+        request made so far (one may be running) will not be accepted."""
         with self._ready:
             self._sequence += 1
-            return self._sequence
+            self._waiting = None
+            self._requested = self._accepted = self._sequence
 
     def submit(self, compute: Callable[[], Any]) -> int:
         """Compute ``compute()`` in the background (after the running one; it replaces any
@@ -47,6 +71,7 @@ class LatestOnly:
         with self._ready:
             self._sequence += 1
             self._waiting = (self._sequence, compute)
+            self._requested = self._sequence
             self._ready.notify()
             if self._thread is None:
                 self._thread = threading.Thread(target=self._loop, name=self._name, daemon=True)

@@ -16,7 +16,6 @@ or focus change renders a plot again (on basketball at 80x24, half of an F3's UI
 from __future__ import annotations
 
 import math
-import time
 from typing import TYPE_CHECKING, Any, Callable
 
 from rich.text import Text
@@ -30,6 +29,7 @@ from stw_tui.app.background import LatestOnly
 from stw_tui.app.messages import ItemChosen, PlotBuilt, PlotDataComputed
 from stw_tui.app.plot_data import dof_plot_data, expression_plot_data, figure_data, live_scene
 from stw_tui.session.queries import QUANTITIES, SceneInfo, equation_names
+from stw_tui.session.throttle import ThrottledCall
 
 if TYPE_CHECKING:
     import numpy as np
@@ -54,14 +54,9 @@ class ScenePlot(PlotextPlot, can_focus=True):
         self.info = SceneInfo()
         self.data: Any = None
         self.data_error: BaseException | None = None
-        self._last_draw = 0.0
-        self._pending = None
+        self._redraws = ThrottledCall(self._redraw, REDRAW_INTERVAL, self.set_timer)
         self._computer = LatestOnly(self._deliver, name=f"stw-{self.id or 'plot'}")
-        self._requested = 0   # sequence number of the newest request
-        self._received = 0    # ... and of the newest result shown
         self._builder = LatestOnly(self._deliver_built, name=f"stw-{self.id or 'plot'}-build")
-        self._build_requested = 0   # as _requested and _received, for the figure's text
-        self._build_received = 0
         self._built: tuple[tuple, Text] | None = None   # (render key, text) of the newest figure
 
     def set_scene(self, scene: "Scene", info: SceneInfo | None = None, coefficients=None) -> None:
@@ -82,12 +77,12 @@ class ScenePlot(PlotextPlot, can_focus=True):
         """Compute the data for the current scene and choices, then redraw."""
         compute = self.data_request() if self.scene is not None else None
         if compute is None:
-            self._requested = self._received = self._computer.next_sequence()   # drops older results
+            self._computer.drop()
             self.data, self.data_error = None, None
             self.request_draw()
             return
         scene, coefficients = self.scene, self.coefficients
-        self._requested = self._computer.submit(lambda: compute(live_scene(scene, coefficients)))
+        self._computer.submit(lambda: compute(live_scene(scene, coefficients)))
 
     def _deliver(self, sequence: int, data: Any, error: BaseException | None) -> None:
         """In the background thread: hand the result to the UI thread."""
@@ -95,9 +90,8 @@ class ScenePlot(PlotextPlot, can_focus=True):
 
     def on_plot_data_computed(self, message: PlotDataComputed) -> None:
         message.stop()
-        if message.sequence <= self._received:   # older than what is shown
+        if not self._computer.accept(message.sequence):   # older than what is shown
             return
-        self._received = message.sequence
         self.data, self.data_error = message.data, message.error
         self.request_draw()
 
@@ -105,32 +99,26 @@ class ScenePlot(PlotextPlot, can_focus=True):
     @property
     def redraw_pending(self) -> bool:
         """Data being computed, or a redraw waiting for its turn."""
-        return self._pending is not None or self._received < self._requested or self.build_pending
+        return self._redraws.pending or self._computer.pending or self.build_pending
 
     def request_draw(self) -> None:
         """Redraw now, or once the 0.1 s since the last redraw have passed."""
-        wait = REDRAW_INTERVAL - (time.monotonic() - self._last_draw)
-        if wait <= 0:
-            self._redraw()
-        elif self._pending is None:
-            self._pending = self.set_timer(wait, self._redraw)
+        self._redraws.request()
 
     @property
     def build_pending(self) -> bool:
         """The newest figure's text still being built in the background."""
-        return self._build_received < self._build_requested
+        return self._builder.pending
 
     def _redraw(self) -> None:
         """State the figure now (on the UI thread: cheap); build its text in the background."""
-        self._pending = None
-        self._last_draw = time.monotonic()
         key = self._render_key(self._expected_size())
         plt = self._figure(key)
         if not all(key[:2]):   # in a tab never shown: built when first rendered
-            self._build_requested = self._build_received = self._builder.next_sequence()
+            self._builder.drop()
             self._built = None
             return
-        self._build_requested = self._builder.submit(lambda: (key, Text.from_ansi(plt.build())))
+        self._builder.submit(lambda: (key, Text.from_ansi(plt.build())))
 
     def _figure(self, key: tuple) -> Plot:
         """A new plotext figure of ``self.data`` at the size and theme of ``key``."""
@@ -156,9 +144,8 @@ class ScenePlot(PlotextPlot, can_focus=True):
 
     def on_plot_built(self, message: PlotBuilt) -> None:
         message.stop()
-        if message.sequence <= self._build_received:   # older than what is shown
+        if not self._builder.accept(message.sequence):   # older than what is shown
             return
-        self._build_received = message.sequence
         self._built = message.built if message.error is None else None
         self.refresh()
 
@@ -181,7 +168,7 @@ class ScenePlot(PlotextPlot, can_focus=True):
         if self._built is not None and self._built[0] == key:
             return self._built[1]
         # First shown, resized or a new theme: build now, and drop builds still under way.
-        self._build_requested = self._build_received = self._builder.next_sequence()
+        self._builder.drop()
         try:
             text = Text.from_ansi(self._figure(key).build())
         except Exception as exc:   # never take the app down

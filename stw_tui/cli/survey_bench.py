@@ -21,7 +21,7 @@ import time
 from stw_tui.session.session import Session
 from stw_tui.session.survey_engines import (BatchEngine, DaskEngine, PoolEngine, SerialEngine, dask_available,
                                             run_survey)
-from stw_tui.sos.backend import available_backends
+from stw_tui.sos.batch import batch_backend
 from stw_tui.session.survey_session import plan_of
 from stw_tui.sym.errors import StwError
 
@@ -29,6 +29,15 @@ from stw_tui.sym.errors import StwError
 def _rows(table) -> list:
     # members in index order: starts whose objectives agree to 1e-12 may rank either way
     return [(round(o.best.objective, 6), tuple(sorted(m.index for m in o.members))) for o in table.optima]
+
+
+def _batch_installed() -> bool:
+    """Whether an installed backend solves batches (the torch backend does)."""
+    try:
+        batch_backend()
+    except StwError:
+        return False
+    return True
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -59,7 +68,7 @@ def main(argv: list[str] | None = None) -> int:
     engines = [SerialEngine()] + ([PoolEngine(args.workers)] if "pool" in wanted else [])
     if dask_available() and "dask" in wanted:
         engines.append(DaskEngine(args.workers))
-    if "torch" in available_backends() and "batch" in wanted:
+    if "batch" in wanted and _batch_installed():
         engines.append(BatchEngine())
     print(f"{args.session}: survey {args.n} {' '.join(args.options)}")
     print(f"{'engine':<62} {'run':>3} {'s':>7} {'starts/s':>9} {'ratio':>6} {'optima':>6}  same table as serial")

@@ -17,13 +17,12 @@ from __future__ import annotations
 import csv
 import io
 import json
-import os
-import tempfile
 from pathlib import Path
 
 
 import numpy as np
 
+from stw_tui.session.atomic_file import replace_text
 from stw_tui.session.outcome import Outcome
 from stw_tui.session.protocol import SessionLike
 from stw_tui.sos.scene import Scene
@@ -108,7 +107,7 @@ def json_document(scene: Scene, fps: int, session_text: str, what=()) -> dict:
 
 
 def write_text(path: str | Path, text: str) -> Path:
-    """Write a whole file at once (a temporary file renamed over it: never half a file).
+    """Write a whole file at once (:func:`~stw_tui.session.atomic_file.replace_text`: never half a file).
 
     Raises:
         StwError: the file cannot be written.
@@ -117,14 +116,7 @@ def write_text(path: str | Path, text: str) -> Path:
     try:
         if target.is_dir():
             raise IsADirectoryError(f"{target} is a folder")
-        fd, temporary = tempfile.mkstemp(dir=target.parent or Path("."), prefix=f".{target.name}.", suffix=".tmp")
-        try:
-            with os.fdopen(fd, "w", encoding="utf-8", newline="") as out:
-                out.write(text)
-            os.replace(temporary, target)
-        except BaseException:
-            Path(temporary).unlink(missing_ok=True)
-            raise
+        replace_text(target, text)
     except OSError as exc:
         raise StwError(f"cannot write {path}: {exc}") from exc
     return target

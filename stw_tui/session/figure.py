@@ -2,8 +2,12 @@
 
 Linkages give segments (base → joints → tip). Point masses are found by name: a pair of DOF or
 subexpressions ``<prefix>x`` and ``<prefix>y`` (or ``X``/``Y``), such as ``x, y``, ``cx, cy``,
-``BX, BY`` or the mouse's ``mx, my``, is drawn as a dot labelled with the prefix. A scene with
-neither (the jet particle's lone ``x``) is played as its first DOF's height (:func:`player_figure`).
+``BX, BY`` or the mouse's ``mx, my``, is drawn as a dot labelled with the prefix. A subexpression
+counts only if it is a position: a function of the DOF values, time and constants. One that uses a
+velocity or an acceleration (``fx = m*x''``, point_mass_2d's thrust) is a force, a speed or a
+momentum, whatever its name, and drawing it as a point would put a dot at "height" 9.81 and
+squash the motion to the bottom of the plot. A scene with neither (the jet particle's lone ``x``)
+is played as its first DOF's height (:func:`player_figure`).
 """
 
 from __future__ import annotations
@@ -37,9 +41,25 @@ def _value(scene: Scene, name: str, t: float) -> float:
     return float(scene.evaluate(named_symbol(name), np.array([t]))[0])
 
 
+def _uses_motion(scene: Scene, expr, seen: set[str]) -> bool:
+    """Whether ``expr`` depends on a velocity or acceleration: a primed symbol (``x'``, ``x''``,
+    or ``f'`` of a subexpression), directly or through the subexpressions it names."""
+    for symbol in expr.free_symbols:
+        name = symbol.name
+        if name.endswith("'"):
+            return True
+        definition = scene.lets.get(name, scene.derived.get(name))
+        if definition is not None and name not in seen:
+            seen.add(name)
+            if _uses_motion(scene, definition, seen):
+                return True
+    return False
+
+
 def point_pairs(scene: Scene) -> list[tuple[str, str, str]]:
-    """(label, x name, y name) for every name pair that looks like a planar point."""
-    names = list(scene.dofs) + list(scene.lets)
+    """(label, x name, y name) for every name pair that looks like a planar point: DOF, or
+    subexpressions that are positions (they use no velocity or acceleration)."""
+    names = list(scene.dofs) + [n for n in scene.lets if not _uses_motion(scene, scene.lets[n], {n})]
     pairs = []
     for name in names:
         for xs, ys in (("x", "y"), ("X", "Y")):

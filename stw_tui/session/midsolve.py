@@ -26,8 +26,10 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Callable
 
+from stw_tui.session.atomic_file import replace_text
 from stw_tui.session.checkpoint_record import VERSION, scene_record
 from stw_tui.session.protocol import SessionLike
+from stw_tui.session.throttle import Throttle
 
 SUFFIX = ".solving"
 EVERY_VARIABLE = "STW_CHECKPOINT_EVERY"
@@ -85,13 +87,12 @@ class MidSolve:
             offset = self.journal.stat().st_size
         except OSError:
             offset = 0
-        last = self.clock()
+        throttle = Throttle(self.every, self.clock)
+        throttle.mark()   # the first checkpoint is due a period after the start
 
         def on_state(k: int, state) -> None:
-            nonlocal last
-            if self.clock() - last < self.every:
+            if not throttle.due():
                 return
-            last = self.clock()
             now = scene.copy()
             now.with_coefficients(problem.scatter(state.s))
             self.write(now, warm_of(state), offset, trail, k)
@@ -102,15 +103,8 @@ class MidSolve:
         record = scene_record(scene, warm, offset)
         record.update(command=trail.command, iteration=k, time=time.time(),
                       text="\n".join([*trail.lines, f"iterate {k} adapt=0"]))
-        temporary = self.path.with_name(self.path.name + ".tmp")
         try:
-            data = json.dumps(record, allow_nan=False)
-            with temporary.open("w", encoding="utf-8") as out:
-                out.write(data)
-                out.flush()
-                os.fsync(out.fileno())
-            os.replace(temporary, self.path)
-            _sync_folder(self.path.parent)
+            replace_text(self.path, json.dumps(record, allow_nan=False))
             self.written = True
         except (OSError, ValueError):
             pass
@@ -133,20 +127,6 @@ class MidSolve:
             return None
         ok = isinstance(record, dict) and record.get("version") == VERSION and isinstance(record.get("text"), str)
         return record if ok else None
-
-
-def _sync_folder(folder: Path) -> None:
-    """fsync a folder, so that a rename in it survives a crash (where the system allows it)."""
-    try:
-        handle = os.open(folder, os.O_RDONLY)
-    except OSError:
-        return
-    try:
-        os.fsync(handle)
-    except OSError:
-        pass
-    finally:
-        os.close(handle)
 
 
 def hook_for(session: SessionLike, scene, problem, warm_of: Callable, trail: Trail | None):

@@ -4,8 +4,9 @@
 * :class:`PoolEngine`: a local pool of worker processes (``concurrent.futures``), the default when
   Dask is not installed. A worker process that dies breaks the pool: a new pool takes over the
   unfinished starts (each start at most ``MAX_ATTEMPTS`` times), and the loss is reported.
-* :class:`BatchEngine`: the starts as one batch on the torch backend, vectorized over starts
-  (on cuda when torch sees a GPU), in this process; the backend plugin supplies the batch solver.
+* :class:`BatchEngine`: the starts as one batch on a backend that solves batches (the torch
+  backend: vectorized over starts, on cuda when torch sees a GPU), in this process; the backend
+  plugin supplies the batch solver, and is found by that capability, not by name.
 * :class:`DaskEngine`: an embedded ``dask.distributed.LocalCluster`` (one single-threaded worker
   process per core), or an existing cluster at a scheduler address. Dask itself reschedules the
   tasks of a lost worker; the engine reports the loss.
@@ -122,9 +123,16 @@ BATCH_SIZE = 64       # starts a batch solves at once by default (more wait for 
 class BatchEngine:
     """The starts as one batch on a backend that solves batches (the torch backend: vectorized
     evaluations and batched KKT factorizations, on cuda when torch sees a GPU), in this process.
-    Each start still replays, shakes, solves and is checked densely as in :func:`solve_start`."""
+    Each start still replays, shakes, solves and is checked densely as in :func:`solve_start`.
 
-    def __init__(self, size: int | None = None, backend: str = "torch", options: dict | None = None):
+    Args:
+        size: starts solved at once (None: :data:`BATCH_SIZE`).
+        backend: the scene's backend, and ``options`` its options: used if it solves batches;
+            otherwise the first installed backend that does, with its defaults
+            (:func:`~stw_tui.sos.batch.batch_backend`).
+    """
+
+    def __init__(self, size: int | None = None, backend: str | None = None, options: dict | None = None):
         self.size = size
         self.backend = backend
         self.options = dict(options or {})
@@ -134,17 +142,14 @@ class BatchEngine:
         """The backend's batch solver (made on first use).
 
         Raises:
-            StwError: the backend is not installed or cannot solve batches.
+            StwError: no installed backend solves batches, bad options, or no device to run on.
         """
-        from stw_tui.sos.backend import create_backend, load_backend
-        from stw_tui.sym.kinds import Capability
+        from stw_tui.sos.batch import batch_backend, create_batch_solver
 
         if self._solver is None:
-            cls = load_backend(self.backend)
-            if Capability.BATCH not in cls.capabilities:
-                raise StwError(f"backend {self.backend} cannot solve a batch of starts (the torch backend can)")
-            create_backend(cls, self.options)   # bad options fail here, as a message
-            self._solver = cls.batch_solver(self.size or BATCH_SIZE, self.options)
+            cls = batch_backend(self.backend)
+            options = self.options if cls.name == self.backend else {}
+            self._solver = create_batch_solver(cls, self.size or BATCH_SIZE, options)
         return self._solver
 
     def describe(self) -> str:
@@ -275,16 +280,18 @@ class DaskEngine:
         return now
 
 
-def choose_engine(workers: int | None = None, scheduler: str | None = None, torch_options: dict | None = None):
+def choose_engine(workers: int | None = None, scheduler: str | None = None, backend: str | None = None,
+                  options: dict | None = None):
     """(engine, note) for `set scheduler`'s value: "serial", "pool", "batch", a Dask scheduler address, or
-    None (Dask's LocalCluster when Dask is installed, else a local pool). ``torch_options``: the
-    scene's torch backend options (`backend torch device=cpu`), which a batch honours."""
+    None (Dask's LocalCluster when Dask is installed, else a local pool). ``backend`` and
+    ``options``: the scene's (`backend torch device=cpu`), which a batch honours if that backend
+    solves batches."""
     if scheduler == "serial":
         return SerialEngine(), ""
     if scheduler == "pool":
         return PoolEngine(workers), ""
     if scheduler == "batch":
-        return BatchEngine(workers, options=torch_options), ""
+        return BatchEngine(workers, backend, options), ""
     if scheduler:
         return DaskEngine(workers, scheduler), ""
     if dask_available():
@@ -310,8 +317,7 @@ def run_survey(session, plan: SurveyPlan, engine=None, *, scheduler: str | None 
     tasks = plan_tasks(session, plan)
     if engine is None:
         scene = session.scene
-        engine, note = choose_engine(plan.workers, scheduler,
-                                     scene.backend_options if scene.backend == "torch" else None)
+        engine, note = choose_engine(plan.workers, scheduler, scene.backend, scene.backend_options)
     else:
         note = ""
     table = SurveyTable(plan, tasks[0].base_text, engine.describe(), notes=[note] if note else [])

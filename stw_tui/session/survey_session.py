@@ -94,14 +94,26 @@ def adopt(session: SessionLike, scene, cmd, on_report=None) -> Outcome:
 adopt.reports_progress = True
 
 
+def _batch_note(backend: str) -> str:
+    """Where `set scheduler batch` will solve (the setting stands even where no backend can)."""
+    from stw_tui.sos.batch import batch_backend
+    from stw_tui.sym.kinds import Capability
+
+    try:
+        cls = batch_backend(backend)
+    except StwError as exc:
+        return f"surveys will fail until a backend that solves batches is installed: {exc}"
+    where = " (on a GPU when it sees one, else on the CPU)" if Capability.GPU in cls.capabilities else ""
+    return f"surveys solve their starts as one batch on the {cls.name} backend{where}, in this process"
+
+
 def set_scheduler(session: SessionLike, scene, cmd) -> Outcome:
     """`set scheduler ADDRESS`: where later surveys send their starts."""
     from stw_tui.session.survey_engines import dask_available
 
     scene.scheduler = cmd.address
     if cmd.address == "batch":
-        return Outcome(message="surveys solve their starts as one batch on the torch backend "
-                               "(on a GPU when torch sees one, else on the CPU), in this process")
+        return Outcome(message=_batch_note(scene.backend))
     if cmd.address in ("serial", "pool"):
         return Outcome(message="surveys run " + ("one start after another in this process" if cmd.address == "serial"
                                                  else "on a local process pool"))

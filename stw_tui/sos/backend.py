@@ -177,7 +177,7 @@ class Backend(ABC):
 
 # What a plugin may raise that must stop at the boundary: any error, and also SystemExit and
 # KeyboardInterrupt raised by the plugin's own code (a stray sys.exit() must not end stw).
-_PLUGIN_FAULTS = (Exception, SystemExit, KeyboardInterrupt)
+PLUGIN_FAULTS = (Exception, SystemExit, KeyboardInterrupt)
 
 
 # --- discovery -------------------------------------------------------------------------------
@@ -198,7 +198,7 @@ def load_backend(name: str) -> type[Backend]:
         raise StwError(f"no backend named '{name}' (installed: {', '.join(sorted(found)) or 'none'})")
     try:
         cls = found[name].load()
-    except _PLUGIN_FAULTS as exc:  # a plugin's import error (even a sys.exit) must not take stw down
+    except PLUGIN_FAULTS as exc:  # a plugin's import error (even a sys.exit) must not take stw down
         raise StwError(f"backend '{name}' failed to load: {type(exc).__name__}: {exc}") from exc
     if not (isinstance(cls, type) and issubclass(cls, Backend)):
         raise StwError(f"backend '{name}' is not a stw_tui.sos.backend.Backend subclass")
@@ -218,7 +218,7 @@ def create_backend(cls: type[Backend], options: dict[str, Any]) -> Backend:
         return cls(**options)
     except StwError:
         raise
-    except _PLUGIN_FAULTS as exc:
+    except PLUGIN_FAULTS as exc:
         raise StwError(f"backend {getattr(cls, 'name', cls.__name__)} could not start: "
                        f"{type(exc).__name__}: {exc}") from exc
 
@@ -302,7 +302,7 @@ def run_iterations(backend: Backend, problem, start: SolverState, n: int, settin
         raise
     except StwError as exc:
         raise SolveError(f"backend {backend.name}: {exc}") from exc
-    except _PLUGIN_FAULTS as exc:  # any bug or numerical failure inside a plugin, or its sys.exit()
+    except PLUGIN_FAULTS as exc:  # any bug or numerical failure inside a plugin, or its sys.exit()
         raise SolveError(f"backend {backend.name} raised {type(exc).__name__}: {exc}; "
                          "the scene is unchanged") from exc
     finally:

@@ -1,8 +1,9 @@
 """Batched solving: many independent solves (a survey's starts) run as one batch by a backend that
-can vectorize their numerical work over the batch (the torch backend: ``solve_batch``).
+can vectorize their numerical work over the batch (the torch backend's ``batch_solver``).
 
 The core stays backend-neutral. A backend offers the capability :attr:`Capability.BATCH` and a
-classmethod ``batch_solver(size)`` returning a :class:`BatchSolver`. The solver runs plain Python
+classmethod ``batch_solver(size, options)`` returning a :class:`BatchSolver`;
+:func:`batch_backend` finds one by that capability, never by name. The solver runs plain Python
 jobs (a start: replay, shake, `iterate`, dense check), each on its own thread, and while a job
 runs, every backend the interpreter creates for it is the solver's member backend
 (:func:`joined_backend`), whose evaluations and KKT factorizations the solver gathers from all
@@ -16,7 +17,9 @@ import contextvars
 from abc import ABC, abstractmethod
 from typing import Any, Callable, Sequence
 
-from stw_tui.sos.backend import Backend, create_backend, load_backend
+from stw_tui.sos.backend import PLUGIN_FAULTS, Backend, available_backends, create_backend, load_backend
+from stw_tui.sym.errors import StwError
+from stw_tui.sym.kinds import Capability
 
 # Set on a batch job's thread: (backend name, options) -> the member backend to solve with.
 _MEMBER: contextvars.ContextVar[Callable[[str, dict], Backend] | None] = contextvars.ContextVar(
@@ -34,6 +37,43 @@ def joined_backend(name: str, options: dict[str, Any]) -> Backend:
     if member is not None:
         return member(name, options)
     return create_backend(load_backend(name), options)
+
+
+def batch_backend(preferred: str | None = None) -> type[Backend]:
+    """The backend a batch of starts runs on: ``preferred`` (the scene's) if it solves batches
+    (:attr:`Capability.BATCH`), else the first installed backend that does, by name. A backend
+    that fails to load is passed over.
+
+    Raises:
+        StwError: no installed backend solves batches.
+    """
+    installed = sorted(available_backends())
+    for name in ([preferred] if preferred in installed else []) + installed:
+        try:
+            cls = load_backend(name)
+        except StwError:
+            continue
+        if Capability.BATCH in cls.capabilities:
+            return cls
+    raise StwError("no installed backend can solve a batch of starts "
+                   f"(installed: {', '.join(installed) or 'none'})")
+
+
+def create_batch_solver(cls: type[Backend], size: int, options: dict[str, Any]) -> "BatchSolver":
+    """Backend ``cls``'s batch solver of ``size`` jobs; the backend validates ``options``.
+
+    Raises:
+        StwError: bad options, no device to run on, or the plugin raised (SystemExit included).
+    """
+    try:
+        solver = cls.batch_solver(size, options)
+    except StwError:
+        raise
+    except PLUGIN_FAULTS as exc:
+        raise StwError(f"backend {cls.name} could not start a batch: {type(exc).__name__}: {exc}") from exc
+    if solver is None:
+        raise StwError(f"backend {cls.name} cannot solve a batch of starts")
+    return solver
 
 
 def join_batch(member: Callable[[str, dict], Backend]) -> contextvars.Token:
