@@ -584,7 +584,8 @@ class StwApp(App[int]):
             self.repl.write_note("linkage block dropped")
 
     async def action_quit(self) -> None:
-        """Ctrl+Q: exit at once. A running solve is told to stop and left behind (a daemon thread)."""
+        """Ctrl+Q: exit at once. A running solve's process is killed; another job is told to stop
+        and left behind (a daemon thread)."""
         self.runner.abandon()
         self.exit()
 

@@ -9,6 +9,10 @@ Each job runs in its own *daemon* thread rather than a Textual thread worker: th
 event loop's default executor, which ``asyncio.run`` and the interpreter join at exit, so quitting
 during a long solve used to wait for the solve. A daemon thread is abandoned instead (it is asked to
 stop at the next iteration boundary, and dies with the process).
+
+A solve (`iterate`, `slide`) runs in the solver process (stw_tui/session/child_process.py): the
+worker thread only waits on its pipe, so the UI thread never waits for the solver's interpreter
+lock, and quitting kills that process.
 """
 
 from __future__ import annotations
@@ -127,9 +131,8 @@ class Runner:
         return True
 
     def abandon(self) -> None:
-        """The app is quitting: ask a running job to stop and never start the queued ones.
-
-        The worker thread is not waited for (it is a daemon thread).
+        """The app is quitting: end the solver process, ask a running job to stop and never start
+        the queued ones. The worker thread is not waited for (it is a daemon thread).
         """
         self.queue.clear()
         self.stop_requested.set()
