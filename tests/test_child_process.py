@@ -107,3 +107,55 @@ def test_only_solves_run_in_the_child():
     assert runs_in_solver_process("iterate 20") and runs_in_solver_process("slide w by 0.1")
     assert not runs_in_solver_process("dof x = 0") and not runs_in_solver_process("# iterate")
     assert not runs_in_solver_process("survey 10")   # a survey runs its own processes
+
+
+ORPHAN = """
+import sys, threading
+from stw_tui.session.child_process import SolverProcess
+from stw_tui.session.session import Session
+
+def main():
+    session = Session()
+    session.run_text(sys.argv[1])
+    solver = SolverProcess()
+    def report(r):
+        if report.first:
+            report.first = False
+            print(solver.pid, flush=True)
+        return True
+    report.first = True
+    print(solver.execute(session, "iterate 100000", None, report, lambda: False)[2], flush=True)
+
+if __name__ == "__main__":
+    main()
+"""
+
+
+def test_a_solve_does_not_outlive_a_killed_stw(tmp_path):
+    import subprocess
+    import sys
+    import time
+
+    script = tmp_path / "orphan.py"
+    script.write_text(ORPHAN)
+    text = JET + "set tol_kkt 0\nset tol_violation 0\nset tol_step 0\n"
+    stw = subprocess.Popen([sys.executable, str(script), text], stdout=subprocess.PIPE, text=True)
+    try:
+        child = int(stw.stdout.readline())
+        os.kill(stw.pid, signal.SIGKILL)                  # no close(), no cleanup: a lost terminal
+        stw.wait(timeout=10)
+        deadline = time.monotonic() + 15
+        while time.monotonic() < deadline and _running(child):
+            time.sleep(0.05)
+        assert not _running(child), "the solver process went on solving after stw was killed"
+    finally:
+        stw.kill()
+
+
+def _running(pid: int) -> bool:
+    """Whether ``pid`` is a live process (a zombie, dead but not yet reaped by init, is not)."""
+    try:
+        with open(f"/proc/{pid}/stat") as stat:
+            return stat.read().rsplit(")", 1)[1].split()[0] != "Z"
+    except FileNotFoundError:
+        return False

@@ -159,6 +159,7 @@ def serve(conn, cancel) -> None:
     """The child: execute each (session, command) it is sent, streaming the reports, until the
     pipe closes."""
     quiet_child()
+    parent = os.getppid()
     try:   # where cores are scarce, the keys come first: the TUI process wins the CPU over the solve
         os.nice(CHILD_NICENESS)
     except OSError:
@@ -170,10 +171,15 @@ def serve(conn, cancel) -> None:
             return
         session = pickle.loads(payload)
 
+        def cancelled() -> bool:
+            # Its parent gone (the fork server ends with stw: a TUI killed, a closed SSH session),
+            # nobody waits for this solve any more.
+            return cancel.is_set() or os.getppid() != parent
+
         def on_report(report) -> bool:
             conn.send_bytes(pickle.dumps(("report", report), protocol=pickle.HIGHEST_PROTOCOL))
-            return not cancel.is_set()
-        on_report.cancelled = cancel.is_set   # polled inside one-call backends (IPOPT)
+            return not cancelled()
+        on_report.cancelled = cancelled   # polled inside one-call backends (IPOPT)
 
         outcome, error = None, None
         try:
