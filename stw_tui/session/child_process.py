@@ -26,7 +26,9 @@ from stw_tui.sym.language import classify_line
 
 POLL_S = 0.05          # how often the waiting side looks at cancellation and at the child's health
 SOLVE_VERBS = frozenset({"iterate", "slide"})   # the commands that run in the solver process
-CHILD_NICENESS = 10   # added to the solver process's niceness (see serve)
+# Added to the solver process's niceness (see serve): where both want a core, the TUI (idle but
+# for keys) wins it; mild, so a solve is not starved by other busy processes of the user.
+CHILD_NICENESS = 5
 PRELOAD = ["stw_tui.session.survey", "stw_tui.session.session", "stw_tui.session.interpreter", "stw_scipy"]
 
 
