@@ -18,7 +18,8 @@ What is measured, in order:
    its title). A latency is the time from sending the keys until tmux receives the output that
    changed the screen (through a control-mode client, see :class:`Tui`). Only keys whose
    change came while the solve was still running count; before each key the area it changes must
-   have been still for a moment (the tab underline slides);
+   have been still for a moment (the tab underline slides); then two rounds of the same keys
+   once the solve has ended (the idle columns: what the solve adds is the difference);
 4. the headless solve once more (so a warm cache favours neither side).
 
 Nothing here asserts: it prints the figures next to the targets (p95 key to screen <= 50 ms,
@@ -215,14 +216,39 @@ def timed_key(tui: Tui, keys: list[str], area, literal: bool = False) -> tuple[f
     return float("inf"), tui.solving()
 
 
-def measure_keys(tui: Tui, rounds: int) -> tuple[dict[str, list[float]], float]:
-    """Latencies per kind of key while the solve runs (only those that finished during it), and
-    the solve's time."""
+KINDS = ("console echo", "F2 panel switch", "F3 plot switch", "] next DOF (Curves)", "→ scrub (Figure)")
+
+
+def key_round(tui: Tui, record) -> None:
+    """One round of every kind of key, each result passed to ``record(kind, (latency, solving))``."""
+    for _ in range(5):
+        record("console echo", timed_key(tui, ["x"], lambda s: prompt(s).count("x"), literal=True))
+    tui.send("C-u")
+    tui.send("F2")                                   # focuses the panels (no visible switch)
+    for _ in range(2):
+        record("F2 panel switch", timed_key(tui, ["F2"], lambda s: region(s, 1, "panels")))
+    tui.send("F3")                                   # focuses the plots
+    for _ in range(4):                               # back to the tab it started on
+        record("F3 plot switch", timed_key(tui, ["F3"], lambda s: region(s, 1, "plots")))
+    if show_plot(tui, "value"):                      # the Curves plot's title
+        for _ in range(2):
+            record("] next DOF (Curves)", timed_key(tui, ["]"], title, literal=True))
+    if show_plot(tui, "t = "):                       # the Figure plot's
+        for _ in range(2):
+            record("→ scrub (Figure)", timed_key(tui, ["Right"], title))
+    show_plot(tui, "value")
+    tui.send("Escape")                               # back to the console
+    time.sleep(0.2)
+
+
+def measure_keys(tui: Tui, rounds: int, idle_rounds: int = 2) -> tuple[dict, dict, float]:
+    """Latencies per kind of key while the solve runs (only those that finished during it), the
+    same keys once it has ended (what a solve adds is the difference), and the solve's time."""
     if not tui.wait(tui.solving, interval=0.02):
         raise SystemExit("the TUI never started solving")
     start = time.monotonic()
-    samples: dict[str, list[float]] = {"console echo": [], "F2 panel switch": [], "F3 plot switch": [],
-                                       "] next DOF (Curves)": [], "→ scrub (Figure)": []}
+    samples: dict[str, list[float]] = {kind: [] for kind in KINDS}
+    idle: dict[str, list[float]] = {kind: [] for kind in KINDS}
 
     def record(kind: str, result: tuple[float, bool]) -> None:
         latency, during = result
@@ -232,26 +258,12 @@ def measure_keys(tui: Tui, rounds: int) -> tuple[dict[str, list[float]], float]:
     for _ in range(rounds):
         if not tui.solving():
             break
-        for _ in range(5):
-            record("console echo", timed_key(tui, ["x"], lambda s: prompt(s).count("x"), literal=True))
-        tui.send("C-u")
-        tui.send("F2")                                   # focuses the panels (no visible switch)
-        for _ in range(2):
-            record("F2 panel switch", timed_key(tui, ["F2"], lambda s: region(s, 1, "panels")))
-        tui.send("F3")                                   # focuses the plots
-        for _ in range(4):                               # back to the tab it started on
-            record("F3 plot switch", timed_key(tui, ["F3"], lambda s: region(s, 1, "plots")))
-        if show_plot(tui, "value"):                      # the Curves plot's title
-            for _ in range(2):
-                record("] next DOF (Curves)", timed_key(tui, ["]"], title, literal=True))
-        if show_plot(tui, "t = "):                       # the Figure plot's
-            for _ in range(2):
-                record("→ scrub (Figure)", timed_key(tui, ["Right"], title))
-        show_plot(tui, "value")
-        tui.send("Escape")                               # back to the console
-        time.sleep(0.2)
+        key_round(tui, record)
     tui.wait(lambda screen: not tui.solving(screen), timeout=600, interval=0.1)
-    return samples, time.monotonic() - start
+    solved = time.monotonic() - start
+    for _ in range(idle_rounds):
+        key_round(tui, lambda kind, result: idle[kind].append(result[0]))
+    return samples, idle, solved
 
 
 def percentile(values: list[float], q: float) -> float:
@@ -259,13 +271,14 @@ def percentile(values: list[float], q: float) -> float:
     return ordered[min(len(ordered) - 1, int(q * len(ordered)))]
 
 
-def row(label: str, values: list[float], target: str = "", ok: bool | None = None) -> str:
+def row(label: str, values: list[float], idle: list[float], target: str = "", ok: bool | None = None) -> str:
     if not values:
         return f"  {label:<22} no sample during the solve"
     ms = lambda v: f"{v * 1000:7.0f}" if v != float("inf") else "   lost"
     verdict = "" if ok is None else ("  ok" if ok else "  MISSED")
+    rest = f"{ms(percentile(idle, 0.5))} {ms(percentile(idle, 0.95))}" if idle else f"{'-':>7} {'-':>7}"
     return (f"  {label:<22} {len(values):4d} {ms(percentile(values, 0.5))} {ms(percentile(values, 0.95))} "
-            f"{ms(max(values))}   {target}{verdict}")
+            f"{ms(max(values))} {rest}   {target}{verdict}")
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -289,23 +302,24 @@ def main(argv: list[str] | None = None) -> int:
             quiet = solve_time(tui)
         print(f"  {quiet:.1f} s; the TUI solving while keys are pressed…", flush=True)
         with Tui(session, env) as tui:
-            samples, keyed = measure_keys(tui, args.rounds)
+            samples, idle, keyed = measure_keys(tui, args.rounds)
         print("  headless again…", flush=True)
         headless.append(headless_solve(session, env))
 
     every = [v for values in samples.values() for v in values]
+    every_idle = [v for values in idle.values() for v in values]
     print(f"\nstw TUI at {SIZE[0]}x{SIZE[1]} in tmux while {session.name} solves "
-          f"(ms from send-keys to the output that shows it)")
-    print(f"  {'':<22} {'n':>4} {'median':>7} {'p95':>7} {'max':>7}   target")
+          f"(ms from send-keys to the output that shows it; idle: the same keys after the solve)")
+    print(f"  {'':<22} {'n':>4} {'median':>7} {'p95':>7} {'max':>7} {'idle50':>7} {'idle95':>7}   target")
     if every:
-        print(row("any key", every, f"p95 <= {TARGETS['keys'] * 1000:.0f} ms",
+        print(row("any key", every, every_idle, f"p95 <= {TARGETS['keys'] * 1000:.0f} ms",
                   percentile(every, 0.95) <= TARGETS["keys"]))
     for kind, values in samples.items():
         if kind == "console echo":
-            print(row(kind, values, f"p95 <= {TARGETS['echo'] * 1000:.0f} ms",
+            print(row(kind, values, idle[kind], f"p95 <= {TARGETS['echo'] * 1000:.0f} ms",
                       bool(values) and percentile(values, 0.95) <= TARGETS["echo"]))
         else:
-            print(row(kind, values))
+            print(row(kind, values, idle[kind]))
     base = min(headless)
     ratio = quiet / base
     print(f"\nsolve: headless {' and '.join(f'{h:.1f}' for h in headless)} s; in the TUI {quiet:.1f} s untouched "
