@@ -277,6 +277,21 @@ def test_ctrl_q_quits_at_once_during_a_solve():
     assert app.session.runs == []                             # ... the session is as before it
 
 
+def test_the_solver_process_ends_with_the_app():
+    app = create_app(session=jet_without_iterate(), show_timing=False)
+    pids = []
+
+    async def scenario(pilot):
+        await support.submit(pilot, "iterate 10")
+        await support.settle(pilot)
+        pids.append(app.runner.solver.pid)
+
+    run(scenario, app)                                        # leaves run_test without Ctrl+Q
+    assert pids[0] is not None and app.runner.solver.pid is None
+    with pytest.raises(ProcessLookupError):
+        os.kill(pids[0], 0)
+
+
 def test_ctrl_q_does_not_wait_for_a_job_that_cannot_be_stopped():
     import time
 

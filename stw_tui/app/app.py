@@ -195,6 +195,11 @@ class StwApp(App[int]):
         except OSError as exc:   # remembering is a convenience: say so, go on
             self.notify(f"cannot remember the theme in {self.settings_path}: {exc}", severity="warning")
 
+    def on_unmount(self) -> None:
+        """The app is shutting down (Ctrl+Q, or the end of a test's run): its solver process ends
+        with it rather than at the interpreter's exit."""
+        self.runner.abandon()
+
     def on_mount(self) -> None:
         self._load_settings()
         self.repl.input.focus()
