@@ -16,6 +16,7 @@ written when it is settled, at the end).
 
 from __future__ import annotations
 
+import ctypes
 import multiprocessing
 import os
 import pickle
@@ -107,20 +108,20 @@ class SolverProcess:
         except Exception as exc:   # e.g. a plugin's object that does not pickle
             raise NotPortable(str(exc)) from exc
         process, conn, cancel = self._ensure_started()
-        cancel.clear()
+        cancel.value = False
         try:
             conn.send_bytes(pickle.dumps((payload, text, line), protocol=pickle.HIGHEST_PROTOCOL))
             while True:
                 if not conn.poll(POLL_S):
                     if cancelled():
-                        cancel.set()
+                        cancel.value = True
                     if not process.is_alive():
                         raise EOFError
                     continue
                 kind, *rest = pickle.loads(conn.recv_bytes())
                 if kind == "report":
                     if on_report(rest[0]) is False or cancelled():
-                        cancel.set()
+                        cancel.value = True
                     continue
                 new_session, outcome, error = rest
                 return new_session, outcome, error
@@ -136,7 +137,9 @@ class SolverProcess:
         self.close()
         context = process_context()
         ours, theirs = context.Pipe()
-        self._cancel = context.Event()
+        # A flag in shared memory, not an Event: an Event's five named semaphores outlive the
+        # os._exit with which the TUI quits, and the resource tracker warns about them after it.
+        self._cancel = context.RawValue(ctypes.c_bool, False)
         self._process = context.Process(target=serve, args=(theirs, self._cancel), name="stw-solver", daemon=True)
         self._process.start()
         theirs.close()
@@ -176,7 +179,7 @@ def serve(conn, cancel) -> None:
         def cancelled() -> bool:
             # Its parent gone (the fork server ends with stw: a TUI killed, a closed SSH session),
             # nobody waits for this solve any more.
-            return cancel.is_set() or os.getppid() != parent
+            return cancel.value or os.getppid() != parent
 
         def on_report(report) -> bool:
             conn.send_bytes(pickle.dumps(("report", report), protocol=pickle.HIGHEST_PROTOCOL))
