@@ -202,14 +202,14 @@ def _interior_point(la, H, g, Ae, ce, Ai, ci, y0, rho, tol, max_ipm) -> tuple[QP
         products = [w * z] + ([t * s, u * a, v * b] if elastic else [])
         # Predictor (affine scaling), then Mehrotra's centring + second-order corrector.
         dd, dy, primal, dual = newton(products)
-        ap = min(_max_step(x, dx) for x, dx in primal)
-        ad = min(_max_step(x, dx) for x, dx in dual)
+        ap = min(la.max_step(x, dx) for x, dx in primal)
+        ad = min(la.max_step(x, dx) for x, dx in dual)
         gap_aff = sum(la.dot(p + ap * dp, q + ad * dq) for (p, dp), (q, dq) in zip(primal, dual))
         sigma = (gap_aff / pairs / mu) ** 3 if mu > 0 else 0.0
         dd, dy, primal, dual = newton([pq + dp * dq - sigma * mu
                                        for pq, (_, dp), (_, dq) in zip(products, primal, dual)])
-        ap = min(1.0, STEP_TO_BOUNDARY * min(_max_step(x, dx, 1e30) for x, dx in primal))
-        ad = min(1.0, STEP_TO_BOUNDARY * min(_max_step(x, dx, 1e30) for x, dx in dual))
+        ap = min(1.0, STEP_TO_BOUNDARY * min(la.max_step(x, dx, 1e30) for x, dx in primal))
+        ad = min(1.0, STEP_TO_BOUNDARY * min(la.max_step(x, dx, 1e30) for x, dx in dual))
         linear_its += system.iterations
         fallbacks += system.fallbacks
         d = d + ap * dd
@@ -223,10 +223,3 @@ def _interior_point(la, H, g, Ae, ce, Ai, ci, y0, rho, tol, max_ipm) -> tuple[QP
         (d, y, z, w), converged = best, True
     return QPResult(d, y, z, linear_its, k, fallbacks, capped=not converged, elastic=rho), w
 
-
-def _max_step(v: Vector, dv: Vector, cap: float = 1.0) -> float:
-    """Largest α <= cap keeping v + α dv >= 0."""
-    neg = dv < 0
-    if not bool(neg.any()):
-        return cap
-    return float(min(cap, float((-v[neg] / dv[neg]).min())))
