@@ -116,7 +116,9 @@ class BarrierKKT:
 
     def __call__(self, q: np.ndarray, e) -> "SparseKKT":
         la, placed = self.algebra, self.placed
-        diag = np.broadcast_to(np.asarray(e, float), (self.Ae.shape[0],))
+        diag = np.asarray(e, float)
+        if diag.shape != (self.Ae.shape[0],):   # a scalar e (np.broadcast_to costs more than K's gather)
+            diag = np.broadcast_to(diag, (self.Ae.shape[0],))
         if placed is not None and diag.all():
             data = self.base.copy()
             data[placed.at_g] += self.plan.values(self.Ai.data[:self.Ai.nnz], np.asarray(q, float))

@@ -152,6 +152,7 @@ def _interior_point(la, H, g, Ae, ce, Ai, ci, y0, rho, tol, max_ipm) -> tuple[QP
     # converges; both stall, and the best iterate is what there is to return.
     best, best_error, since_best = (d, y, z, w), np.inf, 0
     barrier_kkt = la.barrier_kkt(H, Ai, Ae)   # H, Aᵢ, Aₑ fixed: only q and e change below
+    e_hard = KKT_EPS + la.zeros(me)           # a hard QP's (2,2) block: the same every iteration
     k = 0
     for k in range(1, max_ipm + 1):
         r_d = la.matvec(H, d) + g + la.rmatvec(Ae, y) - la.rmatvec(Ai, z)
@@ -179,7 +180,7 @@ def _interior_point(la, H, g, Ae, ce, Ai, ci, y0, rho, tol, max_ipm) -> tuple[QP
         if error < best_error:
             best, best_error = (d, y, z, w), error
         q_inv = z / w if not elastic else 1.0 / (w / z + t / s)
-        e = KKT_EPS + (u / a + v / b if elastic else 0.0) + la.zeros(me)
+        e = KKT_EPS + (u / a + v / b) + la.zeros(me) if elastic else e_hard
         system = barrier_kkt(q_inv, e)
 
         def newton(rc):
