@@ -18,6 +18,7 @@ import scipy.sparse.linalg as spla
 from stw_tui.sos.products import GramPlan
 from stw_tui.sos.sparse_matvec import matvec
 from stw_tui.sos.sqp.algebra import KKTSystem, LinearAlgebra, SingularSystem
+from stw_scipy.csr_rows import select_rows, stack_rows
 from stw_scipy.ordering import Ordering, factorize
 
 SOLVERS = ("direct", "minres", "cg")
@@ -328,9 +329,11 @@ class SparseAlgebra(LinearAlgebra):
     def rows(self, m, index):
         if index.size == m.shape[0] and np.array_equal(index, np.arange(index.size)):
             return m   # every row, in order: m[index] would copy m as it is
-        return m[index]
+        return select_rows(m, index) if isinstance(m, sps.csr_array) else m[index]
 
     def stack_rows(self, parts):
+        if all(isinstance(p, sps.csr_array) for p in parts):
+            return stack_rows(parts)
         return sps.vstack(parts, format="csr")
 
     def matvec(self, m, x):
