@@ -182,6 +182,7 @@ def _interior_point(la, H, g, Ae, ce, Ai, ci, y0, rho, tol, max_ipm) -> tuple[QP
         q_inv = z / w if not elastic else 1.0 / (w / z + t / s)
         e = KKT_EPS + (u / a + v / b) + la.zeros(me) if elastic else e_hard
         system = barrier_kkt(q_inv, e)
+        minus_rd, minus_q = -r_d, -q_inv   # the same in both Newton solves below
 
         def newton(rc):
             """Newton direction for complementarity targets rc = (w z, t s, u a, v b) - targets."""
@@ -190,9 +191,9 @@ def _interior_point(la, H, g, Ae, ce, Ai, ci, y0, rho, tol, max_ipm) -> tuple[QP
             if elastic:
                 ri_t = ri_t - rc[1] / s
                 re_t = re_t - rc[2] / a + rc[3] / b
-            x = system.solve(la.concat([-r_d - la.rmatvec(Ai, q_inv * ri_t), -re_t]))
+            x = system.solve(la.concat([minus_rd - la.rmatvec(Ai, q_inv * ri_t), -re_t]))
             dd, dy = x[:n], x[n:]
-            dz = -q_inv * (ri_t + la.matvec(Ai, dd))
+            dz = minus_q * (ri_t + la.matvec(Ai, dd))
             primal = [(w, (-rc[0] - w * dz) / z)]
             dual = [(z, dz)]
             if elastic:
