@@ -206,8 +206,10 @@ def test_sparse_gram_and_transposed_products_are_scipys_bit_for_bit():
 def test_interior_point_kkt_scattered_in_place_is_the_assembled_one_bit_for_bit():
     """The interior-point systems scattered into a structure placed once per QP (BarrierKKT) hold
     exactly what the general assembly kkt_matrix(H + gram(Aᵢ, q), Aₑ, e) builds, also when an
-    entry of H + Gram cancels to zero (the sum drops it) or H stores an explicit zero."""
+    entry of H + Gram cancels to zero (the sum drops it) or H stores an explicit zero; and they
+    solve as splu(K, COLAMD) does, also once factorized from their values alone (ReplayedKKT)."""
     import scipy.sparse as sps
+    import scipy.sparse.linalg as spla
     from stw_scipy.linear import SparseAlgebra, kkt_matrix
 
     la, rng = SparseAlgebra(), np.random.default_rng(9)
@@ -232,9 +234,12 @@ def test_interior_point_kkt_scattered_in_place_is_the_assembled_one_bit_for_bit(
                 H = sps.csr_array(H)
                 system = la.barrier_kkt(H, Ai, Ae)
             want = kkt_matrix(la.add(H, G), Ae, e)
-            got = system(q, e).K
+            scattered = system(q, e)   # from the second on: factorized on the replayed ordering
+            got = scattered.K
             assert np.array_equal(got.indptr, want.indptr) and np.array_equal(got.indices, want.indices)
             assert np.array_equal(got.data, want.data)
+            b = rng.standard_normal(n + me)
+            assert np.array_equal(scattered.solve(b), spla.splu(want, permc_spec="COLAMD").solve(b))
 
 
 def test_a_bound_against_a_constraint_is_infeasible_and_names_both():

@@ -16,8 +16,10 @@ import scipy.sparse as sps
 import scipy.sparse.linalg as spla
 
 from stw_tui.sos.products import GramPlan
+from stw_tui.sos.sparse_matvec import matvec
 from stw_tui.sos.sqp.algebra import KKTSystem, LinearAlgebra, SingularSystem
-from stw_scipy.ordering import factorize
+from stw_scipy.csr_rows import select_rows, stack_rows
+from stw_scipy.ordering import Ordering, factorize
 
 SOLVERS = ("direct", "minres", "cg")
 FALLBACK_RESIDUAL = 1e-6   # relative KKT residual above which an iterative solve is not trusted
@@ -109,20 +111,27 @@ class BarrierKKT:
         self.algebra, self.H, self.Ai, self.Ae = algebra, _csr(H), _csr(Ai), _csr(Ae)
         self.plan = algebra.gram_plan(self.Ai)
         self.placed = algebra.barrier_placement(self.H, self.plan, self.Ae)
+        self.ordering = None   # SuperLU's replayed ordering of the placed structure, once known
         if self.placed is not None:
             self.base = self.placed.values(self.H, self.Ae)
 
     def __call__(self, q: np.ndarray, e) -> "SparseKKT":
         la, placed = self.algebra, self.placed
-        diag = np.broadcast_to(np.asarray(e, float), (self.Ae.shape[0],))
+        diag = np.asarray(e, float)
+        if diag.shape != (self.Ae.shape[0],):   # a scalar e (np.broadcast_to costs more than K's gather)
+            diag = np.broadcast_to(diag, (self.Ae.shape[0],))
         if placed is not None and diag.all():
             data = self.base.copy()
             data[placed.at_g] += self.plan.values(self.Ai.data[:self.Ai.nnz], np.asarray(q, float))
             if data[placed.at_s].all():
                 data[placed.at_e] = -diag
+                if self.ordering is not None:   # the structure's ordering, found at the first K
+                    return ReplayedKKT(self.ordering, placed, data)
                 K = sps.csc_array((data, placed.indices, placed.indptr), shape=placed.shape)
                 K.has_canonical_format = True
-                return SparseKKT(K, "direct", la.rtol, la.maxiter, la._orderings)
+                system = SparseKKT(K, "direct", la.rtol, la.maxiter, la._orderings)
+                self.ordering = next((o for o in la._orderings if o.fits(K, "COLAMD", {})), None)
+                return system
         return la.kkt(la.add(self.H, la.gram(self.Ai, q)), self.Ae, e, exact=True)
 
 
@@ -248,6 +257,30 @@ class SparseKKT(KKTSystem):
         return x
 
 
+class ReplayedKKT(KKTSystem):
+    """A direct SparseKKT of a placed structure whose ordering is known, factorized from K's CSC
+    values alone (the interior-point method's systems: same structure, new values each
+    iteration); K itself is built only when asked for."""
+
+    def __init__(self, ordering: Ordering, placed: "_BarrierPlacement", data: np.ndarray):
+        try:
+            self._lu = ordering.factorize_values(data)
+        except RuntimeError as exc:   # "Factor is exactly singular"
+            raise SingularSystem(str(exc)) from exc
+        self.placed, self.data = placed, data
+        self.iterations, self.fallbacks = 1, 0
+
+    @property
+    def K(self) -> sps.csc_array:
+        """K itself (as SparseKKT holds it), built from the values on demand."""
+        K = sps.csc_array((self.data, self.placed.indices, self.placed.indptr), shape=self.placed.shape)
+        K.has_canonical_format = True
+        return K
+
+    def solve(self, rhs: np.ndarray) -> np.ndarray:
+        return self._lu.solve(rhs)
+
+
 class SparseAlgebra(LinearAlgebra):
     """numpy vectors, scipy sparse (CSR) matrices, KKT systems by SuperLU, MINRES or CG."""
 
@@ -277,6 +310,11 @@ class SparseAlgebra(LinearAlgebra):
     def max_abs(self, v):
         return float(np.abs(v).max(initial=0.0))
 
+    def max_step(self, v, dv, cap=1.0):
+        # The generic test in fewer numpy calls: no any() first (none negative: +inf, so the cap)
+        neg = dv < 0
+        return float(min(cap, float(np.minimum.reduce(-v[neg] / dv[neg], initial=np.inf))))
+
     def matrix(self, m):
         return m if isinstance(m, sps.csr_array) else sps.csr_array(m)
 
@@ -291,22 +329,24 @@ class SparseAlgebra(LinearAlgebra):
     def rows(self, m, index):
         if index.size == m.shape[0] and np.array_equal(index, np.arange(index.size)):
             return m   # every row, in order: m[index] would copy m as it is
-        return m[index]
+        return select_rows(m, index) if isinstance(m, sps.csr_array) else m[index]
 
     def stack_rows(self, parts):
+        if all(isinstance(p, sps.csr_array) for p in parts):
+            return stack_rows(parts)
         return sps.vstack(parts, format="csr")
 
     def matvec(self, m, x):
-        return m @ x
+        return matvec(m, x)
 
     def rmatvec(self, m, x):
         # The interior-point method multiplies by the same few transposes many times: keep them.
         for held, transposed in self._transposes:
             if held is m:
-                return transposed @ x
+                return matvec(transposed, x)
         self._transposes.insert(0, (m, m.T))
         del self._transposes[TRANSPOSES_KEPT:]
-        return self._transposes[0][1] @ x
+        return matvec(self._transposes[0][1], x)
 
     def add(self, a, b):
         return sps.csr_array(a + b)

@@ -40,6 +40,7 @@ class Ordering:
         self.perm = np.asarray(perm_c, dtype=np.intp)   # column (and row) i of K is perm[i] of K'
         old = np.empty(n, dtype=np.intp)
         old[self.perm] = np.arange(n)                    # column k of K' is column old[k] of K
+        self.inverse = old
         counts = np.diff(K.indptr)[old]
         self.indptr = np.zeros(n + 1, dtype=np.intc)
         np.cumsum(counts, out=self.indptr[1:])
@@ -47,6 +48,7 @@ class Ordering:
         self.source = np.repeat(K.indptr[old] - self.indptr[:-1], counts) + np.arange(nnz)
         self.indices = self.perm[K.indices[self.source]].astype(np.intc)
         self.key = (K.shape, K.indptr.copy(), K.indices[:nnz].copy())
+        self._permuted = None   # K' (factorize_values), made on first use
 
     def fits(self, K: sps.csc_array, spec: str, options: dict) -> bool:
         """Whether K has this structure and is to be factorized the same way."""
@@ -58,21 +60,35 @@ class Ordering:
 
     def factorize(self, K: sps.csc_array) -> "PermutedLU":
         """What ``splu(K, permc_spec=spec, **options)`` gives, bit for bit, without the ordering."""
-        Kp = sps.csc_array((K.data[self.source], self.indices, self.indptr), shape=K.shape)
+        return self.factorize_values(K.data)
+
+    def factorize_values(self, data: np.ndarray) -> "PermutedLU":
+        """:meth:`factorize` of the K of this structure whose CSC values are ``data``: K itself
+        need not be built. K' is one matrix kept for the purpose, its values swapped in (building
+        a scipy matrix checks its arrays, which costs more than the gather)."""
+        if self._permuted is None:
+            shape = (self.indptr.size - 1,) * 2
+            self._permuted = sps.csc_array((np.zeros(self.source.size), self.indices, self.indptr),
+                                           shape=shape)
+        Kp = self._permuted
+        Kp.data = data[self.source]
         Kp.has_canonical_format = True   # no duplicates; rows in K's order on purpose (see above)
-        return PermutedLU(spla.splu(Kp, permc_spec="NATURAL", **self.options), self.perm)
+        return PermutedLU(spla.splu(Kp, permc_spec="NATURAL", **self.options), self.perm, self.inverse)
 
 
 class PermutedLU:
     """Solves K x = b with ``lu``, the factorization of K' = P K Pᵀ (perm None: of K itself)."""
 
-    def __init__(self, lu, perm: np.ndarray | None):
+    def __init__(self, lu, perm: np.ndarray | None, inverse: np.ndarray | None = None):
         self.lu, self.perm = lu, perm
+        self.inverse = inverse   # perm's inverse (then the rhs is gathered, not scattered)
 
     def solve(self, rhs: np.ndarray) -> np.ndarray:
         """x with K x = rhs (rhs a vector, or a matrix of right-hand sides in columns)."""
         if self.perm is None:
             return self.lu.solve(rhs)
+        if self.inverse is not None:
+            return self.lu.solve(np.asarray(rhs, dtype=float)[self.inverse])[self.perm]
         b = np.empty(np.shape(rhs))
         b[self.perm] = rhs
         return self.lu.solve(b)[self.perm]

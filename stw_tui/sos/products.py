@@ -20,6 +20,8 @@ from __future__ import annotations
 import numpy as np
 import scipy.sparse as sps
 
+from stw_tui.sos.sparse_matvec import matvec
+
 
 TOUCH_ROUNDS = 8             # passes ProductPlan.touch_order may take before giving up
 GRAM_PLAN_TERMS = 200_000    # above this many products scipy's own loop is faster than a plan
@@ -80,7 +82,7 @@ class ProductPlan:
 
     def data(self, values: np.ndarray) -> np.ndarray:
         """The stored values of C (before dropping zeros) from the varying factor's values."""
-        return self.M @ values
+        return matvec(self.M, values)
 
     def matrix(self, data: np.ndarray, order: np.ndarray | None = None) -> sps.csr_array:
         """C as scipy's product stores it: ``data`` in place (permuted by ``order``, from
@@ -164,7 +166,7 @@ class GramPlan:
         """The values of Jᵀ diag(c) J on the plan's whole structure (``indices``, ``indptr``),
         exact zeros included, from J's stored values ``data``."""
         scaled = c[self._row_of_entry] * data             # diag(c) @ J
-        return self._sum @ (scaled[self._q] * data[self._p])
+        return matvec(self._sum, scaled[self._q] * data[self._p])
 
     def matrix(self, data: np.ndarray, c: np.ndarray) -> sps.csr_array:
         """Jᵀ diag(c) J from J's stored values ``data`` (on the planned structure)."""

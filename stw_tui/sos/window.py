@@ -26,6 +26,7 @@ import sympy as sp
 from stw_tui.sos.instances import bound_extra_times, bound_times, relation_times
 from stw_tui.sos.products import GRAM_PLAN_TERMS, GramPlan, ProductPlan
 from stw_tui.sos.scene import Scene
+from stw_tui.sos.sparse_matvec import matvec
 from stw_tui.sos.spline import gauss_legendre_nodes
 from stw_tui.sym.compiler import CompiledTerm, compile_term
 from stw_tui.sym.errors import StwError
@@ -365,6 +366,9 @@ class WindowProblem:
         self.PfT = self.Pf.T.tocsr()
         self._product_plans: dict = {}   # made when first worth it (_plans)
         self._uses = {"hess": 0, "gram": 0}   # Hessians and Gauss-Newtons before their plans
+        # every row's weight, by kind, in row order (read-only: evaluations share them)
+        self._row_weights = {kind: np.concatenate([g.weights for g in self.groups if g.kind == kind]
+                                                  or [np.zeros(0)]) for kind in (EQ, GE, OBJ)}
         self.row_group = {kind: np.repeat(np.arange(len(self.groups)),
                                           [g.n if g.kind == kind else 0 for g in self.groups])
                           for kind in (EQ, GE, OBJ)}
@@ -394,7 +398,7 @@ class WindowProblem:
         return full
 
     def _slot_values(self, s: np.ndarray) -> np.ndarray:
-        return self.P @ self.scatter(s)
+        return matvec(self.P, self.scatter(s))
 
     def _group_inputs(self, group: TermGroup, v: np.ndarray) -> np.ndarray:
         n, k = group.n, group.term.k
@@ -449,18 +453,18 @@ class WindowProblem:
         hess = []
         for group, f, grad, h in self._local_terms(v):
             values[group.kind][group.row_offset:group.row_offset + group.n] = f
-            scale = group.weights if group.kind != OBJ else np.ones(group.n)
-            grads[group.kind].append((grad * scale[:, None]).T.ravel())
+            # constraint rows scaled by their weights; objective residuals as they are (x 1.0)
+            scaled = grad * group.weights[:, None] if group.kind != OBJ else grad
+            grads[group.kind].append(scaled.T.ravel())
             hess.append((group, h))
         J, full = {}, {}
         for kind in (EQ, GE, OBJ):
             J[kind], full[kind] = self._jacobian(kind, grads[kind])
-        w_obj = np.concatenate([g.weights for g in self.groups if g.kind == OBJ] or [np.zeros(0)])
+        w_obj = self._row_weights[OBJ]
         residual = values[OBJ]
         objective = float(np.dot(w_obj, residual * residual))
-        gradient = J[OBJ].T @ (2.0 * w_obj * residual) if residual.size else np.zeros(self.n_free)
-        c = {kind: np.concatenate([g.weights for g in self.groups if g.kind == kind] or [np.zeros(0)])
-             * values[kind] for kind in (EQ, GE)}
+        gradient = matvec(J[OBJ].T, 2.0 * w_obj * residual) if residual.size else np.zeros(self.n_free)
+        c = {kind: self._row_weights[kind] * values[kind] for kind in (EQ, GE)}
         masks = self._conditions(v)
         return Evaluation(s=s.copy(), objective=objective, gradient=np.asarray(gradient),
                           c_eq=c[EQ], J_eq=J[EQ], c_ge=c[GE], J_ge=J[GE],

@@ -133,11 +133,15 @@ class CompiledTerm:
         return frozenset(v.dof for v in self.variables)
 
     def _inputs(self, values: np.ndarray, times: np.ndarray, params: np.ndarray) -> np.ndarray:
-        n = len(times)
-        columns = [np.asarray(values, dtype=float).reshape(n, self.k), np.asarray(times, float)[:, None]]
-        if len(params):
-            columns.append(np.broadcast_to(np.asarray(params, float), (n, len(params))))
-        return np.ascontiguousarray(np.hstack(columns))
+        # [values | times | params] row by row, written into one array (np.hstack's conversions
+        # cost more than the copies on the small groups of a window problem)
+        n, k = len(times), self.k
+        params = np.asarray(params, float).reshape(-1)
+        out = np.empty((n, k + 1 + params.size))
+        out[:, :k] = np.asarray(values, dtype=float).reshape(n, k)
+        out[:, k] = times
+        out[:, k + 1:] = params
+        return out
 
     def value(self, values: np.ndarray, times: np.ndarray, params: np.ndarray) -> np.ndarray:
         """Term values at n instances.

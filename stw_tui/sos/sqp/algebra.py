@@ -74,6 +74,13 @@ class LinearAlgebra(ABC):
         """A vector of n zeros."""
         return self.full(n, 0.0)
 
+    def max_step(self, v: Vector, dv: Vector, cap: float = 1.0) -> float:
+        """Largest α <= cap keeping v + α dv >= 0 (the interior-point ratio test)."""
+        neg = dv < 0
+        if not bool(neg.any()):
+            return cap
+        return float(min(cap, float((-v[neg] / dv[neg]).min())))
+
     # --- matrices ---------------------------------------------------------------------------
     @abstractmethod
     def matrix(self, m: Any) -> Matrix:

@@ -152,6 +152,7 @@ def _interior_point(la, H, g, Ae, ce, Ai, ci, y0, rho, tol, max_ipm) -> tuple[QP
     # converges; both stall, and the best iterate is what there is to return.
     best, best_error, since_best = (d, y, z, w), np.inf, 0
     barrier_kkt = la.barrier_kkt(H, Ai, Ae)   # H, Aᵢ, Aₑ fixed: only q and e change below
+    e_hard = KKT_EPS + la.zeros(me)           # a hard QP's (2,2) block: the same every iteration
     k = 0
     for k in range(1, max_ipm + 1):
         r_d = la.matvec(H, d) + g + la.rmatvec(Ae, y) - la.rmatvec(Ai, z)
@@ -179,8 +180,9 @@ def _interior_point(la, H, g, Ae, ce, Ai, ci, y0, rho, tol, max_ipm) -> tuple[QP
         if error < best_error:
             best, best_error = (d, y, z, w), error
         q_inv = z / w if not elastic else 1.0 / (w / z + t / s)
-        e = KKT_EPS + (u / a + v / b if elastic else 0.0) + la.zeros(me)
+        e = KKT_EPS + (u / a + v / b) + la.zeros(me) if elastic else e_hard
         system = barrier_kkt(q_inv, e)
+        minus_rd, minus_q = -r_d, -q_inv   # the same in both Newton solves below
 
         def newton(rc):
             """Newton direction for complementarity targets rc = (w z, t s, u a, v b) - targets."""
@@ -189,9 +191,9 @@ def _interior_point(la, H, g, Ae, ce, Ai, ci, y0, rho, tol, max_ipm) -> tuple[QP
             if elastic:
                 ri_t = ri_t - rc[1] / s
                 re_t = re_t - rc[2] / a + rc[3] / b
-            x = system.solve(la.concat([-r_d - la.rmatvec(Ai, q_inv * ri_t), -re_t]))
+            x = system.solve(la.concat([minus_rd - la.rmatvec(Ai, q_inv * ri_t), -re_t]))
             dd, dy = x[:n], x[n:]
-            dz = -q_inv * (ri_t + la.matvec(Ai, dd))
+            dz = minus_q * (ri_t + la.matvec(Ai, dd))
             primal = [(w, (-rc[0] - w * dz) / z)]
             dual = [(z, dz)]
             if elastic:
@@ -202,14 +204,14 @@ def _interior_point(la, H, g, Ae, ce, Ai, ci, y0, rho, tol, max_ipm) -> tuple[QP
         products = [w * z] + ([t * s, u * a, v * b] if elastic else [])
         # Predictor (affine scaling), then Mehrotra's centring + second-order corrector.
         dd, dy, primal, dual = newton(products)
-        ap = min(_max_step(x, dx) for x, dx in primal)
-        ad = min(_max_step(x, dx) for x, dx in dual)
+        ap = min(la.max_step(x, dx) for x, dx in primal)
+        ad = min(la.max_step(x, dx) for x, dx in dual)
         gap_aff = sum(la.dot(p + ap * dp, q + ad * dq) for (p, dp), (q, dq) in zip(primal, dual))
         sigma = (gap_aff / pairs / mu) ** 3 if mu > 0 else 0.0
         dd, dy, primal, dual = newton([pq + dp * dq - sigma * mu
                                        for pq, (_, dp), (_, dq) in zip(products, primal, dual)])
-        ap = min(1.0, STEP_TO_BOUNDARY * min(_max_step(x, dx, 1e30) for x, dx in primal))
-        ad = min(1.0, STEP_TO_BOUNDARY * min(_max_step(x, dx, 1e30) for x, dx in dual))
+        ap = min(1.0, STEP_TO_BOUNDARY * min(la.max_step(x, dx, 1e30) for x, dx in primal))
+        ad = min(1.0, STEP_TO_BOUNDARY * min(la.max_step(x, dx, 1e30) for x, dx in dual))
         linear_its += system.iterations
         fallbacks += system.fallbacks
         d = d + ap * dd
@@ -223,10 +225,3 @@ def _interior_point(la, H, g, Ae, ce, Ai, ci, y0, rho, tol, max_ipm) -> tuple[QP
         (d, y, z, w), converged = best, True
     return QPResult(d, y, z, linear_its, k, fallbacks, capped=not converged, elastic=rho), w
 
-
-def _max_step(v: Vector, dv: Vector, cap: float = 1.0) -> float:
-    """Largest α <= cap keeping v + α dv >= 0."""
-    neg = dv < 0
-    if not bool(neg.any()):
-        return cap
-    return float(min(cap, float((-v[neg] / dv[neg]).min())))

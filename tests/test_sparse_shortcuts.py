@@ -1,0 +1,64 @@
+"""The SciPy backend's shortcuts are the operations they replace, bit for bit (any difference would
+move every later iterate): direct sparse kernels (stw_tui/sos/sparse_matvec.py), CSR row selection
+and stacking (backends/stw_scipy/csr_rows.py), and the algebra's ratio test."""
+
+import numpy as np
+import pytest
+import scipy.sparse as sps
+
+from stw_scipy.csr_rows import select_rows, stack_rows
+from stw_scipy.linear import SparseAlgebra
+from stw_tui.sos.sparse_matvec import matvec
+from stw_tui.sos.sqp.algebra import LinearAlgebra
+
+
+@pytest.mark.parametrize("fmt", ["csr", "csc"])
+def test_matvec_is_scipys_product_bit_for_bit(fmt):
+    rng = np.random.default_rng(3)
+    for _ in range(30):
+        m, n = int(rng.integers(1, 40)), int(rng.integers(1, 40))
+        A = sps.random_array((m, n), density=rng.random(), rng=rng, format=fmt)
+        A.data[:] = rng.standard_normal(A.nnz) * 10.0 ** rng.integers(-8, 8, A.nnz)
+        x = rng.standard_normal(n)
+        assert np.array_equal(matvec(A, x), A @ x)
+        y = rng.standard_normal(m)
+        assert np.array_equal(matvec(A.T, y), A.T @ y)
+
+
+def test_matvec_takes_the_ordinary_route_for_what_the_kernel_does_not_take():
+    A = sps.csr_array(np.array([[1.0, 2.0], [0.0, 3.0]]))
+    assert np.array_equal(matvec(A, np.array([1, 2])), [5.0, 6.0])            # an int vector
+    assert np.array_equal(matvec(sps.coo_array(A), np.ones(2)), [3.0, 3.0])   # not CSR/CSC
+    with pytest.raises(ValueError):
+        matvec(A, np.ones(3))                                                 # scipy's shape error
+
+
+def test_the_ratio_test_is_the_generic_one_bit_for_bit():
+    la, rng = SparseAlgebra(), np.random.default_rng(5)
+    generic = LinearAlgebra.max_step
+    cases = [(np.zeros(0), np.zeros(0)), (np.ones(3), np.ones(3)), (np.ones(2), np.array([-1e-300, 1.0]))]
+    for _ in range(200):
+        n = int(rng.integers(1, 50))
+        cases.append((rng.random(n) * 10.0 ** rng.integers(-10, 5), rng.standard_normal(n)
+                      * 10.0 ** rng.integers(-10, 10)))
+    for v, dv in cases:
+        for cap in (1.0, 1e30):
+            assert la.max_step(v, dv, cap) == generic(la, v, dv, cap)
+
+
+def test_rows_taken_and_stacked_are_scipys_bit_for_bit():
+    rng = np.random.default_rng(7)
+    for _ in range(40):
+        m, n = int(rng.integers(0, 30)), int(rng.integers(1, 30))
+        A = sps.csr_array(sps.random_array((m, n), density=rng.random(), rng=rng, format="csr")
+                          + sps.random_array((m, n), density=0.2, rng=rng, format="csr"))
+        A.data[rng.random(A.nnz) < 0.1] = 0.0     # stored zeros stay
+        if A.nnz > 1 and A.indptr[1] > 1:         # a row stored out of column order stays so
+            A.indices[:2] = A.indices[1::-1].copy()
+        index = np.sort(rng.choice(m, size=int(rng.integers(0, m + 1)), replace=False)) if m else np.zeros(0, int)
+        B = sps.random_array((int(rng.integers(0, 5)), n), density=0.5, rng=rng, format="csr")
+        for got, want in ((select_rows(A, index), A[index]),
+                          (stack_rows([B, select_rows(A, index)]), sps.vstack([B, A[index]], format="csr"))):
+            assert got.shape == want.shape
+            assert np.array_equal(got.indptr, want.indptr) and np.array_equal(got.indices, want.indices)
+            assert np.array_equal(got.data, want.data)
