@@ -1,9 +1,9 @@
 """Child processes of stw: how they start, and the solver process that runs the TUI's solves.
 
 A solve run in a thread of the TUI's own process competes with the event loop for the interpreter
-lock: every key then waits for the solver's Python between its numpy calls (tests/tmux_latency.py
-measured p95 key latencies of 400 ms while basketball solved). :class:`SolverProcess` runs a
-solve in a process of its own instead. The session goes there as a pickle (a scene pickles in
+lock: every key then waits for the solver's Python between its numpy calls, and a solve can be
+abandoned but not ended. :class:`SolverProcess` runs a solve in a process of its own instead
+(tests/tmux_latency.py measures the keys while one runs). The session goes there as a pickle (a scene pickles in
 milliseconds: its compiled terms are plain data plus generated code that is cached on disk), the
 iteration reports stream back through a pipe as they come, and the session comes back, changed by
 the command exactly as it would have been here. The same code runs on the same state, so the
