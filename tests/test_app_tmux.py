@@ -146,3 +146,24 @@ def test_autosave_survives_kill_9_and_resume_reopens_it_without_solving(tmp_path
         assert name not in tmux(*base, "list-sessions"), "stw --resume did not quit on Ctrl+Q"
     finally:
         tmux(*base, "kill-server")
+
+
+def test_quitting_after_a_survey_leaves_no_warning_on_the_terminal():
+    """A survey's process pool leaves named semaphores; quitting (os._exit) used to skip their
+    cleanup, and the resource tracker printed "leaked semaphore objects" over the shell."""
+    name = f"stw-test-{uuid.uuid4().hex[:8]}"
+    base = start(name, f"sh -c '{STW} sessions/particle_jet.stw; echo EXITED $?; sleep 60'")
+    try:
+        assert "end of particle_jet.stw" in wait_for(base, name, "end of particle_jet.stw")
+        tmux(*base, "send-keys", "-t", name, "survey 4 seed=1", "Enter")
+        screen = wait_for(base, name, "Esc closes", timeout=120)          # the gallery, with results
+        assert "Esc closes" in screen, screen
+        time.sleep(1.0)
+        tmux(*base, "send-keys", "-t", name, "Escape")
+        time.sleep(0.5)
+        tmux(*base, "send-keys", "-t", name, "C-q")
+        screen = wait_for(base, name, "EXITED")
+        assert "EXITED 0" in screen, screen
+        assert "leaked" not in screen and "Warning" not in screen, screen
+    finally:
+        tmux(*base, "kill-server")

@@ -88,7 +88,22 @@ def run_app(session_path: str | Path | None = None, step: bool = False,
         engines = sys.modules.get("stw_tui.session.survey_engines")
         if engines is not None:   # a survey's Dask workers would outlive os._exit
             engines.kill_local_workers()
+        _release_semaphores()
         sys.stdout.flush()
         sys.stderr.flush()
         os._exit(code)
     return code
+
+
+def _release_semaphores() -> None:
+    """Unlink the named semaphores of this process's multiprocessing objects (a survey's process
+    pool and queues), as a normal interpreter exit does first (multiprocessing.util._exit_function
+    runs the finalizers of priority >= 0: semaphore cleanup, queue closing; no joins). os._exit
+    skips that, and the resource tracker then warns about "leaked semaphore objects" on the
+    terminal just restored."""
+    try:
+        from multiprocessing import util
+
+        util._run_finalizers(0)
+    except Exception:  # best effort: quitting must not fail on it
+        pass
