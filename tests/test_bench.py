@@ -154,10 +154,10 @@ def test_stw_bench_prints_the_targets_unless_sessions_or_detail_are_asked(monkey
     from stw_tui.cli.main import build_parser
 
     for argv in (["bench", "--quick"], ["bench", "--anchors", "--repeat", "2"], ["bench", "--detail"],
-                 ["bench", "--sessions", "x.stw"]):
+                 ["bench", "--wide"], ["bench", "--sessions", "x.stw"]):
         args = build_parser().parse_args(argv)
         assert args.func(args) == 0
-    assert calls == [("targets", True, False, 3), ("targets", False, True, 2), ("detail",), ("detail",)]
+    assert calls == [("targets", True, False, 3), ("targets", False, True, 2), ("detail",), ("detail",), ("detail",)]
 
 
 def test_waypoints_that_differ_only_in_their_number_compile_one_term_between_them():

@@ -190,8 +190,8 @@ def build_parser() -> argparse.ArgumentParser:
     bench.add_argument("--repeat", type=int, default=3, help="repetitions per measurement")
     bench.add_argument("--quick", action="store_true", help="fewer sessions, one run each (< 2 min)")
     bench.add_argument("--anchors", action="store_true", help="also time crocoddyl, when installed")
-    bench.add_argument("--detail", action="store_true",
-                       help="the per-backend, per-solver table instead of the targets")
+    bench.add_argument("--detail", "--wide", dest="detail", action="store_true",
+                       help="the per-backend, per-solver table (wider than 80 columns) instead of the targets")
     bench.set_defaults(func=_bench)
     comp = sub.add_parser("compare", help="solve a session's first problem with several backends")
     comp.add_argument("session", type=Path)
