@@ -34,9 +34,12 @@ def solver():
     process.close()
 
 
-def jet() -> Session:
+ENDLESS = "set tol_kkt 0\nset tol_violation 0\nset tol_step 0\n"   # no solve converges: it runs until stopped
+
+
+def jet(endless: bool = False) -> Session:
     session = Session()
-    session.run_text(JET)
+    session.run_text(JET + (ENDLESS if endless else ""))
     return session
 
 
@@ -65,10 +68,7 @@ def test_a_bad_command_comes_back_as_its_error_with_line_and_column(solver):
 
 
 def test_a_stop_ends_the_solve_in_the_child_at_the_next_iteration(solver):
-    session = jet()
-    session.execute("set tol_kkt 0")                                 # never converges: runs until stopped
-    session.execute("set tol_violation 0")
-    session.execute("set tol_step 0")
+    session = jet(endless=True)
     reports = []
     session, outcome, error = solver.execute(session, "iterate 100000", None,
                                              lambda r: reports.append(r) or True, lambda: len(reports) >= 3)
@@ -77,10 +77,7 @@ def test_a_stop_ends_the_solve_in_the_child_at_the_next_iteration(solver):
 
 
 def test_a_child_that_dies_costs_only_the_command(solver):
-    session = jet()
-    session.execute("set tol_kkt 0")
-    session.execute("set tol_violation 0")
-    session.execute("set tol_step 0")
+    session = jet(endless=True)
     killed = threading.Event()
 
     def on_report(report):
@@ -138,7 +135,7 @@ def test_a_solve_does_not_outlive_a_killed_stw(tmp_path):
 
     script = tmp_path / "orphan.py"
     script.write_text(ORPHAN)
-    text = JET + "set tol_kkt 0\nset tol_violation 0\nset tol_step 0\n"
+    text = JET + ENDLESS
     stw = subprocess.Popen([sys.executable, str(script), text], stdout=subprocess.PIPE, text=True)
     try:
         child = int(stw.stdout.readline())

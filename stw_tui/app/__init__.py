@@ -73,10 +73,9 @@ def run_app(session_path: str | Path | None = None, step: bool = False,
 
         session = Session(journal_path=journal)
         session.checkpoints = Checkpoints(Path(journal))
-    from stw_tui.session.child_process import start_helpers
-
+    # Its Runner starts multiprocessing's helpers here, before Textual replaces stderr
+    # (child_process.start_helpers).
     app = create_app(session_path, step=step, session=session, settings_path=settings_file())
-    start_helpers()   # before Textual replaces stderr
     sys.setswitchinterval(SWITCH_INTERVAL)
     app.run()
     code = app.return_code or 0
