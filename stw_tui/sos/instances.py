@@ -23,6 +23,7 @@ from functools import lru_cache
 import numpy as np
 import sympy as sp
 
+from stw_tui.sym.compiler import free_symbols
 from stw_tui.sym.kinds import TermKind
 from stw_tui.sym.symbols import TIME, dof_symbols
 
@@ -121,7 +122,7 @@ def relation_times(scene, constraint, expr: sp.Expr, kind: str) -> np.ndarray:
 
 def dofs_used(scene, exprs) -> list[str]:
     """The DOF whose value, velocity or acceleration the expressions use (subexpressions expanded)."""
-    symbols = set().union(*(scene.expand(e).free_symbols for e in exprs))
+    symbols = set().union(*(free_symbols(scene.expand(e)) for e in exprs))
     return [name for name in scene.dofs if set(dof_symbols(name)) & symbols]
 
 

@@ -24,7 +24,7 @@ import stat
 import threading
 import warnings
 from dataclasses import dataclass, field
-from functools import cached_property
+from functools import cached_property, lru_cache
 from pathlib import Path
 
 import numpy as np
@@ -231,7 +231,7 @@ def compile_term(expr: sp.Expr, dof_names: frozenset[str] | set[str],
     if isinstance(expr, (int, float)):
         expr = sp.Float(expr)
     check_size(expr)
-    symbols = expr.free_symbols
+    symbols = free_symbols(expr)
     variables, parameters = [], []
     for symbol in symbols:
         if symbol == TIME:
@@ -279,18 +279,29 @@ def _remember(key: tuple, term: CompiledTerm) -> CompiledTerm:
     return term
 
 
+@lru_cache(maxsize=4096)
+def free_symbols(expr: sp.Basic) -> frozenset:
+    """``expr.free_symbols``, kept: sympy walks the whole tree for it at every call, and a window
+    build asks it of each expanded relation several times (a linkage's trees have ~10^4 nodes)."""
+    return frozenset(expr.free_symbols)
+
+
 def check_size(expr: sp.Basic) -> None:
     """Refuse, before any work on it, an expression too large to compile in reasonable time, or
     with an integer exponent that compiled code would wrap (x^2147483648 evaluates to inf).
 
     The size is that of the expression as a tree (what differentiation and code generation
     walk), counted over its distinct nodes only, so a subexpression shared 2^30 times costs one
-    visit.
+    visit. An expression that passed under the same limits passes again without the walk.
 
     Raises:
         StwError: naming the limit expression_size or exponent.
     """
-    most, largest_exponent = limits.value_or_ceiling("expression_size"), limits.value_or_ceiling("exponent")
+    _check_size(expr, limits.value_or_ceiling("expression_size"), limits.value_or_ceiling("exponent"))
+
+
+@lru_cache(maxsize=4096)   # only passes are kept: lru_cache does not keep a raised error
+def _check_size(expr: sp.Basic, most: int, largest_exponent: int) -> None:
     sizes: dict[sp.Basic, int] = {}
     for node in _post_order(expr):
         if node.is_Pow and node.exp.is_Integer and abs(node.exp) > largest_exponent:
