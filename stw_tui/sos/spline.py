@@ -8,6 +8,7 @@ matrix, so every matrix comes from ``BSpline.design_matrix`` in one vectorized c
 
 from __future__ import annotations
 
+import threading
 from dataclasses import dataclass
 from typing import Callable, Sequence
 
@@ -19,6 +20,13 @@ from scipy.interpolate import BSpline, insert, make_lsq_spline
 DEGREE = 3
 # Times this far outside [t0, t1] are rounding noise (e.g. t0 + k*dt sums) and get clamped.
 _TIME_SLACK = 1e-12
+
+# Basis matrices by (knots, times, order), read-only, in least-recently-used order. Every
+# `iterate` builds its window anew, and most of its terms ask for the same DOF at the same
+# instances: a linkage session's window build asked for ~800 bases, ~100 of them distinct.
+_BASES: dict[tuple, sps.csr_array] = {}
+_BASES_LOCK = threading.Lock()
+_BASES_SIZE = 256
 
 
 def clamped_uniform_knots(t0: float, t1: float, spans: int) -> np.ndarray:
@@ -224,6 +232,22 @@ class DofCurve:
         times = self._checked_times(times)
         if times.size == 0:  # design_matrix rejects empty input
             return sps.csr_array((0, self.n_coef))
+        key = (self.knots.tobytes(), times.tobytes(), order)
+        with _BASES_LOCK:
+            found = _BASES.pop(key, None)
+            if found is not None:
+                _BASES[key] = found               # now the most recently used
+                return found
+        M = self._basis(times, order)
+        for part in (M.data, M.indices, M.indptr):  # shared by every caller from now on
+            part.flags.writeable = False
+        with _BASES_LOCK:
+            _BASES[key] = M
+            while len(_BASES) > _BASES_SIZE:
+                del _BASES[next(iter(_BASES))]
+        return M
+
+    def _basis(self, times: np.ndarray, order: int) -> sps.csr_array:
         knots, degree = self.knots, DEGREE
         chain = None
         for _ in range(order):  # at most two sparse factors, not a loop over points

@@ -172,6 +172,24 @@ def _triplet_structure(rows, cols, shape) -> tuple[sps.csr_array, np.ndarray] | 
 
 
 @dataclass(frozen=True)
+class BasisRows:
+    """Rows of P in triplet form, for ``n`` instances: row ``r`` maps all coefficients to one
+    variable of a term at instance ``r``. A window build makes hundreds of these, and scipy's
+    checks on every small sparse matrix cost more than the rows; P is built from them at once."""
+
+    row: np.ndarray
+    col: np.ndarray
+    data: np.ndarray
+    n: int
+
+    def kept(self, keep: np.ndarray) -> "BasisRows":
+        """The rows of the instances where ``keep`` holds, numbered anew in order."""
+        mask = keep[self.row]
+        number = np.cumsum(keep) - 1
+        return BasisRows(number[self.row[mask]], self.col[mask], self.data[mask], int(keep.sum()))
+
+
+@dataclass(frozen=True)
 class MeritValues:
     """Objective and constraint values without derivatives, for line searches."""
 
@@ -259,8 +277,7 @@ class WindowProblem:
             x, n = dof_symbol(name), dof.curve.n_coef
             # Bounds hold on the control points (so, by the convex hull, everywhere); a row per
             # control point, named by the time it stands for.
-            points = sps.csr_array((np.ones(n), (np.arange(n), self.offsets[name] + np.arange(n))),
-                                   shape=(n, self.n_total))
+            points = BasisRows(np.arange(n), self.offsets[name] + np.arange(n), np.ones(n), n)
             times, extra = bound_times(scene, name), inside(bound_extra_times(scene, name))
             for side, bound, expr in (("lo", dof.lo, x - (dof.lo or 0)), ("hi", dof.hi, (dof.hi or 0) - x)):
                 if bound is not None:
@@ -284,14 +301,13 @@ class WindowProblem:
                 self._add_group(label, o.name, OBJ, expr, times, o.weight, None, term=term,
                                 weights=weights * o.weight)
 
-    def _basis_rows(self, term: CompiledTerm, times: np.ndarray) -> list[sps.csr_array]:
-        """Per variable of ``term``: the (n, n_total) matrix mapping all coefficients to its values."""
+    def _basis_rows(self, term: CompiledTerm, times: np.ndarray) -> list[BasisRows]:
+        """Per variable of ``term``: the rows mapping all coefficients to its values at ``times``."""
         blocks = []
         for var in term.variables:
-            curve = self.scene.dofs[var.dof].curve
-            local = sps.coo_array(curve.basis(times, var.order))
-            blocks.append(sps.csr_array((local.data, (local.row, local.col + self.offsets[var.dof])),
-                                        shape=(len(times), self.n_total)))
+            local = self.scene.dofs[var.dof].curve.basis(times, var.order)
+            row = np.repeat(np.arange(local.shape[0]), np.diff(local.indptr))
+            blocks.append(BasisRows(row, local.indices + self.offsets[var.dof], local.data, len(times)))
         return blocks
 
     def _add_group(self, label, source, kind, expr, times, weight, when, *, term=None, weights=None,
@@ -323,10 +339,9 @@ class WindowProblem:
         blocks = blocks if blocks is not None else self._basis_rows(term, times)
         keep = np.zeros(times.size, bool)
         for block in blocks:
-            coo = block.tocoo()
-            hit = free_mask[coo.col] & (coo.data != 0)
-            keep[coo.row[hit]] = True
-        return times[keep], [block[keep] for block in blocks]
+            hit = free_mask[block.col] & (block.data != 0)
+            keep[block.row[hit]] = True
+        return times[keep], [block.kept(keep) for block in blocks]
 
     def _assemble_patterns(self) -> None:
         """Stack basis rows of every group into P and precompute the sparsity of G and D."""
@@ -356,7 +371,12 @@ class WindowProblem:
                 slot = self._add_condition_slots(group, rows, slot)
         self.n_slots = slot
         self.row_counts = counts
-        self.P = sps.vstack(rows, format="csr") if rows else sps.csr_array((0, self.n_total))
+        starts = np.cumsum([0] + [block.n for block in rows])
+        self.P = sps.csr_array(
+            (np.concatenate([b.data for b in rows] or [np.zeros(0)]),
+             (np.concatenate([b.row + start for b, start in zip(rows, starts)] or [np.zeros(0, int)]),
+              np.concatenate([b.col for b in rows] or [np.zeros(0, int)]))),
+            shape=(int(starts[-1]), self.n_total))
         self.Pf = self.P[:, self.free].tocsr()
         self._g_pattern = {kind: (np.concatenate(r) if r else np.zeros(0, int),
                                   np.concatenate(c) if c else np.zeros(0, int))
