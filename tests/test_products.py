@@ -110,3 +110,26 @@ def _gradients(problem, ev, kind):
             _, grad, _ = group.term.full(problem._group_inputs(group, v), group.times, group.params)
             parts.append((grad * group.weights[:, None]).T.ravel())
     return np.concatenate(parts) if parts else np.zeros(0)
+
+
+def test_a_new_window_on_the_same_structure_uses_the_plans_made_before_and_gets_the_same_products():
+    session = Session()
+    lines = (SESSIONS / "arm_throw.stw").read_text().splitlines()
+    session.run_text("\n".join(lines[:max(i for i, x in enumerate(lines) if x.startswith("iterate"))]))
+    first = WindowProblem(session.scene)
+    s = SolverState.start(first).s
+    for _ in range(HESSIAN_PLAN_AFTER + 1):
+        ev = first.evaluate(s)
+        ev.lagrangian_hessian(np.ones(ev.c_eq.size), -np.ones(ev.c_ge.size))
+    assert first._plan_set().get("hess") is not None
+    again = WindowProblem(session.scene)              # what the next `iterate` builds
+    assert again._plan_set() is first._plan_set()
+    rng = np.random.default_rng(5)
+    ev = again.evaluate(s + 0.01 * rng.standard_normal(s.size))
+    lam_eq, lam_ge = rng.standard_normal(ev.c_eq.size), -rng.random(ev.c_ge.size)
+    H = ev.lagrangian_hessian(lam_eq, lam_ge)         # on the kept plan, at its first use
+    again._product_plans, again._uses = {}, {"hess": -10**9, "gram": -10**9}   # the plain route
+    ev._gauss_newton = None
+    assert same(H, ev.lagrangian_hessian(lam_eq, lam_ge))
+    session.execute("constraint extra: BX = 0 @ 0.25")   # another structure: other plans
+    assert WindowProblem(session.scene)._plan_set() is not first._plan_set()

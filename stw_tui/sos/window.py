@@ -15,7 +15,9 @@ instances or control points; one runs over term groups (constraints and objectiv
 
 from __future__ import annotations
 
+import hashlib
 import operator
+import threading
 from dataclasses import dataclass, field
 from functools import lru_cache
 
@@ -35,6 +37,10 @@ from stw_tui.sym.symbols import dof_symbol
 
 EQ, GE, OBJ = TermKind.EQ, TermKind.GE, TermKind.OBJ
 HESSIAN_PLAN_AFTER = 4   # Hessians assembled by plain sparse products before a plan is made
+# Product plans by window structure (WindowProblem._plan_set), least recently used first.
+_PLAN_SETS: dict[bytes, dict] = {}
+_PLAN_SETS_LOCK = threading.Lock()
+_PLAN_SETS_SIZE = 4
 # The comparisons of a `when` condition, as operators: numpy arrays and torch tensors both take them.
 _RELATIONS = {
     sp.StrictGreaterThan: operator.gt, sp.GreaterThan: operator.ge,
@@ -384,7 +390,7 @@ class WindowProblem:
         self._d_pattern = (np.concatenate(d_rows) if d_rows else np.zeros(0, int),
                            np.concatenate(d_cols) if d_cols else np.zeros(0, int))
         self.PfT = self.Pf.T.tocsr()
-        self._product_plans: dict = {}   # made when first worth it (_plans)
+        self._product_plans: dict | None = None   # shared by equal structures (_plan_set)
         self._uses = {"hess": 0, "gram": 0}   # Hessians and Gauss-Newtons before their plans
         # every row's weight, by kind, in row order (read-only: evaluations share them)
         self._row_weights = {kind: np.concatenate([g.weights for g in self.groups if g.kind == kind]
@@ -497,7 +503,7 @@ class WindowProblem:
         scipy's products, without working the structure out each time). None: triplets that
         repeat an entry, or a Hessian or Gauss-Newton plan not yet worth making (one costs about
         as much as HESSIAN_PLAN_AFTER plain ones)."""
-        plans = self._product_plans
+        plans = self._plan_set()
         if kind not in plans:
             if kind in ("hess", "gram"):
                 self._uses[kind] += 1
@@ -521,6 +527,28 @@ class WindowProblem:
                 G = _triplet_structure(rows, cols, (self.row_counts[kind], self.n_slots))
                 plans[kind] = None if G is None else ProductPlan(G[0], self.Pf, "B", source=G[1])
         return plans[kind]
+
+    def _plan_set(self) -> dict:
+        """The plans of every window problem with this one's structure (P's free columns, the
+        patterns of G and D), made by whichever problem needed one first. Each `iterate` builds
+        its window anew; its plans are the same as the last one's (basketball's Hessian plan
+        took about 0.6 s to make)."""
+        if self._product_plans is None:
+            digest = hashlib.blake2b(digest_size=20)
+            for part in (self.Pf.indptr, self.Pf.indices, self.Pf.data,
+                         np.array([*self.Pf.shape, self.n_slots, *self.row_counts.values()]),
+                         *self._d_pattern, *(a for kind in (EQ, GE, OBJ) for a in self._g_pattern[kind])):
+                digest.update(np.ascontiguousarray(part).view(np.uint8))
+                digest.update(b"|")
+            key = digest.digest()
+            with _PLAN_SETS_LOCK:
+                plans = _PLAN_SETS.pop(key, None)
+                plans = {} if plans is None else plans
+                _PLAN_SETS[key] = plans                     # now the most recently used
+                while len(_PLAN_SETS) > _PLAN_SETS_SIZE:
+                    del _PLAN_SETS[next(iter(_PLAN_SETS))]
+            self._product_plans = plans
+        return self._product_plans
 
     def _jacobian(self, kind: str, grad_parts: list[np.ndarray]) -> tuple[sps.csr_array, np.ndarray | None]:
         """The Jacobian of the ``kind`` rows, and its values on the plan's whole structure (None
