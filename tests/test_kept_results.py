@@ -49,3 +49,20 @@ def test_the_backend_scan_is_kept_and_an_unknown_name_scans_again(monkeypatch):
     with pytest.raises(Exception, match="no backend named 'nonesuch'"):
         backend.load_backend("nonesuch")
     assert len(calls) == 2                      # looked again before saying it is not there
+
+
+def test_forgetting_empties_every_cache_a_window_build_fills():
+    from stw_tui.sos import instances, kept, scene, spline, window
+    from stw_tui.sym import compiler
+
+    s = Session()
+    s.run_text("time 0 1 knots=6\ndof x\nlet f = x^2\nconstraint c: f' = 1 on [0.2, 0.8]\n"
+               "objective smooth: x''\niterate 2")
+    window.WindowProblem(s.scene)
+    assert scene._EXPANDED and spline._BASES and compiler.free_symbols.cache_info().currsize
+    kept.forget()
+    assert not scene._EXPANDED and not spline._BASES and not window._PLAN_SETS
+    assert not compiler._CACHE
+    assert compiler.free_symbols.cache_info().currsize == 0
+    assert compiler._check_size.cache_info().currsize == 0
+    assert instances._exact_degree.cache_info().currsize == 0

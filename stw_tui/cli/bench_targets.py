@@ -27,8 +27,8 @@ What each figure is (medians of ``repeat`` runs unless said otherwise):
   animation of the same knot density.
 * ``cold start``: wall time of ``stw run`` on the arm's text up to its first `iterate`, followed
   by `iterate 1`, in a new process with a warm compile cache (the process's whole life).
-  ``arm: cached compile``: replaying that text and building its window problem with the
-  in-memory term cache emptied and the disk cache warm.
+  ``arm: cached compile``: replaying that text and building its window problem with every
+  in-memory cache emptied (kept.py: terms, expansions, bases, plans) and the disk cache warm.
 * ``torch cuda / scipy per it`` at 10k control points: only where torch sees a CUDA device.
 """
 
@@ -48,6 +48,7 @@ import numpy as np
 
 from stw_tui.session import bench
 from stw_tui.sos.backend import load_backend
+from stw_tui.sos import kept
 from stw_tui.sym import compiler
 from stw_tui.session.bench import (Case, Measurement, bundled_sessions, machine_facts, measure, prepare,
                     split_at_first_iterate, synthetic_session)
@@ -337,7 +338,7 @@ def cold_start_figures(text: str, repeat: int) -> list[Figure]:
     cold = Figure("cold start: stw run arm, 1 it", statistics.median(runs[1:]), "s", 1.0)
     compiles = []
     for _ in range(max(repeat, 1)):
-        compiler._CACHE.clear()                              # the in-memory cache only
+        kept.forget()                       # every in-memory cache; the disk cache stays warm
         started = time.perf_counter()
         session = Session()
         session.run_text(prefix)

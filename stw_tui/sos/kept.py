@@ -1,0 +1,29 @@
+"""Results kept in memory between `iterate`s, and a way to forget them all.
+
+Every `iterate` builds its window problem anew from the scene; the parts that depend only on
+what did not change are kept where they are made: subexpression expansions (scene.py), free
+symbols and passed size checks (compiler.py), exact degrees (instances.py), B-spline basis
+matrices (spline.py) and product plans (window.py). Each is keyed by everything it depends on.
+:func:`forget` empties them, for a benchmark that times a build from nothing but the compiled
+terms on disk, as a new process would do it.
+"""
+
+from __future__ import annotations
+
+
+def forget() -> None:
+    """Empty every in-memory cache of window building (the compiled terms' own cache included)."""
+    from stw_tui.sos import instances, scene, spline, window
+    from stw_tui.sym import compiler
+
+    with scene._EXPANDED_LOCK:
+        scene._EXPANDED.clear()
+    with spline._BASES_LOCK:
+        spline._BASES.clear()
+    with window._PLAN_SETS_LOCK:
+        window._PLAN_SETS.clear()
+    compiler.free_symbols.cache_clear()
+    compiler._check_size.cache_clear()
+    instances._exact_degree.cache_clear()
+    with compiler._CACHE_LOCK:
+        compiler._CACHE.clear()
