@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import threading
 from dataclasses import dataclass
+from functools import lru_cache
 from typing import Callable, Sequence
 
 import numpy as np
@@ -74,12 +75,19 @@ def gauss_legendre_nodes(breakpoints: np.ndarray, points_per_span: int, a: float
         return np.zeros(0), np.zeros(0)
     breakpoints = np.asarray(breakpoints, dtype=float)
     cuts = np.unique(np.concatenate([[a, b], breakpoints[(breakpoints > a) & (breakpoints < b)]]))
-    x, w = np.polynomial.legendre.leggauss(int(points_per_span))
+    x, w = _legendre_rule(int(points_per_span))
     lo, hi = cuts[:-1, None], cuts[1:, None]
     half = (hi - lo) / 2
     times = (lo + hi) / 2 + half * x[None, :]
     weights = half * w[None, :]
     return times.ravel(), weights.ravel()
+
+
+@lru_cache(maxsize=16)
+def _legendre_rule(points: int) -> tuple[np.ndarray, np.ndarray]:
+    """Gauss–Legendre nodes and weights on [-1, 1], read-only (leggauss solves an eigenproblem
+    each call, and every objective of every window build asks)."""
+    return tuple(_readonly(a) for a in np.polynomial.legendre.leggauss(points))
 
 
 def _readonly(a: np.ndarray) -> np.ndarray:
