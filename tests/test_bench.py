@@ -2,6 +2,8 @@
 
 import argparse
 
+import pytest
+
 from conftest import SESSIONS
 from stw_tui.session import bench
 from stw_tui.sos.window import WindowProblem
@@ -134,6 +136,16 @@ def test_slsqp_in_numpy_reaches_stws_pendulum_optimum():
     assert case.setup.runs[-1].converged
     stw = case.setup.runs[-1].reports[-1].objective
     assert abs(objective - stw) <= 1e-6 * stw
+
+
+def test_crocoddyls_fddp_reaches_the_pendulums_optimum_within_the_anchor_accuracy():
+    # a third derivation (pinocchio's dynamics, RK4 steps, FDDP): only with the anchors extra
+    pytest.importorskip("crocoddyl")
+    case = bench.prepare("pendulum", targets.PENDULUM)
+    _, fddp = targets.fddp_solve(float(case.setup.scene.constants["g"]))
+    case.setup.execute("iterate 50")
+    stw = case.setup.runs[-1].reports[-1].objective
+    assert abs(fddp - stw) <= targets.ANCHOR_ACCURACY * stw
 
 
 def test_the_window_is_the_same_in_the_10_and_100_second_animations():

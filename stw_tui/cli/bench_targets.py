@@ -21,8 +21,8 @@ What each figure is (medians of ``repeat`` runs unless said otherwise):
 * ``pendulum: time / SLSQP``: the swing-up θ'' = u − g sin θ over 20 knot spans, stw's `iterate`
   against ``scipy.optimize.minimize(method="SLSQP")`` with an analytic gradient on the identical
   B-spline and quadrature, written directly in numpy (slsqp_solve). Counted when the objectives
-  agree within 1e-4 relative. crocoddyl FDDP (``--anchors``) is not measured yet: its row only
-  says whether crocoddyl is installed.
+  agree within 1e-4 relative. ``pendulum: time / FDDP`` (``--anchors``, extra ``anchors``):
+  the same against crocoddyl's FDDP (fddp_solve), counted on the same condition.
 * ``window in 100 s / in 10 s``: the whole `iterate` of the same 1 s window in a 100 s and a 10 s
   animation of the same knot density.
 * ``cold start``: wall time of ``stw run`` on the arm's text up to its first `iterate`, followed
@@ -252,11 +252,64 @@ def pendulum_figures(repeat: int, anchors: bool) -> list[Figure]:
     if anchors:
         try:
             import crocoddyl  # noqa: F401
-            note = "FDDP not wired yet"
         except ImportError:
-            note = "crocoddyl missing"
-        figures.append(Figure("pendulum: time / FDDP", None, "x", 1.0, note))
+            figures.append(Figure("pendulum: time / FDDP", None, "x", 1.0, "crocoddyl missing"))
+            return figures
+        g = float(case.setup.scene.constants["g"])
+        fddp_solve(g)                                          # untimed: crocoddyl's first use
+        runs = [fddp_solve(g) for _ in range(max(repeat, 3))]
+        seconds, objective = statistics.median(r[0] for r in runs), runs[0][1]
+        same = abs(objective - stw.objective) <= ANCHOR_ACCURACY * max(1.0, abs(objective))
+        figures.append(Figure("pendulum: time / FDDP", stw.seconds / seconds, "x", 1.0,
+                              "other optimum", counted=same))
     return figures
+
+
+FDDP_STEPS = 200        # RK4 steps of 0.01 s: FDDP's ∫u² is then within 1e-4 of stw's 20 spans
+FDDP_GOAL_WEIGHT = 1e6  # FDDP takes costs only: the end state is a heavily weighted terminal cost
+
+
+def fddp_solve(g: float, span: float = 2.0) -> tuple[float, float]:
+    """(seconds, ∫u² dt) of crocoddyl's FDDP on the pendulum swing-up, as its users set it up.
+
+    A pinocchio model (one revolute joint, a unit point mass 1 m below it: torque
+    u = θ'' + g sin θ with θ = 0 hanging), free forward dynamics, fully actuated, integrated by
+    RK4 over FDDP_STEPS steps; running cost u², terminal cost FDDP_GOAL_WEIGHT ‖x − (π, 0)‖² / 2;
+    one thread (crocoddyl's default of one per core lost 10x to thread start-up on this
+    1-DOF problem). Timed from building the model to FDDP's answer; 1e-9 stopping threshold.
+    """
+    import crocoddyl
+    import pinocchio
+
+    started = time.perf_counter()
+    model = pinocchio.Model()
+    joint = model.addJoint(0, pinocchio.JointModelRY(), pinocchio.SE3.Identity(), "pendulum")
+    model.appendBodyToJoint(joint, pinocchio.Inertia(1.0, np.array([0.0, 0.0, -1.0]), np.zeros((3, 3))),
+                            pinocchio.SE3.Identity())
+    model.gravity.linear = np.array([0.0, 0.0, -g])
+    state = crocoddyl.StateMultibody(model)
+    actuation = crocoddyl.ActuationModelFull(state)
+    running = crocoddyl.CostModelSum(state, actuation.nu)
+    running.addCost("effort", crocoddyl.CostModelResidual(
+        state, crocoddyl.ResidualModelControl(state, actuation.nu)), 2.0)          # ½·2·u²
+    terminal = crocoddyl.CostModelSum(state, actuation.nu)
+    terminal.addCost("goal", crocoddyl.CostModelResidual(
+        state, crocoddyl.ResidualModelState(state, np.array([np.pi, 0.0]), actuation.nu)),
+        FDDP_GOAL_WEIGHT)
+    step = span / FDDP_STEPS
+
+    def integrated(costs, dt):
+        dynamics = crocoddyl.DifferentialActionModelFreeFwdDynamics(state, actuation, costs)
+        return crocoddyl.IntegratedActionModelRK(dynamics, crocoddyl.RKType.four, dt)
+
+    problem = crocoddyl.ShootingProblem(np.zeros(2), [integrated(running, step)] * FDDP_STEPS,
+                                        integrated(terminal, 0.0))
+    problem.nthreads = 1
+    solver = crocoddyl.SolverFDDP(problem)
+    solver.th_stop = 1e-9
+    solver.solve([], [], 500)
+    seconds = time.perf_counter() - started
+    return seconds, float(step * np.sum(np.square(np.array(solver.us))))
 
 
 def window_session(span: int) -> str:
