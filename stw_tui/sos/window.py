@@ -38,7 +38,7 @@ from stw_tui.sym.symbols import dof_symbol
 EQ, GE, OBJ = TermKind.EQ, TermKind.GE, TermKind.OBJ
 HESSIAN_PLAN_AFTER = 4   # Hessians assembled by plain sparse products before a plan is made
 # Product plans by window structure (WindowProblem._plan_set), least recently used first.
-_PLAN_SETS: dict[bytes, dict] = {}
+_PLAN_SETS: dict[bytes, tuple[dict, dict]] = {}   # (plans by kind, uses before a plan)
 _PLAN_SETS_LOCK = threading.Lock()
 _PLAN_SETS_SIZE = 4
 # The comparisons of a `when` condition, as operators: numpy arrays and torch tensors both take them.
@@ -391,7 +391,7 @@ class WindowProblem:
                            np.concatenate(d_cols) if d_cols else np.zeros(0, int))
         self.PfT = self.Pf.T.tocsr()
         self._product_plans: dict | None = None   # shared by equal structures (_plan_set)
-        self._uses = {"hess": 0, "gram": 0}   # Hessians and Gauss-Newtons before their plans
+        self._uses: dict | None = None   # Hessians and Gauss-Newtons before their plans (shared too)
         # every row's weight, by kind, in row order (read-only: evaluations share them)
         self._row_weights = {kind: np.concatenate([g.weights for g in self.groups if g.kind == kind]
                                                   or [np.zeros(0)]) for kind in (EQ, GE, OBJ)}
@@ -542,12 +542,14 @@ class WindowProblem:
                 digest.update(b"|")
             key = digest.digest()
             with _PLAN_SETS_LOCK:
-                plans = _PLAN_SETS.pop(key, None)
-                plans = {} if plans is None else plans
-                _PLAN_SETS[key] = plans                     # now the most recently used
+                kept = _PLAN_SETS.pop(key, None)
+                kept = ({}, {"hess": 0, "gram": 0}) if kept is None else kept
+                _PLAN_SETS[key] = kept                      # now the most recently used
                 while len(_PLAN_SETS) > _PLAN_SETS_SIZE:
                     del _PLAN_SETS[next(iter(_PLAN_SETS))]
-            self._product_plans = plans
+            # The uses are counted over the problems too: `iterate 1` repeated (a user stepping
+            # through a solve) would otherwise never reach HESSIAN_PLAN_AFTER in one problem.
+            self._product_plans, self._uses = kept
         return self._product_plans
 
     def _jacobian(self, kind: str, grad_parts: list[np.ndarray]) -> tuple[sps.csr_array, np.ndarray | None]:
