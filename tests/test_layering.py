@@ -16,6 +16,18 @@ def test_core_imports_neither_textual_nor_torch():
     assert out.stdout.strip() == ""
 
 
+def test_a_replay_and_solve_import_only_what_they_use():
+    """The cold start (issue 10): the survey engines (multiprocessing) and the `show` printer
+    load when those commands first run."""
+    lazy = ("stw_tui.session.survey_session", "stw_tui.session.show", "concurrent.futures.process")
+    code = ("import sys\nfrom stw_tui.session.session import Session\n"
+            "s = Session(); s.run_text('dof x = 0.5\\nconstraint c: x = 1 @ 0\\n"
+            "objective o: x\\'\\'\\niterate 2\\nprint x @ 0.5')\n"
+            f"print(sorted(m for m in {lazy!r} if m in sys.modules))")
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True)
+    assert out.stdout.strip() == "[]"
+
+
 def _imports_of(path, package: str, modules: set[str]) -> set[str]:
     """The stw_tui modules a module imports anywhere (inside functions too), except under
     ``if TYPE_CHECKING:`` (annotations only: nothing is imported when the program runs)."""
