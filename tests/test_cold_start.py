@@ -1,0 +1,35 @@
+"""`stw run` in a process of its own pauses and freezes the cyclic collector around its imports
+and before it exits (cli.main.console); main() called inside another program must not."""
+
+import gc
+import os
+import subprocess
+import sys
+
+from stw_tui.cli.main import main
+
+SESSION = "dof x\nconstraint c: x = 1 @ 0\nobjective o: x''\niterate 2\nprint x @ 0.5\n"
+
+
+def test_main_inside_a_program_leaves_the_collector_alone(tmp_path, capsys):
+    path = tmp_path / "s.stw"
+    path.write_text(SESSION, encoding="utf-8")
+    frozen = gc.get_freeze_count()
+    assert main(["run", str(path)]) == 0
+    assert gc.isenabled() and gc.get_freeze_count() == frozen
+    assert "x @ 0.5" in capsys.readouterr().out
+
+
+def test_a_process_of_its_own_prints_what_main_prints(tmp_path, capsys):
+    path = tmp_path / "s.stw"
+    path.write_text(SESSION, encoding="utf-8")
+    assert main(["run", str(path)]) == 0
+    inside = capsys.readouterr().out
+    env = dict(os.environ, STW_CACHE_DIR="off")
+    done = subprocess.run([sys.executable, "-m", "stw_tui.cli.main", "run", str(path)], env=env,
+                          capture_output=True, text=True, check=True)
+
+    def without_times(text):   # the iteration table's last column is milliseconds
+        return [line.rsplit(None, 1)[0] if line[:5].strip().isdigit() else line
+                for line in text.splitlines()]
+    assert without_times(done.stdout) == without_times(inside)
