@@ -1,4 +1,4 @@
-"""The torch backend takes the SciPy backend's steps, with every number from torch autograd."""
+"""The torch backend takes the SciPy backend's steps, with every number from its torch programs."""
 
 import subprocess
 import sys
@@ -134,6 +134,42 @@ def test_lowering_handles_numbers_in_min_max_and_numeric_calls():
     assert np.allclose(got, want, rtol=1e-15)
     constant = lower(CompiledTerm(expr=sp.Float(2.5), variables=(LocalVar("x", 0),), parameters=()))
     assert constant(X[:1], torch.zeros(3, dtype=torch.float64), []).tolist() == [2.5] * 3
+
+
+def test_programs_without_torchscript_give_the_same_numbers(monkeypatch):
+    """A program TorchScript does not take runs as plain Python: the same aten kernels, so the
+    same numbers to the last bit; and groups of one term share one call."""
+    from stw_torch import lower as lowering
+
+    session = Session()
+    session.run_text(EXTRAS)
+    problem = WindowProblem(session.scene)
+    torch.set_num_threads(1)
+    s = problem.initial() + 0.1 * np.random.default_rng(3).standard_normal(problem.n_free)
+    lam_eq, lam_ge = np.ones(problem.row_counts["eq"]), -np.ones(problem.row_counts["ge"])
+    scripted_tp = TorchProblem(problem, torch.device("cpu"), host_linear=True)
+    assert len(scripted_tp.plan.calls) < len(problem.groups)     # z.lo and z.lo+ share a term
+    scripted = scripted_tp.evaluate(s)
+
+    def refuse(source):
+        raise RuntimeError("no TorchScript here")
+
+    lowering._CACHE.clear()
+    monkeypatch.setattr(torch.jit, "CompilationUnit", refuse)
+    try:
+        plain_tp = TorchProblem(problem, torch.device("cpu"), host_linear=True)
+        plain = plain_tp.evaluate(s)
+        assert not any(isinstance(c.term.full_program.fn, torch.jit.ScriptFunction)
+                       for c in plain_tp.plan.calls)
+        assert plain.objective == scripted.objective
+        for a, b in [(plain.gradient, scripted.gradient), (plain.c_ge, scripted.c_ge),
+                     (plain.J_ge.toarray(), scripted.J_ge.toarray()),
+                     (plain.lagrangian_hessian(lam_eq, lam_ge).toarray(),
+                      scripted.lagrangian_hessian(lam_eq, lam_ge).toarray()),
+                     (plain_tp.merit_values(s).c_eq, scripted_tp.merit_values(s).c_eq)]:
+            assert np.array_equal(a, b)
+    finally:
+        lowering._CACHE.clear()
 
 
 def test_extras_session_runs_like_scipy(registered):

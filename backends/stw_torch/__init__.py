@@ -1,5 +1,5 @@
-"""stw's torch backend: the SQP of ``stw_scipy`` with expressions lowered to torch and every
-derivative from autograd; tensors on the CPU or a CUDA device.
+"""stw's torch backend: the SQP of ``stw_scipy`` with expressions and their derivatives lowered to
+torch programs; tensors on the CPU or a CUDA device.
 
 Registered under the entry-point group ``stw_tui.backends`` as ``torch``, exactly as a third
 party's backend would be. Loading the class does not import torch (a solve does), but fails

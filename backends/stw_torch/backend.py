@@ -1,10 +1,11 @@
-"""The torch backend: the shared SQP (stw_tui.sos.sqp) with values and derivatives from torch autograd.
+"""The torch backend: the shared SQP (stw_tui.sos.sqp) with values and derivatives computed by torch.
 
 The SQP itself — the QP of each step, its elastic mode, the step limit, the merit acceptance test
 and the convergence tests — is the core's, so this backend and ``stw_scipy`` take the same steps.
-What differs is where the numbers come from: every term's sympy expression is lowered to torch
-here, and the gradient, Jacobians and Hessian of the Lagrangian come from autograd, assembled on
-fixed sparse patterns (evaluate.py). With ``linear=torch`` the KKT systems are solved on the device
+What differs is where the numbers come from: every term's sympy expression and its first and
+second derivatives are lowered to one torch program here (lower.py), called once per term over
+all its instances (calls.py), and the gradient, Jacobians and Hessian of the Lagrangian are
+assembled on fixed sparse patterns (evaluate.py). With ``linear=torch`` the KKT systems are solved on the device
 too (dense LU, linalg.py); with ``linear=scipy`` by stw_scipy's sparse solvers on the host.
 
 torch is imported when a solve starts, not when the class is loaded: listing the backend's
@@ -20,7 +21,7 @@ from stw_tui.sym.errors import StwError
 
 
 class TorchBackend(SQPBackend):
-    """SQP on torch: lowered expressions, autograd derivatives, sparse or dense KKT solves."""
+    """SQP on torch: lowered expressions and derivatives, sparse or dense KKT solves."""
 
     name = "torch"
     options = (
@@ -31,7 +32,7 @@ class TorchBackend(SQPBackend):
                       ("auto", "scipy", "torch")),
         *ScipyBackend.options,
     )
-    capabilities = SQPBackend.capabilities | {Capability.AUTOGRAD, Capability.GPU, Capability.BATCH}
+    capabilities = SQPBackend.capabilities | {Capability.GPU, Capability.BATCH}
 
     @classmethod
     def batch_solver(cls, size, options=None):

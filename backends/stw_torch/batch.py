@@ -4,7 +4,7 @@
 Each start (a job: replay, shake, `iterate`, dense check) runs the shared SQP on a thread of its
 own, with a member backend (:class:`BatchMember`) whose heavy numerical work is not done on that
 thread but requested from the batch: evaluations of the window problem (values, gradients,
-Jacobians and Hessian terms by autograd), merit values of the line search and, with
+Jacobians and Hessian terms by the lowered term programs), merit values of the line search and, with
 ``linear=torch`` (the default on cuda), LU factorizations and solves of KKT systems and the
 Cholesky tests of the curvature control. The calling thread serves the requests in rounds, in
 lockstep: it waits until every running start is blocked on a request, then computes each kind of

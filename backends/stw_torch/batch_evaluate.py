@@ -5,9 +5,8 @@ Starts of one survey solve window problems of the same structure (same free vari
 groups, instance times and basis matrices); only their control points differ, and the fixed ones
 too when the window leaves some DOF out. Stacked, the slot values of B starts are a (B, slots)
 matrix ``V = V_fixed + (Pf Sᵀ)ᵀ``; a group's (k, n) input block becomes a (k, B·n) block with the
-instance times repeated B times, so its lowered torch function, the backward pass of its local
-gradients and the batched backward pass of its local Hessian rows run once for the batch (every
-instance still depends on its own slots only). Gradients, constraint values and Jacobian and
+instance times repeated B times, so its lowered torch program of values and local derivatives
+runs once for the batch (every instance still depends on its own slots only). Gradients, constraint values and Jacobian and
 Hessian values on the fixed patterns are then per-start rows of (B, ·) tensors; each start gets
 an ordinary :class:`~.evaluate.TorchEvaluation` of its own, so the SQP cannot tell the difference.
 """
@@ -21,7 +20,7 @@ import torch
 
 from stw_tui.sos.window import EQ, GE, OBJ, MeritValues, evaluate_condition_tree
 
-from .evaluate import TorchEvaluation, TorchProblem, group_gradients
+from .evaluate import TorchEvaluation, TorchProblem
 
 
 def problem_key(problem, device: torch.device, host_linear: bool) -> str:
@@ -59,12 +58,6 @@ def _tile(V: torch.Tensor, g, k: int, offset: int) -> torch.Tensor:
     return V[:, offset:offset + k * g.n].reshape(B, k, g.n).permute(1, 0, 2).reshape(k, B * g.n)
 
 
-def _untile(x: torch.Tensor, B: int, n: int) -> torch.Tensor:
-    """(r, B·n) -> (B, r·n), each start's rows in the layout of a single evaluation."""
-    r = x.shape[0]
-    return x.reshape(r, B, n).permute(1, 0, 2).reshape(B, r * n)
-
-
 def _conditions(tp: TorchProblem, V: torch.Tensor) -> dict[str, torch.Tensor]:
     B = V.shape[0]
     masks = {kind: torch.ones(B, tp.row_counts[kind], dtype=torch.bool, device=tp.device) for kind in (EQ, GE)}
@@ -89,50 +82,14 @@ def merit_values_batch(members: list[TorchProblem], points: list[np.ndarray]) ->
     with torch.no_grad():
         S = torch.as_tensor(np.stack(points), **tp._dev)
         V = _slot_values(tp, members, S)
-        c = {kind: V.new_empty(B, tp.row_counts[kind]) for kind in (EQ, GE)}
-        objective = V.new_zeros(B)
-        for g in tp.groups:
-            f = g.term(_tile(V, g, g.term.k, g.slot), g.times.repeat(B), g.params).reshape(B, g.n)
-            if g.kind == OBJ:
-                objective = objective + (g.weights * f * f).sum(1)
-            else:
-                c[g.kind][:, g.row:g.row + g.n] = g.weights * f
+        f = tp.plan.values_batch(V)
+        c = {kind: tp.row_weight[kind] * f[:, tp.row_inst[kind]] for kind in (EQ, GE)}
+        r = f[:, tp.row_inst[OBJ]]
+        objective = (tp.row_weight[OBJ] * r * r).sum(1)
         masks = _conditions(tp, V)
     host = [objective.cpu().numpy(), c[EQ].cpu().numpy(), c[GE].cpu().numpy(),
             masks[EQ].cpu().numpy(), masks[GE].cpu().numpy()]
     return [MeritValues(float(host[0][b]), host[1][b], host[2][b], host[3][b], host[4][b]) for b in range(B)]
-
-
-def _local_derivatives(tp: TorchProblem, V: torch.Tensor):
-    """(B, inst) values, (B, slots) local gradients and (B, pairs) local second derivatives:
-    :meth:`TorchProblem._local_derivatives` for every start in one pass per group."""
-    B = V.shape[0]
-    f_all = V.new_empty(B, tp.n_inst)
-    g_slot = V.new_zeros(B, tp.n_slots)
-    inputs, values = [], []
-    with torch.enable_grad():
-        for g in tp.groups:
-            X = _tile(V, g, g.term.k, g.slot).detach().requires_grad_(True)
-            f = g.term(X, g.times.repeat(B), g.params)
-            f_all[:, g.inst:g.inst + g.n] = f.detach().reshape(B, g.n)
-            inputs.append(X)
-            values.append(f)
-        grads = group_gradients(tp.groups, inputs, values)
-        h_parts = []
-        for i, g in enumerate(tp.groups):
-            grad = grads[i]
-            if grad is None:
-                continue
-            g_slot[:, g.slot:g.slot + grad.numel() // B] = _untile(grad.detach(), B, g.n)
-            if not g.pairs:
-                continue
-            if grad.requires_grad:
-                rows = tp.hessian_rows(inputs[i], grad, g.seeds.repeat(1, 1, B))
-            else:  # every first derivative is constant
-                rows = grad.new_zeros(g.seeds.shape[0], g.term.k, B * g.n)
-            h_parts.append(_untile(rows[g.pair_a, g.pair_b], B, g.n))
-    h_flat = torch.cat(h_parts, 1) if h_parts else V.new_zeros(B, 0)
-    return f_all, g_slot, h_flat
 
 
 def _pattern_values(pattern, source: torch.Tensor) -> torch.Tensor:
@@ -152,18 +109,16 @@ def evaluate_batch(members: list[TorchProblem], points: list[np.ndarray]) -> lis
     S = torch.as_tensor(np.stack([np.asarray(p, float) for p in points]), **tp._dev)
     with torch.no_grad():
         V = _slot_values(tp, members, S)
-    f_all, g_slot, h_flat = _local_derivatives(tp, V)
+        f_all, g_slot, h_flat = tp.plan.local_batch(V)
     obj = tp.is_obj
     w_f = tp.w_inst * f_all
-    objective = (w_f[:, obj] * f_all[:, obj]).sum(1)
+    r = f_all[:, tp.row_inst[OBJ]]
+    objective = (tp.row_weight[OBJ] * r * r).sum(1)
     scale = torch.cat([torch.where(obj, 2.0 * w_f, 0.0), V.new_zeros(B, 1)], 1)[:, tp.slot_owner]
     gradient = (tp.PfT @ (g_slot * scale).T.contiguous()).T
     gw = g_slot * tp.w_slot
-    c, J = {}, {}
-    for kind in (EQ, GE):
-        c[kind] = torch.cat([g.weights * f_all[:, g.inst:g.inst + g.n] for g in tp.groups if g.kind == kind]
-                            or [V.new_zeros(B, 0)], 1)
-        J[kind] = _pattern_values(tp.jac[kind], gw)
+    c = {kind: tp.row_weight[kind] * f_all[:, tp.row_inst[kind]] for kind in (EQ, GE)}
+    J = {kind: _pattern_values(tp.jac[kind], gw) for kind in (EQ, GE)}
     masks = _conditions(tp, V)
     host = {name: t.cpu().numpy() for name, t in (("objective", objective), ("gradient", gradient),
                                                   ("c_eq", c[EQ]), ("c_ge", c[GE]),

@@ -1,4 +1,4 @@
-"""The window problem on torch: values by lowered terms, derivatives by autograd.
+"""The window problem on torch: values and local derivatives by lowered term programs.
 
 Everything fixed during an `iterate` is built once, as tensors on the chosen device: the slot
 matrix ``Pf`` (sparse CSR) and the slot values of the fixed control points, instance times,
@@ -6,10 +6,9 @@ weights and parameters of every term group, and the sparsity patterns of the Jac
 Hessian of the Lagrangian. Per evaluation:
 
 - slot values are one sparse product ``v = v_fixed + Pf @ s``;
-- each group's values come from its lowered torch function on its (k, n) block of ``v``; since an
-  instance depends on its own slots only, one backward pass of ``f.sum()`` gives all local
-  gradients (k, n), and one batched backward pass of those (``is_grads_batched``, one one-hot
-  seed per variable) gives all local second derivatives;
+- each group's values, local gradients (k, n) and local second derivatives come from one call
+  of its lowered torch program (lower.py) on its (k, n) block of ``v`` (an instance depends on
+  its own slots only);
 - Jacobians ``G @ Pf`` and the Hessian ``Pfᵀ D Pf + Jₒᵀ W Jₒ`` are assembled on fixed patterns
   by gathering products of ``Pf`` entries with local derivatives and summing a fixed, padded
   list of contributions per nonzero: vectorized, and deterministic on every device (no atomics);
@@ -31,6 +30,7 @@ import torch
 from stw_tui.sos.window import EQ, GE, OBJ, MeritValues, evaluate_condition_tree
 from stw_tui.sym.errors import StwError
 
+from .calls import CallPlan
 from .lower import LoweredTerm, lower
 
 def _csr_tensor(crow, col, values, shape) -> torch.Tensor:
@@ -131,9 +131,6 @@ class _Group:
     params: list
     condition: object = None
     leaves: list = field(default_factory=list)   # (relation node, LoweredTerm, slot offset, params)
-    seeds: torch.Tensor | None = None   # (m, k, n) one-hot rows of the variables a in pairs (a, b)
-    pair_a: torch.Tensor | None = None  # per pair: index into seeds
-    pair_b: torch.Tensor | None = None  # per pair: b
 
 
 @dataclass(eq=False)
@@ -191,23 +188,6 @@ class TorchEvaluation:
         return self.tp.hess.scipy(values) if self.tp.host_linear else self.tp.hess.dense(values)
 
 
-def group_gradients(groups, inputs: list, values: list) -> list:
-    """d(sum of each group's values)/d(its inputs), per group (None where nothing depends on
-    them): the groups without second derivatives in one backward pass, those with them in
-    another that keeps the graph for their Hessian rows."""
-    grads = [None] * len(groups)
-    for curved in (False, True):
-        chosen = [i for i, g in enumerate(groups) if bool(g.pairs) == curved and values[i].requires_grad]
-        if not chosen:
-            continue
-        total = torch.stack([values[i].sum() for i in chosen]).sum()
-        parts = torch.autograd.grad(total, [inputs[i] for i in chosen], create_graph=curved,
-                                    allow_unused=True, materialize_grads=True)
-        for i, part in zip(chosen, parts):
-            grads[i] = part
-    return grads
-
-
 class TorchProblem:
     """A WindowProblem lowered to torch; evaluated many times during one run of iterations."""
 
@@ -249,15 +229,6 @@ class TorchProblem:
             lowered = _Group(g.label, g.kind, lower(g.term), g.n, g.slot_offset, g.row_offset, inst,
                              tuple(g.term.hessian_pairs), torch.as_tensor(g.times, **dev),
                              torch.as_tensor(g.weights, **dev), params, g.condition)
-            if g.term.hessian_pairs:
-                firsts = sorted({a for a, _ in g.term.hessian_pairs})
-                seeds = torch.zeros(len(firsts), g.term.k, g.n, **dev)
-                for i, a in enumerate(firsts):
-                    seeds[i, a] = 1.0
-                lowered.seeds = seeds
-                lowered.pair_a = torch.as_tensor([firsts.index(a) for a, _ in g.term.hessian_pairs],
-                                                 device=device)
-                lowered.pair_b = torch.as_tensor([b for _, b in g.term.hessian_pairs], device=device)
             if g.condition is not None:
                 lowered.leaves = [(node, lower(term), offset,
                                    [torch.as_tensor(float(c), **dev)
@@ -266,7 +237,7 @@ class TorchProblem:
             self.groups.append(lowered)
             inst += g.n
         self.n_inst = inst
-        self._batched = True
+        self.plan = CallPlan.build(self.groups, self.n_slots, device)
         self._build_patterns(Pf)
 
     def with_problem(self, problem) -> "TorchProblem":
@@ -352,6 +323,15 @@ class TorchProblem:
         for g in self.groups:
             owner[g.slot:g.slot + g.term.k * g.n] = g.inst + np.tile(np.arange(g.n), g.term.k)
         self.slot_owner = torch.as_tensor(owner, device=self.device)
+        # Rows of each kind -> their instance and weight; the objective's instances and weights.
+        self.row_inst, self.row_weight = {}, {}
+        for kind in (EQ, GE, OBJ):
+            rows = np.zeros(self.row_counts[kind], np.int64)
+            for g in self.groups:
+                if g.kind == kind:
+                    rows[g.row:g.row + g.n] = g.inst + np.arange(g.n)
+            self.row_inst[kind] = torch.as_tensor(rows, device=self.device)
+            self.row_weight[kind] = self.w_inst[self.row_inst[kind]]
 
     # --- evaluation --------------------------------------------------------------------------
     def slot_values(self, s: torch.Tensor) -> torch.Tensor:
@@ -378,38 +358,31 @@ class TorchProblem:
         """Objective and weighted constraint values only (no derivatives), for the line search."""
         with torch.no_grad():
             v = self.slot_values(torch.as_tensor(s, **self._dev))
-            c = {kind: torch.empty(self.row_counts[kind], **self._dev) for kind in (EQ, GE)}
-            objective = v.new_zeros(())
-            for g in self.groups:
-                f = g.term(self._block(v, g, g.term.k, g.slot), g.times, g.params)
-                if g.kind == OBJ:
-                    objective = objective + torch.dot(g.weights, f * f)
-                else:
-                    c[g.kind][g.row:g.row + g.n] = g.weights * f
+            f = self.plan.values(v)
+            c = {kind: self.row_weight[kind] * f[self.row_inst[kind]] for kind in (EQ, GE)}
+            r = f[self.row_inst[OBJ]]
+            objective = (self.row_weight[OBJ] * r * r).sum()
             masks = self._conditions(v)
         return MeritValues(float(objective), c[EQ].cpu().numpy(), c[GE].cpu().numpy(),
                            masks[EQ].cpu().numpy(), masks[GE].cpu().numpy())
 
     def evaluate(self, s: np.ndarray) -> TorchEvaluation:
-        """Values, gradients (autograd) and local second derivatives (autograd) at ``s``."""
+        """Values, gradients and local second derivatives (lowered programs) at ``s``."""
         t_s = torch.as_tensor(np.asarray(s, float), **self._dev)
         with torch.no_grad():
             v = self.slot_values(t_s)
-        f_all, g_slot, h_flat = self._local_derivatives(v)
-
-        obj = self.is_obj
-        w_f = self.w_inst * f_all
-        objective = torch.dot(w_f[obj], f_all[obj])
-        # ∇R = Pfᵀ u with u[slot] = 2 w f ∂f/∂slot on objective slots
-        u = g_slot * torch.cat([torch.where(obj, 2.0 * w_f, 0.0), v.new_zeros(1)])[self.slot_owner]
-        gradient = self.PfT @ u
-        gw = g_slot * self.w_slot
-        c, J = {}, {}
-        for kind in (EQ, GE):
-            c[kind] = torch.cat([g.weights * f_all[g.inst:g.inst + g.n] for g in self.groups if g.kind == kind]
-                                or [v.new_zeros(0)])
-            J[kind] = self.jac[kind].values(gw)
-        masks = self._conditions(v.detach())
+            f_all, g_slot, h_flat = self.plan.local(v)
+            obj = self.is_obj
+            w_f = self.w_inst * f_all
+            r = f_all[self.row_inst[OBJ]]
+            objective = (self.row_weight[OBJ] * r * r).sum()
+            # ∇R = Pfᵀ u with u[slot] = 2 w f ∂f/∂slot on objective slots
+            u = g_slot * torch.cat([torch.where(obj, 2.0 * w_f, 0.0), v.new_zeros(1)])[self.slot_owner]
+            gradient = self.PfT @ u
+            gw = g_slot * self.w_slot
+            c = {kind: self.row_weight[kind] * f_all[self.row_inst[kind]] for kind in (EQ, GE)}
+            J = {kind: self.jac[kind].values(gw) for kind in (EQ, GE)}
+            masks = self._conditions(v)
         objective_f = float(objective)
         return TorchEvaluation(
             tp=self, s=np.asarray(s, float).copy(), objective=objective_f,
@@ -417,58 +390,6 @@ class TorchProblem:
             active_eq=masks[EQ].cpu().numpy(), active_ge=masks[GE].cpu().numpy(),
             t_s=t_s, t_gradient=gradient, t_c=c, t_active=masks, t_J=J,
             t_local={"f": f_all, "g": g_slot, "h": h_flat})
-
-    def _local_derivatives(self, v: torch.Tensor):
-        """Per instance: values, gradients and second derivatives w.r.t. the group's own slots.
-
-        An instance's value depends on its own slots only, so the gradient of ``f.sum()`` holds
-        every instance's gradient, and one batched backward pass of the gradient (one seed per
-        variable ``a``: the rows ``∂²f/∂x_a∂x_b``) holds every instance's Hessian. Groups without
-        second derivatives share one backward pass; the others share another.
-        """
-        f_all = v.new_empty(self.n_inst)
-        g_slot = v.new_zeros(self.n_slots)
-        inputs, values = [], []
-        with torch.enable_grad():
-            for g in self.groups:
-                X = self._block(v, g, g.term.k, g.slot).detach().requires_grad_(True)
-                f = g.term(X, g.times, g.params)
-                f_all[g.inst:g.inst + g.n] = f.detach()
-                inputs.append(X)
-                values.append(f)
-            grads = group_gradients(self.groups, inputs, values)
-            h_parts = []
-            for i, g in enumerate(self.groups):
-                grad = grads[i]
-                if grad is None:
-                    continue
-                g_slot[g.slot:g.slot + grad.numel()] = grad.detach().reshape(-1)
-                if not g.pairs:
-                    continue
-                if grad.requires_grad:
-                    rows = self.hessian_rows(inputs[i], grad, g.seeds)
-                else:  # every first derivative is constant
-                    rows = grad.new_zeros(g.seeds.shape)
-                h_parts.append(rows[g.pair_a, g.pair_b].reshape(-1))
-        h_flat = torch.cat(h_parts) if h_parts else v.new_zeros(0)
-        return f_all, g_slot, h_flat
-
-    def hessian_rows(self, X: torch.Tensor, grad: torch.Tensor, seeds: torch.Tensor) -> torch.Tensor:
-        """(m, k, n): for each seeded variable a, ∂(∂f/∂x_a)/∂x_b at every instance (n is the
-        group's instances, or a batch's B·n for seeds repeated B times)."""
-        if self._batched:
-            try:
-                (rows,) = torch.autograd.grad(grad, X, grad_outputs=seeds, is_grads_batched=True,
-                                              retain_graph=True, allow_unused=True, materialize_grads=True)
-                return rows.detach()
-            except RuntimeError:  # an op vmap cannot batch: one backward pass per variable
-                self._batched = False
-        rows = []
-        for seed in seeds:
-            (row,) = torch.autograd.grad(grad, X, grad_outputs=seed, retain_graph=True,
-                                         allow_unused=True, materialize_grads=True)
-            rows.append(row.detach())
-        return torch.stack(rows)
 
     def hessian_values(self, ev: TorchEvaluation, lam_eq: np.ndarray, lam_ge: np.ndarray) -> torch.Tensor:
         """Values of ∇²R + Σλ∇²C on the fixed pattern ``self.hess``; without multipliers (None),

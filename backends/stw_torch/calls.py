@@ -1,0 +1,132 @@
+"""Term groups merged into calls: all the groups of one lowered term (with the same constants)
+are evaluated by one call of its torch program, over all their instances side by side.
+
+A window problem often evaluates one term in several groups: a linkage's torque both as an
+objective and as a flight constraint, a contact's expressions over several intervals. A torch op
+on the CPU costs microseconds whatever its length, so one call over all of a term's instances
+costs what one group's did (acrobat: tau_FOOT in two groups, 13 groups in 8 calls).
+
+Every call's inputs are gathered from the slot values at once (``inputs``: slot indices, call
+after call, each call's (k, N) block row-major), and the calls' outputs are put back in the
+layout of the groups (values per instance, gradients per slot, second derivatives per group and
+pair) by fixed index arrays: a few ops per evaluation whatever the number of groups.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+import torch
+
+from .lower import LoweredTerm
+
+
+@dataclass(eq=False)
+class Call:
+    """One lowered term over the instances of all its groups."""
+
+    term: LoweredTerm
+    params: list
+    times: torch.Tensor     # (N,) the instances' times, group after group
+    k: int                  # variables per instance
+    pairs: int              # second derivatives per instance
+    start: int              # where its (k, N) inputs begin in the gathered inputs
+    n: int                  # N: its instances
+
+
+@dataclass(eq=False)
+class CallPlan:
+    """The calls of a problem's groups and the index arrays that put their outputs in place."""
+
+    calls: list[Call]
+    inputs: torch.Tensor    # the slot of every input, call after call
+    f_order: torch.Tensor   # instance -> its value's place among the calls' values
+    h_order: torch.Tensor   # (group, pair, instance) entry -> its place among the calls' pairs
+    n_slots: int
+
+    @classmethod
+    def build(cls, groups, n_slots: int, device: torch.device) -> "CallPlan":
+        """Merge ``groups`` (evaluate._Group) by lowered term and constants, in first-seen order."""
+        by_key: dict[tuple, list] = {}
+        for g in groups:
+            key = (id(g.term), tuple(float(p) for p in g.params))
+            by_key.setdefault(key, []).append(g)
+        calls, inputs, f_dest, h_dest = [], [], [], []
+        h_offsets, offset = {}, 0
+        for g in groups:                      # the groups' own layout of second derivatives
+            h_offsets[id(g)] = offset
+            offset += len(g.pairs) * g.n
+        start = 0
+        for members in by_key.values():
+            first = members[0]
+            k, n = first.term.k, sum(g.n for g in members)
+            for a in range(k):
+                inputs += [g.slot + a * g.n + np.arange(g.n) for g in members]
+            f_dest += [g.inst + np.arange(g.n) for g in members]
+            for p in range(len(first.pairs)):
+                h_dest += [h_offsets[id(g)] + p * g.n + np.arange(g.n) for g in members]
+            times = torch.cat([g.times for g in members])
+            calls.append(Call(first.term, first.params, times, k, len(first.pairs), start, n))
+            start += k * n
+        cat = lambda parts: np.concatenate(parts) if parts else np.zeros(0, np.int64)  # noqa: E731
+        as_t = lambda a: torch.as_tensor(a, dtype=torch.int64, device=device)  # noqa: E731
+        return cls(calls, as_t(cat(inputs)), as_t(np.argsort(cat(f_dest), kind="stable")),
+                   as_t(np.argsort(cat(h_dest), kind="stable")), n_slots)
+
+    def values(self, v: torch.Tensor) -> torch.Tensor:
+        """(instances,): every group's values at slot values ``v``, in the groups' layout."""
+        x = v[self.inputs]
+        parts = [c.term(x[c.start:c.start + c.k * c.n].view(c.k, c.n), c.times, c.params)
+                 for c in self.calls]
+        return torch.cat(parts)[self.f_order] if parts else v.new_zeros(0)
+
+    def local(self, v: torch.Tensor):
+        """Values (instances,), gradients per slot (slots,) and second derivatives (entries,)
+        at slot values ``v``, in the groups' layout."""
+        x = v[self.inputs]
+        f, g, h = [], [], []
+        for c in self.calls:
+            out = c.term.full(x[c.start:c.start + c.k * c.n].view(c.k, c.n), c.times, c.params)
+            f.append(out[0])
+            g.append(out[1:1 + c.k].reshape(-1))
+            if c.pairs:
+                h.append(out[1 + c.k:].reshape(-1))
+        empty = v.new_zeros(0)
+        g_slot = v.new_zeros(self.n_slots)
+        g_slot[self.inputs] = torch.cat(g) if g else empty
+        return (torch.cat(f)[self.f_order] if f else empty, g_slot,
+                torch.cat(h)[self.h_order] if h else empty)
+
+    # --- a batch of B starts: slot values (B, slots) -----------------------------------------
+    def _tile(self, X: torch.Tensor, c: Call) -> torch.Tensor:
+        """A call's inputs of every start side by side: (k, B·N), start-major."""
+        B = X.shape[0]
+        block = X[:, c.start:c.start + c.k * c.n].reshape(B, c.k, c.n)
+        return block.permute(1, 0, 2).reshape(c.k, B * c.n)
+
+    def values_batch(self, V: torch.Tensor) -> torch.Tensor:
+        """(B, instances): :meth:`values` of every start, one call per term for the batch."""
+        B = V.shape[0]
+        X = V[:, self.inputs]
+        parts = [c.term(self._tile(X, c), c.times.repeat(B), c.params).reshape(B, c.n)
+                 for c in self.calls]
+        return torch.cat(parts, 1)[:, self.f_order] if parts else V.new_zeros(B, 0)
+
+    def local_batch(self, V: torch.Tensor):
+        """:meth:`local` of every start: (B, instances), (B, slots), (B, entries)."""
+        B = V.shape[0]
+        X = V[:, self.inputs]
+        f, g, h = [], [], []
+        for c in self.calls:
+            out = c.term.full(self._tile(X, c), c.times.repeat(B), c.params)
+            rows = out.reshape(-1, B, c.n).permute(1, 0, 2)          # (B, 1 + k + pairs, N)
+            f.append(rows[:, 0])
+            g.append(rows[:, 1:1 + c.k].reshape(B, -1))
+            if c.pairs:
+                h.append(rows[:, 1 + c.k:].reshape(B, -1))
+        empty = V.new_zeros(B, 0)
+        g_slot = V.new_zeros(B, self.n_slots)
+        g_slot[:, self.inputs] = torch.cat(g, 1) if g else empty
+        return (torch.cat(f, 1)[:, self.f_order] if f else empty, g_slot,
+                torch.cat(h, 1)[:, self.h_order] if h else empty)
