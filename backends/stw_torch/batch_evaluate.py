@@ -95,8 +95,6 @@ def merit_values_batch(members: list[TorchProblem], points: list[np.ndarray]) ->
 def _pattern_values(pattern, source: torch.Tensor) -> torch.Tensor:
     """:meth:`Pattern.values` for (B, n_src) sources: (B, nnz)."""
     if pattern.operator is not None:
-        if not pattern.operator.shape[0]:
-            return source.new_zeros(source.shape[0], 0)
         return (pattern.operator @ source.T.contiguous()).T
     ext = torch.cat([source, source.new_zeros(source.shape[0], 1)], 1)
     return (pattern.coef_pad * ext[:, pattern.src_pad]).sum(-1)

@@ -20,7 +20,6 @@ A Python loop runs over term groups only, never over instances or control points
 from __future__ import annotations
 
 import copy
-import warnings
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -32,12 +31,7 @@ from stw_tui.sym.errors import StwError
 
 from .calls import CallPlan
 from .lower import LoweredTerm, lower
-
-def _csr_tensor(crow, col, values, shape) -> torch.Tensor:
-    with warnings.catch_warnings():
-        warnings.simplefilter("ignore", UserWarning)  # "sparse CSR support is in beta state"
-        return torch.sparse_csr_tensor(crow, col, values, size=shape, check_invariants=False)
-
+from .sparse import SparseMatrix
 
 def _row_entries(indptr: np.ndarray, rows: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """For each requested CSR row, its stored entries: (owner index into ``rows``, position)."""
@@ -66,7 +60,7 @@ class Pattern:
     n_src: int
     crow_np: np.ndarray
     col_np: np.ndarray
-    operator: torch.Tensor | None = None   # (nnz, n_src) sparse CSR, on the CPU
+    operator: SparseMatrix | None = None   # (nnz, n_src), on the CPU
 
     @classmethod
     def build(cls, rows, cols, coef, src, n_src, shape, device) -> "Pattern":
@@ -83,8 +77,7 @@ class Pattern:
             op = sps.csr_array((np.asarray(coef, float)[order], (owner, np.asarray(src, np.int64)[order])),
                                shape=(uniq.size, n_src))   # duplicate (owner, src) pairs are summed
             op.sort_indices()
-            operator = _csr_tensor(as_t(op.indptr.astype(np.int64)), as_t(op.indices.astype(np.int64)),
-                                   torch.as_tensor(op.data, dtype=torch.float64), op.shape)
+            operator = SparseMatrix(op, device)
             return cls(shape, as_t(crow), as_t(c), None, None, n_src, crow, c, operator)
         m = int(counts.max(initial=1))
         coef_pad = np.zeros((uniq.size, m))
@@ -97,7 +90,7 @@ class Pattern:
     def values(self, source: torch.Tensor) -> torch.Tensor:
         """The matrix's stored values (CSR order) for one vector of source values."""
         if self.operator is not None:
-            return self.operator @ source if self.operator.shape[0] else source.new_zeros(0)
+            return self.operator @ source
         ext = torch.cat([source, source.new_zeros(1)])
         return (self.coef_pad * ext[self.src_pad]).sum(1)
 
@@ -205,20 +198,12 @@ class TorchProblem:
         Pf = sps.csr_array(problem.Pf, copy=True)
         Pf.eliminate_zeros()
         Pf.sort_indices()
-        self.Pf = _csr_tensor(torch.as_tensor(Pf.indptr.astype(np.int64), device=device),
-                              torch.as_tensor(Pf.indices.astype(np.int64), device=device),
-                              torch.as_tensor(Pf.data, **dev), Pf.shape)
-        PfT = sps.csr_array(Pf.T)
-        PfT.sort_indices()
-        self.PfT = _csr_tensor(torch.as_tensor(PfT.indptr.astype(np.int64), device=device),
-                               torch.as_tensor(PfT.indices.astype(np.int64), device=device),
-                               torch.as_tensor(PfT.data, **dev), PfT.shape)
+        self.Pf = SparseMatrix(Pf, device)
+        self.PfT = SparseMatrix(sps.csr_array(Pf.T), device)
         fixed = problem.coef0.copy()
         fixed[problem.free] = 0.0
         P = problem.P.tocsr()
-        P_t = _csr_tensor(torch.as_tensor(P.indptr.astype(np.int64), device=device),
-                          torch.as_tensor(P.indices.astype(np.int64), device=device),
-                          torch.as_tensor(P.data, **dev), P.shape)
+        P_t = SparseMatrix(P, device)
         self.v_fixed = P_t @ torch.as_tensor(fixed, **dev)   # slot values of the fixed coefficients
         self.n_slots = P.shape[0]
 

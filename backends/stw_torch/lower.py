@@ -23,6 +23,7 @@ Python otherwise.
 
 from __future__ import annotations
 
+import math
 import warnings
 from dataclasses import dataclass
 
@@ -76,28 +77,115 @@ class Program:
         return out
 
 
+_FUNCTIONS = {name: f"torch.{name}" for name in (
+    "sin", "cos", "tan", "asin", "acos", "atan", "atan2", "sinh", "cosh", "tanh", "asinh", "acosh",
+    "atanh", "log", "exp", "sqrt", "sign", "floor", "erf")} | {"Abs": "torch.abs", "ceiling": "torch.ceil"}
+_RELATIONS = {"StrictLessThan": ("<", ">"), "LessThan": ("<=", ">="), "Equality": ("==", "=="),
+              "Unequality": ("!=", "!="), "StrictGreaterThan": (">", "<"), "GreaterThan": (">=", "<=")}
+
+
+def _number(value: float) -> str:
+    text = repr(float(value))
+    return f"({text})" if text.startswith("-") else text
+
+
+def _print(e) -> str:
+    """torch source of a symengine expression (printed directly: sympy's printer took 0.8 s of
+    acrobat's 0.9 s lowering). Raises KeyError on a construct it does not know."""
+    if e.is_Symbol:
+        return e.name
+    if not e.free_symbols:
+        return _number(float(e))          # numbers, constants and functions of them
+    name = type(e).__name__
+    args = e.args
+    if name == "Add":                    # a - b rather than a + (-1)*b: one op, not two
+        terms = [_signed(a) for a in args]
+        out = terms[0][1] if terms[0][0] == "+" else f"-{terms[0][1]}"
+        return "(" + out + "".join(f" {sign} {text}" for sign, text in terms[1:]) + ")"
+    if name == "Mul":
+        return _product(args)
+    if name == "Pow":
+        base, exponent = args
+        if not base.free_symbols and float(base) == math.e:
+            return f"torch.exp({_print(exponent)})"
+        if exponent == se.Rational(1, 2):
+            return f"torch.sqrt({_print(base)})"
+        power = str(int(exponent)) if exponent.is_Integer else _print(exponent)
+        return f"torch.pow({_print(base)}, {power})"
+    if name == "Piecewise":              # (value, condition) pairs, the last condition True
+        pairs = list(zip(args[0::2], args[1::2]))
+        out, number = _print(pairs[-1][0]), not pairs[-1][0].free_symbols
+        for value, condition in reversed(pairs[:-1]):
+            test, chosen = _print(condition), _print(value)
+            if number and not value.free_symbols:    # where() of two floats is float32
+                chosen = f"torch.full_like({test}, {chosen}, dtype=torch.float64)"
+            out, number = f"torch.where({test}, {chosen}, {out})", False
+        return out
+    if name in _RELATIONS:               # a number on the left would need a reflected operator
+        left, right = args
+        op, flipped = _RELATIONS[name]
+        if not left.free_symbols:
+            return f"({_print(right)} {flipped} {_print(left)})"
+        return f"({_print(left)} {op} {_print(right)})"
+    if name in ("And", "Or"):
+        out = _print(args[0])
+        for a in args[1:]:
+            out = f"torch.logical_{name.lower()}({out}, {_print(a)})"
+        return out
+    if name == "Not":
+        return f"torch.logical_not({_print(args[0])})"
+    return f"{_FUNCTIONS[name]}({', '.join(_print(a) for a in args)})"
+
+
+def _signed(term) -> tuple[str, str]:
+    """("+" or "-", the term's torch source without its sign) of one term of a sum."""
+    if not term.free_symbols:
+        value = float(term)
+        return ("-" if value < 0 else "+"), repr(abs(value))
+    if type(term).__name__ == "Mul" and not term.args[0].free_symbols and float(term.args[0]) < 0:
+        rest = term.args[1:]
+        coefficient = -float(term.args[0])
+        return "-", _product(rest if coefficient == 1.0 else (se.RealDouble(coefficient), *rest))
+    return "+", _print(term)
+
+
+def _product(factors) -> str:
+    """A product, its factors of negative integer powers as divisors (a/b: one op, not two)."""
+    above, below = [], []
+    for f in factors:
+        if type(f).__name__ == "Pow" and f.args[1].is_Integer and int(f.args[1]) < 0:
+            exponent = -int(f.args[1])
+            below.append(_print(f.args[0]) if exponent == 1 else f"torch.pow({_print(f.args[0])}, {exponent})")
+        else:
+            above.append(_print(f))
+    out = "*".join(above) if above else "1.0"
+    return "(" + out + "".join(f"/{b}" for b in below) + ")"
+
+
+def _constant(e) -> float | None:
+    try:
+        return float(e) if not e.free_symbols else None
+    except (RuntimeError, TypeError, ValueError):
+        return None
+
+
 def _compile(names: list[str], outputs: list) -> Program:
     """The program of symengine ``outputs`` in the variables ``names``, common subexpressions shared."""
     replacements, reduced = se.cse(outputs)
-    shared = [(name._sympy_(), _fold_numbers(sub._sympy_())) for name, sub in replacements]
-    computed, constants = [], {}
-    for row, expr in enumerate(reduced):
-        expr = _fold_numbers(expr._sympy_())
-        if expr.is_number:
-            constants[row] = float(expr)
-        else:
-            computed.append(expr)
-    printer = _Printer()
-    source = (f"def program({', '.join(names)}):\n"
-              + "".join(f"    {name} = {printer.doprint(sub)}\n" for name, sub in shared)
-              + f"    return [{', '.join(printer.doprint(e) for e in computed)}]\n")
+    constants = {row: value for row, e in enumerate(reduced) if (value := _constant(e)) is not None}
+    computed = [e for row, e in enumerate(reduced) if row not in constants]
     try:
+        source = (f"def program({', '.join(names)}):\n"
+                  + "".join(f"    {name} = {_print(sub)}\n" for name, sub in replacements)
+                  + f"    return [{', '.join(_print(e) for e in computed)}]\n")
         with warnings.catch_warnings():
             warnings.simplefilter("ignore")          # TorchScript's deprecation notices
             fn = torch.jit.CompilationUnit(source).program
-    except Exception:  # noqa: BLE001 - any construct TorchScript does not take: plain Python
-        fn = sp.lambdify([sp.Symbol(name) for name in names], computed, modules="torch",
-                         printer=_Printer, cse=lambda _exprs: (shared, computed))
+    except Exception:  # noqa: BLE001 - a construct either does not take: sympy's printer, plain Python
+        shared = [(name._sympy_(), _fold_numbers(sub._sympy_())) for name, sub in replacements]
+        exprs = [_fold_numbers(e._sympy_()) for e in computed]
+        fn = sp.lambdify([sp.Symbol(name) for name in names], exprs, modules="torch",
+                         printer=_Printer, cse=lambda _exprs: (shared, exprs))
     return Program(fn, len(reduced), constants)
 
 

@@ -1,0 +1,41 @@
+"""A fixed sparse matrix applied to torch tensors: torch's sparse CSR product on a CUDA device,
+scipy's on the CPU.
+
+On the CPU the tensors share their memory with numpy arrays, and scipy's product of a window
+problem's matrices (a few hundred rows) cost ~0.02 ms where torch's sparse CSR product cost
+~0.25 ms (2 cores; five products an evaluation). Both sum each row's products in order.
+"""
+
+from __future__ import annotations
+
+import warnings
+
+import numpy as np
+import scipy.sparse as sps
+import torch
+
+
+class SparseMatrix:
+    """``m`` (scipy CSR) as an operator on (n,) or (n, B) float64 tensors on ``device``."""
+
+    def __init__(self, m, device: torch.device):
+        m = sps.csr_array(m, copy=True)
+        m.sort_indices()
+        self.shape = m.shape
+        self.host = m if device.type == "cpu" else None
+        self.tensor = None
+        if self.host is None:
+            as_t = lambda a: torch.as_tensor(a, device=device)  # noqa: E731
+            with warnings.catch_warnings():
+                warnings.simplefilter("ignore", UserWarning)  # "sparse CSR support is in beta state"
+                self.tensor = torch.sparse_csr_tensor(
+                    as_t(m.indptr.astype(np.int64)), as_t(m.indices.astype(np.int64)),
+                    torch.as_tensor(m.data, dtype=torch.float64, device=device), size=m.shape,
+                    check_invariants=False)
+
+    def __matmul__(self, x: torch.Tensor) -> torch.Tensor:
+        if self.host is not None:
+            return torch.from_numpy(np.asarray(self.host @ x.numpy()))
+        if not self.shape[0]:
+            return x.new_zeros((0, *x.shape[1:]))
+        return self.tensor @ x
