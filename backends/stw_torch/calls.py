@@ -19,7 +19,7 @@ from dataclasses import dataclass
 import numpy as np
 import torch
 
-from .lower import LoweredTerm
+from .lower import LoweredTerm, unoptimized
 
 
 @dataclass(eq=False)
@@ -86,12 +86,12 @@ class CallPlan:
         at slot values ``v``, in the groups' layout."""
         x = v[self.inputs]
         f, g, h = [], [], []
-        for c in self.calls:
-            out = c.term.full(x[c.start:c.start + c.k * c.n].view(c.k, c.n), c.times, c.params)
-            f.append(out[0])
-            g.append(out[1:1 + c.k].reshape(-1))
-            if c.pairs:
-                h.append(out[1 + c.k:].reshape(-1))
+        with unoptimized():
+            for c in self.calls:
+                rows = c.term.rows(x[c.start:c.start + c.k * c.n].view(c.k, c.n), c.times, c.params)
+                f.append(rows[0])
+                g += rows[1:1 + c.k]
+                h += rows[1 + c.k:]
         empty = v.new_zeros(0)
         g_slot = v.new_zeros(self.n_slots)
         g_slot[self.inputs] = torch.cat(g) if g else empty

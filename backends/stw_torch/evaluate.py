@@ -174,8 +174,11 @@ class TorchEvaluation:
         return self._matrix(self.tp.hessian_values(self, lam_eq, lam_ge))
 
     def gauss_newton(self):
-        """2 Jₒᵀ W Jₒ of the objective residuals only (positive semidefinite), on the same pattern."""
-        return self._matrix(self.tp.hessian_values(self, None, None))
+        """2 Jₒᵀ W Jₒ of the objective residuals only (positive semidefinite), on the same pattern;
+        computed once per evaluation (callers must not modify it)."""
+        if "gn_matrix" not in self.t_local:
+            self.t_local["gn_matrix"] = self._matrix(self.tp.hessian_values(self, None, None))
+        return self.t_local["gn_matrix"]
 
     def _matrix(self, values: torch.Tensor):
         return self.tp.hess.scipy(values) if self.tp.host_linear else self.tp.hess.dense(values)
@@ -380,7 +383,9 @@ class TorchProblem:
         """Values of ∇²R + Σλ∇²C on the fixed pattern ``self.hess``; without multipliers (None),
         of the Gauss-Newton part 2 Jₒᵀ W Jₒ alone."""
         f, g, h = ev.t_local["f"], ev.t_local["g"], ev.t_local["h"]
-        gn = 2.0 * self.w_inst[self.gn_i] * g[self.gn_p] * g[self.gn_q]
+        if "gn" not in ev.t_local:     # the Gauss-Newton products: the same for every multiplier
+            ev.t_local["gn"] = 2.0 * self.w_inst[self.gn_i] * g[self.gn_p] * g[self.gn_q]
+        gn = ev.t_local["gn"]
         if lam_eq is None:
             second = h.new_zeros(self.h_src.shape[0])
         else:

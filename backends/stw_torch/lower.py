@@ -62,9 +62,9 @@ class Program:
     constants: dict
 
     def __call__(self, inputs: list[torch.Tensor], like: torch.Tensor) -> list[torch.Tensor]:
+        """The rows, each (n,) like ``like``. Run inside :func:`unoptimized` (once for many calls)."""
         n = like.shape[0]
-        with torch.jit.optimized_execution(False):
-            computed = iter(self.fn(*inputs))
+        computed = iter(self.fn(*inputs))
         out = []
         for row in range(self.rows):
             value = self.constants.get(row)
@@ -208,17 +208,30 @@ class LoweredTerm:
         """(n,): the term's values at n instances."""
         if self.value_program is None:
             self.value_program = _compile(list(self.names), [self.expr])
-        return self.value_program([*X.unbind(0), times, *params], times)[0]
+        with unoptimized():
+            return self.value_program([*X.unbind(0), times, *params], times)[0]
 
-    def full(self, X: torch.Tensor, times: torch.Tensor, params: list[torch.Tensor]) -> torch.Tensor:
-        """(1 + k + pairs, n): the values, the k first derivatives and the second derivatives of
-        ``term.hessian_pairs`` (in their order) at each of the n instances."""
+    def rows(self, X: torch.Tensor, times: torch.Tensor, params: list[torch.Tensor]) -> list[torch.Tensor]:
+        """1 + k + pairs rows (n,): the values, the k first derivatives and the second
+        derivatives of ``term.hessian_pairs`` (in their order) at each of the n instances.
+        Run inside :func:`unoptimized`."""
         if self.full_program is None:
             variables = [se.Symbol(name) for name in self.names[:self.term.k]]
             grad = [self.expr.diff(v) for v in variables]
             hess = [grad[a].diff(variables[b]) for a, b in self.term.hessian_pairs]
             self.full_program = _compile(list(self.names), [self.expr, *grad, *hess])
-        return torch.stack(self.full_program([*X.unbind(0), times, *params], times))
+        return self.full_program([*X.unbind(0), times, *params], times)
+
+    def full(self, X: torch.Tensor, times: torch.Tensor, params: list[torch.Tensor]) -> torch.Tensor:
+        """(1 + k + pairs, n): :meth:`rows` stacked."""
+        with unoptimized():
+            return torch.stack(self.rows(X, times, params))
+
+
+def unoptimized():
+    """Programs run without the TorchScript graph executor's optimization passes: its profiling
+    runs and guards cost more than they save on straight-line programs of small tensors."""
+    return torch.jit.optimized_execution(False)
 
 
 _CACHE: dict[int, LoweredTerm] = {}
