@@ -177,6 +177,29 @@ def test_programs_without_torchscript_give_the_same_numbers(monkeypatch):
         lowering._CACHE.clear()
 
 
+def test_second_derivatives_computed_late_equal_those_computed_at_once():
+    """After an evaluation whose Hessian went unused (Gauss-Newton steps), the next one leaves
+    second derivatives out until its Hessian is asked for: they are then the same."""
+    session = Session()
+    session.run_text(EXTRAS)
+    problem = WindowProblem(session.scene)
+    torch.set_num_threads(1)
+    rng = np.random.default_rng(11)
+    s = problem.initial() + 0.2 * rng.standard_normal(problem.n_free)
+    lam_eq, lam_ge = rng.standard_normal(problem.row_counts["eq"]), rng.standard_normal(problem.row_counts["ge"])
+    eager = TorchProblem(problem, torch.device("cpu"), host_linear=True).evaluate(s)
+    assert eager.t_local["h"] is not None
+    tp = TorchProblem(problem, torch.device("cpu"), host_linear=True)
+    tp.evaluate(problem.initial()).gauss_newton()
+    late = tp.evaluate(s)
+    assert late.t_local["h"] is None
+    assert np.abs(late.gradient - eager.gradient).max() <= 1e-13 * max(1.0, np.abs(eager.gradient).max())
+    want = eager.lagrangian_hessian(lam_eq, lam_ge).toarray()
+    got = late.lagrangian_hessian(lam_eq, lam_ge).toarray()
+    assert np.abs(got - want).max() <= 1e-13 * max(1.0, np.abs(want).max())
+    assert tp.evaluate(s).t_local["h"] is not None          # the last one's Hessian was used
+
+
 def test_extras_session_runs_like_scipy(registered):
     ref, got = Session(), Session()
     ref.run_text(EXTRAS + "iterate 40\n")

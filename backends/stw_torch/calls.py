@@ -81,14 +81,15 @@ class CallPlan:
                  for c in self.calls]
         return torch.cat(parts)[self.f_order] if parts else v.new_zeros(0)
 
-    def local(self, v: torch.Tensor):
-        """Values (instances,), gradients per slot (slots,) and second derivatives (entries,)
-        at slot values ``v``, in the groups' layout."""
+    def local(self, v: torch.Tensor, second: bool = True):
+        """Values (instances,), gradients per slot (slots,) and, with ``second``, second
+        derivatives (entries,) at slot values ``v``, in the groups' layout (else None)."""
         x = v[self.inputs]
         f, g, h = [], [], []
         with unoptimized():
             for c in self.calls:
-                rows = c.term.rows(x[c.start:c.start + c.k * c.n].view(c.k, c.n), c.times, c.params)
+                X = x[c.start:c.start + c.k * c.n].view(c.k, c.n)
+                rows = (c.term.rows if second else c.term.first_rows)(X, c.times, c.params)
                 f.append(rows[0])
                 g += rows[1:1 + c.k]
                 h += rows[1 + c.k:]
@@ -96,7 +97,7 @@ class CallPlan:
         g_slot = v.new_zeros(self.n_slots)
         g_slot[self.inputs] = torch.cat(g) if g else empty
         return (torch.cat(f)[self.f_order] if f else empty, g_slot,
-                torch.cat(h)[self.h_order] if h else empty)
+                (torch.cat(h)[self.h_order] if h else empty) if second else None)
 
     # --- a batch of B starts: slot values (B, slots) -----------------------------------------
     def _tile(self, X: torch.Tensor, c: Call) -> torch.Tensor:

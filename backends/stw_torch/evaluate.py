@@ -143,7 +143,8 @@ class TorchEvaluation:
     t_c: dict
     t_active: dict
     t_J: dict                      # kind -> values on tp.jac[kind]
-    t_local: dict                  # f_all, g_slot, h_flat for the Hessian
+    t_local: dict                  # f_all, g_slot, h_flat (None until needed), v for the Hessian
+    hessian_used: bool = False     # whether the Lagrangian's Hessian was asked for
     _scipy_J: dict = field(default_factory=dict)
 
     @property
@@ -171,6 +172,7 @@ class TorchEvaluation:
 
     def lagrangian_hessian(self, lam_eq: np.ndarray, lam_ge: np.ndarray):
         """∇²R + Σλ∇²C: scipy CSR (linear=scipy) or a dense tensor on the device (linear=torch)."""
+        self.hessian_used = True
         return self._matrix(self.tp.hessian_values(self, lam_eq, lam_ge))
 
     def gauss_newton(self):
@@ -226,6 +228,7 @@ class TorchProblem:
             inst += g.n
         self.n_inst = inst
         self.plan = CallPlan.build(self.groups, self.n_slots, device)
+        self._last: TorchEvaluation | None = None   # the latest evaluation (its Hessian used?)
         self._build_patterns(Pf)
 
     def with_problem(self, problem) -> "TorchProblem":
@@ -233,6 +236,7 @@ class TorchProblem:
         ``problem_key``) whose control points may differ: only the fixed ones' slot values change."""
         other = copy.copy(self)
         other.problem = problem
+        other._last = None
         fixed = problem.coef0.copy()
         fixed[problem.free] = 0.0
         other.v_fixed = torch.as_tensor(sps.csr_array(problem.P) @ fixed, **self._dev)
@@ -359,7 +363,12 @@ class TorchProblem:
         t_s = torch.as_tensor(np.asarray(s, float), **self._dev)
         with torch.no_grad():
             v = self.slot_values(t_s)
-            f_all, g_slot, h_flat = self.plan.local(v)
+            # Second derivatives only where the last evaluation's were used (the SQP's exact
+            # Hessian; far from feasibility it takes Gauss-Newton steps, which need none, and a
+            # program of values and gradients costs half of one with the Hessian too); when
+            # asked for anyway, hessian_values computes them then.
+            second = self._last is None or self._last.hessian_used
+            f_all, g_slot, h_flat = self.plan.local(v, second=second)
             obj = self.is_obj
             w_f = self.w_inst * f_all
             r = f_all[self.row_inst[OBJ]]
@@ -372,22 +381,27 @@ class TorchProblem:
             J = {kind: self.jac[kind].values(gw) for kind in (EQ, GE)}
             masks = self._conditions(v)
         objective_f = float(objective)
-        return TorchEvaluation(
+        ev = TorchEvaluation(
             tp=self, s=np.asarray(s, float).copy(), objective=objective_f,
             gradient=gradient.cpu().numpy(), c_eq=c[EQ].cpu().numpy(), c_ge=c[GE].cpu().numpy(),
             active_eq=masks[EQ].cpu().numpy(), active_ge=masks[GE].cpu().numpy(),
             t_s=t_s, t_gradient=gradient, t_c=c, t_active=masks, t_J=J,
-            t_local={"f": f_all, "g": g_slot, "h": h_flat})
+            t_local={"f": f_all, "g": g_slot, "h": h_flat, "v": v})
+        self._last = ev
+        return ev
 
     def hessian_values(self, ev: TorchEvaluation, lam_eq: np.ndarray, lam_ge: np.ndarray) -> torch.Tensor:
         """Values of ∇²R + Σλ∇²C on the fixed pattern ``self.hess``; without multipliers (None),
         of the Gauss-Newton part 2 Jₒᵀ W Jₒ alone."""
         f, g, h = ev.t_local["f"], ev.t_local["g"], ev.t_local["h"]
+        if h is None and lam_eq is not None:
+            with torch.no_grad():
+                h = ev.t_local["h"] = self.plan.local(ev.t_local["v"])[2]
         if "gn" not in ev.t_local:     # the Gauss-Newton products: the same for every multiplier
             ev.t_local["gn"] = 2.0 * self.w_inst[self.gn_i] * g[self.gn_p] * g[self.gn_q]
         gn = ev.t_local["gn"]
         if lam_eq is None:
-            second = h.new_zeros(self.h_src.shape[0])
+            second = g.new_zeros(self.h_src.shape[0])
         else:
             lam = torch.cat([torch.as_tensor(lam_eq, **self._dev), torch.as_tensor(lam_ge, **self._dev),
                              torch.zeros(1, **self._dev)])

@@ -196,8 +196,9 @@ class LoweredTerm:
     term: CompiledTerm
     expr: object             # the term in symengine, in the renamed symbols
     names: tuple             # the renamed symbols: variables, time, parameters
-    value_program: Program | None = None   # built on first use, as is full_program
-    full_program: Program | None = None
+    value_program: Program | None = None   # built on first use, as are the others
+    first_program: Program | None = None   # value and gradient
+    full_program: Program | None = None    # value, gradient and Hessian pairs
 
     @property
     def k(self) -> int:
@@ -210,6 +211,14 @@ class LoweredTerm:
             self.value_program = _compile(list(self.names), [self.expr])
         with unoptimized():
             return self.value_program([*X.unbind(0), times, *params], times)[0]
+
+    def first_rows(self, X: torch.Tensor, times: torch.Tensor, params: list[torch.Tensor]) -> list[torch.Tensor]:
+        """1 + k rows (n,): the values and the k first derivatives at each of the n instances.
+        Run inside :func:`unoptimized`."""
+        if self.first_program is None:
+            variables = [se.Symbol(name) for name in self.names[:self.term.k]]
+            self.first_program = _compile(list(self.names), [self.expr, *(self.expr.diff(v) for v in variables)])
+        return self.first_program([*X.unbind(0), times, *params], times)
 
     def rows(self, X: torch.Tensor, times: torch.Tensor, params: list[torch.Tensor]) -> list[torch.Tensor]:
         """1 + k + pairs rows (n,): the values, the k first derivatives and the second
