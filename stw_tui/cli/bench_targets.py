@@ -15,9 +15,10 @@ What each figure is (medians of ``repeat`` runs unless said otherwise):
   (objectives within ``SAME_OPTIMUM``), else the verdict says why.
 * ``S: torch/scipy per it``: the torch backend on the CPU against scipy, per iteration, same
   case; ``torch first iterate (S)``: the longest untimed warm-up `iterate 1` of the torch backend
-  over the sessions, on a fresh copy of the scene (torch itself is imported before, when the
-  backend is loaded; the warm-up pays the session's lowering and term caches, as a user's first
-  `iterate` does).
+  over the sessions, on a fresh copy of the scene (torch itself is imported before, by an
+  untimed one-iteration solve of the smallest problem: the backend imports torch at its first
+  solve, not when it is loaded; the warm-up pays the session's lowering and term caches, as a
+  user's first `iterate` does).
 * ``pendulum: time / SLSQP``: the swing-up θ'' = u − g sin θ over 20 knot spans, stw's `iterate`
   against ``scipy.optimize.minimize(method="SLSQP")`` with an analytic gradient on the identical
   B-spline and quadrature, written directly in numpy (slsqp_solve). Counted when the objectives
@@ -137,10 +138,21 @@ def _measure(case: Case, backend: str, options: str, repeat: int, n: int | None 
         return f"{backend} failed"
 
 
+def _import_torch() -> None:
+    """Have the torch backend import torch, untimed: one iteration of the smallest problem. The
+    backend imports torch at its first solve, not when it is loaded, and its first-iterate
+    figure leaves torch's own import out (2-5 s here, whatever the session)."""
+    probe = prepare("torch-probe", synthetic_session(1, 4))
+    if not isinstance(probe, str):
+        _measure(probe, "torch", "device=cpu", 1, 1)
+
+
 def session_figures(sources: list[tuple[str, str]], repeat: int, out) -> list[Figure]:
     """Per session: scipy against IPOPT (time to converge) and torch (per iteration)."""
     figures, firsts = [], []
     missing = {b: why for b in ("ipopt", "torch") if (why := _loadable(b))}
+    if "torch" not in missing:
+        _import_torch()
     for name, text in sources:
         case = prepare(name, text)
         if isinstance(case, str):
