@@ -127,7 +127,6 @@ def evaluate_batch(members: list[TorchProblem], points: list[np.ndarray]) -> lis
             tp=member, s=np.asarray(points[b], float).copy(), objective=float(host["objective"][b]),
             gradient=host["gradient"][b], c_eq=host["c_eq"][b], c_ge=host["c_ge"][b],
             active_eq=host["active_eq"][b], active_ge=host["active_ge"][b],
-            t_s=S[b], t_gradient=gradient[b], t_c={kind: c[kind][b] for kind in (EQ, GE)},
-            t_active={kind: masks[kind][b] for kind in (EQ, GE)}, t_J={kind: J[kind][b] for kind in (EQ, GE)},
+            t_J={kind: J[kind][b] for kind in (EQ, GE)},
             t_local={"f": f_all[b], "g": g_slot[b], "h": h_flat[b]}))
     return out

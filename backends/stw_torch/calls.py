@@ -77,8 +77,9 @@ class CallPlan:
     def values(self, v: torch.Tensor) -> torch.Tensor:
         """(instances,): every group's values at slot values ``v``, in the groups' layout."""
         x = v[self.inputs]
-        parts = [c.term(x[c.start:c.start + c.k * c.n].view(c.k, c.n), c.times, c.params)
-                 for c in self.calls]
+        with unoptimized():
+            parts = [c.term.values(x[c.start:c.start + c.k * c.n].view(c.k, c.n), c.times, c.params)
+                     for c in self.calls]
         return torch.cat(parts)[self.f_order] if parts else v.new_zeros(0)
 
     def local(self, v: torch.Tensor, second: bool = True):

@@ -6,9 +6,11 @@ from user text, so it may be printed to Python source and compiled, as ``sympy.l
 Symbols are renamed to plain identifiers first (``x''`` is not one) and numeric function calls
 such as ``sin(2)`` are folded to floats (torch functions take tensors only).
 
-Each term gets two straight-line programs: its value alone (line searches, `when` conditions),
-and its value, gradient and the second derivatives of ``CompiledTerm.hessian_pairs`` together
-(:meth:`LoweredTerm.full`), their common subexpressions shared. The derivatives are taken
+Each term gets up to three straight-line programs, each built on first use: its value alone
+(line searches, `when` conditions), its value and gradient (:meth:`LoweredTerm.first_rows`, for
+Gauss-Newton steps), and its value, gradient and the second derivatives of
+``CompiledTerm.hessian_pairs`` (:meth:`LoweredTerm.rows`), their common subexpressions shared
+within each program. The derivatives are taken
 symbolically, by symengine after the core's own conversion (min, max and abs become Piecewise),
 once per term. Measured on 2 cores (acrobat, 41 ms per iteration): a torch op on a few hundred
 numbers costs microseconds whatever it computes, and autograd's backward and batched
@@ -207,10 +209,14 @@ class LoweredTerm:
 
     def __call__(self, X: torch.Tensor, times: torch.Tensor, params: list[torch.Tensor]) -> torch.Tensor:
         """(n,): the term's values at n instances."""
+        with unoptimized():
+            return self.values(X, times, params)
+
+    def values(self, X: torch.Tensor, times: torch.Tensor, params: list[torch.Tensor]) -> torch.Tensor:
+        """(n,): the term's values at n instances. Run inside :func:`unoptimized`."""
         if self.value_program is None:
             self.value_program = _compile(list(self.names), [self.expr])
-        with unoptimized():
-            return self.value_program([*X.unbind(0), times, *params], times)[0]
+        return self.value_program([*X.unbind(0), times, *params], times)[0]
 
     def first_rows(self, X: torch.Tensor, times: torch.Tensor, params: list[torch.Tensor]) -> list[torch.Tensor]:
         """1 + k rows (n,): the values and the k first derivatives at each of the n instances.
