@@ -257,3 +257,35 @@ def test_loading_the_backend_does_not_import_torch():
             "print('torch' in sys.modules)\n") % str(ROOT / "backends")
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True)
     assert out.stdout.strip() == "False"
+
+
+def test_autograd_derivatives_equal_the_symbolic_ones_on_a_linkage():
+    """`derivatives=autograd` differentiates the value programs by torch's autograd: an
+    independent derivation of the gradient, Jacobians and Hessian of the acrobat's flight
+    (linkage equations of motion, contacts), held against the lowered symbolic derivatives."""
+    session = Session()
+    lines = (SESSIONS / "acrobat.stw").read_text().splitlines()
+    session.run_text("\n".join(lines[:max(i for i, x in enumerate(lines) if x.startswith("iterate"))]))
+    problem = WindowProblem(session.scene)
+    torch.set_num_threads(1)
+    rng = np.random.default_rng(3)
+    s = problem.initial() + 0.05 * rng.standard_normal(problem.n_free)
+    symbolic = TorchProblem(problem, torch.device("cpu"), host_linear=True).evaluate(s)
+    auto = TorchProblem(problem, torch.device("cpu"), host_linear=True, autograd=True).evaluate(s)
+    lam_eq, lam_ge = rng.standard_normal(symbolic.c_eq.size), rng.standard_normal(symbolic.c_ge.size)
+    pairs = [(symbolic.gradient, auto.gradient), (symbolic.J_eq.toarray(), auto.J_eq.toarray()),
+             (symbolic.J_ge.toarray(), auto.J_ge.toarray()),
+             (symbolic.lagrangian_hessian(lam_eq, lam_ge).toarray(),
+              auto.lagrangian_hessian(lam_eq, lam_ge).toarray())]
+    for want, got in pairs:
+        assert want.shape == got.shape and np.abs(want).max() > 0
+        assert np.abs(got - want).max() <= 1e-9 * max(1.0, np.abs(want).max())
+
+
+def test_a_solve_with_autograd_derivatives_reaches_scipys_motion(registered):
+    problem = catalogue.problems(*catalogue.QUICK)[0]
+    ref, got = Session(), Session()
+    ref.run_text(problem.text)
+    got.run_text("backend torch device=cpu derivatives=autograd\n" + problem.text)
+    assert all(r.converged for r in got.runs) and len(got.runs) == len(ref.runs)
+    assert np.abs(got.scene.coefficient_vector() - ref.scene.coefficient_vector()).max() <= 1e-6

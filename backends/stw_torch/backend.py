@@ -30,6 +30,10 @@ class TorchBackend(SQPBackend):
         BackendOption("linear", str, "auto", "KKT solves: scipy (sparse, on the host, any `solver`) or "
                       "torch (dense LU on the device); auto: torch on cuda, scipy on cpu",
                       ("auto", "scipy", "torch")),
+        BackendOption("derivatives", str, "symbolic",
+                      "symbolic: each term's derivatives lowered with it (fast); autograd: torch's "
+                      "autograd on its value alone, independent of the compiler's derivatives "
+                      "(slower; surveys' batches use symbolic)", ("symbolic", "autograd")),
         *ScipyBackend.options,
     )
     capabilities = SQPBackend.capabilities | {Capability.GPU, Capability.BATCH}
@@ -58,7 +62,8 @@ class TorchBackend(SQPBackend):
     def evaluator(self, problem, algebra):
         from .evaluate import TorchProblem
 
-        return TorchProblem(problem, self.device, host_linear=self.linear == "scipy")
+        return TorchProblem(problem, self.device, host_linear=self.linear == "scipy",
+                            autograd=self.config["derivatives"] == "autograd")
 
     def init(self, problem, state, settings) -> SQPInner:
         from .evaluate import check_finite

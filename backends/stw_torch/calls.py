@@ -44,9 +44,10 @@ class CallPlan:
     f_order: torch.Tensor   # instance -> its value's place among the calls' values
     h_order: torch.Tensor   # (group, pair, instance) entry -> its place among the calls' pairs
     n_slots: int
+    autograd: bool = False  # derivatives by torch's autograd on the value programs (local())
 
     @classmethod
-    def build(cls, groups, n_slots: int, device: torch.device) -> "CallPlan":
+    def build(cls, groups, n_slots: int, device: torch.device, autograd: bool = False) -> "CallPlan":
         """Merge ``groups`` (evaluate._Group) by lowered term and constants, in first-seen order."""
         by_key: dict[tuple, list] = {}
         for g in groups:
@@ -72,7 +73,7 @@ class CallPlan:
         cat = lambda parts: np.concatenate(parts) if parts else np.zeros(0, np.int64)  # noqa: E731
         as_t = lambda a: torch.as_tensor(a, dtype=torch.int64, device=device)  # noqa: E731
         return cls(calls, as_t(cat(inputs)), as_t(np.argsort(cat(f_dest), kind="stable")),
-                   as_t(np.argsort(cat(h_dest), kind="stable")), n_slots)
+                   as_t(np.argsort(cat(h_dest), kind="stable")), n_slots, autograd)
 
     def values(self, v: torch.Tensor) -> torch.Tensor:
         """(instances,): every group's values at slot values ``v``, in the groups' layout."""
@@ -90,7 +91,10 @@ class CallPlan:
         with unoptimized():
             for c in self.calls:
                 X = x[c.start:c.start + c.k * c.n].view(c.k, c.n)
-                rows = (c.term.rows if second else c.term.first_rows)(X, c.times, c.params)
+                if self.autograd:
+                    rows = autograd_rows(c.term, X, c.times, c.params, second)
+                else:
+                    rows = (c.term.rows if second else c.term.first_rows)(X, c.times, c.params)
                 f.append(rows[0])
                 g += rows[1:1 + c.k]
                 h += rows[1 + c.k:]
@@ -132,3 +136,33 @@ class CallPlan:
         g_slot[:, self.inputs] = torch.cat(g, 1) if g else empty
         return (torch.cat(f, 1)[:, self.f_order] if f else empty, g_slot,
                 torch.cat(h, 1)[:, self.h_order] if h else empty)
+
+
+def autograd_rows(term: LoweredTerm, X: torch.Tensor, times: torch.Tensor, params: list,
+                  second: bool) -> list[torch.Tensor]:
+    """What :meth:`LoweredTerm.rows` (``second``) or ``first_rows`` give, by torch's autograd on
+    the term's value program alone (``derivatives=autograd``): derivatives found independently
+    of the symbolic ones, to hold them against. An instance's value depends on its own column of
+    X only, so the gradient of the sum is every instance's gradient; each first derivative that
+    a Hessian pair needs takes one more backward pass."""
+    k, n = X.shape
+    with torch.enable_grad():
+        X = X.detach().requires_grad_(True)
+        f = term.values(X, times, params).expand(n)
+        if f.requires_grad:
+            (grad,) = torch.autograd.grad(f.sum(), X, create_graph=second, allow_unused=True)
+        else:
+            grad = None
+        grad = X.new_zeros(k, n) if grad is None else grad
+        rows = [f.detach(), *grad.detach().unbind(0)]
+        if second:
+            of_a = {}
+            for a, _ in term.term.hessian_pairs:
+                if a not in of_a:
+                    found = None
+                    if grad[a].requires_grad:
+                        (found,) = torch.autograd.grad(grad[a].sum(), X, retain_graph=True,
+                                                       allow_unused=True)
+                    of_a[a] = X.new_zeros(k, n) if found is None else found.detach()
+            rows += [of_a[a][b] for a, b in term.term.hessian_pairs]
+    return rows

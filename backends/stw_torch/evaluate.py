@@ -187,7 +187,7 @@ class TorchEvaluation:
 class TorchProblem:
     """A WindowProblem lowered to torch; evaluated many times during one run of iterations."""
 
-    def __init__(self, problem, device: torch.device, host_linear: bool):
+    def __init__(self, problem, device: torch.device, host_linear: bool, autograd: bool = False):
         self.problem = problem
         self.dof_of_free = problem.dof_of_free
         self.damping = problem.damping
@@ -225,7 +225,7 @@ class TorchProblem:
             self.groups.append(lowered)
             inst += g.n
         self.n_inst = inst
-        self.plan = CallPlan.build(self.groups, self.n_slots, device)
+        self.plan = CallPlan.build(self.groups, self.n_slots, device, autograd)
         self._last: TorchEvaluation | None = None   # the latest evaluation (its Hessian used?)
         self._build_patterns(Pf)
 

@@ -37,7 +37,7 @@ Robustness, in the order a step meets it:
   conflict are named: those whose rows carry the multipliers of the least-violation QP.
 
 Backends supply a :class:`~stw_tui.sos.sqp.algebra.LinearAlgebra` (where vectors live, how the KKT
-system is solved) and optionally their own evaluator of the window problem (torch autograd).
+system is solved) and optionally their own evaluator of the window problem (torch's programs).
 """
 
 from __future__ import annotations
