@@ -59,9 +59,11 @@ def test_forgetting_empties_every_cache_a_window_build_fills():
     s.run_text("time 0 1 knots=6\ndof x\nlet f = x^2\nconstraint c: f' = 1 on [0.2, 0.8]\n"
                "objective smooth: x''\niterate 2")
     window.WindowProblem(s.scene)
-    assert scene._EXPANDED and spline._BASES and compiler.free_symbols.cache_info().currsize
+    assert scene._EXPANDED and spline._kept_basis.cache_info().currsize
+    assert compiler.free_symbols.cache_info().currsize
     kept.forget()
-    assert not scene._EXPANDED and not spline._BASES and not window._PLAN_SETS
+    assert not scene._EXPANDED and spline._kept_basis.cache_info().currsize == 0
+    assert window._plan_set_of.cache_info().currsize == 0
     assert not compiler._CACHE
     assert compiler.free_symbols.cache_info().currsize == 0
     assert compiler._check_size.cache_info().currsize == 0

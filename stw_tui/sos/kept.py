@@ -18,10 +18,8 @@ def forget() -> None:
 
     with scene._EXPANDED_LOCK:
         scene._EXPANDED.clear()
-    with spline._BASES_LOCK:
-        spline._BASES.clear()
-    with window._PLAN_SETS_LOCK:
-        window._PLAN_SETS.clear()
+    spline._kept_basis.cache_clear()
+    window._plan_set_of.cache_clear()
     compiler.free_symbols.cache_clear()
     compiler._check_size.cache_clear()
     instances._exact_degree.cache_clear()

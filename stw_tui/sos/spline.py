@@ -8,7 +8,6 @@ matrix, so every matrix comes from ``BSpline.design_matrix`` in one vectorized c
 
 from __future__ import annotations
 
-import threading
 from dataclasses import dataclass
 from functools import lru_cache
 from typing import Callable, Sequence
@@ -22,12 +21,6 @@ DEGREE = 3
 # Times this far outside [t0, t1] are rounding noise (e.g. t0 + k*dt sums) and get clamped.
 _TIME_SLACK = 1e-12
 
-# Basis matrices by (knots, times, order), read-only, in least-recently-used order. Every
-# `iterate` builds its window anew, and most of its terms ask for the same DOF at the same
-# instances: a linkage session's window build asked for ~800 bases, ~100 of them distinct.
-_BASES: dict[tuple, sps.csr_array] = {}
-_BASES_LOCK = threading.Lock()
-_BASES_SIZE = 256
 
 
 def clamped_uniform_knots(t0: float, t1: float, spans: int) -> np.ndarray:
@@ -81,6 +74,26 @@ def gauss_legendre_nodes(breakpoints: np.ndarray, points_per_span: int, a: float
     times = (lo + hi) / 2 + half * x[None, :]
     weights = half * w[None, :]
     return times.ravel(), weights.ravel()
+
+
+# Kept by (knots, times, order): every `iterate` builds its window anew, and most of its terms
+# ask for the same DOF at the same instances (a linkage session's window build asked for ~800
+# bases, ~100 of them distinct).
+@lru_cache(maxsize=256)
+def _kept_basis(knots: bytes, times: bytes, order: int) -> sps.csr_array:
+    """DofCurve.basis of the curves on these knots (float64 bytes), read-only: it is shared by
+    every caller."""
+    knots_, times_, degree = np.frombuffer(knots), np.frombuffer(times), DEGREE
+    chain = None
+    for _ in range(order):  # at most two sparse factors, not a loop over points
+        D = _difference_matrix(knots_, degree)
+        chain = D if chain is None else D @ chain
+        knots_, degree = knots_[1:-1], degree - 1
+    M = sps.csr_array(BSpline.design_matrix(times_, knots_, degree))
+    M = M if chain is None else sps.csr_array(M @ chain)
+    for part in (M.data, M.indices, M.indptr):
+        part.flags.writeable = False
+    return M
 
 
 @lru_cache(maxsize=16)
@@ -240,30 +253,7 @@ class DofCurve:
         times = self._checked_times(times)
         if times.size == 0:  # design_matrix rejects empty input
             return sps.csr_array((0, self.n_coef))
-        key = (self.knots.tobytes(), times.tobytes(), order)
-        with _BASES_LOCK:
-            found = _BASES.pop(key, None)
-            if found is not None:
-                _BASES[key] = found               # now the most recently used
-                return found
-        M = self._basis(times, order)
-        for part in (M.data, M.indices, M.indptr):  # shared by every caller from now on
-            part.flags.writeable = False
-        with _BASES_LOCK:
-            _BASES[key] = M
-            while len(_BASES) > _BASES_SIZE:
-                del _BASES[next(iter(_BASES))]
-        return M
-
-    def _basis(self, times: np.ndarray, order: int) -> sps.csr_array:
-        knots, degree = self.knots, DEGREE
-        chain = None
-        for _ in range(order):  # at most two sparse factors, not a loop over points
-            D = _difference_matrix(knots, degree)
-            chain = D if chain is None else D @ chain
-            knots, degree = knots[1:-1], degree - 1
-        M = sps.csr_array(BSpline.design_matrix(times, knots, degree))
-        return M if chain is None else sps.csr_array(M @ chain)
+        return _kept_basis(self.knots.tobytes(), times.tobytes(), order)
 
     def evaluate(self, times, order: int = 0) -> np.ndarray:
         """Values (order 0) or derivatives (1, 2) at ``times``.

@@ -17,7 +17,6 @@ from __future__ import annotations
 
 import hashlib
 import operator
-import threading
 from dataclasses import dataclass, field
 from functools import lru_cache
 
@@ -37,10 +36,6 @@ from stw_tui.sym.symbols import dof_symbol
 
 EQ, GE, OBJ = TermKind.EQ, TermKind.GE, TermKind.OBJ
 HESSIAN_PLAN_AFTER = 4   # Hessians assembled by plain sparse products before a plan is made
-# Product plans by window structure (WindowProblem._plan_set), least recently used first.
-_PLAN_SETS: dict[bytes, tuple[dict, dict]] = {}   # (plans by kind, uses before a plan)
-_PLAN_SETS_LOCK = threading.Lock()
-_PLAN_SETS_SIZE = 4
 # The comparisons of a `when` condition, as operators: numpy arrays and torch tensors both take them.
 _RELATIONS = {
     sp.StrictGreaterThan: operator.gt, sp.GreaterThan: operator.ge,
@@ -175,6 +170,13 @@ def _triplet_structure(rows, cols, shape) -> tuple[sps.csr_array, np.ndarray] | 
     indptr = np.zeros(shape[0] + 1, dtype=np.int64)
     np.cumsum(np.bincount(r, minlength=shape[0]), out=indptr[1:])
     return sps.csr_array((np.ones(r.size), c, indptr), shape=shape), order
+
+
+@lru_cache(maxsize=4)
+def _plan_set_of(structure: bytes) -> tuple[dict, dict]:
+    """The plans (by kind) and the uses before a plan, shared by the window problems whose
+    structure has this digest (WindowProblem._plan_set); filled in as they are made."""
+    return {}, {"hess": 0, "gram": 0}
 
 
 @dataclass(frozen=True)
@@ -540,16 +542,9 @@ class WindowProblem:
                          *self._d_pattern, *(a for kind in (EQ, GE, OBJ) for a in self._g_pattern[kind])):
                 digest.update(np.ascontiguousarray(part).view(np.uint8))
                 digest.update(b"|")
-            key = digest.digest()
-            with _PLAN_SETS_LOCK:
-                kept = _PLAN_SETS.pop(key, None)
-                kept = ({}, {"hess": 0, "gram": 0}) if kept is None else kept
-                _PLAN_SETS[key] = kept                      # now the most recently used
-                while len(_PLAN_SETS) > _PLAN_SETS_SIZE:
-                    del _PLAN_SETS[next(iter(_PLAN_SETS))]
             # The uses are counted over the problems too: `iterate 1` repeated (a user stepping
             # through a solve) would otherwise never reach HESSIAN_PLAN_AFTER in one problem.
-            self._product_plans, self._uses = kept
+            self._product_plans, self._uses = _plan_set_of(digest.digest())
         return self._product_plans
 
     def _jacobian(self, kind: str, grad_parts: list[np.ndarray]) -> tuple[sps.csr_array, np.ndarray | None]:
