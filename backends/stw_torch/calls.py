@@ -148,11 +148,10 @@ def autograd_rows(term: LoweredTerm, X: torch.Tensor, times: torch.Tensor, param
     k, n = X.shape
     with torch.enable_grad():
         X = X.detach().requires_grad_(True)
-        f = term.values(X, times, params).expand(n)
-        if f.requires_grad:
+        f = term.values(X, times, params)
+        grad = None
+        if f.requires_grad:             # else the value is constant: its gradient is zero
             (grad,) = torch.autograd.grad(f.sum(), X, create_graph=second, allow_unused=True)
-        else:
-            grad = None
         grad = X.new_zeros(k, n) if grad is None else grad
         rows = [f.detach(), *grad.detach().unbind(0)]
         if second:
