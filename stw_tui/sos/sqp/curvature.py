@@ -28,6 +28,20 @@ SHIFT_FIRST, SHIFT_MAX = 1e-10, 1e-1   # first and largest shift δI tried; each
 SHIFT_BISECTIONS = 3      # ... then geometric bisections bring it within a factor 10^(1/8) of the least
 
 
+def convex_on(la: LinearAlgebra, H: Matrix, A: Matrix | None) -> bool:
+    """Whether H is positive definite on the null space of A (None: everywhere)."""
+    return la.positive_definite(_penalized(la, H, A, max(1.0, la.max_abs_diagonal(H))))
+
+
+def _penalized(la: LinearAlgebra, H: Matrix, A: Matrix | None, scale: float) -> Matrix:
+    """H + ρAᵀA with Debreu's ρ (CURVATURE_PENALTY, relative to H's scale and A's widest row)."""
+    if A is not None and A.shape[0]:
+        widest = la.max_abs_diagonal(la.gram(A, la.full(A.shape[0], 1.0)))
+        if widest > 0:
+            return la.add(H, la.gram(A, la.full(A.shape[0], CURVATURE_PENALTY * scale / widest)))
+    return H
+
+
 def convexify(la: LinearAlgebra, H: Matrix, A: Matrix | None, last: float = 0.0) -> tuple[Matrix, float]:
     """H + δI with the least δ >= 0 that makes it positive definite on the null space of A
     (None: everywhere), and δ.
@@ -40,11 +54,7 @@ def convexify(la: LinearAlgebra, H: Matrix, A: Matrix | None, last: float = 0.0)
     """
     n = H.shape[0]
     scale = max(1.0, la.max_abs_diagonal(H))
-    M = H
-    if A is not None and A.shape[0]:
-        widest = la.max_abs_diagonal(la.gram(A, la.full(A.shape[0], 1.0)))
-        if widest > 0:
-            M = la.add(H, la.gram(A, la.full(A.shape[0], CURVATURE_PENALTY * scale / widest)))
+    M = _penalized(la, H, A, scale)
 
     def convex(delta: float) -> bool:
         return la.positive_definite(la.add(M, la.diagonal_matrix(np.full(n, delta))) if delta else M)
@@ -62,4 +72,4 @@ def convexify(la: LinearAlgebra, H: Matrix, A: Matrix | None, last: float = 0.0)
     return la.add(H, la.diagonal_matrix(np.full(n, hi))), hi
 
 
-__all__ = ["convexify", "CURVATURE_PENALTY", "SHIFT_FIRST", "SHIFT_MAX", "SHIFT_BISECTIONS"]
+__all__ = ["convexify", "convex_on", "CURVATURE_PENALTY", "SHIFT_FIRST", "SHIFT_MAX", "SHIFT_BISECTIONS"]
