@@ -143,12 +143,10 @@ def _active_set(la, H, g, Ae, ce, Ai, ci, y0, z0, binding) -> QPResult | None:
         if trial.result is not None:
             trial.result.linear_iterations, trial.result.fallbacks = linear_its, fallbacks
             return trial.result
-        if not seen and not convex_on(la, H, Ae):   # (the first pass is the previous step's set)
+        change = int(la.numpy(binding != trial.next_binding).sum())
+        if change > limit or (not seen and not convex_on(la, H, Ae)):   # (the cheaper test first)
             return None
         seen.add(la.numpy(binding).tobytes())
-        change = int(la.numpy(binding != trial.next_binding).sum())
-        if change > limit:
-            return None
         binding, limit = trial.next_binding, ACTIVE_SET_SETTLING * change
         if la.numpy(binding).tobytes() in seen:
             return None
