@@ -111,6 +111,29 @@ def test_a_capped_interior_point_method_is_reported_and_falls_back_to_elastic():
     assert first.qp_capped >= 1 and first.elastic
 
 
+def test_an_inconsistent_linearization_stops_the_interior_point_method_soon_after_its_floor(monkeypatch):
+    # d₀ = 1 and d₀ = 2: the stabilized rows meet halfway, d₀ = 1.5, through multipliers
+    # ±0.5/ε = 5e9. The dual residual's rounding floor (|y| eps) is far above IPM_TOL; after
+    # INFEASIBLE_STALL iterations there instead of IPM_STALL the method stops with the same step
+    # (which the SQP refuses for the elastic QP, whose weight is capped at INFEASIBLE_MULTIPLIER).
+    import scipy.sparse as sps
+    from stw_scipy.linear import SparseAlgebra
+    from stw_tui.sos.sqp import qp as Q
+
+    la = SparseAlgebra()
+    H, g = sps.csr_array(np.eye(2)), np.array([0.0, 1.0])
+    Ae, ce = sps.csr_array([[1.0, 0.0], [1.0, 0.0]]), np.array([-1.0, -2.0])
+    Ai, ci = sps.csr_array([[0.0, 1.0]]), np.array([0.5])
+    soon = Q.solve_qp(la, H, g, Ae, ce, Ai, ci)
+    saved = Q.IPM_STALL - Q.INFEASIBLE_STALL
+    monkeypatch.setattr(Q, "INFEASIBLE_STALL", Q.IPM_STALL)
+    late = Q.solve_qp(la, H, g, Ae, ce, Ai, ci)
+    assert late.ipm_iterations - soon.ipm_iterations == saved
+    np.testing.assert_allclose(soon.d, [1.5, -0.5], atol=1e-9)      # d₁ at its bound -0.5
+    np.testing.assert_allclose(soon.d, late.d, atol=1e-12)
+    assert np.abs(soon.y).max() >= Q.INFEASIBLE_MULTIPLIER
+
+
 def _sketched_throw() -> str:
     text = (SESSIONS / "arm_throw.stw").read_text()
     head = text[:text.index("iterate 150")]

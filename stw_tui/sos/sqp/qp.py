@@ -32,6 +32,8 @@ IPM_TOL = 1e-11            # relative residuals and complementarity at which the
 IPM_MAX = 100              # interior-point iteration limit (hitting it is reported, never silent)
 IPM_ACCEPTABLE = 1e-6      # when the method stalls short of IPM_TOL, its best iterate is used if it got this far
 IPM_STALL = 20             # iterations without halving the best error: stalled (round-off, or an infeasible QP)
+INFEASIBLE_STALL = 5       # ... of a hard QP whose equality rows are met only through huge multipliers:
+INFEASIBLE_MULTIPLIER = 1e6   # |y| this large, and ε|y - y0| above 1e-3 of the rows' scale
 POLISH_TOL = 1e-9          # relative: how negative a binding row's multiplier may come out of a working-set solve ...
 FEASIBLE_TOL = 1e-12       # ... and how far its step may leave another inequality row's linearization (rounding)
 ACTIVE_SET_PASSES = 5      # factorizations the active-set method may spend before the interior-point method takes over,
@@ -192,6 +194,16 @@ def _working_set_trial(la, H, g, Ae, ce, Ai, ci, y0, z0, binding) -> _Trial | No
     return _Trial(None, keep, system.iterations, system.fallbacks)
 
 
+def _unmeetable(la, y, y0, scale_c) -> bool:
+    """Whether a hard QP meets its equality rows only through multipliers that run away: the
+    stabilized rows A_e d + c_e = ε(y - y0) are then off by more than the SQP accepts of a step
+    (an inconsistent linearization, the first steps of the arm's throw: |y| ~ 1e10). Its rounding
+    floor is far above IPM_TOL, and the solver takes the elastic QP instead, with its weight capped
+    at INFEASIBLE_MULTIPLIER's share: nothing is gained by stalling for IPM_STALL iterations."""
+    return (la.max_abs(y) >= INFEASIBLE_MULTIPLIER
+            and KKT_EPS * la.max_abs(y - y0) > 1e-3 * scale_c)
+
+
 def _interior_point(la, H, g, Ae, ce, Ai, ci, y0, rho, tol, max_ipm) -> tuple[QPResult, Vector]:
     n, me, mi = g.shape[0], ce.shape[0], ci.shape[0]
     elastic = rho is not None
@@ -236,7 +248,8 @@ def _interior_point(la, H, g, Ae, ce, Ai, ci, y0, rho, tol, max_ipm) -> tuple[QP
             since_best = 0
         else:
             since_best += 1
-            if since_best >= IPM_STALL:
+            if since_best >= IPM_STALL or (since_best >= INFEASIBLE_STALL and not elastic
+                                           and _unmeetable(la, y, y0, scale_c)):
                 break
         if error < best_error:
             best, best_error = (d, y, z, w), error

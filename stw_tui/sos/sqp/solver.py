@@ -51,7 +51,7 @@ import numpy as np
 from stw_tui.sos.backend import Backend, BackendOption, Capability, SolverState, StepReport
 from stw_tui.sos.sqp.algebra import LinearAlgebra, SingularSystem
 from stw_tui.sos.sqp.curvature import convexify
-from stw_tui.sos.sqp.qp import KKT_EPS, QPResult, solve_qp
+from stw_tui.sos.sqp.qp import INFEASIBLE_MULTIPLIER, KKT_EPS, QPResult, solve_qp
 from stw_tui.sos.sqp.termination import is_converged, kkt_residual
 from stw_tui.sym.errors import StwError
 
@@ -337,7 +337,7 @@ class SQPBackend(Backend):
         if hard is not None and not hard.qp.capped and self._meets(la, lin, hard.qp.d):
             return hard, rho_elastic
         multipliers = float(np.abs(hard.lam_eq).max(initial=0.0)) if hard is not None else 0.0
-        rho_elastic = max(rho_elastic, ELASTIC_WEIGHT * max(self._elastic_base(ev), min(multipliers, 1e6)))
+        rho_elastic = max(rho_elastic, ELASTIC_WEIGHT * max(self._elastic_base(ev), min(multipliers, INFEASIBLE_MULTIPLIER)))
         counts.elastic = True
         return self._qp(la, H, ev, lin, rho_elastic, counts), rho_elastic
 
