@@ -120,6 +120,7 @@ def test_an_inconsistent_linearization_stops_the_interior_point_method_soon_afte
     from stw_scipy.linear import SparseAlgebra
     from stw_tui.sos.sqp import qp as Q
 
+    monkeypatch.setattr(Q, "FLOOR_POLISH", 10 ** 9)   # this rule alone (the polish would end it too)
     la = SparseAlgebra()
     H, g = sps.csr_array(np.eye(2)), np.array([0.0, 1.0])
     Ae, ce = sps.csr_array([[1.0, 0.0], [1.0, 0.0]]), np.array([-1.0, -2.0])
@@ -132,6 +133,37 @@ def test_an_inconsistent_linearization_stops_the_interior_point_method_soon_afte
     np.testing.assert_allclose(soon.d, [1.5, -0.5], atol=1e-9)      # d₁ at its bound -0.5
     np.testing.assert_allclose(soon.d, late.d, atol=1e-12)
     assert np.abs(soon.y).max() >= Q.INFEASIBLE_MULTIPLIER
+
+
+def test_a_hard_qp_at_its_rounding_floor_is_polished_there_not_after_stalling(monkeypatch):
+    # A hard QP of luxo.stw's (185 variables, 110 equality and 256 inequality rows) whose
+    # interior-point iterates reach their rounding floor short of IPM_TOL. Polished on the rows
+    # that bind (z > w) after FLOOR_POLISH stalled iterations, it ends with exactly the answer it
+    # reached after IPM_STALL of them (the polish depends on those rows alone), and that answer
+    # meets the QP's KKT conditions.
+    import scipy.sparse as sps
+    from stw_scipy.linear import SparseAlgebra
+    from stw_tui.sos.sqp import qp as Q
+
+    f = np.load(ROOT / "tests" / "data" / "luxo_floor_qp.npz")
+
+    def matrix(name):
+        return sps.csr_array((f[name + "_data"], f[name + "_indices"], f[name + "_indptr"]),
+                             shape=tuple(f[name + "_shape"]))
+
+    H, Ae, Ai, g, ce, ci, y0 = matrix("H"), matrix("Ae"), matrix("Ai"), f["g"], f["ce"], f["ci"], f["y0"]
+    soon = Q.solve_qp(SparseAlgebra(), H, g, Ae, ce, Ai, ci, y0=y0)
+    monkeypatch.setattr(Q, "FLOOR_POLISH", 10 ** 9)
+    late = Q.solve_qp(SparseAlgebra(), H, g, Ae, ce, Ai, ci, y0=y0)
+    assert soon.ipm_iterations + 10 <= late.ipm_iterations
+    for a, b in ((soon.d, late.d), (soon.y, late.y), (soon.z, late.z)):
+        np.testing.assert_array_equal(a, b)
+    d, y, z = soon.d, soon.y, soon.z
+    slack = Ai @ d + ci
+    scale = 1.0 + np.abs(g).max()
+    assert np.abs(H @ d + g + Ae.T @ y - Ai.T @ z).max() <= 1e-9 * scale
+    assert np.abs(Ae @ d + ce).max() <= 1e-10 * (1.0 + np.abs(ce).max())
+    assert slack.min() >= -1e-12 and z.min() >= 0.0 and np.abs(z * slack).max() <= 1e-9 * scale
 
 
 def _sketched_throw() -> str:

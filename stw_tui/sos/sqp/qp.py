@@ -34,6 +34,7 @@ IPM_ACCEPTABLE = 1e-6      # when the method stalls short of IPM_TOL, its best i
 IPM_STALL = 20             # iterations without halving the best error: stalled (round-off, or an infeasible QP)
 INFEASIBLE_STALL = 5       # ... of a hard QP whose equality rows are met only through huge multipliers:
 INFEASIBLE_MULTIPLIER = 1e6   # |y| this large, and ε|y - y0| above 1e-3 of the rows' scale
+FLOOR_POLISH = 5           # stalled iterations of a hard QP between tries to polish its iterate (at its rounding floor)
 POLISH_TOL = 1e-9          # relative: how negative a binding row's multiplier may come out of a working-set solve ...
 FEASIBLE_TOL = 1e-12       # ... and how far its step may leave another inequality row's linearization (rounding)
 ACTIVE_SET_PASSES = 5      # factorizations the active-set method may spend before the interior-point method takes over,
@@ -65,11 +66,11 @@ def solve_qp(la: LinearAlgebra, H: Matrix, g: Vector, Ae: Matrix, ce: Vector, Ai
     densely than its spline can vary — then get bounded multipliers, and the constraints are
     still met exactly once the multipliers settle.
 
-    A hard QP with inequality rows is first tried on the ``working`` rows (a backend bool vector:
-    those that bound at the last step), then solved by the interior-point method, whose
-    solution is made exact on the rows it found binding (:func:`_on_working_set`): binding rows
-    become equality rows, stabilized around ``z0`` (the previous inequality multipliers, >= 0)
-    like the others.
+    A hard QP with inequality rows is first tried by active-set passes from the ``working`` rows
+    (a backend bool vector: those that bound at the last step), then solved by the
+    interior-point method, whose solution is made exact on the rows it found binding
+    (:func:`_on_working_set`): binding rows become equality rows, stabilized around ``z0`` (the
+    previous inequality multipliers, >= 0) like the others.
 
     Raises:
         SingularSystem: a KKT matrix could not be factorized.
@@ -85,14 +86,9 @@ def solve_qp(la: LinearAlgebra, H: Matrix, g: Vector, Ae: Matrix, ce: Vector, Ai
         guess = _active_set(la, H, g, Ae, ce, Ai, ci, y0, z0, working)
         if guess is not None:
             return guess
-    result, w = _interior_point(la, H, g, Ae, ce, Ai, ci, y0, elastic, tol, max_ipm)
-    if elastic is None and not result.capped:
-        polished = _on_working_set(la, H, g, Ae, ce, Ai, ci, y0, z0, result.z > w)
-        if polished is not None:
-            polished.linear_iterations += result.linear_iterations
-            polished.ipm_iterations, polished.fallbacks = result.ipm_iterations, result.fallbacks + polished.fallbacks
-            result = polished
-    return result
+    polish = None if elastic is not None else (
+        lambda binding: _on_working_set(la, H, g, Ae, ce, Ai, ci, y0, z0, binding))
+    return _interior_point(la, H, g, Ae, ce, Ai, ci, y0, elastic, tol, max_ipm, polish)
 
 
 def _on_working_set(la, H, g, Ae, ce, Ai, ci, y0, z0, binding) -> QPResult | None:
@@ -204,7 +200,14 @@ def _unmeetable(la, y, y0, scale_c) -> bool:
             and KKT_EPS * la.max_abs(y - y0) > 1e-3 * scale_c)
 
 
-def _interior_point(la, H, g, Ae, ce, Ai, ci, y0, rho, tol, max_ipm) -> tuple[QPResult, Vector]:
+def _interior_point(la, H, g, Ae, ce, Ai, ci, y0, rho, tol, max_ipm, polish=None) -> QPResult:
+    """Mehrotra's predictor-corrector on the QP (elastic with weight ``rho``, else hard).
+
+    ``polish`` (hard QPs): the exact solution on a set of binding rows, or None
+    (:func:`_on_working_set`). It is applied to the rows found binding (z > w) when the method
+    ends, and every FLOOR_POLISH iterations that it stalls: short of IPM_TOL, at its rounding
+    floor, the binding rows have long settled, and the polish depends on them alone.
+    """
     n, me, mi = g.shape[0], ce.shape[0], ci.shape[0]
     elastic = rho is not None
     d = la.zeros(n)
@@ -251,6 +254,10 @@ def _interior_point(la, H, g, Ae, ce, Ai, ci, y0, rho, tol, max_ipm) -> tuple[QP
             if since_best >= IPM_STALL or (since_best >= INFEASIBLE_STALL and not elastic
                                            and _unmeetable(la, y, y0, scale_c)):
                 break
+            if polish is not None and since_best % FLOOR_POLISH == 0:
+                polished = polish(z > w)
+                if polished is not None:
+                    return _after(polished, linear_its, k, fallbacks)
         if error < best_error:
             best, best_error = (d, y, z, w), error
         q_inv = z / w if not elastic else 1.0 / (w / z + t / s)
@@ -297,5 +304,16 @@ def _interior_point(la, H, g, Ae, ce, Ai, ci, y0, rho, tol, max_ipm) -> tuple[QP
         z = z + ad * dual[0][1]
     if not converged and best_error <= IPM_ACCEPTABLE:
         (d, y, z, w), converged = best, True
-    return QPResult(d, y, z, linear_its, k, fallbacks, capped=not converged, elastic=rho), w
+    if polish is not None and converged:
+        polished = polish(z > w)
+        if polished is not None:
+            return _after(polished, linear_its, k, fallbacks)
+    return QPResult(d, y, z, linear_its, k, fallbacks, capped=not converged, elastic=rho)
+
+
+def _after(polished: QPResult, linear_its: int, ipm_its: int, fallbacks: int) -> QPResult:
+    """A polished solution, with the interior-point method's work counted in."""
+    polished.linear_iterations += linear_its
+    polished.ipm_iterations, polished.fallbacks = ipm_its, fallbacks + polished.fallbacks
+    return polished
 
