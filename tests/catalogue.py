@@ -155,3 +155,17 @@ def backend_package(module: str):
     except ModuleNotFoundError:
         sys.path.insert(0, str(ROOT / "backends"))
         return importlib.import_module(module)
+
+
+def linear_algebras() -> list:
+    """The SQP's linear algebras, to run the shared QP on each: SciPy's sparse one, and torch's
+    dense one where torch is installed."""
+    from stw_scipy.linear import SparseAlgebra
+
+    found = [SparseAlgebra()]
+    try:
+        import torch
+        from stw_torch.linalg import DenseAlgebra
+    except ModuleNotFoundError:
+        return found
+    return found + [DenseAlgebra(torch.device("cpu"))]

@@ -7,19 +7,9 @@ import numpy as np
 import pytest
 import scipy.sparse as sps
 
+import catalogue
+
 from stw_tui.sos.sqp.qp import solve_qp
-
-
-def _algebras():
-    from stw_scipy.linear import SparseAlgebra
-
-    found = [SparseAlgebra()]
-    try:
-        import torch
-        from stw_torch.linalg import DenseAlgebra
-    except ModuleNotFoundError:
-        return found
-    return found + [DenseAlgebra(torch.device("cpu"))]
 
 
 def _box_qp(rng, n=30, me=3, convex=True):
@@ -50,7 +40,7 @@ def _solve(la, parts, working):
                     working=None if working is None else la.vector(working.astype(float)) > 0.5)
 
 
-@pytest.mark.parametrize("la", _algebras(), ids=lambda la: type(la).__name__)
+@pytest.mark.parametrize("la", catalogue.linear_algebras(), ids=lambda la: type(la).__name__)
 def test_a_nearby_working_set_is_corrected_by_active_set_passes_to_the_exact_solution(la):
     rng = np.random.default_rng(3)
     parts = _box_qp(rng)
@@ -72,7 +62,7 @@ def test_a_nearby_working_set_is_corrected_by_active_set_passes_to_the_exact_sol
     np.testing.assert_allclose(d, d_ref, atol=1e-8)
 
 
-@pytest.mark.parametrize("la", _algebras(), ids=lambda la: type(la).__name__)
+@pytest.mark.parametrize("la", catalogue.linear_algebras(), ids=lambda la: type(la).__name__)
 def test_a_model_not_convex_on_the_equality_rows_leaves_the_set_to_the_interior_point_method(la):
     # min ½(d₀² - d₁² + d₂²) - 0.5 d₀ + 0.1 d₁  s.t.  d₂ = 0.2,  -1 <= d₀, d₁ <= 1. Curved down along
     # d₁, so its minimizers sit on d₁'s bounds (d₁ = -1 is the best). From the guess "d₀ >= -1
@@ -91,7 +81,7 @@ def test_a_model_not_convex_on_the_equality_rows_leaves_the_set_to_the_interior_
     assert d[0] == pytest.approx(0.5, abs=1e-9) and d[2] == pytest.approx(0.2, abs=1e-9)
 
 
-@pytest.mark.parametrize("la", _algebras(), ids=lambda la: type(la).__name__)
+@pytest.mark.parametrize("la", catalogue.linear_algebras(), ids=lambda la: type(la).__name__)
 def test_a_guess_that_changes_wholesale_is_left_to_the_interior_point_method(la):
     # An empty working set where many rows bind: the first pass would add more rows than the guess
     # holds (the first steps of a solve, far from the solution), so no passes are spent on it.

@@ -11,6 +11,7 @@ import sys
 import numpy as np
 import pytest
 
+import catalogue
 from conftest import ROOT, SESSIONS
 from stw_tui.session.session import Session
 from stw_tui.sos.backend import SolverState, Status, run_iterations
@@ -120,7 +121,7 @@ def test_an_inconsistent_linearization_stops_the_interior_point_method_soon_afte
     from stw_scipy.linear import SparseAlgebra
     from stw_tui.sos.sqp import qp as Q
 
-    monkeypatch.setattr(Q, "FLOOR_POLISH", 10 ** 9)   # this rule alone (the polish would end it too)
+    monkeypatch.setattr(Q, "FLOOR_STALL", 10 ** 9)   # this rule alone (the polish would end it too)
     la = SparseAlgebra()
     H, g = sps.csr_array(np.eye(2)), np.array([0.0, 1.0])
     Ae, ce = sps.csr_array([[1.0, 0.0], [1.0, 0.0]]), np.array([-1.0, -2.0])
@@ -138,7 +139,7 @@ def test_an_inconsistent_linearization_stops_the_interior_point_method_soon_afte
 def test_a_hard_qp_at_its_rounding_floor_is_polished_there_not_after_stalling(monkeypatch):
     # A hard QP of luxo.stw's (185 variables, 110 equality and 256 inequality rows) whose
     # interior-point iterates reach their rounding floor short of IPM_TOL. Polished on the rows
-    # that bind (z > w) after FLOOR_POLISH stalled iterations, it ends with exactly the answer it
+    # that bind (z > w) after FLOOR_STALL stalled iterations, it ends with exactly the answer it
     # reached after IPM_STALL of them (the polish depends on those rows alone), and that answer
     # meets the QP's KKT conditions.
     import scipy.sparse as sps
@@ -153,7 +154,7 @@ def test_a_hard_qp_at_its_rounding_floor_is_polished_there_not_after_stalling(mo
 
     H, Ae, Ai, g, ce, ci, y0 = matrix("H"), matrix("Ae"), matrix("Ai"), f["g"], f["ce"], f["ci"], f["y0"]
     soon = Q.solve_qp(SparseAlgebra(), H, g, Ae, ce, Ai, ci, y0=y0)
-    monkeypatch.setattr(Q, "FLOOR_POLISH", 10 ** 9)
+    monkeypatch.setattr(Q, "FLOOR_STALL", 10 ** 9)
     late = Q.solve_qp(SparseAlgebra(), H, g, Ae, ce, Ai, ci, y0=y0)
     assert soon.ipm_iterations + 10 <= late.ipm_iterations
     for a, b in ((soon.d, late.d), (soon.y, late.y), (soon.z, late.z)):
@@ -342,19 +343,26 @@ def test_an_elastic_qp_with_a_large_weight_keeps_its_best_acceptable_iterate():
     assert np.all(np.abs(z[row_i > 1e-4]) <= 1e-3 * rho)
 
 
-def _algebras():
+def test_an_elastic_qp_at_its_rounding_floor_stops_there_with_the_same_best_iterate(monkeypatch):
+    # The hop's elastic QP above: once its best iterate is acceptable, FLOOR_STALL iterations
+    # without progress end it; the IPM_STALL - FLOOR_STALL more it ran before found no better one.
+    import scipy.sparse as sps
+
     from stw_scipy.linear import SparseAlgebra
+    from stw_tui.sos.sqp import qp as Q
 
-    found = [SparseAlgebra()]
-    try:
-        import torch
-        from stw_torch.linalg import DenseAlgebra
-    except ModuleNotFoundError:
-        return found
-    return found + [DenseAlgebra(torch.device("cpu"))]
+    f = np.load(ROOT / "tests" / "data" / "hop_first_qp.npz")
+    H = sps.csr_array((f["H_data"], f["H_indices"], f["H_indptr"]), shape=tuple(f["H_shape"]))
+    args = (H, f["g"], sps.csr_array(f["Ae"]), f["ce"], sps.csr_array(f["Ai"]), f["ci"], f["y0"])
+    soon = Q.solve_qp(SparseAlgebra(), *args, elastic=1e6)
+    monkeypatch.setattr(Q, "FLOOR_STALL", 10 ** 9)
+    late = Q.solve_qp(SparseAlgebra(), *args, elastic=1e6)
+    assert soon.ipm_iterations + 10 <= late.ipm_iterations and not soon.capped
+    for a, b in ((soon.d, late.d), (soon.y, late.y), (soon.z, late.z)):
+        np.testing.assert_array_equal(a, b)
 
 
-@pytest.mark.parametrize("la", _algebras(), ids=lambda la: type(la).__name__)
+@pytest.mark.parametrize("la", catalogue.linear_algebras(), ids=lambda la: type(la).__name__)
 def test_dependent_binding_rows_share_their_force_without_drift(la):
     # min ½dᵀHd + gᵀd with d₀ = 0 twice: as an equality row, and as a bound d₀ >= 0 that binds
     # (g₀ > 0). Only y - z = -g₀ is determined. Solved again and again from the last multipliers,
@@ -382,7 +390,7 @@ def test_dependent_binding_rows_share_their_force_without_drift(la):
     assert abs(seen[-1] - seen[-2]) <= 1e-12 * 30 and max(seen) - min(seen) <= 1e-5 * 30
 
 
-@pytest.mark.parametrize("la", _algebras(), ids=lambda la: type(la).__name__)
+@pytest.mark.parametrize("la", catalogue.linear_algebras(), ids=lambda la: type(la).__name__)
 def test_positive_definite_agrees_with_the_eigenvalues(la):
     import scipy.sparse as sps
 

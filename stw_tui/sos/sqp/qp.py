@@ -34,7 +34,7 @@ IPM_ACCEPTABLE = 1e-6      # when the method stalls short of IPM_TOL, its best i
 IPM_STALL = 20             # iterations without halving the best error: stalled (round-off, or an infeasible QP)
 INFEASIBLE_STALL = 5       # ... of a hard QP whose equality rows are met only through huge multipliers:
 INFEASIBLE_MULTIPLIER = 1e6   # |y| this large, and ε|y - y0| above 1e-3 of the rows' scale
-FLOOR_POLISH = 5           # stalled iterations of a hard QP between tries to polish its iterate (at its rounding floor)
+FLOOR_STALL = 5            # stalled iterations with an acceptable best iterate: the rounding floor (polish, or stop)
 POLISH_TOL = 1e-9          # relative: how negative a binding row's multiplier may come out of a working-set solve ...
 FEASIBLE_TOL = 1e-12       # ... and how far its step may leave another inequality row's linearization (rounding)
 ACTIVE_SET_PASSES = 5      # factorizations the active-set method may spend before the interior-point method takes over,
@@ -205,8 +205,8 @@ def _interior_point(la, H, g, Ae, ce, Ai, ci, y0, rho, tol, max_ipm, polish=None
 
     ``polish`` (hard QPs): the exact solution on a set of binding rows, or None
     (:func:`_on_working_set`). It is applied to the rows found binding (z > w) when the method
-    ends, and every FLOOR_POLISH iterations that it stalls: short of IPM_TOL, at its rounding
-    floor, the binding rows have long settled, and the polish depends on them alone.
+    ends, also when it ends at its rounding floor: FLOOR_STALL iterations without progress once
+    the best iterate is acceptable (IPM_ACCEPTABLE).
     """
     n, me, mi = g.shape[0], ce.shape[0], ci.shape[0]
     elastic = rho is not None
@@ -254,10 +254,14 @@ def _interior_point(la, H, g, Ae, ce, Ai, ci, y0, rho, tol, max_ipm, polish=None
             if since_best >= IPM_STALL or (since_best >= INFEASIBLE_STALL and not elastic
                                            and _unmeetable(la, y, y0, scale_c)):
                 break
-            if polish is not None and since_best % FLOOR_POLISH == 0:
-                polished = polish(z > w)
+            if since_best >= FLOOR_STALL and best_error <= IPM_ACCEPTABLE:
+                # Its rounding floor, short of IPM_TOL: a hard QP's binding rows have long settled
+                # there, and the polish depends on them alone; else the best iterate, as after
+                # IPM_STALL stalled iterations (which come to nothing more).
+                polished = polish(z > w) if polish is not None else None
                 if polished is not None:
                     return _after(polished, linear_its, k, fallbacks)
+                break
         if error < best_error:
             best, best_error = (d, y, z, w), error
         q_inv = z / w if not elastic else 1.0 / (w / z + t / s)
