@@ -153,6 +153,7 @@ def _active_set(la, H, g, Ae, ce, Ai, ci, y0, z0, binding) -> QPResult | None:
 
 @dataclass
 class _Trial:
+    """One working-set solve: the QP's solution, or the rows to try next."""
     result: QPResult | None      # the solution, when the rows were the binding ones
     next_binding: Vector         # else: the rows kept (multiplier >= 0) and those violated
     linear_iterations: int
@@ -160,6 +161,8 @@ class _Trial:
 
 
 def _working_set_trial(la, H, g, Ae, ce, Ai, ci, y0, z0, binding) -> _Trial | None:
+    """The QP solved with the rows ``binding`` as equality rows (:func:`_on_working_set`), and
+    whether that is its solution; None when the system is singular or the step not finite."""
     n, me = g.shape[0], ce.shape[0]
     A = la.stack_rows([Ae, la.rows(Ai, np.flatnonzero(la.numpy(binding)))])
     c = la.concat([ce, ci[binding]])
