@@ -86,9 +86,14 @@ def solve_qp(la: LinearAlgebra, H: Matrix, g: Vector, Ae: Matrix, ce: Vector, Ai
         guess = _active_set(la, H, g, Ae, ce, Ai, ci, y0, z0, working)
         if guess is not None:
             return guess
-    polish = None if elastic is not None else (
-        lambda binding: _on_working_set(la, H, g, Ae, ce, Ai, ci, y0, z0, binding))
-    return _interior_point(la, H, g, Ae, ce, Ai, ci, y0, elastic, tol, max_ipm, polish)
+    result, w = _interior_point(la, H, g, Ae, ce, Ai, ci, y0, elastic, tol, max_ipm)
+    if elastic is None and not result.capped:
+        polished = _on_working_set(la, H, g, Ae, ce, Ai, ci, y0, z0, result.z > w)
+        if polished is not None:
+            polished.linear_iterations += result.linear_iterations
+            polished.ipm_iterations, polished.fallbacks = result.ipm_iterations, result.fallbacks + polished.fallbacks
+            result = polished
+    return result
 
 
 def _on_working_set(la, H, g, Ae, ce, Ai, ci, y0, z0, binding) -> QPResult | None:
@@ -203,13 +208,11 @@ def _unmeetable(la, y, y0, scale_c) -> bool:
             and KKT_EPS * la.max_abs(y - y0) > 1e-3 * scale_c)
 
 
-def _interior_point(la, H, g, Ae, ce, Ai, ci, y0, rho, tol, max_ipm, polish=None) -> QPResult:
-    """Mehrotra's predictor-corrector on the QP (elastic with weight ``rho``, else hard).
-
-    ``polish`` (hard QPs): the exact solution on a set of binding rows, or None
-    (:func:`_on_working_set`). It is applied to the rows found binding (z > w) when the method
-    ends, also when it ends at its rounding floor: FLOOR_STALL iterations without progress once
-    the best iterate is acceptable (IPM_ACCEPTABLE).
+def _interior_point(la, H, g, Ae, ce, Ai, ci, y0, rho, tol, max_ipm) -> tuple[QPResult, Vector]:
+    """Mehrotra's predictor-corrector on the QP (elastic with weight ``rho``, else hard): its
+    result and slacks w. It ends at IPM_TOL, or at its rounding floor (FLOOR_STALL iterations
+    without progress once the best iterate is acceptable), or stalled (IPM_STALL; INFEASIBLE_STALL
+    for a hard QP that meets its equality rows only through runaway multipliers), or at max_ipm.
     """
     n, me, mi = g.shape[0], ce.shape[0], ci.shape[0]
     elastic = rho is not None
@@ -258,12 +261,9 @@ def _interior_point(la, H, g, Ae, ce, Ai, ci, y0, rho, tol, max_ipm, polish=None
                                            and _unmeetable(la, y, y0, scale_c)):
                 break
             if since_best >= FLOOR_STALL and best_error <= IPM_ACCEPTABLE:
-                # Its rounding floor, short of IPM_TOL: a hard QP's binding rows have long settled
-                # there, and the polish depends on them alone; else the best iterate, as after
-                # IPM_STALL stalled iterations (which come to nothing more).
-                polished = polish(z > w) if polish is not None else None
-                if polished is not None:
-                    return _after(polished, linear_its, k, fallbacks)
+                # Its rounding floor, short of IPM_TOL: the best iterate, as after IPM_STALL
+                # stalled iterations, which come to nothing more (and a hard QP's binding rows,
+                # on which solve_qp polishes it, have long settled).
                 break
         if error < best_error:
             best, best_error = (d, y, z, w), error
@@ -311,16 +311,5 @@ def _interior_point(la, H, g, Ae, ce, Ai, ci, y0, rho, tol, max_ipm, polish=None
         z = z + ad * dual[0][1]
     if not converged and best_error <= IPM_ACCEPTABLE:
         (d, y, z, w), converged = best, True
-    if polish is not None and converged:
-        polished = polish(z > w)
-        if polished is not None:
-            return _after(polished, linear_its, k, fallbacks)
-    return QPResult(d, y, z, linear_its, k, fallbacks, capped=not converged, elastic=rho)
-
-
-def _after(polished: QPResult, linear_its: int, ipm_its: int, fallbacks: int) -> QPResult:
-    """A polished solution, with the interior-point method's work counted in."""
-    polished.linear_iterations += linear_its
-    polished.ipm_iterations, polished.fallbacks = ipm_its, fallbacks + polished.fallbacks
-    return polished
+    return QPResult(d, y, z, linear_its, k, fallbacks, capped=not converged, elastic=rho), w
 

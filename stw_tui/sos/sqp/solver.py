@@ -337,7 +337,8 @@ class SQPBackend(Backend):
         if hard is not None and not hard.qp.capped and self._meets(la, lin, hard.qp.d):
             return hard, rho_elastic
         multipliers = float(np.abs(hard.lam_eq).max(initial=0.0)) if hard is not None else 0.0
-        rho_elastic = max(rho_elastic, ELASTIC_WEIGHT * max(self._elastic_base(ev), min(multipliers, INFEASIBLE_MULTIPLIER)))
+        rho_elastic = max(rho_elastic, ELASTIC_WEIGHT * max(self._elastic_base(ev),
+                                                            min(multipliers, INFEASIBLE_MULTIPLIER)))
         counts.elastic = True
         return self._qp(la, H, ev, lin, rho_elastic, counts), rho_elastic
 
