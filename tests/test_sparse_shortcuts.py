@@ -1,5 +1,6 @@
 """The SciPy backend's shortcuts are the operations they replace, bit for bit (any difference would
-move every later iterate): direct sparse kernels (stw_tui/sos/sparse_matvec.py), CSR row selection
+move every later iterate): direct sparse kernels (stw_tui/sos/sparse_matvec.py), arrays built
+without scipy's checks, their sum and transpose (stw_tui/sos/compressed.py), CSR row selection
 and stacking (backends/stw_scipy/csr_rows.py), and the algebra's ratio test."""
 
 import numpy as np
@@ -8,6 +9,7 @@ import scipy.sparse as sps
 
 from stw_scipy.csr_rows import select_rows, stack_rows
 from stw_scipy.linear import SparseAlgebra
+from stw_tui.sos import compressed
 from stw_tui.sos.sparse_matvec import matvec
 from stw_tui.sos.sqp.algebra import LinearAlgebra
 
@@ -62,3 +64,57 @@ def test_rows_taken_and_stacked_are_scipys_bit_for_bit():
             assert got.shape == want.shape
             assert np.array_equal(got.indptr, want.indptr) and np.array_equal(got.indices, want.indices)
             assert np.array_equal(got.data, want.data)
+
+
+def _same(got, want):
+    """Same class, shape, index dtype and stored parts (values bit for bit), and usable."""
+    assert type(got) is type(want) and got.shape == want.shape
+    assert got.indices.dtype == want.indices.dtype and got.indptr.dtype == want.indptr.dtype
+    assert np.array_equal(got.indptr, want.indptr) and np.array_equal(got.indices, want.indices)
+    assert np.array_equal(got.data, want.data)
+    x = np.arange(1.0, got.shape[1] + 1)
+    assert np.array_equal(got @ x, want @ x) and got.nnz == want.nnz
+
+
+def _random_csr(rng, m, n):
+    A = sps.random_array((m, n), density=rng.random(), rng=rng, format="csr")
+    A.data[:] = rng.standard_normal(A.nnz) * 10.0 ** rng.integers(-8, 8, A.nnz)
+    A.data[rng.random(A.nnz) < 0.1] = 0.0          # stored zeros stay
+    return A
+
+
+def test_arrays_built_without_checks_are_the_constructors():
+    assert compressed._FAST   # this scipy's arrays can be built so (else every test here is moot)
+    rng = np.random.default_rng(11)
+    for _ in range(40):
+        m, n = int(rng.integers(0, 30)), int(rng.integers(1, 30))
+        A = _random_csr(rng, m, n)
+        parts = (A.data, A.indices.astype(np.int32), A.indptr.astype(np.int32))
+        _same(compressed.csr(*parts, (m, n)), sps.csr_array(parts, shape=(m, n)))
+        _same(compressed.csc(*parts, (n, m)), sps.csc_array(parts, shape=(n, m)))
+    # parts scipy would convert or prune take its constructor: the same array comes out
+    d, i, p = np.array([1.0, 2.0, 9.0]), np.array([0, 1, 0]), np.array([0, 1, 2])   # int64, one extra
+    _same(compressed.csr(d, i, p, (2, 2)), sps.csr_array((d, i, p), shape=(2, 2)))
+    ints = np.array([1, 2])
+    _same(compressed.csr(ints, i[:2].astype(np.int32), p.astype(np.int32), (2, 2)),
+          sps.csr_array((ints, i[:2].astype(np.int32), p.astype(np.int32)), shape=(2, 2)))
+    with pytest.raises(ValueError):                 # malformed parts: scipy's own error
+        compressed.csr(d, i.astype(np.int32), np.array([0, 1], np.int32), (2, 2))
+
+
+def test_sum_and_transpose_are_scipys_bit_for_bit():
+    rng = np.random.default_rng(13)
+    for _ in range(60):
+        m, n = int(rng.integers(0, 30)), int(rng.integers(1, 30))
+        A, B = _random_csr(rng, m, n), _random_csr(rng, m, n)
+        B.data[: min(3, B.nnz)] *= 0.0
+        if A.nnz and B.nnz:                          # entries that cancel: the sum leaves them out
+            B = sps.csr_array(B + sps.csr_array((-A.data, A.indices, A.indptr), shape=A.shape))
+        if A.nnz > 1 and A.indptr[1] > 1:            # a row stored out of column order
+            A.indices[:2] = A.indices[1::-1].copy()
+            A.has_sorted_indices = False
+        _same(compressed.add(A, B), A + B)
+        _same(compressed.transpose(A), A.T)
+    C = sps.csc_array(A)                             # not CSR: scipy's own operations
+    _same(compressed.add(C, sps.csc_array(B)), C + sps.csc_array(B))
+    _same(compressed.transpose(C), C.T)

@@ -13,6 +13,8 @@ from __future__ import annotations
 import numpy as np
 import scipy.sparse as sps
 
+from stw_tui.sos.compressed import csr
+
 
 def select_rows(m: sps.csr_array, index: np.ndarray) -> sps.csr_array:
     """``m[index]`` for a CSR ``m`` and an array of row numbers ``index`` (>= 0)."""
@@ -22,7 +24,7 @@ def select_rows(m: sps.csr_array, index: np.ndarray) -> sps.csr_array:
     indptr = np.zeros(index.size + 1, dtype=m.indptr.dtype)
     np.cumsum(counts, out=indptr[1:])
     take = np.repeat(starts - indptr[:-1], counts) + np.arange(indptr[-1])
-    return sps.csr_array((m.data[take], m.indices[take], indptr), shape=(index.size, m.shape[1]))
+    return csr(m.data[take], m.indices[take], indptr, (index.size, m.shape[1]))
 
 
 def stack_rows(parts: list[sps.csr_array]) -> sps.csr_array:
@@ -31,6 +33,8 @@ def stack_rows(parts: list[sps.csr_array]) -> sps.csr_array:
     offsets = np.cumsum([0] + nnz[:-1])
     indptr = np.concatenate([parts[0].indptr[:1].astype(np.int64)]
                             + [p.indptr[1:].astype(np.int64) + o for p, o in zip(parts, offsets)])
+    if indptr[-1] < np.iinfo(np.int32).max:   # the index dtype the constructor would choose
+        indptr = indptr.astype(np.int32)
     data = np.concatenate([p.data[:k] for p, k in zip(parts, nnz)])
     indices = np.concatenate([p.indices[:k] for p, k in zip(parts, nnz)])
-    return sps.csr_array((data, indices, indptr), shape=(sum(p.shape[0] for p in parts), parts[0].shape[1]))
+    return csr(data, indices, indptr, (sum(p.shape[0] for p in parts), parts[0].shape[1]))

@@ -15,6 +15,7 @@ import numpy as np
 import scipy.sparse as sps
 import scipy.sparse.linalg as spla
 
+from stw_tui.sos.compressed import add, csc, csr
 from stw_tui.sos.products import GramPlan
 from stw_tui.sos.sparse_matvec import matvec
 from stw_tui.sos.sqp.algebra import KKTSystem, LinearAlgebra, SingularSystem
@@ -53,7 +54,7 @@ def kkt_matrix(H, A, e, layouts: list | None = None) -> sps.csc_array:
     del layouts[LAYOUTS_KEPT:]
     h, a = H.data[:H.nnz], A.data[:A.nnz]
     data = np.concatenate([h, a, a, diag[keep]])[layout.order]
-    K = sps.csc_array((data, layout.indices, layout.indptr), shape=layout.shape)
+    K = csc(data, layout.indices, layout.indptr, layout.shape)
     K.has_canonical_format = True   # sorted, no duplicates, by construction
     return K
 
@@ -273,7 +274,7 @@ class ReplayedKKT(KKTSystem):
     @property
     def K(self) -> sps.csc_array:
         """K itself (as SparseKKT holds it), built from the values on demand."""
-        K = sps.csc_array((self.data, self.placed.indices, self.placed.indptr), shape=self.placed.shape)
+        K = csc(self.data, self.placed.indices, self.placed.indptr, self.placed.shape)
         K.has_canonical_format = True
         return K
 
@@ -324,7 +325,7 @@ class SparseAlgebra(LinearAlgebra):
         at = np.flatnonzero(v)
         indptr = np.zeros(v.size + 1, dtype=np.int32)
         np.cumsum(v != 0, out=indptr[1:])
-        return sps.csr_array((v[at], at.astype(np.int32), indptr), shape=(v.size, v.size))
+        return csr(v[at], at.astype(np.int32), indptr, (v.size, v.size))
 
     def rows(self, m, index):
         if index.size == m.shape[0] and np.array_equal(index, np.arange(index.size)):
@@ -349,7 +350,7 @@ class SparseAlgebra(LinearAlgebra):
         return matvec(self._transposes[0][1], x)
 
     def add(self, a, b):
-        return sps.csr_array(a + b)
+        return _csr(add(a, b))
 
     def gram(self, a, w):
         # sps.csr_array(a.T @ (sps.diags_array(w) @ a)), bitwise, by a plan kept per structure of a

@@ -20,6 +20,7 @@ from __future__ import annotations
 import numpy as np
 import scipy.sparse as sps
 
+from stw_tui.sos.compressed import csr
 from stw_tui.sos.sparse_matvec import matvec
 
 
@@ -124,7 +125,7 @@ def _without_zeros(data, indices, indptr, shape) -> sps.csr_array:
         keep = ~zero
         kept = np.concatenate([[0], np.cumsum(keep)])
         data, indices, indptr = data[keep], indices[keep], kept[indptr].astype(np.int32)
-    return sps.csr_array((data, indices, indptr), shape=shape)
+    return csr(data, indices, indptr, shape)
 
 
 def _ranges(starts: np.ndarray, counts: np.ndarray) -> np.ndarray:

@@ -24,6 +24,7 @@ import numpy as np
 import scipy.sparse as sps
 import sympy as sp
 
+from stw_tui.sos.compressed import add, transpose
 from stw_tui.sos.instances import bound_extra_times, bound_times, relation_times
 from stw_tui.sos.products import GRAM_PLAN_TERMS, GramPlan, ProductPlan
 from stw_tui.sos.scene import Scene
@@ -491,7 +492,7 @@ class WindowProblem:
         w_obj = self._row_weights[OBJ]
         residual = values[OBJ]
         objective = float(np.dot(w_obj, residual * residual))
-        gradient = matvec(J[OBJ].T, 2.0 * w_obj * residual) if residual.size else np.zeros(self.n_free)
+        gradient = matvec(transpose(J[OBJ]), 2.0 * w_obj * residual) if residual.size else np.zeros(self.n_free)
         c = {kind: self._row_weights[kind] * values[kind] for kind in (EQ, GE)}
         masks = self._conditions(v)
         return Evaluation(s=s.copy(), objective=objective, gradient=np.asarray(gradient),
@@ -591,13 +592,13 @@ class WindowProblem:
             X = left.data(data)   # Pfᵀ D on its whole structure; scipy's drops the exact zeros
             order = right.touch_order(X == 0)
             if order is not False:
-                return sps.csr_array(right.matrix(right.data(X), order) + ev.gauss_newton())
+                return add(right.matrix(right.data(X), order), ev.gauss_newton())
             H = left.matrix(X) @ self.Pf   # its zeros moved too much of the order: as scipy does
-            return sps.csr_array(H + ev.gauss_newton())
+            return add(H, ev.gauss_newton())
         d_rows, d_cols = self._d_pattern
         D = sps.csr_array((data, (d_rows, d_cols)), shape=(self.n_slots, self.n_slots))
         H = self.PfT @ D @ self.Pf
-        return sps.csr_array(H + ev.gauss_newton())
+        return add(H, ev.gauss_newton())
 
     # --- reporting ---------------------------------------------------------------------------
     def violation_by_source(self, ev: Evaluation | MeritValues) -> dict[str, float]:

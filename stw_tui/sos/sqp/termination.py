@@ -9,6 +9,9 @@ from __future__ import annotations
 
 import numpy as np
 
+from stw_tui.sos.compressed import transpose
+from stw_tui.sos.sparse_matvec import matvec
+
 KKT_SLACK_TINY_STEP = 1e2      # a tiny step counts as converged when KKT <= this x tol_kkt ...
 KKT_SLACK_STALLED = 1e3        # ... and a failed line search when KKT <= this x tol_kkt
 
@@ -17,9 +20,9 @@ def kkt_residual(ev, lam_eq: np.ndarray, lam_ge: np.ndarray) -> float:
     """‖∇R + Σλ∇C‖∞ relative to max(1, ‖∇R‖∞) (rows whose `when` fails carry no multiplier)."""
     r = np.array(ev.gradient, dtype=float, copy=True)
     if lam_eq.size:
-        r += ev.J_eq.T @ (lam_eq * ev.active_eq)
+        r += matvec(transpose(ev.J_eq), lam_eq * ev.active_eq)
     if lam_ge.size:
-        r += ev.J_ge.T @ (lam_ge * ev.active_ge)
+        r += matvec(transpose(ev.J_ge), lam_ge * ev.active_ge)
     return float(np.abs(r).max(initial=0.0) / max(1.0, float(np.abs(ev.gradient).max(initial=0.0))))
 
 
