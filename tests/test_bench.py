@@ -115,7 +115,8 @@ def test_quick_mode_measures_the_quick_sessions_and_fits_80_columns(monkeypatch,
     monkeypatch.setattr(targets, "gpu_figure", lambda: Figure("gpu", None, "x", 0.1, "no CUDA device"))
     figures = targets.run_targets(quick=True, anchors=False, repeat=5)
     out = capsys.readouterr().out
-    assert seen == {"sessions": list(targets.QUICK_SESSIONS), "repeat": 1}
+    assert seen == {"sessions": list(targets.QUICK_SESSIONS), "repeat": targets.QUICK_REPEAT}
+    assert targets._budget == targets.QUICK_BUDGET   # a few-ms solve is timed several times
     assert {p.stem for p in bench.bundled_sessions()} >= set(targets.QUICK_SESSIONS)
     assert "basketball" not in targets.QUICK_SESSIONS                  # its full solve takes minutes
     assert [f.label for f in figures] == ["arm", "ball", "acrobat: time / ipopt", "window", "waypoints", "gpu"]

@@ -5,7 +5,8 @@ apply (two solvers that reached different optima, a backend that is not installe
 device). Targets that are ratios are measured against a reference timed in the same run on the
 same machine; the machines are shared and noisy, so nothing here asserts anything about time.
 
-What each figure is (medians of ``repeat`` runs unless said otherwise):
+What each figure is (medians of ``repeat`` runs, within a time budget per configuration,
+unless said otherwise; ``--quick``: up to QUICK_REPEAT runs within QUICK_BUDGET seconds):
 
 * ``arm_throw first solve: ms/it``: scipy's median per-iteration time on the arm's first solve
   (the paper's arm problem); ``basketball``'s on its one solve (``--quick``: its first 3
@@ -66,6 +67,12 @@ ANCHOR_ACCURACY = 1e-4                     # relative objective difference of "e
 # arm_overhand's solvers reach different optima, so it cannot count against IPOPT anyway)
 QUICK_SESSIONS = ("acrobat", "arm_throw", "cat_mouse", "particle_jet", "point_mass_2d")
 QUICK_BASKETBALL_ITERATIONS = 3
+# --quick times each configuration up to QUICK_REPEAT times, until QUICK_BUDGET seconds are used
+# (at least once): a solve of a few milliseconds timed once is mostly noise, one of a second is not.
+QUICK_REPEAT, QUICK_BUDGET = 9, 1.0
+FULL_BUDGET = 5.0           # seconds of timed runs per configuration otherwise (at least one run)
+COLD_START_RUNS = 3         # new processes timed for the cold start (after one that warms the cache)
+_budget = FULL_BUDGET       # of the run in progress (run_targets)
 PENDULUM = """time 0 2 knots=20
 const g = 9.81
 dof th
@@ -133,7 +140,7 @@ def _loadable(name: str) -> str | None:
 def _measure(case: Case, backend: str, options: str, repeat: int, n: int | None = None,
              ) -> Measurement | str:
     try:
-        return measure(case.name, case.setup, n or case.n, backend, options, repeat, 5.0)
+        return measure(case.name, case.setup, n or case.n, backend, options, repeat, _budget)
     except StwError:
         return f"{backend} failed"
 
@@ -394,7 +401,7 @@ def cold_start_figures(text: str, repeat: int) -> list[Figure]:
         path.write_text(prefix + "\niterate 1\n", encoding="utf-8")
         command = [sys.executable, "-m", "stw_tui.cli.main", "run", str(path)]
         runs = []
-        for i in range(1 + max(repeat, 1)):                  # the first warms the disk cache
+        for i in range(1 + min(max(repeat, 1), COLD_START_RUNS)):   # the first warms the disk cache
             started = time.perf_counter()
             done = subprocess.run(command, capture_output=True, text=True, env=os.environ.copy())
             if done.returncode != 0:
@@ -433,9 +440,10 @@ def gpu_figure() -> Figure:
 
 def run_targets(quick: bool, anchors: bool, repeat: int, out=None) -> list[Figure]:
     """Measure every figure, print the table (WIDTH columns) and return the figures."""
+    global _budget
     out = out or sys.stdout
     started = time.perf_counter()
-    repeat = 1 if quick else repeat
+    repeat, _budget = (QUICK_REPEAT, QUICK_BUDGET) if quick else (repeat, FULL_BUDGET)
     for line in textwrap.wrap(f"stw bench{' --quick' if quick else ''} — {machine_facts()}", WIDTH):
         print(line, file=out)
     paths = {p.stem: p for p in bundled_sessions()}
