@@ -15,7 +15,7 @@ import numpy as np
 import scipy.sparse as sps
 import scipy.sparse.linalg as spla
 
-from stw_tui.sos.compressed import add, csc, csr
+from stw_tui.sos.compressed import add, csc, csr, transpose
 from stw_tui.sos.products import GramPlan
 from stw_tui.sos.sparse_matvec import matvec
 from stw_tui.sos.sqp.algebra import KKTSystem, LinearAlgebra, SingularSystem
@@ -345,7 +345,7 @@ class SparseAlgebra(LinearAlgebra):
         for held, transposed in self._transposes:
             if held is m:
                 return matvec(transposed, x)
-        self._transposes.insert(0, (m, m.T))
+        self._transposes.insert(0, (m, transpose(m)))
         del self._transposes[TRANSPOSES_KEPT:]
         return matvec(self._transposes[0][1], x)
 

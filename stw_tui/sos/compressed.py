@@ -29,10 +29,11 @@ def _unchecked(cls, data, indices, indptr, shape):
 def _works() -> bool:
     """Whether this scipy's arrays come out of :func:`_unchecked` as its constructor makes them."""
     try:
-        data, indices, indptr = np.array([1.0, 2.0]), np.array([1, 0], np.int32), np.array([0, 1, 2], np.int32)
+        parts = np.array([1.0, 2.0]), np.array([1, 0], np.int32), np.array([0, 1, 2], np.int32)
         for cls in (sps.csr_array, sps.csc_array):
-            fast, slow = _unchecked(cls, data, indices, indptr, (2, 2)), cls((data, indices, indptr), shape=(2, 2))
-            if not (vars(fast).keys() == vars(slow).keys() and fast.shape == slow.shape and fast.nnz == slow.nnz and fast.format == slow.format
+            fast, slow = _unchecked(cls, *parts, (2, 2)), cls(parts, shape=(2, 2))
+            if not (vars(fast).keys() == vars(slow).keys() and fast.shape == slow.shape
+                    and fast.nnz == slow.nnz and fast.format == slow.format
                     and np.array_equal(fast.toarray(), slow.toarray())
                     and np.array_equal(fast @ np.array([1.0, 3.0]), slow @ np.array([1.0, 3.0]))):
                 return False
