@@ -377,8 +377,7 @@ def test_figure_scrubs_and_plays():
         assert abs(figure.t - 2 * 2.0 / figure.FRAMES) < 1e-9
         await pilot.press("space")
         assert figure.playing
-        await pilot.pause(0.35)
-        assert figure.t > 4 * 2.0 / figure.FRAMES
+        await support.until(pilot, lambda: figure.t > 4 * 2.0 / figure.FRAMES, "two frames played")
         await pilot.press("space")
         assert not figure.playing
 
@@ -478,9 +477,8 @@ def test_keys_typed_fast_in_a_plot_all_reach_the_console_in_order():
         for character in "print":     # one loop turn apart: the later ones are already queued for the plot
             app.post_message(events.Key(character, character))
             await asyncio.sleep(0)
-        await pilot.pause(0.2)
+        await support.until(pilot, lambda: app.repl.input.value == "print", "all five keys at the console")
         assert app.focused is app.repl.input
-        assert app.repl.input.value == "print"
 
     run(scenario, app)
 
@@ -607,6 +605,24 @@ def test_f1_opens_a_scrollable_searchable_help_screen_and_help_cmd_still_prints(
     run(scenario, app)
 
 
+async def palette_found(pilot):
+    """Wait until the command palette has finished its search for what was typed and shows a match."""
+    from textual.command import CommandList, CommandPalette
+    from textual.worker import WorkerState
+
+    def found() -> bool:
+        palette = pilot.app.screen
+        if not isinstance(palette, CommandPalette):
+            return False
+        searching = any(worker.group == CommandPalette._GATHER_COMMANDS_GROUP
+                        and worker.state in (WorkerState.PENDING, WorkerState.RUNNING)
+                        for worker in pilot.app.workers)
+        listed = palette.query_one(CommandList)
+        return not searching and listed.option_count > 0 and listed.highlighted is not None
+
+    await support.until(pilot, found, "a match in the command palette")
+
+
 def test_command_palette_offers_actions_commands_and_scene_names():
     from textual.command import CommandPalette
 
@@ -617,29 +633,27 @@ def test_command_palette_offers_actions_commands_and_scene_names():
         await pilot.pause()
         assert isinstance(app.screen, CommandPalette)
         await pilot.press(*"plot dof y")
-        await pilot.pause(0.3)
+        await palette_found(pilot)
         await pilot.press("enter")
-        await pilot.pause(0.1)
+        await support.until(pilot, lambda: app.query_one("#curves-plot").dof == "y", "the Curves plot on y")
         assert not isinstance(app.screen, CommandPalette)
         assert app.query_one("#plots").active == "tab-curves"
         assert app.query_one("#curves-plot").dof == "y"
         await pilot.press("ctrl+p", *"plot constraint floor")
-        await pilot.pause(0.3)
+        await palette_found(pilot)
         await pilot.press("enter")
-        await pilot.pause(0.1)
-        assert app.query_one("#expr-plot").name_shown == "floor"
+        await support.until(pilot, lambda: app.query_one("#expr-plot").name_shown == "floor", "floor plotted")
         await pilot.press("ctrl+p", *"command refine")
-        await pilot.pause(0.3)
+        await palette_found(pilot)
         await pilot.press("enter")
-        await pilot.pause(0.1)
-        assert app.focused is app.repl.input and app.repl.input.value == "refine "
+        await support.until(pilot, lambda: app.repl.input.value == "refine ", "refine at the prompt")
+        assert app.focused is app.repl.input
         app.repl.input.value = ""
         await pilot.press("ctrl+p", *"help")
-        await pilot.pause(0.3)
+        await palette_found(pilot)
         await pilot.press("enter")
-        await pilot.pause(0.1)
         from stw_tui.app.help_screen import HelpScreen
-        assert isinstance(app.screen, HelpScreen)
+        await support.until(pilot, lambda: isinstance(app.screen, HelpScreen), "the help shown")
 
     run(scenario, app)
 
@@ -659,11 +673,11 @@ def test_command_palette_offers_the_session_files_at_hand(tmp_path, monkeypatch)
 
     async def scenario(pilot):
         await pilot.press("ctrl+p", *"open session throw")
-        await pilot.pause(0.3)
         assert isinstance(app.screen, CommandPalette)
+        await palette_found(pilot)
         await pilot.press("enter")
-        await pilot.pause(0.1)
-        assert app.focused is app.repl.input and app.repl.input.value == "open sessions/throw.stw "
+        await support.until(pilot, lambda: app.repl.input.value == "open sessions/throw.stw ", "open at the prompt")
+        assert app.focused is app.repl.input
         await pilot.press("enter")                             # runs its lines here, journalled
         await support.settle(pilot)
         assert "x" in app.session.scene.dofs and app.session.journal.replayable()[-1] == "dof x"
@@ -761,22 +775,21 @@ def test_the_figure_player_shows_a_proposal_beside_the_dimmed_scene_until_accept
         await support.submit(pilot, "iterate 30")
         await support.settle(pilot)
         figure = app.query_one("#figure-plot")
-        await pilot.pause(0.2)                                  # past the redraw interval
-        assert figure.info.proposal is not None and figure.info.proposal.scene is app.session.proposal.scene
+        await support.until(pilot, lambda: figure.info.proposal is not None, "the proposal drawn")
+        assert figure.info.proposal.scene is app.session.proposal.scene
         text = plot_text(figure)
         new, now = figure.info.proposal.proposed, figure.info.proposal.current   # both measured, shown
         assert f"obj {new.objective:.4g} (now {now.objective:.4g}) · viol {new.dense:.1e} (now {now.dense:.1e})" in text, text
         figure.focus()
         await pilot.press(*["right"] * 20)                       # t = 0.5: the two motions apart
-        await pilot.pause(0.2)
+        await support.settle(pilot)                              # redrawn
         rows = plot_text(figure).splitlines()
         moved = [i for i, row in enumerate(rows) if "●" in row]          # the proposal's point
         kept = [i for i, row in enumerate(rows) if "•" in row]           # the scene's, labelled, dim
         assert moved and kept and moved != kept, "\n".join(rows)
         await pilot.press("f9")                                  # accept: one figure again
         await support.settle(pilot)
-        await pilot.pause(0.2)
-        assert figure.info.proposal is None
+        await support.until(pilot, lambda: figure.info.proposal is None, "the proposal gone from the figure")
         assert "proposal" not in plot_text(figure) and "t = " in plot_text(figure)
 
     run(scenario, app, size=(120, 40))

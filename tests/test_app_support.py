@@ -32,3 +32,13 @@ async def submit(pilot, line: str) -> None:
 def log_text(app) -> str:
     """Everything the console log shows, as plain text."""
     return "\n".join(line.text for line in app.repl.log_widget.lines)
+
+
+async def until(pilot, condition, what: str, timeout: float = 10.0) -> None:
+    """Wait until `condition()` holds: timers and workers run late on a loaded machine, so poll
+    rather than pause a fixed time, and fail with `what` when the deadline passes."""
+    deadline = time.monotonic() + timeout
+    while not condition():
+        if time.monotonic() > deadline:
+            raise AssertionError(f"not {what} within {timeout} s")
+        await pilot.pause(0.02)

@@ -52,7 +52,7 @@ def running(pid: int) -> bool:
     return stat.rsplit(")", 1)[1].split()[0] != "Z"
 
 
-def wait_for(base: list[str], name: str, text: str, timeout: float = 30) -> str:
+def wait_for(base: list[str], name: str, text: str, timeout: float = 60) -> str:
     """Capture the pane until it shows ``text``; returns the last capture."""
     deadline = time.monotonic() + timeout
     screen = tmux(*base, "capture-pane", "-p", "-t", name)
