@@ -227,21 +227,16 @@ class Scene:
         Raises:
             StwError: it would need a DOF's third derivative (curves have two).
         """
-        from stw_tui.sym.symbols import TIME, dof_symbols
+        from stw_tui.sym.linkage.derivative import time_derivative
+        from stw_tui.sym.symbols import dof_symbol
 
         for k in range(order):
-            out = sp.diff(expr, TIME)
             used = expr.free_symbols               # a walk of the whole tree: once, not per DOF
             for dof in self.dofs:
-                q, v, a = dof_symbols(dof)
-                if a in used:
+                if dof_symbol(dof, 2) in used:
                     raise StwError(f"{name}{chr(39) * order} needs the third derivative of {dof}; "
                                    f"{name}{chr(39) * k} already uses {dof}''")
-                if q in used:
-                    out += sp.diff(expr, q) * v
-                if v in used:
-                    out += sp.diff(expr, v) * a
-            expr = out
+            expr = time_derivative(expr, self.dofs)
         return expr
 
     def constant_values(self, names) -> np.ndarray:
