@@ -354,3 +354,19 @@ def test_refining_from_a_knot_splits_no_span_before_it():
     curve = DofCurve.uniform(0.0, 1.5, 30)
     knots = curve.refined(0.95, 1.0).breakpoints
     assert np.allclose(knots[(knots > 0.87) & (knots < 1.01)], [0.9, 0.95, 0.975, 1.0])   # no 0.925
+
+
+@pytest.mark.parametrize("order", [0, 1, 2])
+def test_evaluate_is_bsplines_value_bit_for_bit_on_any_knots(order):
+    """evaluate calls scipy's spline kernel directly where it can (spline._KERNEL): the values
+    must be BSpline's own, to the last bit, also on repeated knots and at the knots and ends."""
+    rng = np.random.default_rng(order)
+    for _ in range(5):
+        interior = np.sort(rng.uniform(0.0, 2.0, 7))
+        interior[3] = interior[4]                               # a double knot
+        knots = np.r_[[0.0] * 4, interior, [2.0] * 4]
+        curve = DofCurve(knots, rng.standard_normal(knots.size - 4))
+        times = np.r_[0.0, interior, rng.uniform(0.0, 2.0, 50), 2.0]
+        expected = BSpline(knots, curve.coef, 3)(times, nu=order)
+        assert np.array_equal(curve.evaluate(times, order), expected)
+        assert np.array_equal(curve.values_at(curve.checked_times(times), order), expected)

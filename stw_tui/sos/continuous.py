@@ -156,8 +156,8 @@ def _densely(score_at, t_inst: np.ndarray, t_base: np.ndarray, exact: bool = Fal
 def _relation_samples(scene, constraint) -> list[_Samples]:
     out = []
     for rel in constraint.relations:
-        def score_at(times, expr=rel.expr, kind=rel.kind):
-            v = _score(scene.evaluate(expr, times), kind, constraint.weight)
+        def score_at(times, values=scene.evaluator(rel.expr), kind=rel.kind):
+            v = _score(values(times), kind, constraint.weight)
             if constraint.when is not None:   # a conditional constraint counts only where it applies
                 v = np.where(condition_holds(scene, constraint.when, times), v, -np.inf)
             return v
@@ -183,8 +183,8 @@ def _bound_samples(scene, dof) -> list[_Samples]:
     for bound, expr, at_points in ((dof.lo, x - (dof.lo or 0), coef - (dof.lo or 0)),
                                    (dof.hi, (dof.hi or 0) - x, (dof.hi or 0) - coef)):
         if bound is not None:
-            def score_at(times, expr=expr):
-                return _score(scene.evaluate(expr, times), TermKind.GE, 1.0)
+            def score_at(times, values=scene.evaluator(expr)):
+                return _score(values(times), TermKind.GE, 1.0)
             dense = _densely(score_at, t_inst, t_base, exact=True)
             out.append(replace(dense, v_inst=np.maximum(0.0, -at_points)))
     return out

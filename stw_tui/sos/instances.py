@@ -149,12 +149,18 @@ def on_own_side(times: np.ndarray, a: float, b: float, repeated: np.ndarray) -> 
 
 def repeated_knots(knot_vectors) -> np.ndarray:
     """Interior knots that appear more than once in any of the knot vectors."""
-    found = []
-    for knots in knot_vectors:
-        inner = knots[(knots > knots[0]) & (knots < knots[-1])]
-        values, counts = np.unique(inner, return_counts=True)
-        found.append(values[counts > 1])
+    found = [_repeated_in(np.asarray(knots, float).tobytes()) for knots in knot_vectors]
     return np.unique(np.concatenate(found)) if found else np.zeros(0)
+
+
+@lru_cache(maxsize=256)   # a window build and a dense check ask for the same few vectors hundreds of times
+def _repeated_in(knot_bytes: bytes) -> np.ndarray:
+    knots = np.frombuffer(knot_bytes)
+    inner = knots[(knots > knots[0]) & (knots < knots[-1])]
+    values, counts = np.unique(inner, return_counts=True)
+    repeated = values[counts > 1]
+    repeated.flags.writeable = False   # shared by every caller
+    return repeated
 
 
 def bound_times(scene, dof_name: str) -> np.ndarray:

@@ -22,6 +22,39 @@ DEGREE = 3
 _TIME_SLACK = 1e-12
 
 
+def _spline_values(knots: np.ndarray, coef: np.ndarray, times: np.ndarray, order: int) -> np.ndarray:
+    """``BSpline.construct_fast(knots, coef, 3)(times, nu=order)``, bit for bit.
+
+    The dense check evaluates curves some 500 times per check; BSpline's call spends three times
+    the kernel's time on conversions of arrays that are already float, contiguous and 1-D here.
+    The kernel is scipy's private ``_dierckx.evaluate_spline`` (scipy >= 1.15): where it is
+    missing or answers differently from BSpline on a probe, BSpline itself is called.
+    """
+    return BSpline.construct_fast(knots, coef, DEGREE)(times, nu=order)
+
+
+def _kernel_values():
+    """The direct kernel call, if it gives BSpline's values on a probe; else None."""
+    try:
+        from scipy.interpolate import _dierckx
+
+        def direct(knots, coef, times, order):
+            return _dierckx.evaluate_spline(knots, coef.reshape(-1, 1), DEGREE, times, order, True).reshape(-1)
+
+        knots = np.r_[[0.0] * 4, 0.3, 0.5, [1.0] * 4]
+        coef = np.array([0.1, -2.0, 3.5, 0.25, 1.0, -0.75])
+        times = np.linspace(0.0, 1.0, 13)
+        if all(np.array_equal(direct(knots, coef, times, nu), _spline_values(knots, coef, times, nu))
+               for nu in (0, 1, 2)):
+            return direct
+    except Exception:   # noqa: BLE001 - any scipy without that kernel: the public route
+        pass
+    return None
+
+
+_KERNEL = _kernel_values()
+
+
 
 def clamped_uniform_knots(t0: float, t1: float, spans: int) -> np.ndarray:
     """Clamped knot vector with ``spans`` equal intervals on [t0, t1] (end knots repeated 4 times).
@@ -229,7 +262,12 @@ class DofCurve:
         return float(np.diff(self.breakpoints).max())
 
     # --- evaluation --------------------------------------------------------------------------
-    def _checked_times(self, times) -> np.ndarray:
+    def checked_times(self, times) -> np.ndarray:
+        """``times`` as a 1-D float array clamped to [t0, t1] (:meth:`values_at` takes these).
+
+        Raises:
+            ValueError: not 1-D, or a time outside [t0, t1] beyond rounding (NaN included).
+        """
         times = np.atleast_1d(np.asarray(times, dtype=float))
         if times.ndim != 1:
             raise ValueError("times must be a scalar or a 1-D array")
@@ -250,7 +288,7 @@ class DofCurve:
         """
         if order not in (0, 1, 2):
             raise ValueError(f"derivative order must be 0, 1 or 2, not {order}")
-        times = self._checked_times(times)
+        times = self.checked_times(times)
         if times.size == 0:  # design_matrix rejects empty input
             return sps.csr_array((0, self.n_coef))
         return _kept_basis(self.knots.tobytes(), times.tobytes(), order)
@@ -265,10 +303,17 @@ class DofCurve:
         """
         if order not in (0, 1, 2):
             raise ValueError(f"derivative order must be 0, 1 or 2, not {order}")
-        # construct_fast: the knots and control points were checked when the curve was made,
-        # and BSpline's checks cost more than evaluating a few hundred points (the dense check).
-        spline = BSpline.construct_fast(self.knots, self.coef, DEGREE)
-        return spline(self._checked_times(times), nu=order)
+        return self.values_at(self.checked_times(times), order)
+
+    def values_at(self, times: np.ndarray, order: int) -> np.ndarray:
+        """:meth:`evaluate` at times already checked (:meth:`checked_times`): several orders
+        and curves at the same times check them once (the dense check, Scene.evaluator)."""
+        # The knots and control points were checked when the curve was made, and BSpline's
+        # checks cost more than evaluating a few hundred points (the dense check).
+        if (_KERNEL is not None and times.dtype == np.float64 and times.ndim == 1 and times.flags.c_contiguous
+                and self.coef.flags.c_contiguous and self.knots.flags.c_contiguous):
+            return _KERNEL(self.knots, self.coef, times, order)
+        return _spline_values(self.knots, self.coef, times, order)
 
     # --- user tools (paper 4.1, 4.2, 4.3) ----------------------------------------------------
     def refined(self, a: float, b: float, factor: int = 2) -> "DofCurve":

