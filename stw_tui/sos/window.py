@@ -312,9 +312,13 @@ class WindowProblem:
 
     def _basis_rows(self, term: CompiledTerm, times: np.ndarray) -> list[BasisRows]:
         """Per variable of ``term``: the rows mapping all coefficients to its values at ``times``."""
-        blocks = []
+        blocks, checked = [], {}   # the times checked once per time span (every curve has the scene's)
         for var in term.variables:
-            local = self.scene.dofs[var.dof].curve.basis(times, var.order)
+            curve = self.scene.dofs[var.dof].curve
+            span = (curve.t0, curve.t1)
+            if span not in checked:
+                checked[span] = curve.checked_times(times)
+            local = curve.basis_at(checked[span], var.order)
             row = np.repeat(np.arange(local.shape[0]), np.diff(local.indptr))
             blocks.append(BasisRows(row, local.indices + self.offsets[var.dof], local.data, len(times)))
         return blocks
@@ -365,15 +369,14 @@ class WindowProblem:
             group.basis = None   # only needed here
             inst = np.arange(n)
             r, c = g_idx[group.kind]
-            for a in range(k):
-                r.append(group.row_offset + inst)
-                c.append(slot + a * n + inst)
-            for a, b in group.term.hessian_pairs:
-                d_rows.append(slot + a * n + inst)
-                d_cols.append(slot + b * n + inst)
-                if a != b:
-                    d_rows.append(slot + b * n + inst)
-                    d_cols.append(slot + a * n + inst)
+            r.append(group.row_offset + np.tile(inst, k))          # row i, for each variable a
+            c.append(slot + np.arange(k * n))                      # its slot a*n + i
+            # D's entries, pair by pair, (a, b) and then (b, a) off the diagonal, each n long
+            ab = [(x, y) for a, b in group.term.hessian_pairs for x, y in ((a, b), (b, a))[:1 + (a != b)]]
+            if ab:
+                x, y = np.array(ab).T
+                d_rows.append((slot + x[:, None] * n + inst).ravel())
+                d_cols.append((slot + y[:, None] * n + inst).ravel())
             slot += k * n
             counts[group.kind] += n
             if group.condition is not None:
