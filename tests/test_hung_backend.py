@@ -138,6 +138,29 @@ def test_limits_and_numpy_error_state_reach_the_backend_thread():
         calls.close()
 
 
+def test_a_finished_solve_leaves_no_backend_thread_and_an_abandoned_one_is_not_waited_for(hanging, release):
+    """A backend thread still unwinding at interpreter exit was killed inside torch's C++, which
+    aborted the process ("terminate called without an active exception", status 134, 1 `stw
+    run --backend torch` in 10): close() waits for an idle thread to end. A hung one is left."""
+    def backend_threads():
+        return [t for t in threading.enumerate() if t.name.startswith("stw-backend-") and t.is_alive()]
+
+    before = set(backend_threads())
+    session = Session()
+    session.run_text("dof x = 0.5\nobjective o: x - 1\nbackend hanging")
+    hanging("nowhere")
+    assert session.execute("iterate 3").run is not None
+    assert set(backend_threads()) == before                    # joined, not merely told to end
+    calls = backend_calls.BackendThread("probe", lambda: False)
+    calls.call("probe", lambda: None)
+    calls.close()
+    assert not calls._thread.is_alive()
+    hanging("step")
+    with pytest.raises(HungBackend):
+        session.execute("iterate 5", on_report=stop_after(0.1))
+    assert len(set(backend_threads()) - before) == 1           # abandoned, still waiting: not joined
+
+
 # --- the TUI: F4, then Ctrl+Q -------------------------------------------------------------------
 
 def test_f4_on_a_hung_backend_reports_it_hung_and_frees_the_console(hanging):

@@ -26,6 +26,7 @@ from stw_tui.sym.errors import SolveError
 
 STOP_GRACE = 5.0   # seconds a backend may take to honour a stop before it is abandoned as hung
 POLL = 0.05        # seconds between looks at the stop flag while a call runs
+JOIN_TIMEOUT = 1.0 # seconds close() waits for an idle thread to end (it takes microseconds)
 
 
 class HungBackend(SolveError):
@@ -44,6 +45,7 @@ class BackendThread:
         self.name = name
         self.cancelled = cancelled
         self.context = contextvars.copy_context()
+        self._answered = True   # no call waiting for its answer (close() may join the thread)
         self._requests: queue.SimpleQueue = queue.SimpleQueue()
         self._thread = threading.Thread(target=self._serve, name=f"stw-backend-{name}", daemon=True)
         self._thread.start()
@@ -69,9 +71,11 @@ class BackendThread:
             SolveError: Ctrl+C while the call ran.
         """
         reply: queue.SimpleQueue = queue.SimpleQueue()
+        self._answered = False
         self._requests.put((fn, args, reply))
         try:
             ok, value = self._wait(reply, what)
+            self._answered = True
         except KeyboardInterrupt:   # wherever in the wait it lands
             raise SolveError(f"interrupted (Ctrl+C) during {what} of backend {self.name}; "
                              "the scene is unchanged") from None
@@ -96,5 +100,11 @@ class BackendThread:
                     "the scene is unchanged")
 
     def close(self) -> None:
-        """Let the thread end once its current call returns (at once when it is idle)."""
+        """Let the thread end once its current call returns, and wait for that when it is idle
+        (every call answered): a thread still unwinding a backend's C++ at interpreter exit is
+        killed there, and torch's noexcept frames turn that into "terminate called without an
+        active exception" and exit status 134 (1 `stw run --backend torch` in 10). A thread
+        abandoned in a hung call is not waited for."""
         self._requests.put(None)
+        if self._answered:
+            self._thread.join(timeout=JOIN_TIMEOUT)
