@@ -27,7 +27,7 @@ from __future__ import annotations
 
 import math
 import warnings
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import symengine as se
 import sympy as sp
@@ -62,6 +62,10 @@ class Program:
     fn: object
     rows: int
     constants: dict
+    # The constant rows as tensors, by (row, n, dtype, device): filling them anew was a sixth of
+    # cat_mouse's program calls. Shared between calls: every consumer concatenates or stacks
+    # the rows it gets, none writes into them.
+    filled: dict = field(default_factory=dict, repr=False)
 
     def __call__(self, inputs: list[torch.Tensor], like: torch.Tensor) -> list[torch.Tensor]:
         """The rows, each (n,) like ``like``. Run inside :func:`unoptimized` (once for many calls)."""
@@ -70,13 +74,28 @@ class Program:
         out = []
         for row in range(self.rows):
             value = self.constants.get(row)
-            value = next(computed) if value is None else value
+            if value is not None:
+                out.append(self._filled(row, value, n, like))
+                continue
+            value = next(computed)
             if not isinstance(value, torch.Tensor):
                 value = torch.full((n,), float(value), dtype=like.dtype, device=like.device)
             elif value.dtype != like.dtype:
                 value = value.to(like.dtype)
             out.append(value.expand(n) if value.shape != (n,) else value)
         return out
+
+    def _filled(self, row: int, value, n: int, like: torch.Tensor) -> torch.Tensor:
+        key = (row, n, like.dtype, like.device)
+        tensor = self.filled.get(key)
+        if tensor is None:
+            if len(self.filled) >= FILLED_KEPT:   # sizes come and go (windows, batches)
+                self.filled.clear()
+            tensor = self.filled[key] = torch.full((n,), float(value), dtype=like.dtype, device=like.device)
+        return tensor
+
+
+FILLED_KEPT = 64   # constant rows a program keeps filled
 
 
 _FUNCTIONS = {name: f"torch.{name}" for name in (
