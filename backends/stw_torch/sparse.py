@@ -14,6 +14,8 @@ import numpy as np
 import scipy.sparse as sps
 import torch
 
+from stw_tui.sos.sparse_matvec import matvec
+
 
 class SparseMatrix:
     """``m`` (scipy CSR) as an operator on (n,) or (n, B) float64 tensors on ``device``."""
@@ -35,7 +37,10 @@ class SparseMatrix:
 
     def __matmul__(self, x: torch.Tensor) -> torch.Tensor:
         if self.host is not None:
-            return torch.from_numpy(np.asarray(self.host @ x.numpy()))
+            v = x.numpy()
+            if v.ndim == 1 and v.flags.c_contiguous:   # scipy's kernel without its dispatch, bitwise
+                return torch.from_numpy(matvec(self.host, v))
+            return torch.from_numpy(np.asarray(self.host @ v))
         if not self.shape[0]:
             return x.new_zeros((0, *x.shape[1:]))
         return self.tensor @ x
