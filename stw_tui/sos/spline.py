@@ -55,7 +55,6 @@ def _kernel_values():
 _KERNEL = _kernel_values()
 
 
-
 def clamped_uniform_knots(t0: float, t1: float, spans: int) -> np.ndarray:
     """Clamped knot vector with ``spans`` equal intervals on [t0, t1] (end knots repeated 4 times).
 
