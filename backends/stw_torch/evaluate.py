@@ -65,8 +65,9 @@ class Pattern:
     operator: SparseMatrix | None = None   # (nnz, n_src), on the CPU
 
     def __post_init__(self) -> None:
-        # int32 where it fits, as scipy's constructor would make them: then scipy() hands them
-        # over unchecked (compressed.csr), the same array, 20 µs less per matrix and evaluation
+        # int32 where it fits, as the scipy algebra's own matrices have them: scipy() then hands
+        # them over unchecked (compressed.csr), 13 µs less per matrix and evaluation, and the
+        # algebra stays on its int32 fast paths (sps.csr_array keeps int64 indices as given)
         if max(self.shape) < 2**31 - 1 and self.crow_np[-1] < 2**31 - 1:
             self.crow_np, self.col_np = self.crow_np.astype(np.int32), self.col_np.astype(np.int32)
 

@@ -37,10 +37,8 @@ class SparseMatrix:
 
     def __matmul__(self, x: torch.Tensor) -> torch.Tensor:
         if self.host is not None:
-            v = x.numpy()
-            if v.ndim == 1 and v.flags.c_contiguous:   # scipy's kernel without its dispatch, bitwise
-                return torch.from_numpy(matvec(self.host, v))
-            return torch.from_numpy(np.asarray(self.host @ v))
+            # scipy's kernel without its dispatch, bitwise (matvec takes ``@`` for what it can't)
+            return torch.from_numpy(np.asarray(matvec(self.host, x.numpy())))
         if not self.shape[0]:
             return x.new_zeros((0, *x.shape[1:]))
         return self.tensor @ x

@@ -27,7 +27,7 @@ from stw_tui.sym.errors import SolveError
 
 STOP_GRACE = 5.0   # seconds a backend may take to honour a stop before it is abandoned as hung
 POLL = 0.05        # seconds between looks at the stop flag while a call runs
-JOIN_TIMEOUT = 1.0 # seconds the exit waits for an idle thread to end (it takes a fraction of a ms)
+JOIN_TIMEOUT = 1.0  # seconds the exit waits for an idle thread to end (it takes a fraction of a ms)
 
 
 class HungBackend(SolveError):

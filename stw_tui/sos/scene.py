@@ -14,7 +14,7 @@ from typing import Callable
 import numpy as np
 import sympy as sp
 
-from stw_tui.sos.spline import DofCurve
+from stw_tui.sos.spline import DofCurve, times_checker
 from stw_tui.sym.errors import LimitError, StwError
 from stw_tui.sym.kinds import TermKind
 from stw_tui.sym.symbols import named_symbol
@@ -315,13 +315,8 @@ class Scene:
             times = np.asarray(times, float)
             if not curves:
                 return term.value(np.zeros((times.size, 0)), times, params)
-            checked = {}   # the times checked once per time span (every curve has the scene's)
-            columns = []   # the term's variables, (n, k)
-            for curve, order in curves:
-                span = (curve.t0, curve.t1)
-                if span not in checked:
-                    checked[span] = curve.checked_times(times)
-                columns.append(curve.values_at(checked[span], order))
+            checked = times_checker(times)
+            columns = [curve.values_at(checked(curve), order) for curve, order in curves]   # (n, k)
             return term.value(np.column_stack(columns), times, params)
         return values
 

@@ -55,6 +55,20 @@ def _kernel_values():
 _KERNEL = _kernel_values()
 
 
+def times_checker(times) -> Callable[["DofCurve"], np.ndarray]:
+    """``curve.checked_times(times)`` for the curves of a term's variables, checked once per time
+    span (every curve of a scene has the scene's): the dense check and a window build evaluate
+    several variables at the same times, thousands of times."""
+    checked: dict[tuple[float, float], np.ndarray] = {}
+
+    def for_curve(curve: "DofCurve") -> np.ndarray:
+        span = (curve.t0, curve.t1)
+        if span not in checked:
+            checked[span] = curve.checked_times(times)
+        return checked[span]
+    return for_curve
+
+
 def clamped_uniform_knots(t0: float, t1: float, spans: int) -> np.ndarray:
     """Clamped knot vector with ``spans`` equal intervals on [t0, t1] (end knots repeated 4 times).
 
@@ -313,8 +327,9 @@ class DofCurve:
         and curves at the same times check them once (the dense check, Scene.evaluator)."""
         # The knots and control points were checked when the curve was made, and BSpline's
         # checks cost more than evaluating a few hundred points (the dense check).
-        if (_KERNEL is not None and times.dtype == np.float64 and times.ndim == 1 and times.flags.c_contiguous
-                and self.coef.flags.c_contiguous and self.knots.flags.c_contiguous):
+        # (Knots and control points are contiguous float copies, _readonly; the kernel needs the
+        # times so too, as BSpline makes them.)
+        if _KERNEL is not None and times.dtype == np.float64 and times.ndim == 1 and times.flags.c_contiguous:
             return _KERNEL(self.knots, self.coef, times, order)
         return _spline_values(self.knots, self.coef, times, order)
 

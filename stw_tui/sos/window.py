@@ -29,7 +29,7 @@ from stw_tui.sos.instances import bound_extra_times, bound_times, relation_times
 from stw_tui.sos.products import GRAM_PLAN_TERMS, GramPlan, ProductPlan
 from stw_tui.sos.scene import Scene
 from stw_tui.sos.sparse_matvec import matvec
-from stw_tui.sos.spline import gauss_legendre_nodes
+from stw_tui.sos.spline import gauss_legendre_nodes, times_checker
 from stw_tui.sym.compiler import CompiledTerm, compile_term
 from stw_tui.sym.errors import StwError
 from stw_tui.sym.kinds import TermKind
@@ -312,13 +312,10 @@ class WindowProblem:
 
     def _basis_rows(self, term: CompiledTerm, times: np.ndarray) -> list[BasisRows]:
         """Per variable of ``term``: the rows mapping all coefficients to its values at ``times``."""
-        blocks, checked = [], {}   # the times checked once per time span (every curve has the scene's)
+        blocks, checked = [], times_checker(times)
         for var in term.variables:
             curve = self.scene.dofs[var.dof].curve
-            span = (curve.t0, curve.t1)
-            if span not in checked:
-                checked[span] = curve.checked_times(times)
-            local = curve.basis_at(checked[span], var.order)
+            local = curve.basis_at(checked(curve), var.order)
             row = np.repeat(np.arange(local.shape[0]), np.diff(local.indptr))
             blocks.append(BasisRows(row, local.indices + self.offsets[var.dof], local.data, len(times)))
         return blocks
