@@ -9,6 +9,7 @@ import scipy.sparse as sps
 
 import catalogue
 
+import stw_tui.sos.sqp.qp as qp_module
 from stw_tui.sos.sqp.qp import solve_qp
 
 
@@ -33,11 +34,12 @@ def _kkt_error(H, g, Ae, ce, Ai, ci, d, y, z):
                max(0.0, -slack.min()), max(0.0, -z.min()), np.abs(z * slack).max())
 
 
-def _solve(la, parts, working):
+def _solve(la, parts, working, convex=False):
     H, g, Ae, ce, Ai, ci = parts
     return solve_qp(la, la.matrix(sps.csr_array(H)), la.vector(g), la.matrix(sps.csr_array(Ae)),
                     la.vector(ce), la.matrix(sps.csr_array(Ai)), la.vector(ci),
-                    working=None if working is None else la.vector(working.astype(float)) > 0.5)
+                    working=None if working is None else la.vector(working.astype(float)) > 0.5,
+                    convex=convex)
 
 
 @pytest.mark.parametrize("la", catalogue.linear_algebras(), ids=lambda la: type(la).__name__)
@@ -91,3 +93,28 @@ def test_a_guess_that_changes_wholesale_is_left_to_the_interior_point_method(la)
     assert qp.ipm_iterations > 0
     d, y, z = la.numpy(qp.d), la.numpy(qp.y), la.numpy(qp.z)
     assert _kkt_error(*parts, d, y, z) <= 1e-8
+
+
+@pytest.mark.parametrize("la", catalogue.linear_algebras(), ids=lambda la: type(la).__name__)
+def test_a_model_known_positive_definite_skips_the_convexity_test_and_nothing_else(la, monkeypatch):
+    # Gauss-Newton models plus a positive diagonal are positive definite by construction: the
+    # solver says so (convex=True) and the passes spend no factorization on testing it. The
+    # solution is the one the test would have let through, to the last bit.
+    rng = np.random.default_rng(3)
+    parts = _box_qp(rng)
+    binding = la.numpy(_solve(la, parts, None).z) > 0
+    guess = binding.copy()
+    guess[np.flatnonzero(binding)[:2]] = False
+    guess[np.flatnonzero(~binding)[0]] = True
+    tested = _solve(la, parts, guess)
+    calls = []
+    monkeypatch.setattr(qp_module, "convex_on", lambda *a: calls.append(a) or True)
+    trusted = _solve(la, parts, guess, convex=True)
+    assert calls == []
+    assert trusted.ipm_iterations == tested.ipm_iterations == 0
+    assert trusted.linear_iterations == tested.linear_iterations
+    for a, b in ((trusted.d, tested.d), (trusted.y, tested.y), (trusted.z, tested.z)):
+        assert np.array_equal(la.numpy(a), la.numpy(b))
+    # and without the flag the test is made (the nonconvex case above depends on it)
+    _solve(la, parts, guess)
+    assert len(calls) == 1

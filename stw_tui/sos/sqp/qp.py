@@ -58,7 +58,8 @@ class QPResult:
 
 def solve_qp(la: LinearAlgebra, H: Matrix, g: Vector, Ae: Matrix, ce: Vector, Ai: Matrix, ci: Vector,
              y0: Vector | None = None, elastic: float | None = None, tol: float = IPM_TOL,
-             max_ipm: int = IPM_MAX, z0: Vector | None = None, working: Vector | None = None) -> QPResult:
+             max_ipm: int = IPM_MAX, z0: Vector | None = None, working: Vector | None = None,
+             convex: bool = False) -> QPResult:
     """Solve the QP (hard, or elastic with weight ρ = ``elastic``).
 
     The hard equality rows are stabilized around the previous multipliers ``y0`` (a proximal
@@ -70,7 +71,9 @@ def solve_qp(la: LinearAlgebra, H: Matrix, g: Vector, Ae: Matrix, ce: Vector, Ai
     (a backend bool vector: those that bound at the last step), then solved by the
     interior-point method, whose solution is made exact on the rows it found binding
     (:func:`_on_working_set`): binding rows become equality rows, stabilized around ``z0`` (the
-    previous inequality multipliers, >= 0) like the others.
+    previous inequality multipliers, >= 0) like the others. ``convex``: H is positive definite
+    by construction (a Gauss-Newton model plus a positive diagonal), and the active-set method
+    need not test it.
 
     Raises:
         SingularSystem: a KKT matrix could not be factorized.
@@ -83,7 +86,7 @@ def solve_qp(la: LinearAlgebra, H: Matrix, g: Vector, Ae: Matrix, ce: Vector, Ai
         return QPResult(x[:n], x[n:], la.zeros(0), system.iterations, 0, system.fallbacks, system=system)
     z0 = la.zeros(mi) if z0 is None else z0
     if elastic is None and working is not None:
-        guess = _active_set(la, H, g, Ae, ce, Ai, ci, y0, z0, working)
+        guess = _active_set(la, H, g, Ae, ce, Ai, ci, y0, z0, working, convex)
         if guess is not None:
             return guess
     result, w = _interior_point(la, H, g, Ae, ce, Ai, ci, y0, elastic, tol, max_ipm)
@@ -117,7 +120,7 @@ def _on_working_set(la, H, g, Ae, ce, Ai, ci, y0, z0, binding) -> QPResult | Non
     return None if trial is None else trial.result
 
 
-def _active_set(la, H, g, Ae, ce, Ai, ci, y0, z0, binding) -> QPResult | None:
+def _active_set(la, H, g, Ae, ce, Ai, ci, y0, z0, binding, convex=False) -> QPResult | None:
     """The QP's solution by a primal-dual active-set method (Hintermüller, Ito & Kunisch 2003)
     from the rows ``binding``: each pass solves with the current rows as equality rows, then
     drops those whose multiplier came out negative and adds those left violated, all at once.
@@ -129,7 +132,8 @@ def _active_set(la, H, g, Ae, ce, Ai, ci, y0, z0, binding) -> QPResult | None:
 
     * the model is not convex on the null space of the equality rows: passes then end at the
       stationary point nearest the guess, which can be a saddle or a far worse minimum than the
-      interior-point method's (basketball.stw: QP objective -0.9 against -13.6);
+      interior-point method's (basketball.stw: QP objective -0.9 against -13.6). One
+      factorization tests it, unless ``convex`` says H is positive definite anyway;
     * a pass changes more rows than the guess holds (far from the solution the binding rows
       change wholesale), or not ACTIVE_SET_SETTLING times fewer than the pass before;
     * a set recurs, a system is singular, or ACTIVE_SET_PASSES are spent.
@@ -147,7 +151,7 @@ def _active_set(la, H, g, Ae, ce, Ai, ci, y0, z0, binding) -> QPResult | None:
             trial.result.linear_iterations, trial.result.fallbacks = linear_its, fallbacks
             return trial.result
         change = int(la.numpy(binding != trial.next_binding).sum())
-        if change > limit or (not seen and not convex_on(la, H, Ae)):   # (the cheaper test first)
+        if change > limit or (not seen and not convex and not convex_on(la, H, Ae)):   # (cheaper tests first)
             return None
         seen.add(la.numpy(binding).tobytes())
         binding, limit = trial.next_binding, ACTIVE_SET_SETTLING * change

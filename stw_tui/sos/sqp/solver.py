@@ -206,7 +206,9 @@ class SQPBackend(Backend):
             ms["assemble"] += _lap(clock)
 
             clock = time.perf_counter()
-            sub, rho_elastic = self._subproblem(la, H, ev, lin, rho_elastic, settings, counts)
+            # Gauss-Newton (2JᵀWJ, weights >= 0) plus a positive diagonal is positive definite
+            convex = mode == "gauss_newton" and float(np.min(damping + prox, initial=1.0)) > 0
+            sub, rho_elastic = self._subproblem(la, H, ev, lin, rho_elastic, settings, counts, convex)
             ms["solve"] += _lap(clock)
             if sub is None:
                 continue
@@ -331,9 +333,10 @@ class SQPBackend(Backend):
                               la.vector(st.working_set[ge_rows].astype(float)) > 0.5)
 
     def _subproblem(self, la, H, ev, lin: _Linearization, rho_elastic: float, settings,
-                    counts: _Counts) -> tuple[_Subproblem | None, float]:
-        """The hard QP's step when its linearization can be met; the elastic QP's otherwise."""
-        hard = self._qp(la, H, ev, lin, None, counts)
+                    counts: _Counts, convex: bool = False) -> tuple[_Subproblem | None, float]:
+        """The hard QP's step when its linearization can be met; the elastic QP's otherwise
+        (``convex``: H is positive definite by construction)."""
+        hard = self._qp(la, H, ev, lin, None, counts, convex)
         if hard is not None and not hard.qp.capped and self._meets(la, lin, hard.qp.d):
             return hard, rho_elastic
         multipliers = float(np.abs(hard.lam_eq).max(initial=0.0)) if hard is not None else 0.0
@@ -354,7 +357,7 @@ class SQPBackend(Backend):
         return residual <= max(1e-6, 1e-3 * before)
 
     def _qp(self, la: LinearAlgebra, H, ev, lin: _Linearization, elastic: float | None,
-            counts: _Counts) -> _Subproblem | None:
+            counts: _Counts, convex: bool = False) -> _Subproblem | None:
         """Solve the QP, raising a diagonal shift while its KKT systems are singular or (elastic QP:
         no equality rows to restrict the model to) its step meets negative curvature."""
         n = ev.s.size
@@ -363,7 +366,7 @@ class SQPBackend(Backend):
             Hr = la.add(H, la.diagonal_matrix(np.full(n, reg))) if reg else H
             try:
                 qp = solve_qp(la, Hr, lin.g, lin.Ae, lin.ce, lin.Ai, lin.ci, y0=lin.y0, elastic=elastic,
-                              z0=lin.z0, working=lin.working)
+                              z0=lin.z0, working=lin.working, convex=convex)
             except SingularSystem:
                 qp = None
                 reg = max(10 * reg, 1e-8)
