@@ -120,6 +120,50 @@ def test_a_backend_answering_a_stop_within_the_grace_is_stopped_not_abandoned(ha
     assert outcome.run.status.name == "STOPPED" and len(outcome.run.reports) == 2
 
 
+def test_once_the_caller_gives_up_on_a_hung_backend_its_late_iterations_reach_no_callback(hanging, release):
+    """The loop runs on the backend's thread, callbacks included: after a hung solve has been
+    abandoned, a backend that comes back at last must neither report nor checkpoint into a
+    session that has moved on."""
+    hanging("step")
+    s = Session()
+    s.run_text("dof x = 0.5\nobjective o: x - 1\nbackend hanging")
+    stop = stop_after(0.1)
+    seen = []
+
+    def on_report(report):
+        seen.append(report.iteration)
+        return stop(report)
+    on_report.cancelled = stop.cancelled
+    with pytest.raises(HungBackend):
+        s.execute("iterate 5", on_report=on_report)
+    assert seen == [1]
+
+    def hanging_threads():
+        return [t for t in threading.enumerate() if t.name == "stw-backend-hanging" and t.is_alive()]
+    assert hanging_threads()
+    release.set()                                             # iteration 2 returns, late
+    for thread in hanging_threads():
+        thread.join(QUICK)
+    assert not hanging_threads()                              # the loop ended there ...
+    assert seen == [1]                                        # ... reporting nothing more
+
+
+def test_an_error_in_the_callers_own_callback_is_raised_as_it_is_not_blamed_on_the_backend():
+    class Full(OSError):
+        pass
+
+    def on_report(report):
+        raise Full("disk full")
+
+    s = Session()
+    s.run_text("dof x = 0.5\nobjective o: (x - 1)^2 + x^4\nbackend scipy")
+    with pytest.raises(Exception) as info:
+        s.execute("iterate 5", on_report=on_report)
+    assert "Full: disk full" in str(info.value)               # the session's internal-error report
+    assert "backend scipy raised" not in str(info.value)
+    assert isinstance(info.value.__cause__, Full)
+
+
 def test_limits_and_numpy_error_state_reach_the_backend_thread():
     """Backend calls run in a copy of the caller's context: the scene's limits (a ContextVar) and
     numpy's error state are those in force where the solve was started."""

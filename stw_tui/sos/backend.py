@@ -13,6 +13,7 @@ from __future__ import annotations
 
 import enum
 import math
+import threading
 import time
 from abc import ABC, abstractmethod
 from dataclasses import dataclass, field, replace
@@ -273,6 +274,12 @@ def run_iterations(backend: Backend, problem, start: SolverState, n: int, settin
     ignores a stop for ``backend_calls.STOP_GRACE`` seconds is abandoned (stw_tui/sos/backend_calls.py).
     ``on_state(k, state)`` is called with each finite iterate, before ``on_report`` (the periodic
     checkpoint of a running solve, stw_tui/session/midsolve.py).
+
+    The whole loop (init, the steps, the checks and both callbacks) is one call on the backend's
+    thread (:class:`_Loop`): a call per iteration cost two thread hand-offs, 0.1-0.2 ms each, a
+    sixth of a small solve (cat_mouse, the pendulum). The caller's thread waits meanwhile, so the
+    callbacks never run beside it; once it has given up on the loop (a hung backend, Ctrl+C) the
+    loop calls neither again.
     Raises:
         SolveError: the backend raised, produced non-finite values or hung after a stop (a
             ``HungBackend``); nothing is returned, so the caller's scene is untouched.
@@ -280,27 +287,80 @@ def run_iterations(backend: Backend, problem, start: SolverState, n: int, settin
     from stw_tui.sos.backend_calls import BackendThread
 
     t0 = time.perf_counter()
-    reports: list[StepReport] = []
-    status = Status.MAX_ITERATIONS
     cancelled = getattr(on_report, "cancelled", None) or (lambda: False)
     calls = BackendThread(backend.name, cancelled)
-
-    def advance(inner, k):
-        inner, report = backend.step(problem, inner, k)
-        return inner, report, backend.state(inner)
+    loop = _Loop(backend, problem, n, on_report, on_state)
     try:
         # The budget travels with the settings: a backend that solves in one call (IPOPT) stops there.
-        inner = calls.call("init", backend.init, problem, start,
-                           {**settings, ITERATION_BUDGET: n, CANCELLED: cancelled})
-        state = start
-        for k in range(1, n + 1):
-            inner, report, state = calls.call(f"iteration {k}", advance, inner, k)
+        status, state, reports = calls.call(lambda: loop.where, loop.run, start,
+                                            {**settings, ITERATION_BUDGET: n, CANCELLED: cancelled})
+    except _CallbackFault as fault:   # the caller's own callback: its error, as if raised here
+        raise fault.error from None
+    except SolveError:
+        raise
+    except StwError as exc:
+        raise SolveError(f"backend {backend.name}: {exc}") from exc
+    except PLUGIN_FAULTS as exc:  # any bug or numerical failure inside a plugin, or its sys.exit()
+        raise SolveError(f"backend {backend.name} raised {type(exc).__name__}: {exc}; "
+                         "the scene is unchanged") from exc
+    finally:
+        loop.give_up()
+        calls.close()
+    return RunResult(status, replace(state), reports, time.perf_counter() - t0)
+
+
+class _CallbackFault(Exception):
+    """An exception raised by the caller's ``on_report`` or ``on_state`` inside the loop (not the
+    backend's fault: run_iterations raises ``error`` itself)."""
+
+    def __init__(self, error: BaseException):
+        super().__init__(str(error))
+        self.error = error
+
+
+class _Loop:
+    """run_iterations' loop, run on the backend's thread. ``where`` names what it is doing, for
+    the messages of a hung or interrupted solve; after :meth:`give_up` (the caller stopped
+    waiting) it calls no callback and takes no further step."""
+
+    def __init__(self, backend: Backend, problem, n: int, on_report, on_state):
+        self.backend, self.problem, self.n = backend, problem, n
+        self.on_report, self.on_state = on_report, on_state
+        self.where = "init"
+        self._given_up = False
+        self._gate = threading.Lock()   # a callback runs whole, or not once the caller gave up
+
+    def give_up(self) -> None:
+        with self._gate:
+            self._given_up = True
+
+    def _callback(self, fn, *args):
+        """``fn(*args)``; _GIVEN_UP, without calling it, once the caller gave up."""
+        with self._gate:
+            if self._given_up:
+                return _GIVEN_UP
+            try:
+                return fn(*args)
+            except BaseException as exc:  # noqa: BLE001 - re-raised by the caller as it was
+                raise _CallbackFault(exc) from exc
+
+    def run(self, start: SolverState, settings: dict) -> tuple[Status, SolverState, list[StepReport]]:
+        backend, problem = self.backend, self.problem
+        inner = backend.init(problem, start, settings)
+        reports: list[StepReport] = []
+        status, state = Status.MAX_ITERATIONS, start
+        for k in range(1, self.n + 1):
+            if self._given_up:
+                break
+            self.where = f"iteration {k}"
+            inner, report = backend.step(problem, inner, k)
+            state = backend.state(inner)
             if not (np.all(np.isfinite(state.s)) and np.isfinite(report.objective)
                     and np.isfinite(report.max_violation)):
                 raise SolveError(f"iteration {k} produced non-finite values (diverged); "
                                  "the scene is unchanged — try damping, a smaller window or `shake`")
-            if on_state is not None:
-                on_state(k, state)
+            if self.on_state is not None and self._callback(self.on_state, k, state) is _GIVEN_UP:
+                break
             report = replace(report, coefficients=problem.scatter(state.s))
             reports.append(report)
             if report.converged:
@@ -312,19 +372,13 @@ def run_iterations(backend: Backend, problem, start: SolverState, n: int, settin
             if report.stalled:
                 status = Status.STALLED
                 break
-            if on_report is not None and on_report(report) is False:
+            if self.on_report is not None and self._callback(self.on_report, report) is False:
                 status = Status.STOPPED
                 break
         if reports and status in (Status.CONVERGED, Status.STALLED, Status.INFEASIBLE) \
-                and on_report is not None:
-            on_report(reports[-1])
-    except SolveError:
-        raise
-    except StwError as exc:
-        raise SolveError(f"backend {backend.name}: {exc}") from exc
-    except PLUGIN_FAULTS as exc:  # any bug or numerical failure inside a plugin, or its sys.exit()
-        raise SolveError(f"backend {backend.name} raised {type(exc).__name__}: {exc}; "
-                         "the scene is unchanged") from exc
-    finally:
-        calls.close()
-    return RunResult(status, replace(state), reports, time.perf_counter() - t0)
+                and self.on_report is not None:
+            self._callback(self.on_report, reports[-1])
+        return status, state, reports
+
+
+_GIVEN_UP = object()   # what _Loop._callback answers once the caller stopped waiting

@@ -1,12 +1,13 @@
 """A backend's calls on a daemon thread of their own, so that a plugin that ignores a stop can be
 abandoned instead of holding the session (and the process) for ever.
 
-The driver (:func:`stw_tui.sos.backend.run_iterations`) hands each call (``init``, one iteration) to
-the thread and waits for its answer. While it waits it polls the caller's stop flag; once a stop
-has been asked for, a call that has not answered within :data:`STOP_GRACE` seconds is given up:
-:class:`HungBackend` is raised, the solve fails as "hung" and its result, should it ever come, is
-dropped. The thread is a daemon thread, not an executor's worker: ``concurrent.futures`` joins its
-threads at interpreter exit, which a hung call would block for ever.
+The driver (:func:`stw_tui.sos.backend.run_iterations`) hands its loop (``init`` and every
+iteration, in one call) to the thread and waits for its answer. While it waits it polls the
+caller's stop flag; once a stop has been asked for, a call that has not answered within
+:data:`STOP_GRACE` seconds is given up: :class:`HungBackend` is raised, the solve fails as "hung"
+and its result, should it ever come, is dropped. The thread is a daemon thread, not an executor's
+worker: ``concurrent.futures`` joins its threads at interpreter exit, which a hung call would
+block for ever.
 
 Each call runs in a copy of the driver's context (``contextvars``), so the scene's limits in force
 (stw_tui/sym/limits.py) and numpy's error state reach the backend as if it ran on the caller's thread.
@@ -62,11 +63,12 @@ class BackendThread:
             except BaseException as exc:  # noqa: BLE001 - the driver decides what a fault means
                 reply.put((False, exc))
 
-    def call(self, what: str, fn: Callable[..., Any], *args: Any) -> Any:
+    def call(self, what: str | Callable[[], str], fn: Callable[..., Any], *args: Any) -> Any:
         """``fn(*args)`` on the backend's thread; its result, or the exception it raised.
 
         Args:
-            what: what the call does, for the messages ("iteration 3").
+            what: what the call does, for the messages ("iteration 3"), or a function that says
+                what it is doing at the moment (a call that runs many iterations).
         Raises:
             HungBackend: a stop was asked for and the call did not answer within STOP_GRACE s.
             SolveError: Ctrl+C while the call ran.
@@ -78,13 +80,13 @@ class BackendThread:
             ok, value = self._wait(reply, what)
             self._answered = True
         except KeyboardInterrupt:   # wherever in the wait it lands
-            raise SolveError(f"interrupted (Ctrl+C) during {what} of backend {self.name}; "
+            raise SolveError(f"interrupted (Ctrl+C) during {_said(what)} of backend {self.name}; "
                              "the scene is unchanged") from None
         if ok:
             return value
         raise value
 
-    def _wait(self, reply: queue.SimpleQueue, what: str) -> tuple[bool, Any]:
+    def _wait(self, reply: queue.SimpleQueue, what) -> tuple[bool, Any]:
         """The call's (ok, result or exception), watching the stop flag meanwhile."""
         stop_asked = None
         while True:
@@ -96,7 +98,7 @@ class BackendThread:
                 stop_asked = time.monotonic()
             if stop_asked is not None and time.monotonic() - stop_asked > STOP_GRACE:
                 raise HungBackend(
-                    f"backend {self.name} hung: it ignored the stop for {STOP_GRACE:g} s during {what} "
+                    f"backend {self.name} hung: it ignored the stop for {STOP_GRACE:g} s during {_said(what)} "
                     "and was abandoned (it may go on running in the background until stw exits); "
                     "the scene is unchanged")
 
@@ -109,6 +111,10 @@ class BackendThread:
             with _CLOSED_LOCK:
                 _CLOSED.difference_update([t for t in _CLOSED if not t.is_alive()])
                 _CLOSED.add(self._thread)
+
+
+def _said(what: str | Callable[[], str]) -> str:
+    return what() if callable(what) else what
 
 
 # Idle threads told to end. A thread still unwinding a backend's C++ when the interpreter exits
