@@ -6,7 +6,9 @@ device). Targets that are ratios are measured against a reference timed in the s
 same machine; the machines are shared and noisy, so nothing here asserts anything about time.
 
 What each figure is (medians of ``repeat`` runs, within a time budget per configuration,
-unless said otherwise; ``--quick``: up to QUICK_REPEAT runs within QUICK_BUDGET seconds):
+unless said otherwise; ``--quick``: up to QUICK_REPEAT runs within QUICK_BUDGET seconds). The
+two sides of a ratio are timed in alternation, run after run (bench.measure_together), so that
+the machine's drift falls on both:
 
 * ``arm_throw first solve: ms/it``: scipy's median per-iteration time on the arm's first solve
   (the paper's arm problem); ``basketball``'s on its one solve (``--quick``: its first 3
@@ -54,8 +56,8 @@ from stw_tui.session import bench
 from stw_tui.sos.backend import load_backend
 from stw_tui.sos import kept
 from stw_tui.sym import compiler
-from stw_tui.session.bench import (Case, Measurement, bundled_sessions, machine_facts, measure, prepare,
-                    split_at_first_iterate, synthetic_session)
+from stw_tui.session.bench import (Case, Measurement, bundled_sessions, machine_facts, measure,
+                                   measure_together, prepare, split_at_first_iterate, synthetic_session)
 from stw_tui.session.session import Session
 from stw_tui.sos.window import WindowProblem
 from stw_tui.sym.errors import StwError
@@ -151,6 +153,14 @@ def _measure(case: Case, backend: str, options: str, repeat: int, n: int | None 
         return f"{backend} failed"
 
 
+def _measure_together(case: Case, configs: list[tuple[str, str, int]], repeat: int,
+                      between=None) -> list[Measurement | str]:
+    """bench.measure_together on ``case``, runs interleaved; a failed configuration: why."""
+    results = measure_together(case.name, case.setup, configs, repeat, _budget, between)
+    return [f"{backend} failed" if isinstance(r, StwError) else r
+            for (backend, _, _), r in zip(configs, results)]
+
+
 def _import_torch() -> None:
     """Have the torch backend import torch, untimed: one iteration of the smallest problem. The
     backend imports torch at its first solve, not when it is loaded, and its first-iterate
@@ -172,14 +182,20 @@ def session_figures(sources: list[tuple[str, str]], repeat: int, out) -> list[Fi
             print(f"  {name}: {case}"[:WIDTH], file=out, flush=True)
             continue
         started = time.perf_counter()
-        scipy = _measure(case, "scipy", "solver=direct", repeat)
+        # scipy, IPOPT (up to its own iteration limit) and torch, their runs interleaved
+        configs = [("scipy", "solver=direct", case.n)]
+        if "ipopt" not in missing:
+            configs.append(("ipopt", f"max_iter={IPOPT_ITERATIONS}", max(case.n, IPOPT_ITERATIONS)))
+        if "torch" not in missing:
+            configs.append(("torch", "device=cpu", case.n))
+        measured = dict(zip((c[0] for c in configs), _measure_together(case, configs, repeat)))
+        scipy = measured["scipy"]
         if isinstance(scipy, str):
             figures.append(Figure(f"{name}: time/ipopt", None, "x", 0.5, scipy))
             continue
         if name == "basketball":
             figures.append(Figure("basketball: scipy ms/it", scipy.ms_per_iteration, "ms", 20.0))
-        ipopt = (_measure(case, "ipopt", f"max_iter={IPOPT_ITERATIONS}", repeat,
-                          max(case.n, IPOPT_ITERATIONS)) if "ipopt" not in missing else "ipopt missing")
+        ipopt = measured.get("ipopt", "ipopt missing")
         if isinstance(ipopt, str):
             figures.append(Figure(f"{name}: time/ipopt", None, "x", 0.5, ipopt))
         else:
@@ -188,7 +204,7 @@ def session_figures(sources: list[tuple[str, str]], repeat: int, out) -> list[Fi
             why = "other optimum" if scipy.converged and ipopt.converged else "not converged"
             figures.append(Figure(f"{name}: time/ipopt", scipy.seconds / ipopt.seconds,
                                   "x", 0.5, why, counted=same))
-        torch = _measure(case, "torch", "device=cpu", repeat) if "torch" not in missing else "torch missing"
+        torch = measured.get("torch", "torch missing")
         if isinstance(torch, str):
             figures.append(Figure(f"{name}: torch/scipy per it", None, "x", 1.5, torch))
         else:
@@ -265,28 +281,35 @@ def slsqp_solve(scene) -> tuple[float, float]:
 def pendulum_figures(repeat: int, anchors: bool) -> list[Figure]:
     """stw against SLSQP (and crocoddyl FDDP with ``anchors``) on the pendulum swing-up."""
     case = prepare("pendulum", PENDULUM)
-    stw = _measure(case, "scipy", "solver=direct", max(repeat, 3))
-    if isinstance(stw, str):
-        return [Figure("pendulum: time / SLSQP", None, "x", 1.0, stw)]
-    slsqp_solve(case.setup.scene.copy())                       # untimed: warm caches as stw's
-    runs = [slsqp_solve(case.setup.scene.copy()) for _ in range(max(repeat, 3))]
-    seconds = statistics.median(r[0] for r in runs)
-    objective = runs[0][1]
-    same = abs(objective - stw.objective) <= ANCHOR_ACCURACY * max(1.0, abs(objective))
-    figures = [Figure("pendulum: time / SLSQP", stw.seconds / seconds, "x", 1.0,
-                      "other optimum", counted=same)]
+    scene, g = case.setup.scene, float(case.setup.scene.constants["g"])
+    fddp = "crocoddyl missing"
     if anchors:
         try:
             import crocoddyl  # noqa: F401
+            fddp = None
         except ImportError:
-            figures.append(Figure("pendulum: time / FDDP", None, "x", 1.0, "crocoddyl missing"))
-            return figures
-        g = float(case.setup.scene.constants["g"])
+            pass
+    slsqp_solve(scene.copy())                                  # untimed: warm caches as stw's
+    if fddp is None:
         fddp_solve(g)                                          # untimed: crocoddyl's first use
-        runs = [fddp_solve(g) for _ in range(max(repeat, 3))]
+    slsqp_runs, fddp_runs = [], []
+
+    def between():   # one run of each reference after each of stw's (bench.measure_together)
+        slsqp_runs.append(slsqp_solve(scene.copy()))
+        if fddp is None:
+            fddp_runs.append(fddp_solve(g))
+    (stw,) = _measure_together(case, [("scipy", "solver=direct", case.n)], max(repeat, 3), between)
+    if isinstance(stw, str):
+        return [Figure("pendulum: time / SLSQP", None, "x", 1.0, stw)]
+    figures = []
+    for label, runs in (("SLSQP", slsqp_runs), ("FDDP", fddp_runs)):
+        if not runs:
+            if label == "FDDP" and anchors:
+                figures.append(Figure("pendulum: time / FDDP", None, "x", 1.0, fddp))
+            continue
         seconds, objective = statistics.median(r[0] for r in runs), runs[0][1]
         same = abs(objective - stw.objective) <= ANCHOR_ACCURACY * max(1.0, abs(objective))
-        figures.append(Figure("pendulum: time / FDDP", stw.seconds / seconds, "x", 1.0,
+        figures.append(Figure(f"pendulum: time / {label}", stw.seconds / seconds, "x", 1.0,
                               "other optimum", counted=same))
     return figures
 
