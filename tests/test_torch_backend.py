@@ -289,3 +289,14 @@ def test_a_solve_with_autograd_derivatives_reaches_scipys_motion(registered):
     got.run_text("backend torch device=cpu derivatives=autograd\n" + problem.text)
     assert all(r.converged for r in got.runs) and len(got.runs) == len(ref.runs)
     assert np.abs(got.scene.coefficient_vector() - ref.scene.coefficient_vector()).max() <= 1e-6
+
+
+def test_runs_of_a_sorted_array_are_what_np_unique_gives():
+    from stw_torch.evaluate import _runs
+
+    rng = np.random.default_rng(5)
+    for ordered in (np.sort(rng.integers(0, 50, 1000)), np.arange(7), np.zeros(5, np.int64),
+                    np.array([3], np.int64), np.zeros(0, np.int64)):
+        got = _runs(ordered)
+        want = np.unique(ordered, return_index=True, return_counts=True)
+        assert all(np.array_equal(a, b) for a, b in zip(got, want))

@@ -43,6 +43,16 @@ def _row_entries(indptr: np.ndarray, rows: np.ndarray) -> tuple[np.ndarray, np.n
     return owner, first + np.arange(counts.sum())
 
 
+def _runs(ordered: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """``np.unique(ordered, return_index=True, return_counts=True)`` of a sorted array, in one
+    pass: np.unique sorts again (basketball's Hessian: 4.7 million contributions, 0.36 s)."""
+    new = np.empty(ordered.size, bool)
+    new[:1] = True
+    np.not_equal(ordered[1:], ordered[:-1], out=new[1:])
+    start = np.flatnonzero(new)
+    return ordered[start], start, np.diff(np.append(start, ordered.size))
+
+
 @dataclass
 class Pattern:
     """A fixed CSR pattern whose values are sums of gathered products.
@@ -77,7 +87,7 @@ class Pattern:
         rows, cols = np.asarray(rows, np.int64), np.asarray(cols, np.int64)
         keys = rows * shape[1] + cols
         order = np.argsort(keys, kind="stable")
-        uniq, start, counts = np.unique(keys[order], return_index=True, return_counts=True)
+        uniq, start, counts = _runs(keys[order])
         owner = np.repeat(np.arange(uniq.size), counts)
         r, c = uniq // shape[1], uniq % shape[1]
         crow = np.concatenate([[0], np.cumsum(np.bincount(r, minlength=shape[0]))]).astype(np.int64)
@@ -313,9 +323,9 @@ class TorchProblem:
         left_owner, left_pos = _row_entries(indptr, p)
         right_owner, right_pos = _row_entries(indptr, q[left_owner])
         entry = left_owner[right_owner]
-        self.hess = Pattern.build(indices[left_pos][right_owner], indices[right_pos],
-                                  data[left_pos][right_owner] * data[right_pos], entry, p.size,
-                                  (self.n_free, self.n_free), self.device)
+        left = left_pos[right_owner]      # one gather of the millions of contributions, not two
+        self.hess = Pattern.build(indices[left], indices[right_pos], data[left] * data[right_pos],
+                                  entry, p.size, (self.n_free, self.n_free), self.device)
         # Slot -> owning instance (condition slots own the padding instance n_inst).
         owner = np.full(self.n_slots, self.n_inst, np.int64)
         for g in self.groups:
