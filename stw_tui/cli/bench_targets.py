@@ -283,21 +283,21 @@ def pendulum_figures(repeat: int, anchors: bool) -> list[Figure]:
     """stw against SLSQP (and crocoddyl FDDP with ``anchors``) on the pendulum swing-up."""
     case = prepare("pendulum", PENDULUM)
     scene, g = case.setup.scene, float(case.setup.scene.constants["g"])
-    fddp = "crocoddyl missing"
+    with_fddp = False
     if anchors:
         try:
             import crocoddyl  # noqa: F401
-            fddp = None
+            with_fddp = True
         except ImportError:
             pass
     slsqp_solve(scene.copy())                                  # untimed: warm caches as stw's
-    if fddp is None:
+    if with_fddp:
         fddp_solve(g)                                          # untimed: crocoddyl's first use
     slsqp_runs, fddp_runs = [], []
 
     def between():   # one run of each reference after each of stw's (bench.measure_together)
         slsqp_runs.append(slsqp_solve(scene.copy()))
-        if fddp is None:
+        if with_fddp:
             fddp_runs.append(fddp_solve(g))
     (stw,) = _measure_together(case, [("scipy", "solver=direct", case.n)], max(repeat, 3), between)
     if isinstance(stw, str):
@@ -306,7 +306,7 @@ def pendulum_figures(repeat: int, anchors: bool) -> list[Figure]:
     for label, runs in (("SLSQP", slsqp_runs), ("FDDP", fddp_runs)):
         if not runs:
             if label == "FDDP" and anchors:
-                figures.append(Figure("pendulum: time / FDDP", None, "x", 1.0, fddp))
+                figures.append(Figure("pendulum: time / FDDP", None, "x", 1.0, "crocoddyl missing"))
             continue
         seconds, objective = statistics.median(r[0] for r in runs), runs[0][1]
         same = abs(objective - stw.objective) <= ANCHOR_ACCURACY * max(1.0, abs(objective))

@@ -139,7 +139,7 @@ def measure_together(name: str, setup: Session, configs: list[tuple[str, str, in
     interleaved: round after round, one timed run of each, then ``between()`` (another solver
     timed by the caller). The machines are shared: their speed drifts by tens of percent over
     seconds, and a ratio of medians taken one after the other measured the drift as much as the
-    solvers (pendulum against SLSQP: 2.5x to 4.6x on unchanged code); interleaved, both medians
+    solvers (pendulum against SLSQP: 2.5x to 4.6x across four quick runs); interleaved, both medians
     see the same drift.
 
     Each configuration stops after ``repeat`` runs or once its timed runs have used ``budget``

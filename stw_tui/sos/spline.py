@@ -23,18 +23,19 @@ _TIME_SLACK = 1e-12
 
 
 def _spline_values(knots: np.ndarray, coef: np.ndarray, times: np.ndarray, order: int) -> np.ndarray:
-    """``BSpline.construct_fast(knots, coef, 3)(times, nu=order)``, bit for bit.
-
-    The dense check evaluates curves some 500 times per check; BSpline's call spends three times
-    the kernel's time on conversions of arrays that are already float, contiguous and 1-D here.
-    The kernel is scipy's private ``_dierckx.evaluate_spline`` (scipy >= 1.15): where it is
-    missing or answers differently from BSpline on a probe, BSpline itself is called.
-    """
+    """``BSpline.construct_fast(knots, coef, 3)(times, nu=order)``: the public route, and the
+    reference the direct kernel (:data:`_KERNEL`) is probed against."""
     return BSpline.construct_fast(knots, coef, DEGREE)(times, nu=order)
 
 
 def _kernel_values():
-    """The direct kernel call, if it gives BSpline's values on a probe; else None."""
+    """The direct kernel call, if it gives BSpline's values on a probe, bit for bit; else None.
+
+    The dense check evaluates curves some 500 times per check; BSpline's call spends three times
+    the kernel's time on conversions of arrays that are already float, contiguous and 1-D here.
+    The kernel is scipy's private ``_dierckx.evaluate_spline`` (scipy >= 1.15): where it is
+    missing or answers differently from BSpline on the probe, BSpline itself is called.
+    """
     try:
         from scipy.interpolate import _dierckx
 
