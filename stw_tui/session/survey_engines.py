@@ -256,8 +256,6 @@ class DaskEngine:
                 batch = finished.next_batch(block=False)
                 if not batch:
                     time.sleep(POLL_S)
-                    workers = self._watch(client, workers, on_note)
-                    continue
                 for future in batch:
                     task = index[future.key]
                     if future.status == "finished":
@@ -267,6 +265,9 @@ class DaskEngine:
                         on_result(_lost(task, f"Dask gave up on it: {why!r}"))
                     else:   # its result died with a worker before it was gathered: Dask recomputes it
                         finished.add(future)
+                # After every pass, not only idle ones: results can come batch after batch to the
+                # last, and a worker lost meanwhile went unreported.
+                workers = self._watch(client, workers, on_note)
         finally:
             if self.address:
                 client.close()
