@@ -119,6 +119,14 @@ def _fresh(setup: Session, config: str) -> Session:
     return session
 
 
+def timed_iterate(setup: Session, config: str, n: int) -> tuple[float, Session]:
+    """Seconds of one `iterate n` with ``config`` on a fresh copy of ``setup``, and that session."""
+    session = _fresh(setup, config)
+    started = time.perf_counter()
+    session.execute(f"iterate {n}")
+    return time.perf_counter() - started, session
+
+
 def measure(name: str, setup: Session, n: int, backend: str, options: str, repeat: int,
             budget: float | None = None) -> Measurement:
     """Solve the scene of ``setup`` from the same start ``repeat`` times with one configuration.
@@ -168,13 +176,11 @@ def measure_together(name: str, setup: Session, configs: list[tuple[str, str, in
             if not wants_more(i):
                 continue
             try:
-                session = _fresh(setup, config)
-                started = time.perf_counter()
-                session.execute(f"iterate {n}")
+                seconds, session = timed_iterate(setup, config, n)
             except StwError as exc:
                 out[i] = exc
                 continue
-            runs[i].append((time.perf_counter() - started, session.runs[-1], session))
+            runs[i].append((seconds, session.runs[-1], session))
         if between is not None:
             between()
     problem = WindowProblem(setup.scene)
