@@ -405,6 +405,26 @@ def test_positive_definite_agrees_with_the_eigenvalues(la):
         assert la.positive_definite(la.matrix(sps.csr_array(M))) == want
 
 
+@pytest.mark.parametrize("dense_max", [0, 10_000], ids=["sparse LDLt", "dense Cholesky"])
+def test_both_positive_definite_tests_of_the_scipy_algebra_agree_with_the_eigenvalues(monkeypatch, dense_max):
+    import scipy.sparse as sps
+
+    import stw_scipy.linear as linear
+
+    monkeypatch.setattr(linear, "DENSE_TEST_MAX", dense_max)
+    la = linear.SparseAlgebra()
+    rng = np.random.default_rng(5)
+    for k in range(30):
+        n = int(rng.integers(1, 60))
+        B = sps.random_array((n, n), density=0.2, rng=rng).toarray()
+        M = B @ B.T + np.diag(rng.random(n))
+        M -= np.linalg.eigvalsh(M).min() * (1 + (-1) ** k * 10 ** rng.uniform(-6, 0)) * np.eye(n)
+        assert la.positive_definite(la.matrix(sps.csr_array(M))) == (np.linalg.eigvalsh(M).min() > 0)
+    M = np.eye(3)
+    M[1, 1] = np.nan
+    assert not la.positive_definite(la.matrix(sps.csr_array(M)))      # undefined is not convex
+
+
 def test_convexify_shifts_just_enough_for_the_null_space_of_the_binding_rows():
     import scipy.sparse as sps
     from stw_scipy.linear import SparseAlgebra

@@ -14,6 +14,7 @@ from __future__ import annotations
 import numpy as np
 import scipy.sparse as sps
 import scipy.sparse.linalg as spla
+from scipy.linalg import lapack
 
 from stw_tui.sos.compressed import add, csc, csr, transpose
 from stw_tui.sos.products import GramPlan
@@ -24,6 +25,7 @@ from stw_scipy.ordering import Ordering, factorize
 
 SOLVERS = ("direct", "minres", "cg")
 FALLBACK_RESIDUAL = 1e-6   # relative KKT residual above which an iterative solve is not trusted
+DENSE_TEST_MAX = 300       # rows up to which the positive-definiteness test is a dense Cholesky
 
 
 def kkt_matrix(H, A, e, layouts: list | None = None) -> sps.csc_array:
@@ -385,6 +387,13 @@ class SparseAlgebra(LinearAlgebra):
         return float(np.abs(m.diagonal()).max(initial=0.0))
 
     def positive_definite(self, m):
+        if m.shape[0] <= DENSE_TEST_MAX:
+            # LAPACK's Cholesky of the dense matrix (its lower triangle): at this size it costs
+            # a tenth to a third of the sparse test below (pendulum, 23 rows: 29 against 339 µs;
+            # arm_throw, 135 rows: 161 against 516 µs; basketball, 459 rows: 1.5 against 1.1 ms).
+            # LAPACK may carry a NaN through instead of stopping: a NaN entry reaches a pivot.
+            factor, info = lapack.dpotrf(m.toarray(), lower=1, overwrite_a=1, clean=0)
+            return info == 0 and bool(np.isfinite(factor.diagonal()).all())
         # LDLᵀ in SuperLU's clothes: a symmetric ordering and the diagonal always taken as pivot
         # (SuperLU leaves it only for an exact zero, which perm_r != perm_c then shows). All
         # pivots positive <=> all leading minors positive <=> positive definite (Sylvester).
