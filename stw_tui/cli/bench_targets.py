@@ -12,8 +12,7 @@ two sides of a ratio are timed in alternation, run after run (bench.measure_toge
 the machine's drift falls on both:
 
 * ``arm_throw first solve: ms/it``: scipy's median per-iteration time on the arm's first solve
-  (the paper's arm problem); ``basketball``'s on its one solve (``--quick``: its first 3
-  iterations).
+  (the paper's arm problem); ``basketball``'s on its one solve.
 * ``S: time/ipopt``: the time to converge of scipy over IPOPT's on the scene before session
   S's last `iterate` (bench.py's case; IPOPT may take up to IPOPT_ITERATIONS of its own
   iterations, not the session's N); it counts only where both converge to the same optimum
@@ -69,10 +68,9 @@ WIDTH = 80
 LABEL, VALUE, TARGET = 34, 11, 9           # column widths; the verdict gets the rest
 SAME_OPTIMUM = 1e-6                        # relative objective difference of "the same optimum"
 ANCHOR_ACCURACY = 1e-4                     # relative objective difference of "equal accuracy"
-# --quick: the sessions that converge in seconds (basketball's full solve takes minutes, and
-# arm_overhand's solvers reach different optima, so it cannot count against IPOPT anyway)
-QUICK_SESSIONS = ("acrobat", "arm_throw", "cat_mouse", "particle_jet", "point_mass_2d")
-QUICK_BASKETBALL_ITERATIONS = 3
+# --quick: the sessions that converge in seconds (basketball: 4 s with scipy, 7 s with torch, 5 s
+# with IPOPT); arm_overhand's solvers reach different optima, so it cannot count against IPOPT
+QUICK_SESSIONS = ("acrobat", "arm_throw", "basketball", "cat_mouse", "particle_jet", "point_mass_2d")
 # --quick times each configuration up to QUICK_REPEAT times, until QUICK_BUDGET seconds are used
 # (at least once): a solve of a few milliseconds timed once is mostly noise, one of a second is not.
 QUICK_REPEAT, QUICK_BUDGET = 9, 1.0
@@ -220,18 +218,6 @@ def session_figures(sources: list[tuple[str, str]], repeat: int, out) -> list[Fi
     elif "torch" in missing:
         figures.append(Figure("torch first iterate", None, "s", 1.0, "torch missing"))
     return figures
-
-
-def basketball_quick_figure(text: str) -> Figure:
-    """basketball's scipy ms/it over its first iterations only (its full solve takes minutes)."""
-    case = prepare("basketball", text)
-    if isinstance(case, str):
-        return Figure("basketball: scipy ms/it", None, "ms", 20.0, case)
-    m = _measure(case, "scipy", "solver=direct", 1, QUICK_BASKETBALL_ITERATIONS)
-    if isinstance(m, str):
-        return Figure("basketball: scipy ms/it", None, "ms", 20.0, m)
-    return Figure(f"basketball: ms/it, {QUICK_BASKETBALL_ITERATIONS} its", m.ms_per_iteration,
-                  "ms", 20.0)
 
 
 def arm_first_solve_figure(text: str, repeat: int) -> Figure:
@@ -509,8 +495,6 @@ def run_targets(quick: bool, anchors: bool, repeat: int, out=None) -> list[Figur
     figures = []
     if "arm_throw" in texts:
         figures.append(arm_first_solve_figure(texts["arm_throw"], repeat))
-    if quick and "basketball" in texts:
-        figures.append(basketball_quick_figure(texts["basketball"]))
     figures += session_figures([(n, texts[n]) for n in names], repeat, out)
     figures += pendulum_figures(repeat, anchors)
     figures.append(window_figure(repeat))
