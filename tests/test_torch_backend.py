@@ -300,3 +300,49 @@ def test_runs_of_a_sorted_array_are_what_np_unique_gives():
         got = _runs(ordered)
         want = np.unique(ordered, return_index=True, return_counts=True)
         assert all(np.array_equal(a, b) for a, b in zip(got, want))
+
+
+def test_pattern_operators_are_the_arrays_scipy_builds_from_pairs():
+    import scipy.sparse as sps
+
+    from stw_torch.evaluate import _operator, _runs
+
+    rng = np.random.default_rng(3)
+    for duplicates in (False, True):
+        # contributions listed source by source, as the Jacobian and Hessian patterns list them
+        src = np.repeat(np.arange(40), 6)
+        nonzero = np.concatenate([rng.choice(25, 6, replace=duplicates) for _ in range(40)])
+        coef = rng.standard_normal(src.size)
+        order = np.argsort(nonzero, kind="stable")
+        _, start, counts = _runs(nonzero[order])
+        got = _operator(coef, src, order, start, counts, 40)
+        rows = np.unique(nonzero, return_inverse=True)[1]
+        want = sps.csr_array((coef, (rows, src)), shape=(counts.size, 40))
+        want.sum_duplicates()
+        assert np.array_equal(got.indptr, want.indptr) and np.array_equal(got.indices, want.indices)
+        assert np.array_equal(got.data, want.data) and got.has_canonical_format
+
+
+def test_iterates_of_one_window_share_its_lowering_and_its_numbers(registered, monkeypatch):
+    import stw_torch.backend as backend
+    import stw_torch.evaluate as evaluate
+
+    built = []
+    build = evaluate.TorchProblem.__init__
+    monkeypatch.setattr(evaluate.TorchProblem, "__init__", lambda self, *a, **k: built.append(1) or build(self, *a, **k))
+    monkeypatch.setattr(backend, "_LOWERINGS", None)          # none kept from other tests
+    # adapt=0: an adaptive round would add instances, a new structure
+    text = catalogue.problems("point_mass_2d")[0].text.replace("iterate", "iterate 2 adapt=0 #")
+    again = Session()
+    again.run_text("backend torch device=cpu\n" + text)
+    again.execute("iterate 3 adapt=0")
+    assert len(built) == 1                                    # the second `iterate` reused the first's
+    fresh = Session()                                         # the same, each solve lowered anew
+    for line in ("backend torch device=cpu\n" + text, "iterate 3 adapt=0"):
+        backend._LOWERINGS.clear()
+        fresh.run_text(line)
+    assert len(built) == 3
+    assert np.array_equal(again.scene.coefficient_vector(), fresh.scene.coefficient_vector())
+    again.execute("constraint extra: x = 0.5 @ 0.5")         # a new structure: lowered anew
+    again.execute("iterate 1 adapt=0")
+    assert len(built) == 4

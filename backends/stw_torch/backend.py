@@ -20,6 +20,12 @@ from stw_tui.sos.sqp import SQPBackend, SQPInner
 from stw_tui.sym.errors import StwError
 
 
+# The last few window problems solved, lowered (lowerings.py): the next `iterate` of the same
+# window finds its own there (basketball: 2 s of lowering and patterns once, not at every solve).
+LOWERINGS_KEPT = 2
+_LOWERINGS = None   # made at the first solve: the module is loaded without torch
+
+
 class TorchBackend(SQPBackend):
     """SQP on torch: lowered expressions and derivatives, sparse or dense KKT solves."""
 
@@ -60,10 +66,13 @@ class TorchBackend(SQPBackend):
         return DenseAlgebra(self.device)
 
     def evaluator(self, problem, algebra):
-        from .evaluate import TorchProblem
+        from .lowerings import Lowerings
 
-        return TorchProblem(problem, self.device, host_linear=self.linear == "scipy",
-                            autograd=self.config["derivatives"] == "autograd")
+        global _LOWERINGS
+        if _LOWERINGS is None:
+            _LOWERINGS = Lowerings(LOWERINGS_KEPT)
+        return _LOWERINGS.get(problem, self.device, host_linear=self.linear == "scipy",
+                              autograd=self.config["derivatives"] == "autograd")[0]
 
     def init(self, problem, state, settings) -> SQPInner:
         from .evaluate import check_finite

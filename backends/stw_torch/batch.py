@@ -38,9 +38,10 @@ from stw_tui.sos.sqp.algebra import KKTSystem, SingularSystem
 from stw_tui.sym.errors import StwError
 
 from .backend import TorchBackend, _linear
-from .batch_evaluate import evaluate_batch, merit_values_batch, problem_key
+from .batch_evaluate import evaluate_batch, merit_values_batch
 from .evaluate import TorchProblem
 from .linalg import DenseAlgebra, kkt_matrix
+from .lowerings import Lowerings
 
 
 LOWERINGS_KEPT = 8   # lowerings a batch keeps (adaptive re-solves make new structures)
@@ -104,8 +105,7 @@ class TorchBatch(BatchSolver):
         self._running: set[int] = set()
         self._finished: list[tuple[int, Any]] = []
         self._cancelled = False
-        self._lowerings: dict[str, TorchProblem] = {}   # by problem_key: shared by starts
-        self._lowering_lock = threading.Lock()
+        self._lowerings = Lowerings(LOWERINGS_KEPT)     # shared by the starts of a structure
 
     def describe(self) -> str:
         """Where the batch runs."""
@@ -138,16 +138,7 @@ class TorchBatch(BatchSolver):
     def lowering(self, problem, host_linear: bool) -> tuple[TorchProblem, str]:
         """``problem`` lowered to torch, and its batching key. Starts whose problems have the
         same structure share one lowering (building an arm's took 0.45 s, per start and solve)."""
-        key = problem_key(problem, self.device, host_linear)
-        with self._lowering_lock:
-            template = self._lowerings.get(key)
-            if template is None:
-                while len(self._lowerings) >= LOWERINGS_KEPT:
-                    self._lowerings.pop(next(iter(self._lowerings)))
-                template = self._lowerings[key] = TorchProblem(problem, self.device, host_linear)
-        # Every start, the first too, takes its fixed slot values the same way: the numbers do
-        # not depend on which start happened to build the lowering.
-        return template.with_problem(problem), key
+        return self._lowerings.get(problem, self.device, host_linear)
 
     def _job(self, index: int, job: Callable[[], Any]) -> None:
         token = join_batch(self.member(index))

@@ -53,6 +53,32 @@ def _runs(ordered: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     return ordered[start], start, np.diff(np.append(start, ordered.size))
 
 
+def _operator(coef, src, order, start, counts, n_src) -> sps.csr_array:
+    """The CSR matrix (nonzero, source) of the contributions ``coef`` of sources ``src``, listed
+    in ``order`` (nonzero after nonzero, ``counts`` of each from ``start``), duplicate (nonzero,
+    source) pairs summed and each row's sources ascending.
+
+    The contributions of a Jacobian or Hessian are listed source by source and sorted stably by
+    nonzero, and one source adds to one nonzero once (a row of Pf holds a column once): each row
+    is then in ascending source order already, without duplicates, and the arrays are the CSR
+    arrays as they are; scipy's construction from (row, column) pairs (a COO sort and a sum of
+    duplicates, basketball's Hessian: 4.7 million contributions, 0.44 s) is left for anything else.
+    """
+    src_sorted = np.asarray(src, np.int64)[order]
+    data = np.asarray(coef, float)[order]
+    rising = np.diff(src_sorted) > 0
+    rising[start[1:] - 1] = True           # each row's first source needs no predecessor
+    if rising.all():
+        indptr = np.append(start, src_sorted.size)
+        op = sps.csr_array((data, src_sorted, indptr), shape=(counts.size, n_src))
+        op.has_canonical_format = True     # ascending and unique in each row, as checked above
+        return op
+    owner = np.repeat(np.arange(counts.size), counts)
+    op = sps.csr_array((data, (owner, src_sorted)), shape=(counts.size, n_src))   # sums duplicates
+    op.sort_indices()
+    return op
+
+
 @dataclass
 class Pattern:
     """A fixed CSR pattern whose values are sums of gathered products.
@@ -88,16 +114,13 @@ class Pattern:
         keys = rows * shape[1] + cols
         order = np.argsort(keys, kind="stable")
         uniq, start, counts = _runs(keys[order])
-        owner = np.repeat(np.arange(uniq.size), counts)
         r, c = uniq // shape[1], uniq % shape[1]
         crow = np.concatenate([[0], np.cumsum(np.bincount(r, minlength=shape[0]))]).astype(np.int64)
         as_t = lambda a: torch.as_tensor(a, device=device)  # noqa: E731
         if device.type == "cpu":
-            op = sps.csr_array((np.asarray(coef, float)[order], (owner, np.asarray(src, np.int64)[order])),
-                               shape=(uniq.size, n_src))   # duplicate (owner, src) pairs are summed
-            op.sort_indices()
-            operator = SparseMatrix(op, device)
-            return cls(shape, as_t(crow), as_t(c), None, None, n_src, crow, c, operator)
+            return cls(shape, as_t(crow), as_t(c), None, None, n_src, crow, c,
+                       SparseMatrix(_operator(coef, src, order, start, counts, n_src), device))
+        owner = np.repeat(np.arange(uniq.size), counts)
         m = int(counts.max(initial=1))
         coef_pad = np.zeros((uniq.size, m))
         src_pad = np.full((uniq.size, m), n_src, np.int64)
