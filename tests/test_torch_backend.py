@@ -346,3 +346,17 @@ def test_iterates_of_one_window_share_its_lowering_and_its_numbers(registered, m
     again.execute("constraint extra: x = 0.5 @ 0.5")         # a new structure: lowered anew
     again.execute("iterate 1 adapt=0")
     assert len(built) == 4
+
+
+@pytest.mark.parametrize("space_max", [0, 10**6], ids=["argsort", "counting"])
+def test_grouped_keys_are_a_stable_sort_and_its_runs(monkeypatch, space_max):
+    import stw_torch.evaluate as evaluate
+
+    monkeypatch.setattr(evaluate, "COUNTING_SORT_MAX", space_max)
+    rng = np.random.default_rng(8)
+    for keys in (rng.integers(0, 900, 5000), np.arange(7)[::-1].copy(), np.zeros(4, np.int64),
+                 np.zeros(0, np.int64)):
+        order, uniq, start, counts = evaluate._grouped(keys, 900)
+        assert np.array_equal(order, np.argsort(keys, kind="stable"))
+        want = np.unique(keys[order], return_index=True, return_counts=True)   # starts when sorted
+        assert all(np.array_equal(a, b) for a, b in zip((uniq, start, counts), want))

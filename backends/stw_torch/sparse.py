@@ -18,10 +18,11 @@ from stw_tui.sos.sparse_matvec import matvec
 
 
 class SparseMatrix:
-    """``m`` (scipy CSR) as an operator on (n,) or (n, B) float64 tensors on ``device``."""
+    """``m`` (scipy CSR) as an operator on (n,) or (n, B) float64 tensors on ``device``; ``m``
+    is copied unless ``copy`` is False (its indices sorted in place then)."""
 
-    def __init__(self, m, device: torch.device):
-        m = sps.csr_array(m, copy=True)
+    def __init__(self, m, device: torch.device, copy: bool = True):
+        m = sps.csr_array(m, copy=copy)   # copy=False: ``m`` is the caller's to give away
         m.sort_indices()
         self.shape = m.shape
         self.host = m if device.type == "cpu" else None
