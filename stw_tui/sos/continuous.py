@@ -144,13 +144,16 @@ def _sharpen(score_at, t_grid: np.ndarray, score: np.ndarray, rounds: int = REFI
 
 
 def _densely(score_at, t_inst: np.ndarray, t_base: np.ndarray, exact: bool = False) -> _Samples:
-    """A relation's violations at its instances and on the grid ``t_base``, sharpened at peaks."""
-    score = score_at(t_base)
+    """A relation's violations at its instances and on the grid ``t_base``, sharpened at peaks.
+    The instances and the grid are evaluated in one call (each instance on its own, the same
+    numbers): a call's fixed cost was a seventh of the check."""
+    both = score_at(np.concatenate([t_base, t_inst]))
+    score, at_instances = both[:t_base.size], both[t_base.size:]
     t_more, v_more = _sharpen(score_at, t_base, score)
     t_grid = np.concatenate([t_base, t_more])
     order = np.argsort(t_grid, kind="stable")
     v_grid = np.maximum(0.0, np.concatenate([score, v_more]))[order]
-    return _Samples(t_inst, np.maximum(0.0, score_at(t_inst)), t_grid[order], v_grid, exact)
+    return _Samples(t_inst, np.maximum(0.0, at_instances), t_grid[order], v_grid, exact)
 
 
 def _relation_samples(scene, constraint) -> list[_Samples]:
