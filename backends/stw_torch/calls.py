@@ -45,6 +45,7 @@ class CallPlan:
     h_order: torch.Tensor   # (group, pair, instance) entry -> its place among the calls' pairs
     n_slots: int
     autograd: bool = False  # derivatives by torch's autograd on the value programs (local())
+    host: tuple | None = None   # on the CPU: inputs, f_order, h_order as numpy (values_host, local_host)
 
     @classmethod
     def build(cls, groups, n_slots: int, device: torch.device, autograd: bool = False) -> "CallPlan":
@@ -72,8 +73,11 @@ class CallPlan:
             start += k * n
         cat = lambda parts: np.concatenate(parts) if parts else np.zeros(0, np.int64)  # noqa: E731
         as_t = lambda a: torch.as_tensor(a, dtype=torch.int64, device=device)  # noqa: E731
-        return cls(calls, as_t(cat(inputs)), as_t(np.argsort(cat(f_dest), kind="stable")),
+        plan = cls(calls, as_t(cat(inputs)), as_t(np.argsort(cat(f_dest), kind="stable")),
                    as_t(np.argsort(cat(h_dest), kind="stable")), n_slots, autograd)
+        if device.type == "cpu":
+            plan.host = (plan.inputs.numpy(), plan.f_order.numpy(), plan.h_order.numpy())
+        return plan
 
     def values(self, v: torch.Tensor) -> torch.Tensor:
         """(instances,): every group's values at slot values ``v``, in the groups' layout."""
@@ -103,6 +107,42 @@ class CallPlan:
         g_slot[self.inputs] = torch.cat(g) if g else empty
         return (torch.cat(f)[self.f_order] if f else empty, g_slot,
                 (torch.cat(h)[self.h_order] if h else empty) if second else None)
+
+    # --- on the CPU: the same numbers, the glue in numpy ---------------------------------------
+    # A torch op on the CPU costs several microseconds whatever its size, a numpy one about one:
+    # around the programs (gathers, concatenations, scatters) the torch glue cost more than the
+    # programs themselves on small problems (particle_jet). The programs run on tensors sharing
+    # the arrays' memory; gathers, scatters and concatenations move numbers without arithmetic.
+
+    def _host_blocks(self, v: np.ndarray):
+        """Each call with its (k, N) input block, a tensor on the gathered slot values."""
+        x = torch.from_numpy(v[self.host[0]])
+        return [(c, x[c.start:c.start + c.k * c.n].view(c.k, c.n)) for c in self.calls]
+
+    def values_host(self, v: np.ndarray) -> np.ndarray:
+        """:meth:`values` of numpy slot values, as numpy (CPU only)."""
+        with unoptimized():
+            parts = [c.term.values(X, c.times, c.params).numpy() for c, X in self._host_blocks(v)]
+        return np.concatenate(parts)[self.host[1]] if parts else np.zeros(0)
+
+    def local_host(self, v: np.ndarray, second: bool = True):
+        """:meth:`local` of numpy slot values, as numpy arrays (CPU only)."""
+        f, g, h = [], [], []
+        with unoptimized():
+            for c, X in self._host_blocks(v):
+                if self.autograd:
+                    rows = autograd_rows(c.term, X, c.times, c.params, second)
+                else:
+                    rows = (c.term.rows if second else c.term.first_rows)(X, c.times, c.params)
+                rows = [r.numpy() for r in rows]
+                f.append(rows[0])
+                g += rows[1:1 + c.k]
+                h += rows[1 + c.k:]
+        g_slot = np.zeros(self.n_slots)
+        if g:
+            g_slot[self.host[0]] = np.concatenate(g)
+        return (np.concatenate(f)[self.host[1]] if f else np.zeros(0), g_slot,
+                (np.concatenate(h)[self.host[2]] if h else np.zeros(0)) if second else None)
 
     # --- a batch of B starts: slot values (B, slots) -----------------------------------------
     def _tile(self, X: torch.Tensor, c: Call) -> torch.Tensor:

@@ -15,7 +15,11 @@ Hessian of the Lagrangian. Per evaluation:
   list of contributions per nonzero: vectorized, and deterministic on every device (no atomics);
   on the CPU the same sums are one sparse product, which skips the padding (Pattern).
 
-A Python loop runs over terms (calls) only, never over instances or control points.
+A Python loop runs over terms (calls) only, never over instances or control points. On the CPU
+everything around the programs (gathers, scatters, the products on the patterns) runs in numpy on
+views of the same memory: a torch op there cost several microseconds whatever its size, and that
+glue cost more than the programs on the small sessions (particle_jet: torch/scipy per iteration
+1.39-1.42x before, 1.20-1.24x after; the same numbers, bit for bit).
 """
 
 from __future__ import annotations
@@ -164,10 +168,12 @@ class Pattern:
 
     def scipy(self, values: torch.Tensor) -> sps.csr_array:
         """The matrix with these values as a scipy CSR array (for the scipy linear algebra)."""
-        return csr(values.detach().cpu().numpy(), self.col_np, self.crow_np, self.shape)
+        values = values if isinstance(values, np.ndarray) else values.detach().cpu().numpy()
+        return csr(values, self.col_np, self.crow_np, self.shape)
 
     def dense(self, values: torch.Tensor) -> torch.Tensor:
         """The matrix with these values as a dense tensor on the values' device."""
+        values = torch.as_tensor(values)
         out = values.new_zeros(self.shape)
         rows = torch.repeat_interleave(torch.arange(self.shape[0], device=values.device),
                                        self.crow[1:] - self.crow[:-1])
@@ -196,8 +202,8 @@ class _Group:
 
 @dataclass(eq=False)
 class TorchEvaluation:
-    """What one SQP iteration needs at ``s``: the numpy arrays the SQP reads, and the tensors its
-    Jacobians and Hessians are made of."""
+    """What one SQP iteration needs at ``s``: the numpy arrays the SQP reads, and the values its
+    Jacobians and Hessians are made of (tensors on a device, numpy arrays on the CPU)."""
 
     tp: "TorchProblem"
     s: np.ndarray
@@ -295,6 +301,10 @@ class TorchProblem:
         self.plan = CallPlan.build(self.groups, self.n_slots, device, autograd)
         self._last: TorchEvaluation | None = None   # the latest evaluation (its Hessian used?)
         self._build_patterns(Pf)
+        # On the CPU the glue around the programs runs in numpy (calls.py: CallPlan.local_host),
+        # on views of the same tensors.
+        self.host = device.type == "cpu"
+        self.host_arrays = {name: getattr(self, name).numpy() for name in _HOST_ARRAYS} if self.host else {}
 
     def with_problem(self, problem) -> "TorchProblem":
         """This lowering for ``problem``, a window problem of the same structure (batch_evaluate's
@@ -305,6 +315,8 @@ class TorchProblem:
         fixed = problem.coef0.copy()
         fixed[problem.free] = 0.0
         other.v_fixed = torch.as_tensor(sps.csr_array(problem.P) @ fixed, **self._dev)
+        if other.host:
+            other.host_arrays = {**self.host_arrays, "v_fixed": other.v_fixed.numpy()}
         return other
 
     # --- fixed patterns ----------------------------------------------------------------------
@@ -422,13 +434,20 @@ class TorchProblem:
         objective = float(np.dot(self.host_weights[OBJ], r * r))
         return objective, {kind: self.host_weights[kind] * f[self.host_rows[kind]] for kind in (EQ, GE)}
 
-    def _masks(self, v: torch.Tensor) -> dict[str, np.ndarray]:
+    def _masks(self, v) -> dict[str, np.ndarray]:
         if not self.conditional:
             return {kind: np.ones(self.row_counts[kind], bool) for kind in (EQ, GE)}
-        return {kind: m.cpu().numpy() for kind, m in self._conditions(v).items()}
+        v = torch.from_numpy(v) if isinstance(v, np.ndarray) else v
+        with torch.no_grad():
+            return {kind: m.cpu().numpy() for kind, m in self._conditions(v).items()}
 
     def merit_values(self, s: np.ndarray) -> MeritValues:
         """Objective and weighted constraint values only (no derivatives), for the line search."""
+        if self.host:
+            v = self.host_arrays["v_fixed"] + self.Pf @ np.asarray(s, float)
+            objective, c = self._rows(self.plan.values_host(v))
+            masks = self._masks(v)
+            return MeritValues(objective, c[EQ], c[GE], masks[EQ], masks[GE])
         with torch.no_grad():
             v = self.slot_values(torch.as_tensor(s, **self._dev))
             objective, c = self._rows(self.plan.values(v).cpu().numpy())
@@ -437,6 +456,8 @@ class TorchProblem:
 
     def evaluate(self, s: np.ndarray) -> TorchEvaluation:
         """Values, gradients and local second derivatives (lowered programs) at ``s``."""
+        if self.host:
+            return self._evaluate_host(s)
         t_s = torch.as_tensor(np.asarray(s, float), **self._dev)
         with torch.no_grad():
             v = self.slot_values(t_s)
@@ -462,9 +483,47 @@ class TorchProblem:
         self._last = ev
         return ev
 
+    def _evaluate_host(self, s: np.ndarray) -> TorchEvaluation:
+        """:meth:`evaluate` on the CPU, its glue in numpy: the same operations, the same numbers."""
+        a = self.host_arrays
+        s = np.asarray(s, float)
+        v = a["v_fixed"] + self.Pf @ s
+        second = self._last is None or self._last.hessian_used
+        f_all, g_slot, h_flat = self.plan.local_host(v, second=second)
+        objective, c = self._rows(f_all)
+        w_f = a["w_inst"] * f_all
+        u = g_slot * np.concatenate([np.where(a["is_obj"], 2.0 * w_f, 0.0), np.zeros(1)])[a["slot_owner"]]
+        gw = g_slot * a["w_slot"]
+        masks = self._masks(v)
+        ev = TorchEvaluation(
+            tp=self, s=s.copy(), objective=objective, gradient=self.PfT @ u, c_eq=c[EQ], c_ge=c[GE],
+            active_eq=masks[EQ], active_ge=masks[GE], t_J={kind: self.jac[kind].values(gw) for kind in (EQ, GE)},
+            t_local={"f": f_all, "g": g_slot, "h": h_flat, "v": v})
+        self._last = ev
+        return ev
+
+    def _hessian_values_host(self, ev: TorchEvaluation, lam_eq, lam_ge) -> np.ndarray:
+        """:meth:`hessian_values` on the CPU, in numpy (the same operations in the same order)."""
+        a, t = self.host_arrays, ev.t_local
+        f, g, h = t["f"], t["g"], t["h"]
+        if h is None and lam_eq is not None:
+            h = t["h"] = self.plan.local_host(t["v"])[2]
+        if "gn" not in t:
+            t["gn"] = 2.0 * a["w_inst"][a["gn_i"]] * g[a["gn_p"]] * g[a["gn_q"]]
+        if lam_eq is None:
+            second = np.zeros(a["h_src"].shape[0])
+        else:
+            lam = np.concatenate([np.asarray(lam_eq, float), np.asarray(lam_ge, float), np.zeros(1)])
+            scale = a["w_inst"] * np.where(a["is_obj"], 2.0 * f, lam[a["lam_index"]])
+            second = h[a["h_src"]] * scale[a["h_scale"]]
+        return self.hess.values(np.concatenate([second, t["gn"]]))
+
     def hessian_values(self, ev: TorchEvaluation, lam_eq: np.ndarray, lam_ge: np.ndarray) -> torch.Tensor:
         """Values of ∇²R + Σλ∇²C on the fixed pattern ``self.hess``; without multipliers (None),
-        of the Gauss-Newton part 2 Jₒᵀ W Jₒ alone."""
+        of the Gauss-Newton part 2 Jₒᵀ W Jₒ alone (numpy where the evaluation's are: evaluate's
+        on the CPU; a batch's evaluations hold tensors)."""
+        if isinstance(ev.t_local["g"], np.ndarray):
+            return self._hessian_values_host(ev, lam_eq, lam_ge)
         f, g, h = ev.t_local["f"], ev.t_local["g"], ev.t_local["h"]
         if h is None and lam_eq is not None:
             with torch.no_grad():
@@ -483,13 +542,19 @@ class TorchProblem:
         return self.hess.values(d_values)
 
 
+# TorchProblem's tensors the CPU glue reads as numpy views (TorchProblem.host_arrays)
+_HOST_ARRAYS = ("v_fixed", "w_inst", "is_obj", "slot_owner", "w_slot", "gn_i", "gn_p", "gn_q",
+                "h_src", "h_scale", "lam_index")
+
+
 def check_finite(ev: TorchEvaluation, problem) -> None:
     """Raise with the name of the first term group whose values are not finite."""
     if np.isfinite(ev.objective) and np.all(np.isfinite(ev.gradient)) \
             and np.all(np.isfinite(ev.c_eq)) and np.all(np.isfinite(ev.c_ge)) \
-            and all(bool(torch.isfinite(values).all()) for values in ev.t_J.values()):
+            and all(bool(torch.isfinite(torch.as_tensor(values)).all()) for values in ev.t_J.values()):
         return
-    f = ev.t_local["f"].cpu().numpy()
+    f = ev.t_local["f"]
+    f = f if isinstance(f, np.ndarray) else f.cpu().numpy()
     for g in ev.tp.groups:
         if not np.all(np.isfinite(f[g.inst:g.inst + g.n])):
             raise StwError(f"'{g.label}' is not finite at the starting point (e.g. sqrt or log of a "

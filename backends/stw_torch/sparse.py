@@ -36,7 +36,10 @@ class SparseMatrix:
                     torch.as_tensor(m.data, dtype=torch.float64, device=device), size=m.shape,
                     check_invariants=False)
 
-    def __matmul__(self, x: torch.Tensor) -> torch.Tensor:
+    def __matmul__(self, x):
+        """``m @ x``: a tensor for a tensor, a numpy array for a numpy array (CPU only)."""
+        if isinstance(x, np.ndarray):
+            return np.asarray(matvec(self.host, x))
         if self.host is not None:
             # scipy's kernel without its dispatch, bitwise (matvec takes ``@`` for what it can't)
             return torch.from_numpy(np.asarray(matvec(self.host, x.numpy())))
