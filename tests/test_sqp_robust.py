@@ -528,3 +528,18 @@ def test_replayed_column_ordering_factorizes_bit_for_bit_as_colamd():
             if replay.perm is not None else np.array_equal(lu.perm_r, want.perm_r)
         assert np.array_equal(lu.U.diagonal(), want.U.diagonal())
     assert replayed >= 20 + 10
+
+
+def test_the_widest_gram_diagonal_is_the_products_own_number():
+    import scipy.sparse as sps
+
+    from stw_scipy.linear import SparseAlgebra
+    from stw_tui.sos.sqp.algebra import LinearAlgebra
+
+    la = SparseAlgebra()
+    rng = np.random.default_rng(2)
+    for shape in ((1, 1), (4, 23), (40, 135), (0, 5)):
+        A = sps.random_array(shape, density=0.3, rng=rng, format="csr") * 1e3
+        got = la.max_gram_diagonal(A)
+        assert got == LinearAlgebra.max_gram_diagonal(la, A)            # bit for bit
+        assert got == pytest.approx(float(((A.toarray() ** 2).sum(0)).max(initial=0.0)), rel=1e-12)

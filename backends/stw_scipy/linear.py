@@ -383,6 +383,14 @@ class SparseAlgebra(LinearAlgebra):
             del self._placements[PLACEMENTS_KEPT:]
         return placed
 
+    def max_gram_diagonal(self, a):
+        # The diagonal of gram(a, 1) without the product: each column's squares summed in row
+        # order from 0, as scipy's product sums them (the same number, bit for bit).
+        a = _csr(a)
+        data = a.data[:a.nnz]
+        sums = np.bincount(a.indices[:a.nnz], weights=data * data, minlength=a.shape[1])
+        return float(sums.max(initial=0.0))
+
     def max_abs_diagonal(self, m):
         return float(np.abs(m.diagonal()).max(initial=0.0))
 

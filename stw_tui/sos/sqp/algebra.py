@@ -118,6 +118,11 @@ class LinearAlgebra(ABC):
     def max_abs_diagonal(self, m: Matrix) -> float:
         """max |m_ii|."""
 
+    def max_gram_diagonal(self, a: Matrix) -> float:
+        """max_j Σ_i a_ij², the largest diagonal entry of aᵀa. A backend may find it without the
+        product (the default forms it)."""
+        return self.max_abs_diagonal(self.gram(a, self.full(a.shape[0], 1.0)))
+
     @abstractmethod
     def kkt(self, H: Matrix, A: Matrix, e: float | Vector, exact: bool = False) -> KKTSystem:
         """The system [[H, Aᵀ], [A, -diag(e)]] (``e`` a scalar or one entry per row of A).

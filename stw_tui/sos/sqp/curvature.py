@@ -36,7 +36,7 @@ def convex_on(la: LinearAlgebra, H: Matrix, A: Matrix | None) -> bool:
 def _penalized(la: LinearAlgebra, H: Matrix, A: Matrix | None, scale: float) -> Matrix:
     """H + ρAᵀA with Debreu's ρ (CURVATURE_PENALTY, relative to H's scale and A's widest row)."""
     if A is not None and A.shape[0]:
-        widest = la.max_abs_diagonal(la.gram(A, la.full(A.shape[0], 1.0)))
+        widest = la.max_gram_diagonal(A)
         if widest > 0:
             return la.add(H, la.gram(A, la.full(A.shape[0], CURVATURE_PENALTY * scale / widest)))
     return H
