@@ -360,3 +360,34 @@ def test_grouped_keys_are_a_stable_sort_and_its_runs(monkeypatch, space_max):
         assert np.array_equal(order, np.argsort(keys, kind="stable"))
         want = np.unique(keys[order], return_index=True, return_counts=True)   # starts when sorted
         assert all(np.array_equal(a, b) for a, b in zip((uniq, start, counts), want))
+
+
+def test_programs_are_kept_on_disk_and_compute_the_same_numbers(tmp_path, monkeypatch):
+    import sympy as sp
+
+    import stw_torch.lower as lower_module
+    from stw_tui.sym import compiler
+    from stw_tui.sym.symbols import dof_symbol
+
+    monkeypatch.setenv("STW_CACHE_DIR", str(tmp_path))
+    monkeypatch.setattr(compiler, "_CACHE", {})
+    x, xd = dof_symbol("x"), dof_symbol("x", 1)
+    term = compiler.compile_term(sp.sin(x) * xd**2 + sp.Symbol("g") * x**3, {"x"}, {"g"})
+    X = torch.tensor([[0.3, -1.1, 2.0], [1.5, 0.2, -0.7]], dtype=torch.float64)
+    times, params = torch.zeros(3, dtype=torch.float64), [torch.tensor(9.81, dtype=torch.float64)]
+    monkeypatch.setattr(lower_module, "_CACHE", {})
+    first = lower_module.lower(term)
+    want = [first.values(X, times, params), *first.first_rows(X, times, params), *first.rows(X, times, params)]
+    assert len(list(tmp_path.glob("torch-*.pkl"))) == 3               # value, first, full
+    monkeypatch.setattr(lower_module, "_CACHE", {})                    # a new process
+    monkeypatch.setattr(lower_module, "_compile", lambda *a: pytest.fail("printed again"))
+    again = lower_module.lower(term)
+    got = [again.values(X, times, params), *again.first_rows(X, times, params), *again.rows(X, times, params)]
+    assert all(torch.equal(a, b) for a, b in zip(want, got)) and again._expr is None   # no sympy work
+    monkeypatch.setenv("STW_CACHE_DIR", "off")                          # off: nothing read or kept
+    monkeypatch.setattr(lower_module, "_CACHE", {})
+    monkeypatch.setattr(compiler, "_CACHE", {})
+    fresh = lower_module.lower(compiler.compile_term(sp.cos(x) * xd, {"x"}, set()))
+    with pytest.raises(pytest.fail.Exception, match="printed again"):
+        fresh.values(X, times, [])
+    assert len(list(tmp_path.glob("torch-*.pkl"))) == 3

@@ -12,7 +12,8 @@ Gauss-Newton steps), and its value, gradient and the second derivatives of
 ``CompiledTerm.hessian_pairs`` (:meth:`LoweredTerm.rows`), their common subexpressions shared
 within each program. The derivatives are taken
 symbolically, by symengine after the core's own conversion (min, max and abs become Piecewise),
-once per term. Measured on 2 cores (acrobat, 41 ms per iteration): a torch op on a few hundred
+once per term; the printed source is kept in the terms' disk cache (LoweredTerm), so a new
+process compiles it without the symbolic work. Measured on 2 cores (acrobat, 41 ms per iteration): a torch op on a few hundred
 numbers costs microseconds whatever it computes, and autograd's backward and batched
 double-backward passes ran several times the ops of the program plus the tape (31 ms of
 evaluation against 4 ms for the program of the largest term).
@@ -34,7 +35,7 @@ import sympy as sp
 import torch
 from sympy.printing.pytorch import TorchPrinter
 
-from stw_tui.sym.compiler import CompiledTerm, LocalVar, _to_symengine
+from stw_tui.sym.compiler import CompiledTerm, LocalVar, _to_symengine, cached_entry, store_entry
 from stw_tui.sym.symbols import TIME, split_dof_symbol
 
 
@@ -190,8 +191,16 @@ def _constant(e) -> float | None:
         return None
 
 
-def _compile(names: list[str], outputs: list) -> Program:
-    """The program of symengine ``outputs`` in the variables ``names``, common subexpressions shared."""
+def _script(source: str):
+    """The TorchScript function ``program`` of ``source``."""
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")          # TorchScript's deprecation notices
+        return torch.jit.CompilationUnit(source).program
+
+
+def _compile(names: list[str], outputs: list) -> tuple[Program, str | None]:
+    """The program of symengine ``outputs`` in the variables ``names``, common subexpressions
+    shared, and its TorchScript source (None: compiled as plain Python instead)."""
     replacements, reduced = se.cse(outputs)
     constants = {row: value for row, e in enumerate(reduced) if (value := _constant(e)) is not None}
     computed = [e for row, e in enumerate(reduced) if row not in constants]
@@ -199,27 +208,60 @@ def _compile(names: list[str], outputs: list) -> Program:
         source = (f"def program({', '.join(names)}):\n"
                   + "".join(f"    {name} = {_print(sub)}\n" for name, sub in replacements)
                   + f"    return [{', '.join(_print(e) for e in computed)}]\n")
-        with warnings.catch_warnings():
-            warnings.simplefilter("ignore")          # TorchScript's deprecation notices
-            fn = torch.jit.CompilationUnit(source).program
+        fn = _script(source)
     except Exception:  # noqa: BLE001 - a construct either does not take: sympy's printer, plain Python
         shared = [(name._sympy_(), _fold_numbers(sub._sympy_())) for name, sub in replacements]
         exprs = [_fold_numbers(e._sympy_()) for e in computed]
         fn = sp.lambdify([sp.Symbol(name) for name in names], exprs, modules="torch",
                          printer=_Printer, cse=lambda _exprs: (shared, exprs))
-    return Program(fn, len(reduced), constants)
+        source = None
+    return Program(fn, len(reduced), constants), source
+
+
+# The version of the printed programs in the disk cache: raise it when printing changes what a
+# term's program computes (a cached program is then printed afresh).
+PRINTING = 1
 
 
 @dataclass(eq=False)
 class LoweredTerm:
-    """A term as torch programs of (k, n) variable values, (n,) times and parameter scalars."""
+    """A term as torch programs of (k, n) variable values, (n,) times and parameter scalars.
+
+    Each program's TorchScript source is kept in the terms' disk cache under the term's
+    ``cache_key`` (stw_tui.sym.compiler.cached_entry): a new process compiles it from there,
+    without taking derivatives, sharing subexpressions and printing again (basketball: 0.5 s of
+    its first torch iterate), and without ``expr`` at all.
+    """
 
     term: CompiledTerm
-    expr: object             # the term in symengine, in the renamed symbols
     names: tuple             # the renamed symbols: variables, time, parameters
     value_program: Program | None = None   # built on first use, as are the others
     first_program: Program | None = None   # value and gradient
     full_program: Program | None = None    # value, gradient and Hessian pairs
+    _expr: object = None
+
+    @property
+    def expr(self):
+        """The term in symengine, in the renamed symbols (made on first use)."""
+        if self._expr is None:
+            self._expr = _renamed(self.term)
+        return self._expr
+
+    def _program(self, kind: str, outputs) -> Program:
+        """The program ``kind`` of the symengine expressions ``outputs()``, from the disk cache
+        where it is kept, else compiled (and kept)."""
+        key = f"{PRINTING}|{torch.__version__}|{kind}|{self.term.cache_key}" if self.term.cache_key else ""
+        entry = cached_entry("torch", key)
+        if entry is not None:
+            source, rows, constants = entry
+            try:
+                return Program(_script(source), rows, constants)
+            except Exception:  # noqa: BLE001 - a source this torch no longer takes: print it afresh
+                pass
+        program, source = _compile(list(self.names), outputs())
+        if source is not None:
+            store_entry("torch", key, (source, program.rows, program.constants))
+        return program
 
     @property
     def k(self) -> int:
@@ -234,7 +276,7 @@ class LoweredTerm:
     def values(self, X: torch.Tensor, times: torch.Tensor, params: list[torch.Tensor]) -> torch.Tensor:
         """(n,): the term's values at n instances. Run inside :func:`unoptimized`."""
         if self.value_program is None:
-            self.value_program = _compile(list(self.names), [self.expr])
+            self.value_program = self._program("value", lambda: [self.expr])
         return self.value_program([*X.unbind(0), times, *params], times)[0]
 
     def first_rows(self, X: torch.Tensor, times: torch.Tensor, params: list[torch.Tensor]) -> list[torch.Tensor]:
@@ -242,7 +284,8 @@ class LoweredTerm:
         Run inside :func:`unoptimized`."""
         if self.first_program is None:
             variables = [se.Symbol(name) for name in self.names[:self.term.k]]
-            self.first_program = _compile(list(self.names), [self.expr, *(self.expr.diff(v) for v in variables)])
+            self.first_program = self._program(
+                "first", lambda: [self.expr, *(self.expr.diff(v) for v in variables)])
         return self.first_program([*X.unbind(0), times, *params], times)
 
     def rows(self, X: torch.Tensor, times: torch.Tensor, params: list[torch.Tensor]) -> list[torch.Tensor]:
@@ -251,9 +294,11 @@ class LoweredTerm:
         Run inside :func:`unoptimized`."""
         if self.full_program is None:
             variables = [se.Symbol(name) for name in self.names[:self.term.k]]
-            grad = [self.expr.diff(v) for v in variables]
-            hess = [grad[a].diff(variables[b]) for a, b in self.term.hessian_pairs]
-            self.full_program = _compile(list(self.names), [self.expr, *grad, *hess])
+
+            def outputs():
+                grad = [self.expr.diff(v) for v in variables]
+                return [self.expr, *grad, *(grad[a].diff(variables[b]) for a, b in self.term.hessian_pairs)]
+            self.full_program = self._program(f"full{self.term.hessian_pairs}", outputs)
         return self.full_program([*X.unbind(0), times, *params], times)
 
     def full(self, X: torch.Tensor, times: torch.Tensor, params: list[torch.Tensor]) -> torch.Tensor:
@@ -271,31 +316,33 @@ def unoptimized():
 _CACHE: dict[int, LoweredTerm] = {}
 
 
+def _renamed(term: CompiledTerm):
+    """``term.expr`` in symengine, its symbols renamed to plain identifiers (variables ``_v0``…,
+    time ``_t``, parameters ``_p0``…) and numeric calls folded to floats."""
+    index = {var: i for i, var in enumerate(term.variables)}
+    params = {name: i for i, name in enumerate(term.parameters)}
+    rename = {}
+    for symbol in term.expr.free_symbols:
+        if symbol == TIME:
+            rename[symbol] = sp.Symbol("_t")
+            continue
+        name, order = split_dof_symbol(symbol)
+        var = LocalVar(name, order)
+        if var in index:
+            rename[symbol] = sp.Symbol(f"_v{index[var]}")
+        elif name in params and order == 0:
+            rename[symbol] = sp.Symbol(f"_p{params[name]}")
+        else:  # compile_term guarantees this never happens
+            raise ValueError(f"symbol {symbol} of term {term.expr} is neither variable nor constant")
+    return _to_symengine(_fold_numbers(term.expr.xreplace(rename)))   # always a sympy object
+
+
 def lower(term: CompiledTerm) -> LoweredTerm:
     """The torch programs of ``term`` (cached per compiled term, which the core itself caches)."""
     cached = _CACHE.get(id(term))
     if cached is not None and cached.term is term:
         return cached
-    index = {var: i for i, var in enumerate(term.variables)}
-    params = {name: i for i, name in enumerate(term.parameters)}
-    v_syms = [sp.Symbol(f"_v{i}") for i in range(term.k)]
-    p_syms = [sp.Symbol(f"_p{i}") for i in range(len(term.parameters))]
-    t_sym = sp.Symbol("_t")
-    rename = {}
-    for symbol in term.expr.free_symbols:
-        if symbol == TIME:
-            rename[symbol] = t_sym
-            continue
-        name, order = split_dof_symbol(symbol)
-        var = LocalVar(name, order)
-        if var in index:
-            rename[symbol] = v_syms[index[var]]
-        elif name in params and order == 0:
-            rename[symbol] = p_syms[params[name]]
-        else:  # compile_term guarantees this never happens
-            raise ValueError(f"symbol {symbol} of term {term.expr} is neither variable nor constant")
-    expr = _to_symengine(_fold_numbers(term.expr.xreplace(rename)))   # always a sympy object
-    names = tuple(str(s) for s in (*v_syms, t_sym, *p_syms))
-    lowered = LoweredTerm(term, expr, names)
+    names = (*(f"_v{i}" for i in range(term.k)), "_t", *(f"_p{i}" for i in range(len(term.parameters))))
+    lowered = LoweredTerm(term, names)
     _CACHE[id(term)] = lowered
     return lowered

@@ -121,6 +121,9 @@ class CompiledTerm:
     hessian_pairs: tuple[tuple[int, int], ...] = field(default=())
     _value_fn: object = field(default=None, repr=False)
     _full_fn: object = field(default=None, repr=False)
+    # The text naming the term in the disk cache ("" when the cache is off): a backend keeps what
+    # it derives from the term under it too (cached_entry, store_entry)
+    cache_key: str = field(default="", repr=False)
 
     @property
     def k(self) -> int:
@@ -255,7 +258,8 @@ def compile_term(expr: sp.Expr, dof_names: frozenset[str] | set[str],
         core_key = (skeleton, variables, names)
         core = _cached(core_key) or _remember(core_key, _build(skeleton, variables, names))
         term = LiteralTerm(expr=expr, variables=variables, parameters=parameters,
-                           hessian_pairs=core.hessian_pairs, core=core, literals=np.array(literals))
+                           hessian_pairs=core.hessian_pairs, core=core, literals=np.array(literals),
+                           cache_key=f"{core.cache_key}|{literals!r}" if core.cache_key else "")
     else:
         term = _build(expr, variables, parameters)
     return _remember(key, term)
@@ -459,11 +463,34 @@ def _cache_root() -> tuple[Path, bytes] | None:
     return (path, key) if len(key) == 32 else None
 
 
-def _disk_cache_path(root: Path, expr, variables, parameters) -> Path:
-    """Where a term's compiled functions are kept: named by the expression's text with its
-    argument order and the symengine version, so a changed linkage or term compiles afresh."""
-    key = f"{se.__version__}|{_to_symengine(expr)}|{variables}|{parameters}"  # C++ printing: fast
-    return root / (hashlib.sha256(key.encode()).hexdigest() + ".pkl")
+def _term_key(expr, variables, parameters) -> str:
+    """A term's name in the disk cache: the expression's text with its argument order and the
+    symengine version, so a changed linkage or term compiles afresh."""
+    return f"{se.__version__}|{_to_symengine(expr)}|{variables}|{parameters}"  # C++ printing: fast
+
+
+def _disk_cache_path(root: Path, key: str, kind: str = "") -> Path:
+    """Where the entry ``key`` is kept: a compiled term's functions, or (``kind``) what a backend
+    derived from one."""
+    return root / ((f"{kind}-" if kind else "") + hashlib.sha256(key.encode()).hexdigest() + ".pkl")
+
+
+def cached_entry(kind: str, key: str):
+    """A backend's entry of ``kind`` (say ``torch``) kept under ``key`` (a term's ``cache_key``
+    and what else it depends on) in the terms' signed disk cache; None when there is none or the
+    cache is off."""
+    cache = _cache_root() if key else None
+    if cache is None:
+        return None
+    path = _disk_cache_path(cache[0], key, kind)
+    return _load(path, cache[1]) if path.is_file() else None
+
+
+def store_entry(kind: str, key: str, entry) -> None:
+    """Keep a backend's picklable ``entry`` of ``kind`` under ``key`` (see :func:`cached_entry`)."""
+    cache = _cache_root() if key else None
+    if cache is not None:
+        _store(_disk_cache_path(cache[0], key, kind), cache[1], entry)
 
 
 def _mac(key: bytes, path: Path, payload: bytes) -> bytes:
@@ -503,14 +530,17 @@ def _store(path: Path, key: bytes, entry) -> None:
 
 def _build(expr: sp.Expr, variables: tuple[LocalVar, ...], parameters: tuple[str, ...]) -> CompiledTerm:
     cache = _cache_root()
-    path = _disk_cache_path(cache[0], expr, variables, parameters) if cache is not None else None
+    key = _term_key(expr, variables, parameters) if cache is not None else ""
+    path = _disk_cache_path(cache[0], key) if cache is not None else None
     if path is not None and path.is_file():
         entry = _load(path, cache[1])
         if entry is not None:
             pairs, value_fn, full_fn = entry
             return CompiledTerm(expr=expr, variables=variables, parameters=parameters,
-                                hessian_pairs=tuple(pairs), _value_fn=value_fn, _full_fn=full_fn)
+                                hessian_pairs=tuple(pairs), _value_fn=value_fn, _full_fn=full_fn,
+                                cache_key=key)
     term = _compile(expr, variables, parameters)
+    term.cache_key = key
     if path is not None:
         _store(path, cache[1], (term.hessian_pairs, term._value_fn, term._full_fn))
     return term
