@@ -7,7 +7,8 @@ same machine; the machines are shared and noisy, so nothing here asserts anythin
 
 What each figure is (medians of at least QUICK_REPEAT runs, or ``--repeat`` if more, within
 FULL_BUDGET seconds per configuration, unless said otherwise; ``--quick``: up to QUICK_REPEAT
-runs within QUICK_BUDGET seconds). The
+runs within QUICK_BUDGET seconds; the per-session figures up to SESSION_RUNS runs within the
+same budgets). The
 two sides of a ratio are timed in alternation, run after run (bench.measure_together), so that
 the machine's drift falls on both:
 
@@ -74,6 +75,10 @@ QUICK_SESSIONS = ("acrobat", "arm_throw", "basketball", "cat_mouse", "particle_j
 # --quick times each configuration up to QUICK_REPEAT times, until QUICK_BUDGET seconds are used
 # (at least once): a solve of a few milliseconds timed once is mostly noise, one of a second is not.
 QUICK_REPEAT, QUICK_BUDGET = 9, 1.0
+# The per-session figures take up to SESSION_RUNS runs of each configuration within the budget:
+# a session of two cheap iterations gives two samples a run, and with 9 runs particle_jet's
+# torch/scipy read 0.95x to 1.58x from run to run.
+SESSION_RUNS = 40
 FULL_BUDGET = 5.0           # seconds of timed runs per configuration otherwise (at least one run)
 # IPOPT's iteration limit in the time-to-converge figures: a session's N counts SQP iterations,
 # and IPOPT's interior-point iterations are many more and cheaper (acrobat: 476 to converge,
@@ -188,7 +193,8 @@ def session_figures(sources: list[tuple[str, str]], repeat: int, out) -> list[Fi
             configs.append(("ipopt", f"max_iter={IPOPT_ITERATIONS}", max(case.n, IPOPT_ITERATIONS)))
         if "torch" not in missing:
             configs.append(("torch", "device=cpu", case.n))
-        measured = dict(zip((c[0] for c in configs), _measure_together(case, configs, repeat)))
+        measured = dict(zip((c[0] for c in configs),
+                            _measure_together(case, configs, max(repeat, SESSION_RUNS))))
         scipy = measured["scipy"]
         if isinstance(scipy, str):
             figures.append(Figure(f"{name}: time/ipopt", None, "x", 0.5, scipy))
