@@ -391,3 +391,24 @@ def test_programs_are_kept_on_disk_and_compute_the_same_numbers(tmp_path, monkey
     with pytest.raises(pytest.fail.Exception, match="printed again"):
         fresh.values(X, times, [])
     assert len(list(tmp_path.glob("torch-*.pkl"))) == 3
+
+
+@pytest.mark.parametrize("problem", QUICK, ids=str)
+def test_the_cpu_glue_in_numpy_gives_the_torch_ops_numbers(problem):
+    # On the CPU the glue around the programs runs in numpy (evaluate._evaluate_host); the torch
+    # ops it replaced, still the path on a device, must give the same numbers bit for bit.
+    session = problem.setup()
+    window = WindowProblem(session.scene)
+    s = window.initial() + 0.01 * np.sin(np.arange(window.n_free))
+    lam_eq = np.linspace(-1.0, 2.0, window.row_counts["eq"])
+    lam_ge = -np.linspace(0.0, 1.5, window.row_counts["ge"])
+    results = []
+    for host in (True, False):
+        tp = TorchProblem(window, torch.device("cpu"), host_linear=True)
+        tp.host = host
+        ev, merit = tp.evaluate(s), tp.merit_values(s)
+        H, GN = ev.lagrangian_hessian(lam_eq, lam_ge), ev.gauss_newton()
+        results.append([np.asarray(ev.objective), ev.gradient, ev.c_eq, ev.c_ge, ev.J_eq.data, ev.J_ge.data,
+                        H.data, GN.data, np.asarray(merit.objective), merit.c_eq, merit.c_ge])
+    assert all(np.array_equal(a, b) for a, b in zip(*results))
+    assert np.abs(results[0][6]).max() > 0                        # a Hessian with curvature
