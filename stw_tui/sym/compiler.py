@@ -121,8 +121,8 @@ class CompiledTerm:
     hessian_pairs: tuple[tuple[int, int], ...] = field(default=())
     _value_fn: object = field(default=None, repr=False)
     _full_fn: object = field(default=None, repr=False)
-    # The text naming the term in the disk cache ("" when the cache is off): a backend keeps what
-    # it derives from the term under it too (cached_entry, store_entry)
+    # The text naming the term in the disk cache: a backend keeps what it derives from the term
+    # under it too (cached_entry, store_entry); "" for a term not made by compile_term
     cache_key: str = field(default="", repr=False)
 
     @property
@@ -259,7 +259,7 @@ def compile_term(expr: sp.Expr, dof_names: frozenset[str] | set[str],
         core = _cached(core_key) or _remember(core_key, _build(skeleton, variables, names))
         term = LiteralTerm(expr=expr, variables=variables, parameters=parameters,
                            hessian_pairs=core.hessian_pairs, core=core, literals=np.array(literals),
-                           cache_key=f"{core.cache_key}|{literals!r}" if core.cache_key else "")
+                           cache_key=f"{core.cache_key}|{literals!r}")
     else:
         term = _build(expr, variables, parameters)
     return _remember(key, term)
@@ -476,9 +476,9 @@ def _disk_cache_path(root: Path, key: str, kind: str = "") -> Path:
 
 
 def cached_entry(kind: str, key: str):
-    """A backend's entry of ``kind`` (say ``torch``) kept under ``key`` (a term's ``cache_key``
-    and what else it depends on) in the terms' signed disk cache; None when there is none or the
-    cache is off."""
+    """The entry kept under ``key`` in the terms' signed disk cache: a compiled term's functions
+    (``kind`` ""), or a backend's entry of ``kind`` (say ``torch``) under a term's ``cache_key``
+    and what else it depends on; None when there is none or the cache is off."""
     cache = _cache_root() if key else None
     if cache is None:
         return None
@@ -529,20 +529,16 @@ def _store(path: Path, key: bytes, entry) -> None:
 
 
 def _build(expr: sp.Expr, variables: tuple[LocalVar, ...], parameters: tuple[str, ...]) -> CompiledTerm:
-    cache = _cache_root()
-    key = _term_key(expr, variables, parameters) if cache is not None else ""
-    path = _disk_cache_path(cache[0], key) if cache is not None else None
-    if path is not None and path.is_file():
-        entry = _load(path, cache[1])
-        if entry is not None:
-            pairs, value_fn, full_fn = entry
-            return CompiledTerm(expr=expr, variables=variables, parameters=parameters,
-                                hessian_pairs=tuple(pairs), _value_fn=value_fn, _full_fn=full_fn,
-                                cache_key=key)
+    key = _term_key(expr, variables, parameters)
+    entry = cached_entry("", key)
+    if entry is not None:
+        pairs, value_fn, full_fn = entry
+        return CompiledTerm(expr=expr, variables=variables, parameters=parameters,
+                            hessian_pairs=tuple(pairs), _value_fn=value_fn, _full_fn=full_fn,
+                            cache_key=key)
     term = _compile(expr, variables, parameters)
     term.cache_key = key
-    if path is not None:
-        _store(path, cache[1], (term.hessian_pairs, term._value_fn, term._full_fn))
+    store_entry("", key, (term.hessian_pairs, term._value_fn, term._full_fn))
     return term
 
 
