@@ -39,12 +39,17 @@ from .calls import CallPlan
 from .lower import LoweredTerm, lower
 from .sparse import SparseMatrix
 
+def _index_dtype(*largest: int):
+    """int32 where every number up to ``largest`` fits, as scipy keeps sparse indices; else int64."""
+    return np.int32 if max(largest) < 2**31 - 1 else np.int64
+
+
 def _row_entries(indptr: np.ndarray, rows: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """For each requested CSR row, its stored entries: (owner index into ``rows``, position);
     int32 where the numbers fit (a Hessian's millions of contributions: half the memory to fill)."""
     counts = indptr[rows + 1] - indptr[rows]
     total = int(counts.sum())
-    index = np.int32 if max(total, rows.size, int(indptr[-1])) < 2**31 - 1 else np.int64
+    index = _index_dtype(total, rows.size, int(indptr[-1]))
     owner = np.repeat(np.arange(rows.size, dtype=index), counts)
     first = np.repeat((indptr[rows] - (np.cumsum(counts) - counts)).astype(index), counts)
     return owner, first + np.arange(total, dtype=index)
@@ -75,7 +80,7 @@ def _grouped(keys: np.ndarray, space: int) -> tuple[np.ndarray, np.ndarray, np.n
     if not keys.size or space > COUNTING_SORT_MAX:
         order = np.argsort(keys, kind="stable")
         return (order, *_runs(keys[order]))
-    index = np.int32 if keys.size < 2**31 - 1 else np.int64   # scipy's own choice, no conversion
+    index = _index_dtype(keys.size)   # scipy's own choice: no conversion
     by_key = sps.coo_array((np.ones(keys.size, np.int8), (keys.astype(index, copy=False),
                                                            np.arange(keys.size, dtype=index))),
                            shape=(space, keys.size)).tocsr()   # positions unique: nothing summed
@@ -97,7 +102,7 @@ def _operator(coef, src, order, start, counts, n_src) -> sps.csr_array:
     """
     # int32 indices where they fit, as scipy's own construction makes them: an int64 indptr
     # beside int32 indices had scipy convert the indices (basketball: 0.1 s, 19 MB more)
-    index = np.int32 if max(np.size(order), n_src) < 2**31 - 1 else np.int64
+    index = _index_dtype(np.size(order), n_src)
     src_sorted = np.asarray(src)[order].astype(index, copy=False)
     data = np.asarray(coef, float)[order]
     rising = np.greater(src_sorted[1:], src_sorted[:-1])
@@ -138,14 +143,14 @@ class Pattern:
         # int32 where it fits, as the scipy algebra's own matrices have them: scipy() then hands
         # them over unchecked (compressed.csr), 13 µs less per matrix and evaluation, and the
         # algebra stays on its int32 fast paths (sps.csr_array keeps int64 indices as given)
-        if max(self.shape) < 2**31 - 1 and self.crow_np[-1] < 2**31 - 1:
+        if _index_dtype(*self.shape, self.crow_np[-1]) is np.int32:
             self.crow_np, self.col_np = self.crow_np.astype(np.int32), self.col_np.astype(np.int32)
 
     @classmethod
     def build(cls, rows, cols, coef, src, n_src, shape, device) -> "Pattern":
         """The pattern of a sparse matrix whose entries are sums of coef * source[src] at (rows, cols)."""
         space = shape[0] * shape[1]
-        index = np.int32 if space < 2**31 - 1 else np.int64   # the keys' (n_free² of a Hessian)
+        index = _index_dtype(space)   # the keys' (n_free² of a Hessian)
         order, uniq, start, counts = _grouped(np.asarray(rows, index) * shape[1] + np.asarray(cols, index), space)
         r, c = uniq // shape[1], uniq % shape[1]
         crow = np.concatenate([[0], np.cumsum(np.bincount(r, minlength=shape[0]))]).astype(np.int64)

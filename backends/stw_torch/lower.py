@@ -244,7 +244,7 @@ class LoweredTerm:
     def expr(self):
         """The term in symengine, in the renamed symbols (made on first use)."""
         if self._expr is None:
-            self._expr = _renamed(self.term)
+            self._expr = _renamed(self.term, self.names)
         return self._expr
 
     def _program(self, kind: str, outputs) -> Program:
@@ -316,22 +316,28 @@ def unoptimized():
 _CACHE: dict[int, LoweredTerm] = {}
 
 
-def _renamed(term: CompiledTerm):
-    """``term.expr`` in symengine, its symbols renamed to plain identifiers (variables ``_v0``…,
-    time ``_t``, parameters ``_p0``…) and numeric calls folded to floats."""
-    index = {var: i for i, var in enumerate(term.variables)}
-    params = {name: i for i, name in enumerate(term.parameters)}
+def _names(term: CompiledTerm) -> tuple[str, ...]:
+    """The programs' argument names: variables ``_v0``…, time ``_t``, parameters ``_p0``…"""
+    return (*(f"_v{i}" for i in range(term.k)), "_t", *(f"_p{i}" for i in range(len(term.parameters))))
+
+
+def _renamed(term: CompiledTerm, names: tuple[str, ...]):
+    """``term.expr`` in symengine, its symbols renamed to ``names`` (:func:`_names`) and numeric
+    calls folded to floats."""
+    k = term.k
+    variables = dict(zip(term.variables, names[:k]))
+    params = dict(zip(term.parameters, names[k + 1:]))
     rename = {}
     for symbol in term.expr.free_symbols:
         if symbol == TIME:
-            rename[symbol] = sp.Symbol("_t")
+            rename[symbol] = sp.Symbol(names[k])
             continue
         name, order = split_dof_symbol(symbol)
         var = LocalVar(name, order)
-        if var in index:
-            rename[symbol] = sp.Symbol(f"_v{index[var]}")
+        if var in variables:
+            rename[symbol] = sp.Symbol(variables[var])
         elif name in params and order == 0:
-            rename[symbol] = sp.Symbol(f"_p{params[name]}")
+            rename[symbol] = sp.Symbol(params[name])
         else:  # compile_term guarantees this never happens
             raise ValueError(f"symbol {symbol} of term {term.expr} is neither variable nor constant")
     return _to_symengine(_fold_numbers(term.expr.xreplace(rename)))   # always a sympy object
@@ -342,7 +348,6 @@ def lower(term: CompiledTerm) -> LoweredTerm:
     cached = _CACHE.get(id(term))
     if cached is not None and cached.term is term:
         return cached
-    names = (*(f"_v{i}" for i in range(term.k)), "_t", *(f"_p{i}" for i in range(len(term.parameters))))
-    lowered = LoweredTerm(term, names)
+    lowered = LoweredTerm(term, _names(term))
     _CACHE[id(term)] = lowered
     return lowered
