@@ -178,3 +178,12 @@ def test_waypoints_that_differ_only_in_their_number_compile_one_term_between_the
     figure = targets.waypoint_figure()
     assert figure.value == 2.0 and figure.verdict() == "met"
     assert targets.format_figure(figure).split()[-4:] == ["2", "≤", "2", "met"]
+
+
+def test_configurations_measured_together_may_each_solve_their_own_scene():
+    small = bench.prepare("s", bench.synthetic_session(1, 4))
+    larger = bench.prepare("l", bench.synthetic_session(2, 8))
+    got = bench.measure_together("both", small.setup, [("scipy", "solver=direct", 2)] * 2, 1,
+                                 setups=[small.setup, larger.setup])
+    want = [WindowProblem(c.setup.scene).n_free for c in (small, larger)]
+    assert [m.free for m in got] == want and want[0] < want[1]

@@ -58,8 +58,7 @@ from stw_tui.sos.backend import load_backend
 from stw_tui.sos import kept
 from stw_tui.sym import compiler
 from stw_tui.session.bench import (Case, Measurement, bundled_sessions, machine_facts, measure,
-                                   measure_together, prepare, split_at_first_iterate, synthetic_session,
-                                   timed_iterate)
+                                   measure_together, prepare, split_at_first_iterate, synthetic_session)
 from stw_tui.session.session import Session
 from stw_tui.sos.window import WindowProblem
 from stw_tui.sym.errors import StwError
@@ -159,9 +158,9 @@ def _measure(case: Case, backend: str, options: str, repeat: int, n: int | None 
 
 
 def _measure_together(case: Case, configs: list[tuple[str, str, int]], repeat: int,
-                      between=None) -> list[Measurement | str]:
+                      between=None, setups=None) -> list[Measurement | str]:
     """bench.measure_together on ``case``, runs interleaved; a failed configuration: why."""
-    results = measure_together(case.name, case.setup, configs, repeat, _budget, between)
+    results = measure_together(case.name, case.setup, configs, repeat, _budget, between, setups)
     return [f"{backend} failed" if isinstance(r, StwError) else r
             for (backend, _, _), r in zip(configs, results)]
 
@@ -379,22 +378,12 @@ def window_figure(repeat: int) -> Figure:
     for case in (short, long):
         if isinstance(case, str):
             return Figure(label, None, "x", 1.1, case)
-    config, long_runs = "scipy solver=direct", []
-    try:
-        timed_iterate(long.setup, config, 1)                 # untimed, as measure_together's own
-    except StwError:
-        return Figure(label, None, "x", 1.1, "scipy failed")
-
-    def between():   # one run of the long animation after each of the short one's
-        try:
-            long_runs.append(timed_iterate(long.setup, config, long.n)[0])
-        except StwError:
-            pass
-    (m,) = _measure_together(short, [("scipy", "solver=direct", short.n)], max(repeat, WINDOW_RUNS),
-                             between)
-    if isinstance(m, str) or not long_runs:
-        return Figure(label, None, "x", 1.1, m if isinstance(m, str) else "scipy failed")
-    return Figure(label, statistics.median(long_runs) / m.seconds, "x", 1.1)
+    configs = [("scipy", "solver=direct", short.n), ("scipy", "solver=direct", long.n)]
+    measured = _measure_together(short, configs, max(repeat, WINDOW_RUNS), setups=[short.setup, long.setup])
+    for m in measured:
+        if isinstance(m, str):
+            return Figure(label, None, "x", 1.1, m)
+    return Figure(label, measured[1].seconds / measured[0].seconds, "x", 1.1)
 
 
 WAYPOINTS = 200

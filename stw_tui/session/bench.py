@@ -119,14 +119,6 @@ def _fresh(setup: Session, config: str) -> Session:
     return session
 
 
-def timed_iterate(setup: Session, config: str, n: int) -> tuple[float, Session]:
-    """Seconds of one `iterate n` with ``config`` on a fresh copy of ``setup``, and that session."""
-    session = _fresh(setup, config)
-    started = time.perf_counter()
-    session.execute(f"iterate {n}")
-    return time.perf_counter() - started, session
-
-
 def measure(name: str, setup: Session, n: int, backend: str, options: str, repeat: int,
             budget: float | None = None) -> Measurement:
     """Solve the scene of ``setup`` from the same start ``repeat`` times with one configuration.
@@ -142,7 +134,7 @@ def measure(name: str, setup: Session, n: int, backend: str, options: str, repea
 
 def measure_together(name: str, setup: Session, configs: list[tuple[str, str, int]], repeat: int,
                      budget: float | None = None, between: Callable[[], None] | None = None,
-                     ) -> list[Measurement | StwError]:
+                     setups: list[Session] | None = None) -> list[Measurement | StwError]:
     """:func:`measure` of several configurations (backend, options, N) of one scene, their runs
     interleaved: round after round, one timed run of each, then ``between()`` (another solver
     timed by the caller). The machines are shared: their speed drifts by tens of percent over
@@ -153,15 +145,18 @@ def measure_together(name: str, setup: Session, configs: list[tuple[str, str, in
     Each configuration stops after ``repeat`` runs or once its timed runs have used ``budget``
     seconds (at least one run each); the rounds go on while any configuration is running. A
     configuration whose solve fails is left out of the later rounds: its entry is the error.
+    ``setups``: each configuration's own scene, where they differ (the same window in animations
+    of two lengths); else every one solves ``setup``'s.
     """
     labels = [f"{backend} {options}".strip() for backend, options, _ in configs]
+    setups = setups or [setup] * len(configs)
     runs: list[list] = [[] for _ in configs]
     firsts: list[float] = [0.0] * len(configs)
     out: list[Measurement | StwError | None] = [None] * len(configs)
     for i, config in enumerate(labels):
         warm_start = time.perf_counter()
         try:   # not in the medians: imports, compiled-term caches
-            _fresh(setup, config).execute("iterate 1")
+            _fresh(setups[i], config).execute("iterate 1")
         except StwError as exc:
             out[i] = exc
         firsts[i] = time.perf_counter() - warm_start
@@ -176,15 +171,18 @@ def measure_together(name: str, setup: Session, configs: list[tuple[str, str, in
             if not wants_more(i):
                 continue
             try:
-                seconds, session = timed_iterate(setup, config, n)
+                session = _fresh(setups[i], config)
+                started = time.perf_counter()
+                session.execute(f"iterate {n}")
             except StwError as exc:
                 out[i] = exc
                 continue
-            runs[i].append((seconds, session.runs[-1], session))
+            runs[i].append((time.perf_counter() - started, session.runs[-1], session))
         if between is not None:
             between()
-    problem = WindowProblem(setup.scene)
-    return [out[i] if out[i] is not None else _summary(name, labels[i], problem, runs[i], firsts[i])
+    problems = {id(s): WindowProblem(s.scene) for s in setups}
+    return [out[i] if out[i] is not None else
+            _summary(name, labels[i], problems[id(setups[i])], runs[i], firsts[i])
             for i in range(len(configs))]
 
 
