@@ -315,7 +315,7 @@ def test_pattern_operators_are_the_arrays_scipy_builds_from_pairs():
         coef = rng.standard_normal(src.size)
         order = np.argsort(nonzero, kind="stable")
         _, start, counts = _runs(nonzero[order])
-        got = _operator(coef, src, order, start, counts, 40)
+        got = _operator(coef[order], src[order], start, counts, 40)
         rows = np.unique(nonzero, return_inverse=True)[1]
         want = sps.csr_array((coef, (rows, src)), shape=(counts.size, 40))
         want.sum_duplicates()
@@ -346,6 +346,43 @@ def test_iterates_of_one_window_share_its_lowering_and_its_numbers(registered, m
     again.execute("constraint extra: x = 0.5 @ 0.5")         # a new structure: lowered anew
     again.execute("iterate 1 adapt=0")
     assert len(built) == 4
+
+
+@pytest.mark.parametrize("space_max", [0, 10**6], ids=["argsort", "counting"])
+def test_hessian_pattern_of_pair_products_is_the_pattern_of_its_listed_contributions(monkeypatch, space_max):
+    """The Hessian's pattern from C (pair, key) equals, array for array, Pattern.build of the
+    contributions listed pair by pair (the route it replaces), chunked or not."""
+    import scipy.sparse as sps
+    import torch
+
+    import stw_torch.evaluate as evaluate
+
+    monkeypatch.setattr(evaluate, "COUNTING_SORT_MAX", space_max)
+    monkeypatch.setattr(evaluate, "PAIRS_CHUNK", 7)          # several chunks, the last one short
+    rng = np.random.default_rng(11)
+    n_slots, n_free = 60, 30
+    rows = [np.sort(rng.choice(n_free, rng.integers(1, 5), replace=False)) for _ in range(n_slots)]
+    Pf = sps.csr_array((rng.standard_normal(sum(map(len, rows))), np.concatenate(rows),
+                        np.concatenate([[0], np.cumsum([len(r) for r in rows])])), shape=(n_slots, n_free))
+    p, q = rng.integers(0, n_slots, 45), rng.integers(0, n_slots, 45)
+    left_owner, left_pos = evaluate._row_entries(Pf.indptr, p)
+    right_owner, right_pos = evaluate._row_entries(Pf.indptr, q[left_owner])
+    left = left_pos[right_owner]
+    cpu = torch.device("cpu")
+    want = evaluate.Pattern.build(Pf.indices[left], Pf.indices[right_pos], Pf.data[left] * Pf.data[right_pos],
+                                  left_owner[right_owner], p.size, (n_free, n_free), cpu)
+    got = evaluate.Pattern.of_products(
+        evaluate._pair_products(Pf.indptr, Pf.indices, Pf.data, p, q, n_free), (n_free, n_free), cpu)
+    for a, b in [(got.crow_np, want.crow_np), (got.col_np, want.col_np),
+                 (got.operator.host.indptr, want.operator.host.indptr),
+                 (got.operator.host.indices, want.operator.host.indices),
+                 (got.operator.host.data, want.operator.host.data)]:
+        assert a.dtype == b.dtype and np.array_equal(a, b)
+    # and the operator sums what it should: H = Σ_e D_e Pf[p_e]ᵀ Pf[q_e], from scratch
+    D = rng.standard_normal(p.size)
+    H = sum(D[e] * np.outer(Pf[[p[e]]].toarray()[0], Pf[[q[e]]].toarray()[0]) for e in range(p.size))
+    dense = got.dense(torch.as_tensor(got.operator.host @ D)).numpy()
+    np.testing.assert_allclose(dense, H, rtol=0, atol=1e-12)
 
 
 @pytest.mark.parametrize("space_max", [0, 10**6], ids=["argsort", "counting"])

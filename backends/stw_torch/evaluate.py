@@ -89,10 +89,10 @@ def _grouped(keys: np.ndarray, space: int) -> tuple[np.ndarray, np.ndarray, np.n
     return by_key.indices, uniq, by_key.indptr[uniq].astype(np.int64), sizes[uniq].astype(np.int64)
 
 
-def _operator(coef, src, order, start, counts, n_src) -> sps.csr_array:
+def _operator(coef, src, start, counts, n_src) -> sps.csr_array:
     """The CSR matrix (nonzero, source) of the contributions ``coef`` of sources ``src``, listed
-    in ``order`` (nonzero after nonzero, ``counts`` of each from ``start``), duplicate (nonzero,
-    source) pairs summed and each row's sources ascending.
+    nonzero after nonzero (``counts`` of each from ``start``), duplicate (nonzero, source) pairs
+    summed and each row's sources ascending.
 
     The contributions of a Jacobian or Hessian are listed source by source and sorted stably by
     nonzero, and one source adds to one nonzero once (a row of Pf holds a column once): each row
@@ -102,20 +102,52 @@ def _operator(coef, src, order, start, counts, n_src) -> sps.csr_array:
     """
     # int32 indices where they fit, as scipy's own construction makes them: an int64 indptr
     # beside int32 indices had scipy convert the indices (basketball: 0.1 s, 19 MB more)
-    index = _index_dtype(np.size(order), n_src)
-    src_sorted = np.asarray(src)[order].astype(index, copy=False)
-    data = np.asarray(coef, float)[order]
-    rising = np.greater(src_sorted[1:], src_sorted[:-1])
+    index = _index_dtype(np.size(src), n_src)
+    src = np.asarray(src).astype(index, copy=False)
+    data = np.asarray(coef, float)
+    rising = np.greater(src[1:], src[:-1])
     rising[start[1:] - 1] = True           # each row's first source needs no predecessor
     if rising.all():
-        indptr = np.append(start, src_sorted.size).astype(index)
-        op = sps.csr_array((data, src_sorted, indptr), shape=(counts.size, n_src), copy=False)
+        indptr = np.append(start, src.size).astype(index)
+        op = sps.csr_array((data, src, indptr), shape=(counts.size, n_src), copy=False)
         op.has_canonical_format = True     # ascending and unique in each row, as checked above
         return op
     owner = np.repeat(np.arange(counts.size), counts)
-    op = sps.csr_array((data, (owner, src_sorted)), shape=(counts.size, n_src))   # sums duplicates
+    op = sps.csr_array((data, (owner, src)), shape=(counts.size, n_src))   # sums duplicates
     op.sort_indices()
     return op
+
+
+PAIRS_CHUNK = 1 << 16   # slot pairs whose products are worked out at a time (_pair_products)
+
+
+def _pair_products(indptr, indices, data, p, q, n_cols) -> sps.csr_array:
+    """The contributions of slot pairs e = (p_e, q_e) to a Hessian Σ_e D_e Pf[p_e, i] Pf[q_e, j]
+    as a CSR matrix C (pair e, key i * n_cols + j) of the products Pf[p_e, i] Pf[q_e, j]: row e
+    lists them left entry by left entry, each with every right entry.
+
+    Worked out a chunk of pairs at a time into C's own arrays: the millions of contributions
+    are not gathered into temporaries of their size (basketball's Hessian: 4.7 million, and
+    freshly allocated memory costs 2-3 ms per MB to touch on these machines).
+    """
+    left_n = indptr[p + 1] - indptr[p]
+    sizes = left_n * (indptr[q + 1] - indptr[q])
+    c_ptr = np.zeros(p.size + 1, np.int64)
+    np.cumsum(sizes, out=c_ptr[1:])
+    total = int(c_ptr[-1])
+    index = _index_dtype(total, p.size, int(indptr[-1]))
+    keys = np.empty(total, _index_dtype(n_cols * n_cols))
+    values = np.empty(total)
+    for e0 in range(0, p.size, PAIRS_CHUNK):
+        e1 = min(e0 + PAIRS_CHUNK, p.size)
+        s0, s1 = int(c_ptr[e0]), int(c_ptr[e1])
+        left_owner, left_pos = _row_entries(indptr, p[e0:e1])
+        right_owner, right_pos = _row_entries(indptr, q[e0:e1][left_owner])
+        left = left_pos[right_owner]
+        np.multiply(indices[left], n_cols, out=keys[s0:s1])
+        keys[s0:s1] += indices[right_pos]
+        np.multiply(data[left], data[right_pos], out=values[s0:s1])
+    return sps.csr_array((values, keys, c_ptr.astype(index)), shape=(p.size, n_cols * n_cols), copy=False)
 
 
 @dataclass
@@ -151,20 +183,46 @@ class Pattern:
         """The pattern of a sparse matrix whose entries are sums of coef * source[src] at (rows, cols)."""
         space = shape[0] * shape[1]
         index = _index_dtype(space)   # the keys' (n_free² of a Hessian)
-        order, uniq, start, counts = _grouped(np.asarray(rows, index) * shape[1] + np.asarray(cols, index), space)
+        keys = np.asarray(rows, index) * shape[1] + np.asarray(cols, index)
+        order, uniq, start, counts = _grouped(keys, space)
+        return cls._placed(uniq, start, counts, np.asarray(coef, float)[order], np.asarray(src)[order],
+                           n_src, shape, device)
+
+    @classmethod
+    def of_products(cls, C: sps.csr_array, shape, device) -> "Pattern":
+        """:meth:`build` of the contributions C (source, key) of :func:`_pair_products`, the
+        same pattern bit for bit: where the key space is small, C's transpose is the sorted
+        listing already (scipy's CSR-to-CSC conversion places the entries key by key, sources
+        ascending), without the sort order and the gathers through it."""
+        space = shape[0] * shape[1]
+        if space > COUNTING_SORT_MAX:
+            src = np.repeat(np.arange(C.shape[0]), np.diff(C.indptr))
+            return cls.build(C.indices // shape[1], C.indices % shape[1], C.data, src, C.shape[0],
+                             shape, device)
+        by_key = C.tocsc()
+        sizes = np.diff(by_key.indptr)
+        uniq = np.flatnonzero(sizes)
+        return cls._placed(uniq, by_key.indptr[uniq].astype(np.int64), sizes[uniq].astype(np.int64),
+                           by_key.data, by_key.indices, C.shape[0], shape, device)
+
+    @classmethod
+    def _placed(cls, uniq, start, counts, coef, src, n_src, shape, device) -> "Pattern":
+        """The pattern of the nonzeros ``uniq`` (keys row * n_cols + col, ascending), whose
+        contributions ``coef`` of sources ``src`` are listed nonzero after nonzero (``counts``
+        of each from ``start``)."""
         r, c = uniq // shape[1], uniq % shape[1]
         crow = np.concatenate([[0], np.cumsum(np.bincount(r, minlength=shape[0]))]).astype(np.int64)
         as_t = lambda a: torch.as_tensor(a, device=device)  # noqa: E731
         if device.type == "cpu":
             return cls(shape, as_t(crow), as_t(c), None, None, n_src, crow, c,
-                       SparseMatrix(_operator(coef, src, order, start, counts, n_src), device, copy=False))
+                       SparseMatrix(_operator(coef, src, start, counts, n_src), device, copy=False))
         owner = np.repeat(np.arange(uniq.size), counts)
         m = int(counts.max(initial=1))
         coef_pad = np.zeros((uniq.size, m))
         src_pad = np.full((uniq.size, m), n_src, np.int64)
-        slot = np.arange(order.size) - np.repeat(start, counts)
-        coef_pad[owner, slot] = np.asarray(coef, float)[order]
-        src_pad[owner, slot] = np.asarray(src, np.int64)[order]
+        slot = np.arange(coef.size) - np.repeat(start, counts)
+        coef_pad[owner, slot] = coef
+        src_pad[owner, slot] = src
         return cls(shape, as_t(crow), as_t(c), as_t(coef_pad), as_t(src_pad), n_src, crow, c)
 
     def values(self, source: torch.Tensor) -> torch.Tensor:
@@ -389,12 +447,8 @@ class TorchProblem:
         self.gn_q = torch.as_tensor(cat(gn_q), device=self.device)
         self.gn_i = torch.as_tensor(cat(gn_i), device=self.device)
         p, q = np.concatenate([cat(d_p), cat(gn_p)]), np.concatenate([cat(d_q), cat(gn_q)])
-        left_owner, left_pos = _row_entries(indptr, p)
-        right_owner, right_pos = _row_entries(indptr, q[left_owner])
-        entry = left_owner[right_owner]
-        left = left_pos[right_owner]      # one gather of the millions of contributions, not two
-        self.hess = Pattern.build(indices[left], indices[right_pos], data[left] * data[right_pos],
-                                  entry, p.size, (self.n_free, self.n_free), self.device)
+        self.hess = Pattern.of_products(_pair_products(indptr, indices, data, p, q, self.n_free),
+                                        (self.n_free, self.n_free), self.device)
         # Slot -> owning instance (condition slots own the padding instance n_inst).
         owner = np.full(self.n_slots, self.n_inst, np.int64)
         for g in self.groups:
