@@ -163,7 +163,7 @@ def test_programs_without_torchscript_give_the_same_numbers(monkeypatch):
     try:
         plain_tp = TorchProblem(problem, torch.device("cpu"), host_linear=True)
         plain = plain_tp.evaluate(s)
-        assert not any(isinstance(c.term.full_program.fn, torch.jit.ScriptFunction)
+        assert not any(isinstance(c.term.program("full").fn, torch.jit.ScriptFunction)
                        for c in plain_tp.plan.calls)
         assert plain.objective == pytest.approx(scripted.objective, rel=1e-14)
         for a, b in [(plain.gradient, scripted.gradient), (plain.c_ge, scripted.c_ge),
@@ -430,11 +430,9 @@ def test_programs_are_kept_on_disk_and_compute_the_same_numbers(tmp_path, monkey
     assert len(list(tmp_path.glob("torch-*.pkl"))) == 3
 
 
-@pytest.mark.parametrize("problem", QUICK, ids=str)
-def test_the_cpu_glue_in_numpy_gives_the_torch_ops_numbers(problem):
-    # On the CPU the glue around the programs runs in numpy (evaluate._evaluate_host); the torch
-    # ops it replaced, still the path on a device, must give the same numbers bit for bit.
-    session = problem.setup()
+def _host_and_device_numbers(session: Session) -> list[list[np.ndarray]]:
+    """Every number an evaluation gives, on the host path (numpy glue, host programs) and on
+    the device path (torch glue, TorchScript programs), of the same window problem."""
     window = WindowProblem(session.scene)
     s = window.initial() + 0.01 * np.sin(np.arange(window.n_free))
     lam_eq = np.linspace(-1.0, 2.0, window.row_counts["eq"])
@@ -447,5 +445,47 @@ def test_the_cpu_glue_in_numpy_gives_the_torch_ops_numbers(problem):
         H, GN = ev.lagrangian_hessian(lam_eq, lam_ge), ev.gauss_newton()
         results.append([np.asarray(ev.objective), ev.gradient, ev.c_eq, ev.c_ge, ev.J_eq.data, ev.J_ge.data,
                         H.data, GN.data, np.asarray(merit.objective), merit.c_eq, merit.c_ge])
+    return results
+
+
+@pytest.mark.parametrize("problem", QUICK, ids=str)
+def test_the_cpu_glue_and_programs_in_numpy_give_the_torch_ops_numbers(problem):
+    # On the CPU the glue around the programs runs in numpy (evaluate._evaluate_host) and the
+    # programs as Python over numpy (lower._host_function); the torch ops and TorchScript they
+    # replaced, still the path on a device, must give the same numbers bit for bit.
+    results = _host_and_device_numbers(problem.setup())
     assert all(np.array_equal(a, b) for a, b in zip(*results))
     assert np.abs(results[0][6]).max() > 0                        # a Hessian with curvature
+
+
+def test_host_programs_give_torchs_numbers_for_every_construct_printed():
+    # EXTRAS has conditions (where, comparisons, logical and/not), tanh, atan2, exp, sqrt,
+    # sin and cos of numbers and variables, integer powers and quotients
+    session = Session()
+    session.run_text(EXTRAS)
+    host, device = _host_and_device_numbers(session)
+    assert all(np.array_equal(a, b) for a, b in zip(host, device))
+    assert np.abs(host[3]).max() > 0 and np.abs(host[6]).max() > 0
+
+
+def test_a_host_program_computes_what_its_torchscript_computes():
+    """Each printed construct, one program, on numbers that cross the branches."""
+    from stw_torch.lower import _compile, _host_function, _script
+
+    import symengine as se
+
+    x, y = se.Symbol("_v0"), se.Symbol("_v1")
+    outputs = [se.sin(x) * se.cos(y) / (1 + x**2), x**3 - y**-2, se.sqrt(x * x + 1) * se.exp(-y),
+               se.atan2(y, x), se.tanh(x) - se.Abs(y), se.Piecewise((x, x > y), (2.5, True)),
+               se.Piecewise((1.5, se.And(x > 0, se.Not(y < 0))), (-0.5, True)), se.floor(x) + se.sign(y)]
+    program, source = _compile(["_v0", "_v1", "_t"], outputs)
+    assert source is not None
+    rng = np.random.default_rng(2)
+    v = [rng.standard_normal(37) * 3 for _ in range(2)]
+    t = np.zeros(37)
+    want = [r.numpy() for r in program([torch.from_numpy(a) for a in (*v, t)], torch.from_numpy(t))]
+    program.host_fn = _host_function(source)
+    got = program.host([*v, t], t)
+    assert len(got) == len(want) == len(outputs)
+    assert all(np.array_equal(a, b) for a, b in zip(got, want))
+    assert _script(source) is not None and (got[5] == 2.5).any() and (got[5] != 2.5).any()

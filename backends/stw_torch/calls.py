@@ -33,6 +33,8 @@ class Call:
     pairs: int              # second derivatives per instance
     start: int              # where its (k, N) inputs begin in the gathered inputs
     n: int                  # N: its instances
+    host_times: np.ndarray | None = None   # on the CPU: times and params as numpy (host programs)
+    host_params: list | None = None
 
 
 @dataclass(eq=False)
@@ -77,6 +79,8 @@ class CallPlan:
                    as_t(np.argsort(cat(h_dest), kind="stable")), n_slots, autograd)
         if device.type == "cpu":
             plan.host = (plan.inputs.numpy(), plan.f_order.numpy(), plan.h_order.numpy())
+            for c in calls:
+                c.host_times, c.host_params = c.times.numpy(), [p.numpy() for p in c.params]
         return plan
 
     def values(self, v: torch.Tensor) -> torch.Tensor:
@@ -115,29 +119,27 @@ class CallPlan:
     # the arrays' memory; gathers, scatters and concatenations move numbers without arithmetic.
 
     def _host_blocks(self, v: np.ndarray):
-        """Each call with its (k, N) input block, a tensor on the gathered slot values."""
-        x = torch.from_numpy(v[self.host[0]])
-        return [(c, x[c.start:c.start + c.k * c.n].view(c.k, c.n)) for c in self.calls]
+        """Each call with its (k, N) input block of the gathered slot values."""
+        x = v[self.host[0]]
+        return [(c, x[c.start:c.start + c.k * c.n].reshape(c.k, c.n)) for c in self.calls]
 
     def values_host(self, v: np.ndarray) -> np.ndarray:
         """:meth:`values` of numpy slot values, as numpy (CPU only)."""
-        with unoptimized():
-            parts = [c.term.values(X, c.times, c.params).numpy() for c, X in self._host_blocks(v)]
+        parts = [c.term.host_rows("value", X, c.host_times, c.host_params)[0] for c, X in self._host_blocks(v)]
         return np.concatenate(parts)[self.host[1]] if parts else np.zeros(0)
 
     def local_host(self, v: np.ndarray, second: bool = True):
         """:meth:`local` of numpy slot values, as numpy arrays (CPU only)."""
         f, g, h = [], [], []
-        with unoptimized():
-            for c, X in self._host_blocks(v):
-                if self.autograd:
-                    rows = autograd_rows(c.term, X, c.times, c.params, second)
-                else:
-                    rows = (c.term.rows if second else c.term.first_rows)(X, c.times, c.params)
-                rows = [r.numpy() for r in rows]
-                f.append(rows[0])
-                g += rows[1:1 + c.k]
-                h += rows[1 + c.k:]
+        for c, X in self._host_blocks(v):
+            if self.autograd:
+                with unoptimized():
+                    rows = [r.numpy() for r in autograd_rows(c.term, torch.from_numpy(X), c.times, c.params, second)]
+            else:
+                rows = c.term.host_rows("full" if second else "first", X, c.host_times, c.host_params)
+            f.append(rows[0])
+            g += rows[1:1 + c.k]
+            h += rows[1 + c.k:]
         g_slot = np.zeros(self.n_slots)
         if g:
             g_slot[self.host[0]] = np.concatenate(g)

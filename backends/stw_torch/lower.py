@@ -21,15 +21,21 @@ evaluation against 4 ms for the program of the largest term).
 A program is compiled by TorchScript where it can be (~2.5x fewer microseconds per op than
 Python calling torch; the same aten kernels, so the same numbers), run without the graph
 executor's optimizations (its profiling runs cost more than they save here), and as plain
-Python otherwise.
+Python otherwise. On the CPU the same TorchScript source runs as Python over numpy arrays
+instead (:func:`_host_function`, about half the microseconds per op again, and no TorchScript
+compile at all): its arithmetic is numpy's, correctly rounded like torch's, and its functions
+torch's own, so the numbers are the same bit for bit.
 """
 
 from __future__ import annotations
 
+import functools
 import math
 import warnings
 from dataclasses import dataclass, field
+from types import SimpleNamespace
 
+import numpy as np
 import symengine as se
 import sympy as sp
 import torch
@@ -58,11 +64,15 @@ def _fold_numbers(expr: sp.Expr) -> sp.Expr:
 @dataclass(eq=False)
 class Program:
     """A compiled straight-line torch program of n-long inputs with ``rows`` outputs; outputs
-    that are numbers are not computed but filled in (``constants``: row -> value)."""
+    that are numbers are not computed but filled in (``constants``: row -> value).
 
-    fn: object
+    A program from TorchScript source may run on the host instead (:meth:`host`, CPU only):
+    the same source as Python over numpy arrays (:func:`_host_function`)."""
+
+    fn: object               # the torch function (None: a host-only program, fn_source kept)
     rows: int
     constants: dict
+    host_fn: object = None   # the same program over numpy arrays (None: through ``fn``)
     # The constant rows as tensors, by (row, n, dtype, device): filling them anew was a sixth of
     # cat_mouse's program calls. Shared between calls: every consumer concatenates or stacks
     # the rows it gets, none writes into them.
@@ -86,17 +96,39 @@ class Program:
             out.append(value.expand(n) if value.shape != (n,) else value)
         return out
 
-    def _filled(self, row: int, value, n: int, like: torch.Tensor) -> torch.Tensor:
-        key = (row, n, like.dtype, like.device)
+    def host(self, inputs: list[np.ndarray], times: np.ndarray) -> list[np.ndarray]:
+        """:meth:`__call__` on numpy arrays (``times``: the (n,) times, for the rows' length),
+        the same numbers as numpy arrays; through the torch function where there is no host one."""
+        if self.host_fn is None:
+            with unoptimized():
+                return [r.numpy() for r in self([torch.from_numpy(a) for a in inputs], torch.from_numpy(times))]
+        n = times.shape[0]
+        computed = iter(self.host_fn(*inputs))
+        out = []
+        for row in range(self.rows):
+            value = self.constants.get(row)
+            if value is not None:
+                out.append(self._filled(row, value, n, None))
+                continue
+            value = np.asarray(next(computed), dtype=np.float64)   # a test's bools as 0/1, as .to()
+            out.append(np.broadcast_to(value, (n,)) if value.shape != (n,) else value)
+        return out
+
+    def _filled(self, row: int, value, n: int, like: torch.Tensor | None):
+        """Row ``row``, the number ``value`` n times: a tensor like ``like``, or (None) an array."""
+        key = (row, n, like.dtype, like.device) if like is not None else (row, n)
         tensor = self.filled.get(key)
         if tensor is None:
             if len(self.filled) >= FILLED_KEPT:   # sizes come and go (windows, batches)
                 self.filled.clear()
-            tensor = self.filled[key] = torch.full((n,), float(value), dtype=like.dtype, device=like.device)
+            tensor = self.filled[key] = (
+                torch.full((n,), float(value), dtype=like.dtype, device=like.device) if like is not None
+                else np.full(n, float(value)))
         return tensor
 
 
 FILLED_KEPT = 64   # constant rows a program keeps filled
+HOST_FUNCTIONS_KEPT = 512   # host programs kept by source (a few MB of source at most)
 
 
 _FUNCTIONS = {name: f"torch.{name}" for name in (
@@ -198,6 +230,55 @@ def _script(source: str):
         return torch.jit.CompilationUnit(source).program
 
 
+def _to_torch(a):
+    """A numpy array or scalar as a tensor sharing its memory; anything else as it is."""
+    if isinstance(a, np.ndarray):
+        return torch.from_numpy(a)
+    if isinstance(a, np.generic):
+        return torch.from_numpy(np.asarray(a))
+    return a
+
+
+def _through_torch(fn):
+    """``fn`` (a torch function) of numpy arguments, its result as numpy."""
+    def call(*args, **kwargs):
+        return fn(*map(_to_torch, args), **kwargs).numpy()
+    return call
+
+
+def _host_pow(base, exponent):
+    # torch's pow by the scalar 2 is base * base (its pow_tensor_scalar kernel): the same product
+    # here, without the round trip through torch; any other exponent goes through torch's pow
+    if exponent.__class__ is int and exponent == 2:
+        return base * base
+    return _through_torch(torch.pow)(base, exponent)
+
+
+# What the printed programs call as ``torch.…`` when run on the host (_host_function): torch's
+# own functions on the arrays' memory, so the numbers are torch's.
+_HOST_TORCH = SimpleNamespace(
+    float64=torch.float64, pow=_host_pow,
+    **{name: _through_torch(getattr(torch, name)) for name in (
+        *(f.removeprefix("torch.") for f in _FUNCTIONS.values()),
+        "where", "full_like", "logical_and", "logical_or", "logical_not")})
+
+
+@functools.lru_cache(maxsize=HOST_FUNCTIONS_KEPT)
+def _host_function(source: str):
+    """The program of TorchScript ``source`` as Python over numpy arrays.
+
+    On the CPU a TorchScript op costs about 0.7 µs whatever it computes on a few hundred
+    numbers, numpy's about 0.35: the printed programs are straight-line arithmetic (basketball's
+    largest: 2469 ops, 16 of them function calls), which numpy does with the same IEEE
+    operations, so the same numbers (+, -, *, / and comparisons are correctly rounded in both);
+    the functions (sin, cos, pow, where, ...) are torch's own (``_HOST_TORCH``). The source is
+    ours, printed from parsed terms (never user text), and compiled as sympy's lambdify does.
+    """
+    namespace = {"__builtins__": {}, "torch": _HOST_TORCH}   # arithmetic and torch.… only
+    exec(compile(source, "<stw program>", "exec"), namespace)   # noqa: S102 - our printed source
+    return namespace["program"]
+
+
 def _compile(names: list[str], outputs: list) -> tuple[Program, str | None]:
     """The program of symengine ``outputs`` in the variables ``names``, common subexpressions
     shared, and its TorchScript source (None: compiled as plain Python instead)."""
@@ -235,9 +316,9 @@ class LoweredTerm:
 
     term: CompiledTerm
     names: tuple             # the renamed symbols: variables, time, parameters
-    value_program: Program | None = None   # built on first use, as are the others
-    first_program: Program | None = None   # value and gradient
-    full_program: Program | None = None    # value, gradient and Hessian pairs
+    # (kind, host) -> Program, each built on first use: kind "value" (the value alone), "first"
+    # (value and gradient) or "full" (value, gradient and Hessian pairs); host: run on numpy
+    programs: dict = field(default_factory=dict)
     _expr: object = None
 
     @property
@@ -247,20 +328,42 @@ class LoweredTerm:
             self._expr = _renamed(self.term, self.names)
         return self._expr
 
-    def _program(self, kind: str, outputs) -> Program:
-        """The program ``kind`` of the symengine expressions ``outputs()``, from the disk cache
-        where it is kept, else compiled (and kept)."""
-        key = f"{PRINTING}|{torch.__version__}|{kind}|{self.term.cache_key}" if self.term.cache_key else ""
+    def program(self, kind: str, host: bool = False) -> Program:
+        """The program ``kind`` ("value", "first" or "full"), for tensors or (``host``) numpy."""
+        found = self.programs.get((kind, host))
+        if found is None:
+            found = self.programs[(kind, host)] = self._program(kind, host)
+        return found
+
+    def _outputs(self, kind: str) -> list:
+        """The symengine expressions that program ``kind`` computes."""
+        if kind == "value":
+            return [self.expr]
+        variables = [se.Symbol(name) for name in self.names[:self.term.k]]
+        grad = [self.expr.diff(v) for v in variables]
+        if kind == "first":
+            return [self.expr, *grad]
+        return [self.expr, *grad, *(grad[a].diff(variables[b]) for a, b in self.term.hessian_pairs)]
+
+    def _program(self, kind: str, host: bool) -> Program:
+        """Program ``kind`` from the disk cache where its source is kept, else compiled (and
+        kept). A host program is the source run as Python (no TorchScript compile at all)."""
+        name = f"full{self.term.hessian_pairs}" if kind == "full" else kind
+        key = f"{PRINTING}|{torch.__version__}|{name}|{self.term.cache_key}" if self.term.cache_key else ""
         entry = cached_entry("torch", key)
         if entry is not None:
             source, rows, constants = entry
+            if host:
+                return Program(None, rows, constants, _host_function(source))
             try:
                 return Program(_script(source), rows, constants)
             except Exception:  # noqa: BLE001 - a source this torch no longer takes: print it afresh
                 pass
-        program, source = _compile(list(self.names), outputs())
+        program, source = _compile(list(self.names), self._outputs(kind))
         if source is not None:
             store_entry("torch", key, (source, program.rows, program.constants))
+            if host:
+                program.host_fn = _host_function(source)
         return program
 
     @property
@@ -275,31 +378,23 @@ class LoweredTerm:
 
     def values(self, X: torch.Tensor, times: torch.Tensor, params: list[torch.Tensor]) -> torch.Tensor:
         """(n,): the term's values at n instances. Run inside :func:`unoptimized`."""
-        if self.value_program is None:
-            self.value_program = self._program("value", lambda: [self.expr])
-        return self.value_program([*X.unbind(0), times, *params], times)[0]
+        return self.program("value")([*X.unbind(0), times, *params], times)[0]
 
     def first_rows(self, X: torch.Tensor, times: torch.Tensor, params: list[torch.Tensor]) -> list[torch.Tensor]:
         """1 + k rows (n,): the values and the k first derivatives at each of the n instances.
         Run inside :func:`unoptimized`."""
-        if self.first_program is None:
-            variables = [se.Symbol(name) for name in self.names[:self.term.k]]
-            self.first_program = self._program(
-                "first", lambda: [self.expr, *(self.expr.diff(v) for v in variables)])
-        return self.first_program([*X.unbind(0), times, *params], times)
+        return self.program("first")([*X.unbind(0), times, *params], times)
 
     def rows(self, X: torch.Tensor, times: torch.Tensor, params: list[torch.Tensor]) -> list[torch.Tensor]:
         """1 + k + pairs rows (n,): the values, the k first derivatives and the second
         derivatives of ``term.hessian_pairs`` (in their order) at each of the n instances.
         Run inside :func:`unoptimized`."""
-        if self.full_program is None:
-            variables = [se.Symbol(name) for name in self.names[:self.term.k]]
+        return self.program("full")([*X.unbind(0), times, *params], times)
 
-            def outputs():
-                grad = [self.expr.diff(v) for v in variables]
-                return [self.expr, *grad, *(grad[a].diff(variables[b]) for a, b in self.term.hessian_pairs)]
-            self.full_program = self._program(f"full{self.term.hessian_pairs}", outputs)
-        return self.full_program([*X.unbind(0), times, *params], times)
+    def host_rows(self, kind: str, X: np.ndarray, times: np.ndarray, params: list[np.ndarray]) -> list[np.ndarray]:
+        """The rows of program ``kind`` (:meth:`values`, :meth:`first_rows`, :meth:`rows`) on
+        numpy arrays, the same numbers as numpy (CPU only): X (k, n), params 0-d arrays."""
+        return self.program(kind, host=True).host([*X, times, *params], times)
 
     def full(self, X: torch.Tensor, times: torch.Tensor, params: list[torch.Tensor]) -> torch.Tensor:
         """(1 + k + pairs, n): :meth:`rows` stacked."""
