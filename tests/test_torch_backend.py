@@ -383,6 +383,11 @@ def test_hessian_pattern_of_pair_products_is_the_pattern_of_its_listed_contribut
     H = sum(D[e] * np.outer(Pf[[p[e]]].toarray()[0], Pf[[q[e]]].toarray()[0]) for e in range(p.size))
     dense = got.dense(torch.as_tensor(got.operator.host @ D)).numpy()
     np.testing.assert_allclose(dense, H, rtol=0, atol=1e-12)
+    # a device's padded arrays (coef_pad * source[src_pad]).sum(1) give the same sums
+    op = got.operator.host
+    coef_pad, src_pad = evaluate._padded(op.indptr[:-1], np.diff(op.indptr), op.data, op.indices, p.size)
+    padded = (coef_pad * np.append(D, 0.0)[src_pad]).sum(1)
+    np.testing.assert_allclose(got.dense(torch.as_tensor(padded)).numpy(), H, rtol=0, atol=1e-12)
 
 
 @pytest.mark.parametrize("space_max", [0, 10**6], ids=["argsort", "counting"])

@@ -150,6 +150,19 @@ def _pair_products(indptr, indices, data, p, q, n_cols) -> sps.csr_array:
     return sps.csr_array((values, keys, c_ptr.astype(index)), shape=(p.size, n_cols * n_cols), copy=False)
 
 
+def _padded(start, counts, coef, src, n_src) -> tuple[np.ndarray, np.ndarray]:
+    """(coef_pad, src_pad): row u lists the contributions of nonzero u (``counts`` of them from
+    ``start`` in ``coef`` and ``src``), padded with coefficient 0 at source ``n_src``."""
+    owner = np.repeat(np.arange(counts.size), counts)
+    m = int(counts.max(initial=1))
+    coef_pad = np.zeros((counts.size, m))
+    src_pad = np.full((counts.size, m), n_src, np.int64)
+    slot = np.arange(np.size(coef)) - np.repeat(start, counts)
+    coef_pad[owner, slot] = coef
+    src_pad[owner, slot] = src
+    return coef_pad, src_pad
+
+
 @dataclass
 class Pattern:
     """A fixed CSR pattern whose values are sums of gathered products.
@@ -216,13 +229,7 @@ class Pattern:
         if device.type == "cpu":
             return cls(shape, as_t(crow), as_t(c), None, None, n_src, crow, c,
                        SparseMatrix(_operator(coef, src, start, counts, n_src), device, copy=False))
-        owner = np.repeat(np.arange(uniq.size), counts)
-        m = int(counts.max(initial=1))
-        coef_pad = np.zeros((uniq.size, m))
-        src_pad = np.full((uniq.size, m), n_src, np.int64)
-        slot = np.arange(coef.size) - np.repeat(start, counts)
-        coef_pad[owner, slot] = coef
-        src_pad[owner, slot] = src
+        coef_pad, src_pad = _padded(start, counts, coef, src, n_src)
         return cls(shape, as_t(crow), as_t(c), as_t(coef_pad), as_t(src_pad), n_src, crow, c)
 
     def values(self, source: torch.Tensor) -> torch.Tensor:

@@ -103,15 +103,15 @@ class Program:
             with unoptimized():
                 return [r.numpy() for r in self([torch.from_numpy(a) for a in inputs], torch.from_numpy(times))]
         n = times.shape[0]
-        computed = iter(self.host_fn(*inputs))
-        out = []
-        for row in range(self.rows):
-            value = self.constants.get(row)
-            if value is not None:
-                out.append(self._filled(row, value, n, None))
-                continue
-            value = np.asarray(next(computed), dtype=np.float64)   # a test's bools as 0/1, as .to()
-            out.append(np.broadcast_to(value, (n,)) if value.shape != (n,) else value)
+        out = self.host_fn(*inputs)
+        if self.constants:
+            computed = iter(out)
+            out = [self._filled(row, self.constants[row], n, None) if row in self.constants else next(computed)
+                   for row in range(self.rows)]
+        for row, value in enumerate(out):
+            if value.__class__ is not np.ndarray or value.shape != (n,) or value.dtype != np.float64:
+                value = np.asarray(value, dtype=np.float64)   # a test's bools as 0/1, as .to()
+                out[row] = np.broadcast_to(value, (n,)) if value.shape != (n,) else value
         return out
 
     def _filled(self, row: int, value, n: int, like: torch.Tensor | None):
@@ -242,6 +242,8 @@ def _to_torch(a):
 def _through_torch(fn):
     """``fn`` (a torch function) of numpy arguments, its result as numpy."""
     def call(*args, **kwargs):
+        if not kwargs and len(args) == 1 and args[0].__class__ is np.ndarray:   # sin(x), cos(x), ...
+            return fn(torch.from_numpy(args[0])).numpy()
         return fn(*map(_to_torch, args), **kwargs).numpy()
     return call
 
