@@ -6,14 +6,14 @@ from user text, so it may be printed to Python source and compiled, as ``sympy.l
 Symbols are renamed to plain identifiers first (``x''`` is not one) and numeric function calls
 such as ``sin(2)`` are folded to floats (torch functions take tensors only).
 
-Each term gets up to three straight-line programs, each built on first use: its value alone
-(line searches, `when` conditions), its value and gradient (:meth:`LoweredTerm.first_rows`, for
-Gauss-Newton steps), and its value, gradient and the second derivatives of
-``CompiledTerm.hessian_pairs`` (:meth:`LoweredTerm.rows`), their common subexpressions shared
-within each program. The derivatives are taken
-symbolically, by symengine after the core's own conversion (min, max and abs become Piecewise),
-once per term; the printed source is kept in the terms' disk cache (LoweredTerm), so a new
-process compiles it without the symbolic work. Measured on 2 cores (acrobat, 41 ms per iteration): a torch op on a few hundred
+Each term gets up to three straight-line programs, each built on first use (for tensors, and on
+the CPU for numpy arrays): its value alone (line searches, `when` conditions), its value and
+gradient (:meth:`LoweredTerm.first_rows`, for Gauss-Newton steps), and its value, gradient and
+the second derivatives of ``CompiledTerm.hessian_pairs`` (:meth:`LoweredTerm.rows`), their
+common subexpressions shared within each program. The derivatives are taken symbolically, by
+symengine after the core's own conversion (min, max and abs become Piecewise), once per term;
+the printed source is kept in the terms' disk cache (LoweredTerm), so a new process compiles it
+without the symbolic work. Measured on 2 cores (acrobat, 41 ms per iteration): a torch op on a few hundred
 numbers costs microseconds whatever it computes, and autograd's backward and batched
 double-backward passes ran several times the ops of the program plus the tape (31 ms of
 evaluation against 4 ms for the program of the largest term).
@@ -69,7 +69,7 @@ class Program:
     A program from TorchScript source may run on the host instead (:meth:`host`, CPU only):
     the same source as Python over numpy arrays (:func:`_host_function`)."""
 
-    fn: object               # the torch function (None: a host-only program, fn_source kept)
+    fn: object               # the torch function (None: a program for the host only)
     rows: int
     constants: dict
     host_fn: object = None   # the same program over numpy arrays (None: through ``fn``)
