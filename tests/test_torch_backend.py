@@ -449,7 +449,8 @@ def _host_and_device_numbers(session: Session) -> list[list[np.ndarray]]:
         ev, merit = tp.evaluate(s), tp.merit_values(s)
         H, GN = ev.lagrangian_hessian(lam_eq, lam_ge), ev.gauss_newton()
         results.append([np.asarray(ev.objective), ev.gradient, ev.c_eq, ev.c_ge, ev.J_eq.data, ev.J_ge.data,
-                        H.data, GN.data, np.asarray(merit.objective), merit.c_eq, merit.c_ge])
+                        H.data, GN.data, np.asarray(merit.objective), merit.c_eq, merit.c_ge,
+                        ev.active_eq, ev.active_ge, merit.active_ge])
     return results
 
 
@@ -471,6 +472,14 @@ def test_host_programs_give_torchs_numbers_for_every_construct_printed():
     host, device = _host_and_device_numbers(session)
     assert all(np.array_equal(a, b) for a, b in zip(host, device))
     assert np.abs(host[3]).max() > 0 and np.abs(host[6]).max() > 0
+    # the `when` masks themselves, on slot values where the condition holds at some instances only
+    tp = TorchProblem(WindowProblem(session.scene), torch.device("cpu"), host_linear=True)
+    v = np.random.default_rng(4).standard_normal(tp.n_slots)
+    on_host = tp._host_conditions(v)
+    with torch.no_grad():
+        on_device = {kind: m.numpy() for kind, m in tp._conditions(torch.from_numpy(v)).items()}
+    assert all(np.array_equal(on_host[kind], on_device[kind]) for kind in on_device)
+    assert on_host["ge"].any() and not on_host["ge"].all()
 
 
 def test_a_host_program_computes_what_its_torchscript_computes():

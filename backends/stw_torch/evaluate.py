@@ -32,7 +32,7 @@ import scipy.sparse as sps
 import torch
 
 from stw_tui.sos.compressed import csr
-from stw_tui.sos.window import EQ, GE, OBJ, MeritValues, evaluate_condition_tree
+from stw_tui.sos.window import EQ, GE, OBJ, MeritValues, evaluate_condition_tree, numpy_filled
 from stw_tui.sym.errors import StwError
 
 from .calls import CallPlan
@@ -506,9 +506,24 @@ class TorchProblem:
     def _masks(self, v) -> dict[str, np.ndarray]:
         if not self.conditional:
             return {kind: np.ones(self.row_counts[kind], bool) for kind in (EQ, GE)}
+        if self.host and isinstance(v, np.ndarray):
+            return self._host_conditions(v)
         v = torch.from_numpy(v) if isinstance(v, np.ndarray) else v
         with torch.no_grad():
             return {kind: m.cpu().numpy() for kind, m in self._conditions(v).items()}
+
+    def _host_conditions(self, v: np.ndarray) -> dict[str, np.ndarray]:
+        """:meth:`_conditions` of numpy slot values on the CPU, the leaves' host programs."""
+        masks = {kind: np.ones(self.row_counts[kind], bool) for kind in (EQ, GE)}
+        for g in self.groups:
+            if g.condition is None:
+                continue
+            times = g.times.numpy()
+            leaf = {node: term.host_rows("value", v[offset:offset + term.k * g.n].reshape(term.k, g.n),
+                                         times, [p.numpy() for p in params])[0]
+                    for node, term, offset, params in g.leaves}
+            masks[g.kind][g.row:g.row + g.n] = evaluate_condition_tree(g.condition.tree, leaf, numpy_filled(g.n))
+        return masks
 
     def merit_values(self, s: np.ndarray) -> MeritValues:
         """Objective and weighted constraint values only (no derivatives), for the line search."""
