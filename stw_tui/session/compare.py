@@ -69,7 +69,8 @@ def run_compare(args) -> int:
         rows = compare(args.session, backends, args.repeat)
         print(json.dumps({"session": str(args.session), "backends": rows}))
         return 0
-    print(f"{'backend':<22} {'its':>4} {'conv':>5} {'ms/it':>8} {'s total':>8} {'objective':>13} "
+    width = max([22, *map(len, backends)])   # a backend's label is its spec, ':' read as ' '
+    print(f"{'backend':<{width}} {'its':>4} {'conv':>5} {'ms/it':>8} {'s total':>8} {'objective':>13} "
           f"{'max viol':>9} {'Δ motion':>9}", flush=True)
 
     shown = []
@@ -77,7 +78,7 @@ def run_compare(args) -> int:
     def row(r):   # each backend's row as soon as it has finished: long solves show progress
         note = "" if not shown and r["verdict"] == "same optimum" else f"  {r['verdict']}"
         shown.append(r)
-        print(f"{r['backend']:<22} {r['iterations']:>4} {str(r['converged']):>5} "
+        print(f"{r['backend']:<{width}} {r['iterations']:>4} {str(r['converged']):>5} "
               f"{r['median_ms_per_iteration']:>8.2f} {r['seconds_to_converge']:>8.3f} {r['objective']:>13.8g} "
               f"{r['max_violation']:>9.1e} {r['max_motion_difference']:>9.1e}"
               + note, flush=True)
