@@ -160,9 +160,12 @@ def test_programs_without_torchscript_give_the_same_numbers(monkeypatch):
 
     lowering._CACHE.clear()
     monkeypatch.setattr(torch.jit, "CompilationUnit", refuse)
+    monkeypatch.setenv("STW_CACHE_DIR", "off")   # no kept source: each program is printed afresh
     try:
         plain_tp = TorchProblem(problem, torch.device("cpu"), host_linear=True)
         plain = plain_tp.evaluate(s)
+        # no TorchScript source, so no host program either: the CPU runs the plain Python ones
+        assert all(c.term.program("full", host=True).host_fn is None for c in plain_tp.plan.calls)
         assert not any(isinstance(c.term.program("full").fn, torch.jit.ScriptFunction)
                        for c in plain_tp.plan.calls)
         assert plain.objective == pytest.approx(scripted.objective, rel=1e-14)
