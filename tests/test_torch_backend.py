@@ -506,3 +506,22 @@ def test_a_host_program_computes_what_its_torchscript_computes():
     assert len(got) == len(want) == len(outputs)
     assert all(np.array_equal(a, b) for a, b in zip(got, want))
     assert _script(source) is not None and (got[5] == 2.5).any() and (got[5] != 2.5).any()
+
+
+def test_a_host_program_gives_inf_and_nan_silently_as_torchscript_does():
+    import warnings
+
+    from stw_torch.lower import _compile, _host_function
+
+    import symengine as se
+
+    x = se.Symbol("_v0")
+    program, source = _compile(["_v0", "_t"], [1 / x, x**3 * 1e200, se.sqrt(x - 1)])
+    v, t = np.array([0.0, 1.0, 1e100]), np.zeros(3)
+    want = [r.numpy() for r in program([torch.from_numpy(v), torch.from_numpy(t)], torch.from_numpy(t))]
+    program.host_fn = _host_function(source)
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")                      # numpy's overflow/divide warnings
+        got = program.host([v, t], t)
+    assert all(np.array_equal(a, b, equal_nan=True) for a, b in zip(got, want))
+    assert np.isinf(got[0][0]) and np.isinf(got[1][2]) and np.isnan(got[2][0])

@@ -103,7 +103,8 @@ class Program:
             with unoptimized():
                 return [r.numpy() for r in self([torch.from_numpy(a) for a in inputs], torch.from_numpy(times))]
         n = times.shape[0]
-        out = self.host_fn(*inputs)
+        with np.errstate(all="ignore"):   # inf and nan come out silently, as from TorchScript
+            out = self.host_fn(*inputs)
         if self.constants:
             computed = iter(out)
             out = [self._filled(row, self.constants[row], n, None) if row in self.constants else next(computed)
