@@ -27,6 +27,30 @@ def test_matvec_is_scipys_product_bit_for_bit(fmt):
         assert np.array_equal(matvec(A.T, y), A.T @ y)
 
 
+@pytest.mark.parametrize("parts", [2, 3, 4])
+def test_a_large_product_split_over_cores_is_scipys_bit_for_bit(monkeypatch, parts):
+    from stw_tui.sos import sparse_matvec
+
+    monkeypatch.setattr(sparse_matvec, "_PARTS", parts)
+    monkeypatch.setattr(sparse_matvec, "_POOL", None)
+    rng = np.random.default_rng(9)
+    counts = rng.integers(0, 60, 9000)
+    counts[4000:4300] = 0                                    # empty rows, and a range of them
+    indptr = np.concatenate([[0], np.cumsum(counts)])
+    indices = np.concatenate([np.sort(rng.choice(5000, c, replace=False)) for c in counts])
+    data = rng.standard_normal(indptr[-1]) * 10.0 ** rng.integers(-8, 8, indptr[-1])
+    A = sps.csr_array((data, indices, indptr), shape=(counts.size, 5000))
+    assert A.nnz >= sparse_matvec.PARALLEL_NNZ
+    x = rng.standard_normal(5000)
+    assert np.array_equal(matvec(A, x), A @ x)
+    small = A[:10]
+    assert np.array_equal(matvec(small, x), small @ x)        # below the threshold: one call
+    # a process forked with the pool in place (a survey's worker) makes its own threads
+    monkeypatch.setattr(sparse_matvec, "_POOL", (-1, sparse_matvec._pool()))
+    assert sparse_matvec._pool() is not None and sparse_matvec._POOL[0] != -1
+    assert np.array_equal(matvec(A, x), A @ x)
+
+
 def test_matvec_takes_the_ordinary_route_for_what_the_kernel_does_not_take():
     A = sps.csr_array(np.array([[1.0, 2.0], [0.0, 3.0]]))
     assert np.array_equal(matvec(A, np.array([1, 2])), [5.0, 6.0])            # an int vector
