@@ -105,6 +105,25 @@ def test_compiled_terms_are_kept_on_disk_across_runs(tmp_path, monkeypatch):
     assert next(tmp_path.glob("*.pkl")).read_bytes() != b"garbage"
 
 
+def test_literals_that_print_alike_are_kept_apart_on_disk(tmp_path, monkeypatch):
+    # symengine prints 0.1 + 0.2 (0.30000000000000004) as 0.3: under the printed text alone a
+    # second run took the first term's compiled code, literal included, for the other term
+    from stw_tui.sym import compiler
+
+    monkeypatch.setenv("STW_CACHE_DIR", str(tmp_path))
+    near, exact = sp.Float(0.1 + 0.2), sp.Float(0.3)
+    for literal in (near, exact):                          # each compiled once, in a fresh run
+        monkeypatch.setattr(compiler, "_CACHE", {})
+        compile_term(literal * sp.sin(x) * y, {"x", "y"}, set())
+    assert len(list(tmp_path.glob("*.pkl"))) == 2
+    values, times = np.array([[1.0], [1.0]]), np.array([0.0])
+    for literal in (near, exact):                          # a later run reads each one back
+        monkeypatch.setattr(compiler, "_CACHE", {})
+        monkeypatch.setattr(compiler, "_compile", lambda *a: pytest.fail("compiled again"))
+        term = compile_term(literal * sp.sin(x) * y, {"x", "y"}, set())
+        assert term.value(values, times, np.array([]))[0] == float(literal) * np.sin(1.0)
+
+
 @pytest.mark.parametrize("line", ["print sin(atan(tan(0) ^ x))", "objective z: 0^x"])
 def test_an_expression_whose_derivative_is_infinite_is_refused_clearly(line):
     # 0^x differentiates to 0^x·log(0): symengine cannot compile the complex infinity and raised

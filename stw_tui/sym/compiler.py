@@ -465,8 +465,14 @@ def _cache_root() -> tuple[Path, bytes] | None:
 
 def _term_key(expr, variables, parameters) -> str:
     """A term's name in the disk cache: the expression's text with its argument order and the
-    symengine version, so a changed linkage or term compiles afresh."""
-    return f"{se.__version__}|{_to_symengine(expr)}|{variables}|{parameters}"  # C++ printing: fast
+    symengine version, so a changed linkage or term compiles afresh.
+
+    symengine prints a double in 15 digits, so literals a few ulps apart (0.1 + 0.2 and 0.3)
+    print alike: the text is followed by every literal's exact value, in the tree's own order,
+    or two such terms would share one entry and compute with whichever literal came first."""
+    e = _to_symengine(expr)
+    exact = ",".join(repr(float(node)) for node in _post_order(e) if isinstance(node, se.RealDouble))
+    return f"{se.__version__}|{e}|{exact}|{variables}|{parameters}"  # C++ printing: fast
 
 
 def _disk_cache_path(root: Path, key: str, kind: str = "") -> Path:
