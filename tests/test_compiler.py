@@ -105,6 +105,29 @@ def test_compiled_terms_are_kept_on_disk_across_runs(tmp_path, monkeypatch):
     assert next(tmp_path.glob("*.pkl")).read_bytes() != b"garbage"
 
 
+def test_the_order_sympy_keeps_a_sums_terms_in_does_not_change_the_compiled_numbers(monkeypatch):
+    # basketball's arm tip height: after `stw bench` had compiled other sessions, sympy held two
+    # of its terms in the other order; symengine's code summed them in that order, and the solve
+    # took 95 iterations instead of 120 to another local optimum
+    from stw_tui.sym import compiler
+
+    monkeypatch.setenv("STW_CACHE_DIR", "off")
+    e, s_, w, by = sp.symbols("ELBOW SHOULDER WRIST BY")
+    first = -0.15 * (-sp.sin(e) * sp.sin(s_) + sp.cos(e) * sp.cos(s_)) * sp.sin(w)
+    second = -0.15 * (sp.sin(e) * sp.cos(s_) + sp.sin(s_) * sp.cos(e)) * sp.cos(w)
+    rest = [by, -0.35 * sp.sin(s_), -0.3 * sp.sin(s_) * sp.cos(e), -0.3 * sp.sin(e) * sp.cos(s_)]
+    orders = [sp.Add(*rest[:2], first, second, *rest[2:], evaluate=False),
+              sp.Add(*rest[:2], second, first, *rest[2:], evaluate=False)]
+    assert orders[0].args != orders[1].args
+    values = np.random.default_rng(6).standard_normal((4, 2000))
+    got = []
+    for expr in orders:
+        monkeypatch.setattr(compiler, "_CACHE", {})
+        term = compile_term(expr, {"BY", "ELBOW", "SHOULDER", "WRIST"}, set())
+        got.append(np.asarray(term.full(values, np.zeros(2000), np.zeros(0))[0]))
+    assert np.array_equal(got[0], got[1])
+
+
 def test_literals_that_print_alike_are_kept_apart_on_disk(tmp_path, monkeypatch):
     # symengine prints 0.1 + 0.2 (0.30000000000000004) as 0.3: under the printed text alone a
     # second run took the first term's compiled code, literal included, for the other term

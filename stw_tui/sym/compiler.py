@@ -30,6 +30,7 @@ from pathlib import Path
 import numpy as np
 import symengine as se
 import sympy as sp
+from sympy.core.sorting import default_sort_key
 
 from stw_tui.sym import limits
 from stw_tui.sym.errors import LimitError, StwError
@@ -47,13 +48,48 @@ _KINKS = (sp.Abs, sp.sign, sp.Max, sp.Min)
 def _to_symengine(expr: sp.Basic):
     """Convert our own sympy expression (never user text) to symengine.
 
+    The sums and products go over in a canonical order of their terms (:func:`_canonical`):
+    symengine keeps them in the order given, and its compiled code adds and multiplies in that
+    order.
+
     symengine cannot differentiate abs, sign, min and max but can differentiate Piecewise, so
     those become Piecewise — built in symengine, because sympy folds nested Piecewise
     conditions into ITE objects symengine cannot read.
     """
+    return _convert(_canonical(expr, {}))
+
+
+def _canonical(expr: sp.Basic, memo: dict) -> sp.Basic:
+    """``expr`` with the terms of every sum and product in sympy's default sort order.
+
+    sympy's own order of a sum's terms can depend on the process's history (its caches): the
+    arm tip's height in basketball.stw held two terms in swapped order after `stw bench` had
+    compiled other sessions, which printed alike; symengine's code then summed them in the other
+    order, a few functions differed in the last bit, and the solve took 95 iterations instead of
+    120 to another local optimum. In this order the code is the same whatever came before.
+    """
+    if not expr.args:
+        return expr
+    done = memo.get(expr)
+    if done is not None:
+        return done
+    args = [_canonical(a, memo) for a in expr.args]
+    if isinstance(expr, (sp.Add, sp.Mul)):
+        args.sort(key=default_sort_key)
+        done = expr.func(*args, evaluate=False)
+    elif any(a is not b for a, b in zip(args, expr.args)):
+        done = expr.func(*args)
+    else:
+        done = expr
+    memo[expr] = done
+    return done
+
+
+def _convert(expr: sp.Basic):
+    """:func:`_to_symengine` of an expression in canonical order."""
     if not expr.has(*_KINKS):
         return se.S(expr)
-    args = [_to_symengine(a) for a in expr.args]
+    args = [_convert(a) for a in expr.args]
     if isinstance(expr, sp.Abs):
         return se.Piecewise((args[0], args[0] >= 0), (-args[0], True))
     if isinstance(expr, sp.sign):
