@@ -79,31 +79,23 @@ def test_no_two_core_modules_import_each_other():
 def test_no_code_can_evaluate_text_as_python():
     # User text must never reach Python evaluation: no eval/exec/compile builtins, and no sympy
     # or symengine call that parses strings (sympify, parse_expr, S(...)), anywhere in the core
-    # or the bundled backends. Two sites are known, and listed here so any other one fails:
-    # the compiler hands symengine its own sympy trees (never text) through S(...), and the
-    # torch backend's _host_function compiles and runs the source it printed itself from those
-    # trees (renamed symbols, repr'd floats and a fixed table of functions: the text TorchScript
-    # compiles on a device), with no builtins in reach.
+    # or the bundled backends. One S(...) is known: the compiler hands symengine its own sympy
+    # trees (never text), and that site is listed here so any other one fails.
     import ast
     from pathlib import Path
 
     root = Path(__file__).resolve().parent.parent
     builtins, parsers = {"eval", "exec", "compile"}, {"sympify", "parse_expr", "S"}
-    known = {("stw_tui/sym/compiler.py", "S", None), ("backends/stw_torch/lower.py", "exec", "_host_function"),
-             ("backends/stw_torch/lower.py", "compile", "_host_function")}
+    known = {("stw_tui/sym/compiler.py", "S")}
     found = []
     for path in sorted([*(root / "stw_tui").rglob("*.py"), *(root / "backends").rglob("*.py")]):
         rel = path.relative_to(root).as_posix()
-        tree = ast.parse(path.read_text(encoding="utf-8"))
-        owner = {id(n): f.name for f in ast.walk(tree) if isinstance(f, ast.FunctionDef) for n in ast.walk(f)}
-        for node in ast.walk(tree):
+        for node in ast.walk(ast.parse(path.read_text(encoding="utf-8"))):
             if not isinstance(node, ast.Call):
                 continue
             f = node.func
-            name = f.id if isinstance(f, ast.Name) else f.attr if isinstance(f, ast.Attribute) else None
-            site = (rel, name, owner.get(id(node)) if isinstance(f, ast.Name) else None)
-            if ((isinstance(f, ast.Name) and name in builtins | parsers) or
-                    (isinstance(f, ast.Attribute) and name in parsers)) and site not in known:
+            if (isinstance(f, ast.Name) and f.id in builtins | parsers) or \
+                    (isinstance(f, ast.Attribute) and f.attr in parsers and (rel, f.attr) not in known):
                 found.append(f"{rel}:{node.lineno}")
     assert not found, found
 

@@ -460,7 +460,7 @@ def _host_and_device_numbers(session: Session) -> list[list[np.ndarray]]:
 @pytest.mark.parametrize("problem", QUICK, ids=str)
 def test_the_cpu_glue_and_programs_in_numpy_give_the_torch_ops_numbers(problem):
     # On the CPU the glue around the programs runs in numpy (evaluate._evaluate_host) and the
-    # programs as Python over numpy (lower._host_function); the torch ops and TorchScript they
+    # programs as Python over numpy (host.host_function); the torch ops and TorchScript they
     # replaced, still the path on a device, must give the same numbers bit for bit.
     results = _host_and_device_numbers(problem.setup())
     assert all(np.array_equal(a, b) for a, b in zip(*results))
@@ -487,7 +487,8 @@ def test_host_programs_give_torchs_numbers_for_every_construct_printed():
 
 def test_a_host_program_computes_what_its_torchscript_computes():
     """Each printed construct, one program, on numbers that cross the branches."""
-    from stw_torch.lower import _compile, _host_function, _script
+    from stw_torch.host import host_function
+    from stw_torch.lower import _HOST_NAMES, _compile, _script
 
     import symengine as se
 
@@ -501,7 +502,8 @@ def test_a_host_program_computes_what_its_torchscript_computes():
     v = [rng.standard_normal(37) * 3 for _ in range(2)]
     t = np.zeros(37)
     want = [r.numpy() for r in program([torch.from_numpy(a) for a in (*v, t)], torch.from_numpy(t))]
-    program.host_fn = _host_function(source)
+    program.host_fn = host_function(source, _HOST_NAMES)
+    assert program.host_fn is not None
     got = program.host([*v, t], t)
     assert len(got) == len(want) == len(outputs)
     assert all(np.array_equal(a, b) for a, b in zip(got, want))
@@ -511,7 +513,8 @@ def test_a_host_program_computes_what_its_torchscript_computes():
 def test_a_host_program_gives_inf_and_nan_silently_as_torchscript_does():
     import warnings
 
-    from stw_torch.lower import _compile, _host_function
+    from stw_torch.host import host_function
+    from stw_torch.lower import _HOST_NAMES, _compile
 
     import symengine as se
 
@@ -519,9 +522,27 @@ def test_a_host_program_gives_inf_and_nan_silently_as_torchscript_does():
     program, source = _compile(["_v0", "_t"], [1 / x, x**3 * 1e200, se.sqrt(x - 1)])
     v, t = np.array([0.0, 1.0, 1e100]), np.zeros(3)
     want = [r.numpy() for r in program([torch.from_numpy(v), torch.from_numpy(t)], torch.from_numpy(t))]
-    program.host_fn = _host_function(source)
+    program.host_fn = host_function(source, _HOST_NAMES)
+    assert program.host_fn is not None
     with warnings.catch_warnings():
         warnings.simplefilter("error")                      # numpy's overflow/divide warnings
         got = program.host([v, t], t)
     assert all(np.array_equal(a, b, equal_nan=True) for a, b in zip(got, want))
     assert np.isinf(got[0][0]) and np.isinf(got[1][2]) and np.isnan(got[2][0])
+
+
+@pytest.mark.parametrize("source", [
+    "def program(_v0):\n    return [__import__('os').getcwd()]\n",      # a call that is not torch.…
+    "def program(_v0):\n    return [torch.load(_v0)]\n",                 # torch, but not a printed function
+    "def program(_v0):\n    x0 = _v0.numpy\n    return [x0]\n",         # an attribute
+    "def program(_v0):\n    x0 = [_v0][0]\n    return [x0]\n",          # a subscript
+    "def program(_v0):\n    return [x9]\n",                              # a name never assigned
+    "import os\n",                                                        # not a program at all
+])
+def test_a_host_program_is_only_what_the_printer_writes(source):
+    """The host runs a printed program by interpreting its syntax tree, never by evaluating text:
+    anything the printer does not write is refused (None: the program then runs through torch)."""
+    from stw_torch.host import host_function
+    from stw_torch.lower import _HOST_NAMES
+
+    assert host_function(source, _HOST_NAMES) is None

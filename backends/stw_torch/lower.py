@@ -21,19 +21,18 @@ evaluation against 4 ms for the program of the largest term).
 A program is compiled by TorchScript where it can be (~2.5x fewer microseconds per op than
 Python calling torch; the same aten kernels, so the same numbers), run without the graph
 executor's optimizations (its profiling runs cost more than they save here), and as plain
-Python otherwise. On the CPU the same TorchScript source runs as Python over numpy arrays
-instead (:func:`_host_function`, about half the microseconds per op again, and no TorchScript
-compile at all): its arithmetic is numpy's, correctly rounded like torch's, and its functions
-torch's own, so the numbers are the same bit for bit.
+Python otherwise. On the CPU the same TorchScript source runs over numpy arrays instead, its
+syntax tree interpreted node by node (:func:`host.host_function`, about half the microseconds per
+op again, no TorchScript compile, and no Python evaluation of any text): its arithmetic is
+numpy's, correctly rounded like torch's, and its functions torch's own, so the numbers are the
+same bit for bit.
 """
 
 from __future__ import annotations
 
-import functools
 import math
 import warnings
 from dataclasses import dataclass, field
-from types import SimpleNamespace
 
 import numpy as np
 import symengine as se
@@ -43,6 +42,8 @@ from sympy.printing.pytorch import TorchPrinter
 
 from stw_tui.sym.compiler import CompiledTerm, LocalVar, _to_symengine, cached_entry, store_entry
 from stw_tui.sym.symbols import TIME, split_dof_symbol
+
+from .host import host_function
 
 
 class _Printer(TorchPrinter):
@@ -67,7 +68,7 @@ class Program:
     that are numbers are not computed but filled in (``constants``: row -> value).
 
     A program from TorchScript source may run on the host instead (:meth:`host`, CPU only):
-    the same source as Python over numpy arrays (:func:`_host_function`)."""
+    the same source run over numpy arrays (:func:`host.host_function`)."""
 
     fn: object               # the torch function (None: a program for the host only)
     rows: int
@@ -129,7 +130,6 @@ class Program:
 
 
 FILLED_KEPT = 64   # constant rows a program keeps filled
-HOST_FUNCTIONS_KEPT = 512   # host programs kept by source (a few MB of source at most)
 
 
 _FUNCTIONS = {name: f"torch.{name}" for name in (
@@ -231,55 +231,9 @@ def _script(source: str):
         return torch.jit.CompilationUnit(source).program
 
 
-def _to_torch(a):
-    """A numpy array or scalar as a tensor sharing its memory; anything else as it is."""
-    if isinstance(a, np.ndarray):
-        return torch.from_numpy(a)
-    if isinstance(a, np.generic):
-        return torch.from_numpy(np.asarray(a))
-    return a
-
-
-def _through_torch(fn):
-    """``fn`` (a torch function) of numpy arguments, its result as numpy."""
-    def call(*args, **kwargs):
-        if not kwargs and len(args) == 1 and args[0].__class__ is np.ndarray:   # sin(x), cos(x), ...
-            return fn(torch.from_numpy(args[0])).numpy()
-        return fn(*map(_to_torch, args), **kwargs).numpy()
-    return call
-
-
-def _host_pow(base, exponent):
-    # torch's pow by the scalar 2 is base * base (its pow_tensor_scalar kernel): the same product
-    # here, without the round trip through torch; any other exponent goes through torch's pow
-    if exponent.__class__ is int and exponent == 2:
-        return base * base
-    return _through_torch(torch.pow)(base, exponent)
-
-
-# What the printed programs call as ``torch.…`` when run on the host (_host_function): torch's
-# own functions on the arrays' memory, so the numbers are torch's.
-_HOST_TORCH = SimpleNamespace(
-    float64=torch.float64, pow=_host_pow,
-    **{name: _through_torch(getattr(torch, name)) for name in (
-        *(f.removeprefix("torch.") for f in _FUNCTIONS.values()),
-        "where", "full_like", "logical_and", "logical_or", "logical_not")})
-
-
-@functools.lru_cache(maxsize=HOST_FUNCTIONS_KEPT)
-def _host_function(source: str):
-    """The program of TorchScript ``source`` as Python over numpy arrays.
-
-    On the CPU a TorchScript op costs about 0.7 µs whatever it computes on a few hundred
-    numbers, numpy's about 0.35: the printed programs are straight-line arithmetic (basketball's
-    largest: 2469 ops, 16 of them function calls), which numpy does with the same IEEE
-    operations, so the same numbers (+, -, *, / and comparisons are correctly rounded in both);
-    the functions (sin, cos, pow, where, ...) are torch's own (``_HOST_TORCH``). The source is
-    ours, printed from parsed terms (never user text), and compiled as sympy's lambdify does.
-    """
-    namespace = {"__builtins__": {}, "torch": _HOST_TORCH}   # arithmetic and torch.… only
-    exec(compile(source, "<stw program>", "exec"), namespace)   # noqa: S102 - our printed source
-    return namespace["program"]
+# What the printed programs may call as ``torch.…`` when run on the host (host.host_function)
+_HOST_NAMES = (*(f.removeprefix("torch.") for f in _FUNCTIONS.values()),
+               "where", "full_like", "logical_and", "logical_or", "logical_not")
 
 
 def _compile(names: list[str], outputs: list) -> tuple[Program, str | None]:
@@ -356,8 +310,9 @@ class LoweredTerm:
         entry = cached_entry("torch", key)
         if entry is not None:
             source, rows, constants = entry
-            if host:
-                return Program(None, rows, constants, _host_function(source))
+            host_fn = host_function(source, _HOST_NAMES) if host else None
+            if host_fn is not None:
+                return Program(None, rows, constants, host_fn)
             try:
                 return Program(_script(source), rows, constants)
             except Exception:  # noqa: BLE001 - a source this torch no longer takes: print it afresh
@@ -366,7 +321,7 @@ class LoweredTerm:
         if source is not None:
             store_entry("torch", key, (source, program.rows, program.constants))
             if host:
-                program.host_fn = _host_function(source)
+                program.host_fn = host_function(source, _HOST_NAMES)
         return program
 
     @property

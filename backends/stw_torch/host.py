@@ -1,0 +1,174 @@
+"""The printed torch programs run on numpy arrays, on the CPU, without Python evaluating anything.
+
+A program's TorchScript source (lower.py prints it from symengine trees) is straight-line
+arithmetic: assignments ``xN = expr`` and a returned list. :func:`host_function` reads that
+source's syntax tree (``ast.parse``: parsing, no evaluation) and builds one closure per node of
+the few kinds the printer writes; anything else is refused (ValueError), and the program then
+runs through torch. Nothing is handed to ``eval``, ``exec`` or ``compile``.
+
+The numbers are TorchScript's: each node does the operation its source does, in the order Python
+would (the tree is that order), with +, -, *, / and comparisons by numpy (correctly rounded, as
+torch's) and the functions (sin, cos, pow, where, ...) by torch itself on the arrays' memory.
+On the CPU a TorchScript op costs about 0.7 µs on a few hundred numbers, a numpy op about 0.35.
+"""
+
+from __future__ import annotations
+
+import ast
+import functools
+import operator
+
+import numpy as np
+import torch
+
+HOST_FUNCTIONS_KEPT = 512   # host programs kept by source (a few MB of source at most)
+
+
+def _to_torch(a):
+    """A numpy array or scalar as a tensor sharing its memory; anything else as it is."""
+    if isinstance(a, np.ndarray):
+        return torch.from_numpy(a)
+    if isinstance(a, np.generic):
+        return torch.from_numpy(np.asarray(a))
+    return a
+
+
+def _through_torch(fn):
+    """``fn`` (a torch function) of numpy arguments, its result as numpy."""
+    def call(*args, **kwargs):
+        if not kwargs and len(args) == 1 and args[0].__class__ is np.ndarray:   # sin(x), cos(x), ...
+            return fn(torch.from_numpy(args[0])).numpy()
+        return fn(*map(_to_torch, args), **kwargs).numpy()
+    return call
+
+
+def _host_pow(base, exponent):
+    # torch's pow by the scalar 2 is base * base (its pow_tensor_scalar kernel): the same product
+    # here, without the round trip through torch; any other exponent goes through torch's pow
+    if exponent.__class__ is int and exponent == 2:
+        return base * base
+    return _through_torch(torch.pow)(base, exponent)
+
+
+def host_functions(names) -> dict:
+    """What the printed programs may call as ``torch.NAME``: torch's own function of each name
+    (``pow`` by 2 as the product torch computes), on numpy arguments."""
+    table = {name: _through_torch(getattr(torch, name)) for name in names}
+    table["pow"] = _host_pow
+    return table
+
+
+_BINARY = {ast.Add: operator.add, ast.Sub: operator.sub, ast.Mult: operator.mul, ast.Div: operator.truediv,
+           ast.Lt: operator.lt, ast.LtE: operator.le, ast.Eq: operator.eq, ast.NotEq: operator.ne,
+           ast.Gt: operator.gt, ast.GtE: operator.ge}
+_CONSTANTS = {"float64": torch.float64}   # torch.float64, full_like's dtype
+
+
+def _negative(a, _):
+    return -a
+
+
+class _Tape:
+    """A program as a list of instructions ``(f, i, j, k)``: register k = f(register i, register
+    j), or, with j = -1, f(registers, i) (a call of several arguments). Registers hold the
+    arguments first, then the numbers of the source, then every intermediate value."""
+
+    def __init__(self, names: list[str], functions: dict):
+        self.slots = {name: i for i, name in enumerate(names)}
+        self.functions = functions
+        self.registers: list = [None] * len(names)
+        self.numbers: dict = {}
+        self.tape: list = []
+
+    def _new(self, value=None) -> int:
+        self.registers.append(value)
+        return len(self.registers) - 1
+
+    def _number(self, value) -> int:
+        key = (type(value), value, str(value))   # 0.0 and -0.0 apart
+        if key not in self.numbers:
+            self.numbers[key] = self._new(value)
+        return self.numbers[key]
+
+    def _emit(self, f, i, j) -> int:
+        k = self._new()
+        self.tape.append((f, i, j, k))
+        return k
+
+    def node(self, n) -> int:
+        """The register of node ``n``'s value, its instructions emitted (operands first)."""
+        kind = type(n)
+        if kind is ast.Name:
+            return self.slots[n.id]          # KeyError: a name not assigned before (refused)
+        if kind is ast.Constant and type(n.value) in (int, float):
+            return self._number(n.value)
+        if kind is ast.UnaryOp and type(n.op) is ast.USub:
+            if type(n.operand) is ast.Constant and type(n.operand.value) in (int, float):
+                return self._number(-n.operand.value)     # (-0.5): the number Python makes of it
+            i = self.node(n.operand)
+            return self._emit(_negative, i, i)
+        if kind is ast.BinOp and type(n.op) in _BINARY:
+            return self._emit(_BINARY[type(n.op)], self.node(n.left), self.node(n.right))
+        if kind is ast.Compare and len(n.ops) == 1 and type(n.ops[0]) in _BINARY:
+            return self._emit(_BINARY[type(n.ops[0])], self.node(n.left), self.node(n.comparators[0]))
+        if kind is ast.Call and self._is_torch(n.func) and n.func.attr in self.functions:
+            fn = self.functions[n.func.attr]
+            args = tuple(self.node(a) for a in n.args)
+            keywords = {k.arg: self._constant(k.value) for k in n.keywords}
+            if len(args) == 1 and not keywords:
+                return self._emit(lambda a, _, fn=fn: fn(a), args[0], args[0])
+            return self._emit(lambda registers, slots: fn(*[registers[s] for s in slots], **keywords),
+                              args, -1)
+        raise ValueError(f"not a construct of the printed programs: {ast.dump(n)[:80]}")
+
+    def assign(self, name: str, n) -> None:
+        if name in self.slots:                # the printer assigns each name once
+            raise ValueError(f"{name} assigned twice")
+        self.slots[name] = self.node(n)
+
+    @staticmethod
+    def _is_torch(f) -> bool:
+        return type(f) is ast.Attribute and type(f.value) is ast.Name and f.value.id == "torch"
+
+    def _constant(self, n):
+        if self._is_torch(n) and n.attr in _CONSTANTS:
+            return _CONSTANTS[n.attr]
+        raise ValueError(f"not a keyword value of the printed programs: {ast.dump(n)[:80]}")
+
+
+@functools.lru_cache(maxsize=HOST_FUNCTIONS_KEPT)
+def host_function(source: str, functions: tuple[str, ...]):
+    """The program ``def program(args): x0 = …; …; return [...]`` of printed TorchScript
+    ``source`` as a function of numpy arrays, calling torch's ``functions`` (their names);
+    None when the source holds anything the printer does not write."""
+    try:
+        (fn,) = ast.parse(source).body
+        if type(fn) is not ast.FunctionDef:
+            return None
+        args = fn.args
+        if fn.decorator_list or args.vararg or args.kwarg or args.kwonlyargs or args.defaults:
+            return None
+        names = [a.arg for a in args.args]
+        tape = _Tape(names, host_functions(functions))
+        *assignments, ret = fn.body
+        for statement in assignments:
+            if type(statement) is not ast.Assign or len(statement.targets) != 1 \
+                    or type(statement.targets[0]) is not ast.Name:
+                return None
+            tape.assign(statement.targets[0].id, statement.value)
+        if type(ret) is not ast.Return or type(ret.value) is not ast.List:
+            return None
+        outputs = [tape.node(e) for e in ret.value.elts]
+    except (ValueError, KeyError, SyntaxError, TypeError):
+        return None
+    n_args, template, instructions = len(names), tape.registers, tape.tape
+
+    def program(*values):
+        if len(values) != n_args:
+            raise TypeError(f"program takes {n_args} arguments, {len(values)} given")
+        r = template.copy()
+        r[:n_args] = values
+        for f, i, j, k in instructions:
+            r[k] = f(r[i], r[j]) if j >= 0 else f(r, i)
+        return [r[k] for k in outputs]
+    return program
