@@ -487,7 +487,7 @@ def test_host_programs_give_torchs_numbers_for_every_construct_printed():
 
 def test_a_host_program_computes_what_its_torchscript_computes():
     """Each printed construct, one program, on numbers that cross the branches."""
-    from stw_torch.host import host_function
+    from stw_torch.host import host_function, tape_of
     from stw_torch.lower import _HOST_NAMES, _compile, _script
 
     import symengine as se
@@ -502,7 +502,7 @@ def test_a_host_program_computes_what_its_torchscript_computes():
     v = [rng.standard_normal(37) * 3 for _ in range(2)]
     t = np.zeros(37)
     want = [r.numpy() for r in program([torch.from_numpy(a) for a in (*v, t)], torch.from_numpy(t))]
-    program.host_fn = host_function(source, _HOST_NAMES)
+    program.host_fn = host_function(tape_of(source, _HOST_NAMES), _HOST_NAMES)
     assert program.host_fn is not None
     got = program.host([*v, t], t)
     assert len(got) == len(want) == len(outputs)
@@ -513,7 +513,7 @@ def test_a_host_program_computes_what_its_torchscript_computes():
 def test_a_host_program_gives_inf_and_nan_silently_as_torchscript_does():
     import warnings
 
-    from stw_torch.host import host_function
+    from stw_torch.host import host_function, tape_of
     from stw_torch.lower import _HOST_NAMES, _compile
 
     import symengine as se
@@ -522,7 +522,7 @@ def test_a_host_program_gives_inf_and_nan_silently_as_torchscript_does():
     program, source = _compile(["_v0", "_t"], [1 / x, x**3 * 1e200, se.sqrt(x - 1)])
     v, t = np.array([0.0, 1.0, 1e100]), np.zeros(3)
     want = [r.numpy() for r in program([torch.from_numpy(v), torch.from_numpy(t)], torch.from_numpy(t))]
-    program.host_fn = host_function(source, _HOST_NAMES)
+    program.host_fn = host_function(tape_of(source, _HOST_NAMES), _HOST_NAMES)
     assert program.host_fn is not None
     with warnings.catch_warnings():
         warnings.simplefilter("error")                      # numpy's overflow/divide warnings
@@ -542,7 +542,7 @@ def test_a_host_program_gives_inf_and_nan_silently_as_torchscript_does():
 def test_a_host_program_is_only_what_the_printer_writes(source):
     """The host runs a printed program by interpreting its syntax tree, never by evaluating text:
     anything the printer does not write is refused (None: the program then runs through torch)."""
-    from stw_torch.host import host_function
+    from stw_torch.host import tape_of
     from stw_torch.lower import _HOST_NAMES
 
-    assert host_function(source, _HOST_NAMES) is None
+    assert tape_of(source, _HOST_NAMES) is None

@@ -1,10 +1,11 @@
 """The printed torch programs run on numpy arrays, on the CPU, without Python evaluating anything.
 
 A program's TorchScript source (lower.py prints it from symengine trees) is straight-line
-arithmetic: assignments ``xN = expr`` and a returned list. :func:`host_function` reads that
-source's syntax tree (``ast.parse``: parsing, no evaluation) and builds one closure per node of
-the few kinds the printer writes; anything else is refused (ValueError), and the program then
-runs through torch. Nothing is handed to ``eval``, ``exec`` or ``compile``.
+arithmetic: assignments ``xN = expr`` and a returned list. :func:`tape_of` reads that source's
+syntax tree (``ast.parse``: parsing, no evaluation) and turns the few kinds of node the printer
+writes into a tape of instructions on registers; anything else is refused, and the program then
+runs through torch. :func:`host_function` binds a tape to its functions. Nothing is handed to
+``eval``, ``exec`` or ``compile``.
 
 The numbers are TorchScript's: each node does the operation its source does, in the order Python
 would (the tree is that order), with +, -, *, / and comparisons by numpy (correctly rounded, as
@@ -58,10 +59,9 @@ def host_functions(names) -> dict:
     return table
 
 
-_BINARY = {ast.Add: operator.add, ast.Sub: operator.sub, ast.Mult: operator.mul, ast.Div: operator.truediv,
-           ast.Lt: operator.lt, ast.LtE: operator.le, ast.Eq: operator.eq, ast.NotEq: operator.ne,
-           ast.Gt: operator.gt, ast.GtE: operator.ge}
-_CONSTANTS = {"float64": torch.float64}   # torch.float64, full_like's dtype
+_BINARY = {ast.Add: "add", ast.Sub: "sub", ast.Mult: "mul", ast.Div: "truediv", ast.Lt: "lt",
+           ast.LtE: "le", ast.Eq: "eq", ast.NotEq: "ne", ast.Gt: "gt", ast.GtE: "ge"}
+_CONSTANTS = ("float64",)   # torch.float64, full_like's dtype: the only keyword value printed
 
 
 def _negative(a, _):
@@ -69,16 +69,18 @@ def _negative(a, _):
 
 
 class _Tape:
-    """A program as a list of instructions ``(f, i, j, k)``: register k = f(register i, register
-    j), or, with j = -1, f(registers, i) (a call of several arguments). Registers hold the
-    arguments first, then the numbers of the source, then every intermediate value."""
+    """A program as data: instructions ``(op, i, j, k)``, register k = op(register i, register j),
+    or with j = -1 a call of the registers listed in i; ``op`` names an operator, ``neg``, or a
+    torch function: ("torch1", NAME) of one argument, ("torch", NAME, keywords) of several. Registers hold the arguments first, then
+    the numbers of the source, then every intermediate value. Being data, a tape is kept in the
+    terms' disk cache beside its source, and a new process reads it without parsing."""
 
-    def __init__(self, names: list[str], functions: dict):
+    def __init__(self, names: list[str], functions):
         self.slots = {name: i for i, name in enumerate(names)}
         self.functions = functions
         self.registers: list = [None] * len(names)
         self.numbers: dict = {}
-        self.tape: list = []
+        self.instructions: list = []
 
     def _new(self, value=None) -> int:
         self.registers.append(value)
@@ -90,9 +92,9 @@ class _Tape:
             self.numbers[key] = self._new(value)
         return self.numbers[key]
 
-    def _emit(self, f, i, j) -> int:
+    def _emit(self, op, i, j) -> int:
         k = self._new()
-        self.tape.append((f, i, j, k))
+        self.instructions.append((op, i, j, k))
         return k
 
     def node(self, n) -> int:
@@ -106,19 +108,17 @@ class _Tape:
             if type(n.operand) is ast.Constant and type(n.operand.value) in (int, float):
                 return self._number(-n.operand.value)     # (-0.5): the number Python makes of it
             i = self.node(n.operand)
-            return self._emit(_negative, i, i)
+            return self._emit("neg", i, i)
         if kind is ast.BinOp and type(n.op) in _BINARY:
             return self._emit(_BINARY[type(n.op)], self.node(n.left), self.node(n.right))
         if kind is ast.Compare and len(n.ops) == 1 and type(n.ops[0]) in _BINARY:
             return self._emit(_BINARY[type(n.ops[0])], self.node(n.left), self.node(n.comparators[0]))
         if kind is ast.Call and self._is_torch(n.func) and n.func.attr in self.functions:
-            fn = self.functions[n.func.attr]
             args = tuple(self.node(a) for a in n.args)
-            keywords = {k.arg: self._constant(k.value) for k in n.keywords}
+            keywords = tuple((k.arg, self._constant(k.value)) for k in n.keywords)
             if len(args) == 1 and not keywords:
-                return self._emit(lambda a, _, fn=fn: fn(a), args[0], args[0])
-            return self._emit(lambda registers, slots: fn(*[registers[s] for s in slots], **keywords),
-                              args, -1)
+                return self._emit(("torch1", n.func.attr), args[0], args[0])
+            return self._emit(("torch", n.func.attr, keywords), args, -1)
         raise ValueError(f"not a construct of the printed programs: {ast.dump(n)[:80]}")
 
     def assign(self, name: str, n) -> None:
@@ -130,17 +130,17 @@ class _Tape:
     def _is_torch(f) -> bool:
         return type(f) is ast.Attribute and type(f.value) is ast.Name and f.value.id == "torch"
 
-    def _constant(self, n):
+    def _constant(self, n) -> str:
         if self._is_torch(n) and n.attr in _CONSTANTS:
-            return _CONSTANTS[n.attr]
+            return n.attr
         raise ValueError(f"not a keyword value of the printed programs: {ast.dump(n)[:80]}")
 
 
-@functools.lru_cache(maxsize=HOST_FUNCTIONS_KEPT)
-def host_function(source: str, functions: tuple[str, ...]):
-    """The program ``def program(args): x0 = …; …; return [...]`` of printed TorchScript
-    ``source`` as a function of numpy arrays, calling torch's ``functions`` (their names);
-    None when the source holds anything the printer does not write."""
+def tape_of(source: str, functions: tuple[str, ...]) -> tuple | None:
+    """The tape ``(arguments, registers, instructions, outputs)`` of the program
+    ``def program(args): x0 = …; …; return [...]`` of printed TorchScript ``source``, which may
+    call torch's ``functions`` (their names); None when the source holds anything the printer
+    does not write."""
     try:
         (fn,) = ast.parse(source).body
         if type(fn) is not ast.FunctionDef:
@@ -149,7 +149,7 @@ def host_function(source: str, functions: tuple[str, ...]):
         if fn.decorator_list or args.vararg or args.kwarg or args.kwonlyargs or args.defaults:
             return None
         names = [a.arg for a in args.args]
-        tape = _Tape(names, host_functions(functions))
+        tape = _Tape(names, {*functions, "pow"})   # pow: see _host_pow
         *assignments, ret = fn.body
         for statement in assignments:
             if type(statement) is not ast.Assign or len(statement.targets) != 1 \
@@ -158,17 +158,40 @@ def host_function(source: str, functions: tuple[str, ...]):
             tape.assign(statement.targets[0].id, statement.value)
         if type(ret) is not ast.Return or type(ret.value) is not ast.List:
             return None
-        outputs = [tape.node(e) for e in ret.value.elts]
+        outputs = tuple(tape.node(e) for e in ret.value.elts)
     except (ValueError, KeyError, SyntaxError, TypeError):
         return None
-    n_args, template, instructions = len(names), tape.registers, tape.tape
+    return len(names), tuple(tape.registers), tuple(tape.instructions), outputs
+
+
+def _bound(op, table: dict):
+    """The function an instruction's ``op`` names, taking (register i, register j), or for a
+    call of several arguments (registers, their places)."""
+    if op == "neg":
+        return _negative
+    if isinstance(op, str):
+        return getattr(operator, op)
+    fn = table[op[1]]
+    if op[0] == "torch1":
+        return lambda a, _: fn(a)
+    kw = {k: getattr(torch, v) for k, v in op[2]}
+    return lambda registers, places: fn(*[registers[p] for p in places], **kw)
+
+
+@functools.lru_cache(maxsize=HOST_FUNCTIONS_KEPT)
+def host_function(tape: tuple, functions: tuple[str, ...]):
+    """The program of ``tape`` (:func:`tape_of`) as a function of numpy arrays."""
+    n_args, template, instructions, outputs = tape
+    table = host_functions(functions)
+    steps = [(_bound(op, table), i, j, k) for op, i, j, k in instructions]
+    template = list(template)
 
     def program(*values):
         if len(values) != n_args:
             raise TypeError(f"program takes {n_args} arguments, {len(values)} given")
         r = template.copy()
         r[:n_args] = values
-        for f, i, j, k in instructions:
+        for f, i, j, k in steps:
             r[k] = f(r[i], r[j]) if j >= 0 else f(r, i)
         return [r[k] for k in outputs]
     return program
