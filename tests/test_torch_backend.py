@@ -478,9 +478,8 @@ def test_host_programs_give_torchs_numbers_for_every_construct_printed():
     # the `when` masks themselves, on slot values where the condition holds at some instances only
     tp = TorchProblem(WindowProblem(session.scene), torch.device("cpu"), host_linear=True)
     v = np.random.default_rng(4).standard_normal(tp.n_slots)
-    on_host = tp._host_conditions(v)
-    with torch.no_grad():
-        on_device = {kind: m.numpy() for kind, m in tp._conditions(torch.from_numpy(v)).items()}
+    on_host = tp._masks(v)                          # numpy slot values: the host programs
+    on_device = tp._masks(torch.from_numpy(v))      # a tensor: the torch terms
     assert all(np.array_equal(on_host[kind], on_device[kind]) for kind in on_device)
     assert on_host["ge"].any() and not on_host["ge"].all()
 

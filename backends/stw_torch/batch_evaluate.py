@@ -18,7 +18,7 @@ import hashlib
 import numpy as np
 import torch
 
-from stw_tui.sos.window import EQ, GE, OBJ, MeritValues, evaluate_condition_tree
+from stw_tui.sos.window import EQ, GE, OBJ, MeritValues
 
 from .evaluate import TorchEvaluation, TorchProblem
 
@@ -59,20 +59,15 @@ def _tile(V: torch.Tensor, g, k: int, offset: int) -> torch.Tensor:
 
 
 def _conditions(tp: TorchProblem, V: torch.Tensor) -> dict[str, torch.Tensor]:
+    """Every start's ``when`` masks, (B, rows) per kind: the problem's own walk over tiled leaves."""
     B = V.shape[0]
-    masks = {kind: torch.ones(B, tp.row_counts[kind], dtype=torch.bool, device=tp.device) for kind in (EQ, GE)}
-    for g in tp.groups:
-        if g.condition is None:
-            continue
 
-        def filled(flag, n=B * g.n):
-            return torch.full((n,), flag, dtype=torch.bool, device=tp.device)
-        times = g.times.repeat(B)
-        leaf = {node: term(_tile(V, g, term.k, offset), times, params)
-                for node, term, offset, params in g.leaves}
-        mask = evaluate_condition_tree(g.condition.tree, leaf, filled)
-        masks[g.kind][:, g.row:g.row + g.n] = mask.reshape(B, g.n)
-    return masks
+    def leaf(g, term, offset, params):
+        return term(_tile(V, g, term.k, offset), g.times.repeat(B), params)
+
+    def filled(n):
+        return lambda flag: torch.full((B * n,), flag, dtype=torch.bool, device=tp.device)
+    return tp._conditions(lambda rows: torch.ones(B, rows, dtype=torch.bool, device=tp.device), filled, leaf)
 
 
 def merit_values_batch(members: list[TorchProblem], points: list[np.ndarray]) -> list[MeritValues]:

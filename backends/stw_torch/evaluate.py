@@ -482,17 +482,17 @@ class TorchProblem:
     def _block(self, v: torch.Tensor, g: _Group, k: int, offset: int) -> torch.Tensor:
         return v[offset:offset + k * g.n].view(k, g.n)
 
-    def _conditions(self, v: torch.Tensor) -> dict[str, torch.Tensor]:
-        masks = {kind: torch.ones(self.row_counts[kind], dtype=torch.bool, device=self.device)
-                 for kind in (EQ, GE)}
+    def _conditions(self, ones, filled, leaf_value) -> dict:
+        """Each row's ``when`` mask: every group's condition tree over its leaves' values
+        (``leaf_value(group, term, slot offset, params)``), in torch or numpy as the three
+        functions make them; ``ones(rows)`` may add a leading axis of batched starts."""
+        masks = {kind: ones(self.row_counts[kind]) for kind in (EQ, GE)}
         for g in self.groups:
             if g.condition is None:
                 continue
-            def filled(flag, n=g.n):
-                return torch.full((n,), flag, dtype=torch.bool, device=self.device)
-            leaf = {node: term(self._block(v, g, term.k, offset), g.times, params)
-                    for node, term, offset, params in g.leaves}
-            masks[g.kind][g.row:g.row + g.n] = evaluate_condition_tree(g.condition.tree, leaf, filled)
+            leaf = {node: leaf_value(g, term, offset, params) for node, term, offset, params in g.leaves}
+            rows = masks[g.kind][..., g.row:g.row + g.n]     # (n,), or (starts, n) for a batch
+            rows[...] = evaluate_condition_tree(g.condition.tree, leaf, filled(g.n)).reshape(rows.shape)
         return masks
 
     def _rows(self, f: np.ndarray) -> tuple[float, dict]:
@@ -504,26 +504,26 @@ class TorchProblem:
         return objective, {kind: self.host_weights[kind] * f[self.host_rows[kind]] for kind in (EQ, GE)}
 
     def _masks(self, v) -> dict[str, np.ndarray]:
+        """The ``when`` masks at slot values ``v``: by the host programs for a numpy array on the
+        CPU, by the torch terms for a tensor."""
         if not self.conditional:
             return {kind: np.ones(self.row_counts[kind], bool) for kind in (EQ, GE)}
-        if self.host and isinstance(v, np.ndarray):
-            return self._host_conditions(v)
+        if self.host and isinstance(v, np.ndarray):     # the leaves' host programs on the CPU
+            def host_leaf(g, term, offset, params):
+                block = v[offset:offset + term.k * g.n].reshape(term.k, g.n)
+                return term.host_rows("value", block, g.times.numpy(), [p.numpy() for p in params])[0]
+            return self._conditions(lambda n: np.ones(n, bool), numpy_filled, host_leaf)
         v = torch.from_numpy(v) if isinstance(v, np.ndarray) else v
-        with torch.no_grad():
-            return {kind: m.cpu().numpy() for kind, m in self._conditions(v).items()}
 
-    def _host_conditions(self, v: np.ndarray) -> dict[str, np.ndarray]:
-        """:meth:`_conditions` of numpy slot values on the CPU, the leaves' host programs."""
-        masks = {kind: np.ones(self.row_counts[kind], bool) for kind in (EQ, GE)}
-        for g in self.groups:
-            if g.condition is None:
-                continue
-            times = g.times.numpy()
-            leaf = {node: term.host_rows("value", v[offset:offset + term.k * g.n].reshape(term.k, g.n),
-                                         times, [p.numpy() for p in params])[0]
-                    for node, term, offset, params in g.leaves}
-            masks[g.kind][g.row:g.row + g.n] = evaluate_condition_tree(g.condition.tree, leaf, numpy_filled(g.n))
-        return masks
+        def torch_leaf(g, term, offset, params):
+            return term(self._block(v, g, term.k, offset), g.times, params)
+
+        def torch_filled(n):
+            return lambda flag: torch.full((n,), flag, dtype=torch.bool, device=self.device)
+        with torch.no_grad():
+            masks = self._conditions(lambda n: torch.ones(n, dtype=torch.bool, device=self.device),
+                                     torch_filled, torch_leaf)
+        return {kind: m.cpu().numpy() for kind, m in masks.items()}
 
     def merit_values(self, s: np.ndarray) -> MeritValues:
         """Objective and weighted constraint values only (no derivatives), for the line search."""
