@@ -499,14 +499,14 @@ def _cache_root() -> tuple[Path, bytes] | None:
     return (path, key) if len(key) == 32 else None
 
 
-def _term_key(expr, variables, parameters) -> str:
+def _term_key(e, variables, parameters) -> str:
     """A term's name in the disk cache: the expression's text with its argument order and the
     symengine version, so a changed linkage or term compiles afresh.
 
     symengine prints a double in 15 digits, so literals a few ulps apart (0.1 + 0.2 and 0.3)
     print alike: the text is followed by every literal's exact value, in the tree's own order,
-    or two such terms would share one entry and compute with whichever literal came first."""
-    e = _to_symengine(expr)
+    or two such terms would share one entry and compute with whichever literal came first.
+    ``e`` is the term's expression in symengine (:func:`_to_symengine`)."""
     exact = ",".join(repr(float(node)) for node in _post_order(e) if isinstance(node, se.RealDouble))
     return f"{se.__version__}|{e}|{exact}|{variables}|{parameters}"  # C++ printing: fast
 
@@ -571,21 +571,25 @@ def _store(path: Path, key: bytes, entry) -> None:
 
 
 def _build(expr: sp.Expr, variables: tuple[LocalVar, ...], parameters: tuple[str, ...]) -> CompiledTerm:
-    key = _term_key(expr, variables, parameters)
+    e = _to_symengine(expr)        # once: the key's text and, on a miss, what is compiled
+    key = _term_key(e, variables, parameters)
     entry = cached_entry("", key)
     if entry is not None:
         pairs, value_fn, full_fn = entry
         return CompiledTerm(expr=expr, variables=variables, parameters=parameters,
                             hessian_pairs=tuple(pairs), _value_fn=value_fn, _full_fn=full_fn,
                             cache_key=key)
-    term = _compile(expr, variables, parameters)
+    term = _compile(expr, variables, parameters, e)
     term.cache_key = key
     store_entry("", key, (term.hessian_pairs, term._value_fn, term._full_fn))
     return term
 
 
-def _compile(expr: sp.Expr, variables: tuple[LocalVar, ...], parameters: tuple[str, ...]) -> CompiledTerm:
-    e = _to_symengine(expr)
+def _compile(expr: sp.Expr, variables: tuple[LocalVar, ...], parameters: tuple[str, ...],
+             e=None) -> CompiledTerm:
+    """``expr`` compiled: its value, gradient and Hessian as symengine LLVM code (``e``: the
+    expression already in symengine, when the caller has it)."""
+    e = _to_symengine(expr) if e is None else e
     var_syms = [_symbol_of(v) for v in variables]
     args = var_syms + [se.Symbol(TIME.name)] + [se.Symbol(p) for p in parameters]
     grad = [e.diff(v) for v in var_syms]
