@@ -33,6 +33,7 @@ def test_a_large_product_split_over_cores_is_scipys_bit_for_bit(monkeypatch, par
 
     monkeypatch.setattr(sparse_matvec, "_PARTS", parts)
     monkeypatch.setattr(sparse_matvec, "_POOL", None)
+    monkeypatch.setattr(sparse_matvec, "PARALLEL_NNZ", 200_000)   # split a product of this size
     rng = np.random.default_rng(9)
     counts = rng.integers(0, 60, 9000)
     counts[4000:4300] = 0                                    # empty rows, and a range of them

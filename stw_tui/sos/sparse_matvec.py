@@ -54,7 +54,9 @@ def matvec(m, x: np.ndarray) -> np.ndarray:
     return out
 
 
-PARALLEL_NNZ = 200_000   # entries from which a CSR product is split over the cores, when its
+PARALLEL_NNZ = 600_000   # entries from which a CSR product is split over the cores (handing a
+                         # range to a thread costs ~0.1 ms on these VMs: split / whole on 2 cores
+                         # is 1.35 at 200k entries, 1.0 at 400k, 0.8 at 800k, 0.53 at 1.6M), when its
 SPLIT_ROW_NNZ = 8        # rows hold this many on average: a long output of short rows (a basis
                          # matrix's 260k rows of 1.5) costs more split (page faults contend)
 
