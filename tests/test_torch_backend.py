@@ -509,6 +509,26 @@ def test_a_host_program_computes_what_its_torchscript_computes():
     assert _script(source) is not None and (got[5] == 2.5).any() and (got[5] != 2.5).any()
 
 
+def test_a_host_programs_numbers_beside_numbers_stay_python_floats():
+    """A number beside an array goes to numpy as a 0-d array (host.host_function); beside another
+    number it must stay a float, or the result, a numpy scalar, reaches torch.pow as a tensor
+    exponent (another kernel than pow by a float). Hand-written: symengine folds such sums."""
+    from stw_torch.host import host_function, tape_of
+    from stw_torch.lower import _HOST_NAMES, _script
+
+    source = ("def program(_v0, _t):\n"
+              "    x0 = 1.5 + 1.0 + 0.5\n"            # 3.0: torch's pow by the float 3.0 is x*x*x
+              "    x1 = torch.pow(_v0, x0)\n"
+              "    return [x1 * 0.7, 0.3 - _v0 * x0, torch.pow(_v0, 3.0) * 1.1]\n")
+    v = np.random.default_rng(8).uniform(0.1, 9.0, 41)
+    want = [r.numpy() for r in _script(source)(torch.from_numpy(v), torch.zeros(41))]
+    tape = tape_of(source, _HOST_NAMES)
+    assert tape is not None
+    got = host_function(tape, _HOST_NAMES)(v, np.zeros(41))
+    assert all(np.array_equal(a, b) for a, b in zip(got, want))
+    assert all(type(a) is np.ndarray for a in got)
+
+
 def test_a_host_program_gives_inf_and_nan_silently_as_torchscript_does():
     import warnings
 

@@ -186,13 +186,18 @@ def host_function(tape: tuple, functions: tuple[str, ...]):
     template = list(template)
     made = {k for _, _, _, k in instructions}
     numbers = {r for r in range(n_args, len(template)) if r not in made}
+    constant = set(numbers)    # numbers, and what is computed from numbers alone (Python floats)
+    for _, i, j, k in instructions:
+        if all(r in constant for r in ((i, j) if j >= 0 else i)):
+            constant.add(k)
     as_array: dict[int, int] = {}
 
     def operand(r: int, other: int) -> int:
         # numpy takes a 0-d array beside an array faster than a Python float (0.36 against
-        # 0.50 µs on 192 numbers), with the same product; a torch function keeps the float,
-        # which chooses its kernel (pow by a float is not pow by a tensor)
-        if r not in numbers or other in numbers or type(template[r]) is not float:
+        # 0.50 µs on 192 numbers), with the same product; beside another Python number it
+        # stays a float (a 0-d array would make a numpy scalar of the result, which a torch
+        # function then takes as a tensor: pow by a tensor is not pow by a float)
+        if r not in numbers or other in constant or type(template[r]) is not float:
             return r
         if r not in as_array:
             template.append(np.array(template[r]))
