@@ -460,7 +460,7 @@ def _host_and_device_numbers(session: Session) -> list[list[np.ndarray]]:
 @pytest.mark.parametrize("problem", QUICK, ids=str)
 def test_the_cpu_glue_and_programs_in_numpy_give_the_torch_ops_numbers(problem):
     # On the CPU the glue around the programs runs in numpy (evaluate._evaluate_host) and the
-    # programs as Python over numpy (host.host_function); the torch ops and TorchScript they
+    # programs as tapes over numpy (host.host_function); the torch ops and TorchScript they
     # replaced, still the path on a device, must give the same numbers bit for bit.
     results = _host_and_device_numbers(problem.setup())
     assert all(np.array_equal(a, b) for a, b in zip(*results))

@@ -68,7 +68,7 @@ class Program:
     that are numbers are not computed but filled in (``constants``: row -> value).
 
     A program from TorchScript source may run on the host instead (:meth:`host`, CPU only):
-    the same source run over numpy arrays (:func:`host.host_function`)."""
+    the same source's tape run over numpy arrays (:func:`host.host_function`)."""
 
     fn: object               # the torch function (None: a program for the host only)
     rows: int
@@ -305,7 +305,8 @@ class LoweredTerm:
 
     def _program(self, kind: str, host: bool) -> Program:
         """Program ``kind`` from the disk cache where its source is kept, else compiled (and
-        kept). A host program is the source run as Python (no TorchScript compile at all)."""
+        kept). A host program is the source's tape (:func:`host.tape_of`) run on numpy arrays,
+        with no TorchScript compile at all."""
         name = f"full{self.term.hessian_pairs}" if kind == "full" else kind
         key = f"{PRINTING}|{torch.__version__}|{name}|{self.term.cache_key}" if self.term.cache_key else ""
         entry = cached_entry("torch", key)
