@@ -22,8 +22,8 @@ A program is compiled by TorchScript where it can be (~2.5x fewer microseconds p
 Python calling torch; the same aten kernels, so the same numbers), run without the graph
 executor's optimizations (its profiling runs cost more than they save here), and as plain
 Python otherwise. On the CPU the same TorchScript source runs over numpy arrays instead, its
-syntax tree interpreted node by node (:func:`host.host_function`, about half the microseconds per
-op again, no TorchScript compile, and no Python evaluation of any text): its arithmetic is
+syntax tree interpreted as a tape of numpy operations (:func:`host.host_function`: about 0.6 of
+TorchScript's microseconds per op, no TorchScript compile, and no Python evaluation of any text): its arithmetic is
 numpy's, correctly rounded like torch's, and its functions torch's own, so the numbers are the
 same bit for bit.
 """
