@@ -186,7 +186,7 @@ def host_function(tape: tuple, functions: tuple[str, ...]):
     template = list(template)
     made = {k for _, _, _, k in instructions}
     numbers = {r for r in range(n_args, len(template)) if r not in made}
-    constant = set(numbers)    # numbers, and what is computed from numbers alone (Python floats)
+    constant = set(numbers)    # numbers, and what is computed from numbers alone
     for _, i, j, k in instructions:
         if all(r in constant for r in ((i, j) if j >= 0 else i)):
             constant.add(k)
