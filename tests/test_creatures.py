@@ -201,6 +201,13 @@ def test_keyframes_turn_the_toss_overhand():
     p_under, v_under = _hand(under.scene, 0.55)
     turning = lambda p, v: p[0] * v[1] - p[1] * v[0]
     assert turning(p, v) < 0 < turning(p_under, v_under)
+    # The follow-through its comments describe: at rest at t = 1.5 past hanging (-pi/2), the hand
+    # behind the shoulder and below it.
+    joints = ("SHOULDER", "ELBOW", "WRIST")
+    x_end, y_end = _planar_tip(_curves(s.scene, joints, 1.5))
+    assert _curves(s.scene, joints, 1.5)[0] < -np.pi / 2 - 0.5
+    assert x_end < -0.3 and y_end < 0
+    assert max(abs(w) for w in _curves(s.scene, joints, 1.5, order=1)) < 1e-6
 
 
 def _assert_human_arm(s, end=1.5):
