@@ -81,6 +81,7 @@ constraint floor: y - 0.1*sin(2)*x >= 0 on [0, 1] when x > k/8 and not x' < -5
 constraint link:  z - cos(x) * y = 0 on [0, 1] weight=3
 objective thrust: f, x'' - k*tanh(x'), sqrt(1 + x'*x') * y'' + pi
 objective shape:  exp(0.1*z) * atan2(y, 1 + x*x) weight=0.5
+objective angle:  atan2(3, 2 + x*x) * y - 2.4/(1 + z*z), atan2(1.5, y) weight=0.2
 damp x 0.1
 """
 
@@ -468,7 +469,8 @@ def test_the_cpu_glue_and_programs_in_numpy_give_the_torch_ops_numbers(problem):
 
 
 def test_host_programs_give_torchs_numbers_for_every_construct_printed():
-    # EXTRAS has conditions (where, comparisons, logical and/not), tanh, atan2, exp, sqrt,
+    # EXTRAS has conditions (where, comparisons, logical and/not), tanh, atan2 (of a number
+    # too), a number over a tensor (torch: its reciprocal times the number), exp, sqrt,
     # sin and cos of numbers and variables, integer powers and quotients
     session = Session()
     session.run_text(EXTRAS)

@@ -68,6 +68,10 @@ def _negative(a, _):
     return -a
 
 
+def _reciprocal_times(a, b):
+    return np.reciprocal(a) * b
+
+
 class _Tape:
     """A program as data: instructions ``(op, i, j, k)``, register k = op(register i, register j),
     or with j = -1 a call of the registers listed in i; ``op`` names an operator, ``neg``, or a
@@ -206,6 +210,11 @@ def host_function(tape: tuple, functions: tuple[str, ...]):
 
     steps = []
     for op, i, j, k in instructions:
+        if op == "truediv" and i in constant and j not in constant:
+            # a number over a tensor is torch's rtruediv: the tensor's reciprocal times the
+            # number, two roundings (2.4 / x differs from numpy's quotient in a quarter of x)
+            steps.append((_reciprocal_times, j, i, k))
+            continue
         if isinstance(op, str) and op != "neg":
             i, j = operand(i, j), operand(j, i)
         steps.append((_bound(op, table), i, j, k))

@@ -52,6 +52,13 @@ class _Printer(TorchPrinter):
     def _print_Float(self, expr):
         return repr(float(expr))
 
+    def _print_atan2(self, expr):
+        # torch.atan2 takes tensors only: a number filled like the other argument (as _print)
+        like = self._print(next(a for a in expr.args if a.free_symbols))
+        return "torch.atan2(" + ", ".join(
+            self._print(a) if a.free_symbols else f"torch.full_like({like}, {float(a)!r}, dtype=torch.float64)"
+            for a in expr.args) + ")"
+
 
 def _fold_numbers(expr: sp.Expr) -> sp.Expr:
     """Replace function calls of numbers (``sin(2)``, ``sqrt(2)``) by floats."""
@@ -189,6 +196,13 @@ def _print(e) -> str:
         return out
     if name == "Not":
         return f"torch.logical_not({_print(args[0])})"
+    if name == "atan2" and any(not a.free_symbols for a in args):
+        # torch.atan2 takes tensors only: a number is filled like the other argument (the
+        # same elementwise atan2 as of the number itself)
+        like = _print(next(a for a in args if a.free_symbols))
+        return "torch.atan2(" + ", ".join(
+            _print(a) if a.free_symbols else f"torch.full_like({like}, {_number(float(a))}, dtype=torch.float64)"
+            for a in args) + ")"
     return f"{_FUNCTIONS[name]}({', '.join(_print(a) for a in args)})"
 
 
@@ -258,7 +272,7 @@ def _compile(names: list[str], outputs: list) -> tuple[Program, str | None]:
 
 # The version of the printed programs in the disk cache: raise it when printing changes what a
 # term's program computes (a cached program is then printed afresh).
-PRINTING = 1
+PRINTING = 2
 TAPES = 1      # the version of host.tape_of's tapes in the disk cache
 
 
