@@ -1,5 +1,6 @@
 """The torch backend takes the SciPy backend's steps, with every number from its torch programs."""
 
+import math
 import subprocess
 import sys
 
@@ -529,6 +530,29 @@ def test_a_host_programs_numbers_beside_numbers_stay_python_floats():
     got = host_function(tape, _HOST_NAMES)(v, np.zeros(41))
     assert all(np.array_equal(a, b) for a, b in zip(got, want))
     assert all(type(a) is np.ndarray for a in got)
+
+
+def test_a_number_that_terms_share_is_folded_where_it_is_used():
+    """cse names a number two outputs share (tanh(1/3) here); as a name it reached torch.asin as
+    a float, which TorchScript turns into a tensor and the host program's torch refused. It is
+    inlined where it is used instead, where the printer folds asin(tanh(1/3)) into a float."""
+    from stw_torch.host import host_function, tape_of
+    from stw_torch.lower import _HOST_NAMES, _compile
+
+    import symengine as se
+
+    x, y = se.Symbol("_v0"), se.Symbol("_v1")
+    shared = se.tanh(se.Rational(1, 3))
+    outputs = [se.asin(shared) * x + y, se.cos(2 * shared) * y - x]
+    program, source = _compile(["_v0", "_v1", "_t"], outputs)
+    assert source is not None and "asin" not in source
+    v = [np.linspace(-1.0, 2.0, 11), np.linspace(0.5, 3.0, 11)]
+    t = np.zeros(11)
+    want = [r.numpy() for r in program([torch.from_numpy(a) for a in (*v, t)], torch.from_numpy(t))]
+    program.host_fn = host_function(tape_of(source, _HOST_NAMES), _HOST_NAMES)
+    got = program.host([*v, t], t)
+    assert all(np.array_equal(a, b) for a, b in zip(got, want))
+    assert np.allclose(got[0], math.asin(math.tanh(1 / 3)) * v[0] + v[1], rtol=1e-15, atol=1e-15)
 
 
 def test_a_host_program_gives_inf_and_nan_silently_as_torchscript_does():

@@ -253,7 +253,7 @@ _HOST_NAMES = (*(f.removeprefix("torch.") for f in _FUNCTIONS.values()),
 def _compile(names: list[str], outputs: list) -> tuple[Program, str | None]:
     """The program of symengine ``outputs`` in the variables ``names``, common subexpressions
     shared, and its TorchScript source (None: compiled as plain Python instead)."""
-    replacements, reduced = se.cse(outputs)
+    replacements, reduced = _numbers_inlined(*se.cse(outputs))
     constants = {row: value for row, e in enumerate(reduced) if (value := _constant(e)) is not None}
     computed = [e for row, e in enumerate(reduced) if row not in constants]
     try:
@@ -270,9 +270,24 @@ def _compile(names: list[str], outputs: list) -> tuple[Program, str | None]:
     return Program(fn, len(reduced), constants), source
 
 
+def _numbers_inlined(replacements, reduced):
+    """cse's output without its subexpressions that are numbers (tanh(1/3) shared by two
+    terms): each goes back where it was used, where the printer folds it into the float it
+    computes. As a name of its own it would reach a torch function as a float (torch.asin(x1)),
+    which TorchScript turns into a tensor and torch itself refuses."""
+    numbers, kept = {}, []
+    for name, sub in replacements:
+        sub = sub.xreplace(numbers) if numbers else sub
+        if sub.free_symbols:
+            kept.append((name, sub))
+        else:
+            numbers[name] = sub
+    return kept, [e.xreplace(numbers) for e in reduced] if numbers else reduced
+
+
 # The version of the printed programs in the disk cache: raise it when printing changes what a
 # term's program computes (a cached program is then printed afresh).
-PRINTING = 2
+PRINTING = 3
 TAPES = 1      # the version of host.tape_of's tapes in the disk cache
 
 
