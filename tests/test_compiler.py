@@ -74,6 +74,16 @@ def test_waypoints_that_differ_only_in_their_number_share_one_compiled_term():
         assert not isinstance(compile_term(expr, {"x", "y"}, set()), compiler.LiteralTerm)
 
 
+def test_a_sign_that_symengine_writes_itself_compiles():
+    # symengine turns atan2(y, y) into pi/4 + pi/2 (sign(y) - 1); it could not compile that
+    # sign's derivative ("Not Implemented", an internal error in the console)
+    term = compile_term(sp.atan2(y, y) * x, {"x", "y"}, set())
+    values = np.array([[2.0, 0.5], [3.0, -1.5]])             # (x, y) at two instances
+    value, grad, hess = term.full(values, np.zeros(2), np.zeros(0))
+    assert value.tolist() == pytest.approx([2.0 * np.pi / 4, 3.0 * -3 * np.pi / 4], rel=1e-15)
+    assert np.allclose(grad, [[np.pi / 4, 0.0], [-3 * np.pi / 4, 0.0]], rtol=1e-15, atol=0.0)
+
+
 def test_an_undefined_symbol_is_a_clear_error():
     from stw_tui.sym.errors import StwError
 

@@ -121,6 +121,22 @@ def test_derivatives_match_the_symbolic_compiler():
     assert np.array_equal(mv_ref.active_ge, mv_got.active_ge)
 
 
+def test_lowering_compiles_a_sign_that_symengine_writes_itself():
+    """atan2(x, x) is pi/4 + pi/2 (sign(x) - 1) in symengine, a sign whose derivative it cannot
+    print: lowered as the Piecewise the core makes of it (values and zero slopes)."""
+    from stw_tui.sym.compiler import CompiledTerm, LocalVar
+    from stw_torch.lower import lower
+    import sympy as sp
+
+    x, y = sp.Symbol("x", real=True), sp.Symbol("y", real=True)
+    term = lower(CompiledTerm(expr=sp.atan2(y, y) * x, variables=(LocalVar("x", 0), LocalVar("y", 0)),
+                              parameters=(), hessian_pairs=((0, 1),)))
+    X = torch.tensor([[2.0, 3.0], [0.5, -1.5]], dtype=torch.float64)
+    value, dx, dy, dxy = term.full(X, torch.zeros(2, dtype=torch.float64), []).tolist()
+    assert value == pytest.approx([2.0 * math.pi / 4, 3.0 * -3 * math.pi / 4], rel=1e-15)
+    assert dx == pytest.approx([math.pi / 4, -3 * math.pi / 4], rel=1e-15) and dy == [0.0, 0.0] and dxy == [0.0, 0.0]
+
+
 def test_lowering_handles_numbers_in_min_max_and_numeric_calls():
     from stw_tui.sym.compiler import CompiledTerm, LocalVar
     from stw_torch.lower import lower

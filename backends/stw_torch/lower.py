@@ -40,7 +40,8 @@ import sympy as sp
 import torch
 from sympy.printing.pytorch import TorchPrinter
 
-from stw_tui.sym.compiler import CompiledTerm, LocalVar, _to_symengine, cached_entry, store_entry
+from stw_tui.sym.compiler import (CompiledTerm, LocalVar, _to_symengine, cached_entry, sign_as_piecewise,
+                                  store_entry)
 from stw_tui.sym.symbols import TIME, split_dof_symbol
 
 from .host import host_function, tape_of
@@ -437,7 +438,7 @@ def _renamed(term: CompiledTerm, names: tuple[str, ...]):
             rename[symbol] = sp.Symbol(params[name])
         else:  # compile_term guarantees this never happens
             raise ValueError(f"symbol {symbol} of term {term.expr} is neither variable nor constant")
-    return _to_symengine(_fold_numbers(term.expr.xreplace(rename)))   # always a sympy object
+    return sign_as_piecewise(_to_symengine(_fold_numbers(term.expr.xreplace(rename))))   # a sympy object
 
 
 def lower(term: CompiledTerm) -> LoweredTerm:

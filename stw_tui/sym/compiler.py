@@ -59,6 +59,18 @@ def _to_symengine(expr: sp.Basic):
     return _convert(_canonical(expr, {}))
 
 
+def sign_as_piecewise(e):
+    """``e`` (symengine) with each sign(u) as the Piecewise :func:`_convert` makes of sympy's.
+    symengine writes some expressions with a sign of its own (atan2(x, x) is
+    pi/4 + pi/2 (sign(x) - 1)), whose derivative it leaves unevaluated and cannot compile.
+    Called before differentiating, on a compile (the walk costs about a millisecond per
+    thousand nodes)."""
+    signs = e.atoms(se.sign)
+    if not signs:
+        return e
+    return e.xreplace({s: se.Piecewise((1, s.args[0] > 0), (-1, s.args[0] < 0), (0, True)) for s in signs})
+
+
 def _canonical(expr: sp.Basic, memo: dict) -> sp.Basic:
     """``expr`` with the terms of every sum and product in sympy's default sort order.
 
@@ -589,7 +601,7 @@ def _compile(expr: sp.Expr, variables: tuple[LocalVar, ...], parameters: tuple[s
              e=None) -> CompiledTerm:
     """``expr`` compiled: its value, gradient and Hessian as symengine LLVM code (``e``: the
     expression already in symengine, when the caller has it)."""
-    e = _to_symengine(expr) if e is None else e
+    e = sign_as_piecewise(_to_symengine(expr) if e is None else e)
     var_syms = [_symbol_of(v) for v in variables]
     args = var_syms + [se.Symbol(TIME.name)] + [se.Symbol(p) for p in parameters]
     grad = [e.diff(v) for v in var_syms]
