@@ -84,6 +84,56 @@ def test_a_sign_that_symengine_writes_itself_compiles():
     assert np.allclose(grad, [[np.pi / 4, 0.0], [-3 * np.pi / 4, 0.0]], rtol=1e-15, atol=0.0)
 
 
+def _random_term(rng, depth: int) -> sp.Expr:
+    """A random expression of DOF values and derivatives, a constant, time and numbers (seeded)."""
+    def number():
+        return rng.choice([sp.Float(round(rng.uniform(-3, 3), 3)), sp.Integer(rng.randint(-3, 3)),
+                           sp.Rational(1, 3), sp.pi])
+    if depth == 0 or rng.random() < 0.25:
+        return rng.choice([x, xd, xdd, y, g, TIME]) if rng.random() < 0.75 else number()
+    a, b = _random_term(rng, depth - 1), _random_term(rng, depth - 1)
+    return rng.choice([lambda: a + b, lambda: a - b, lambda: a * b, lambda: a / (b * b + 1),
+                       lambda: sp.sin(a), lambda: sp.cos(b), lambda: a ** rng.choice([2, 3, -1]),
+                       lambda: sp.tanh(a) * number(), lambda: a - number(), lambda: number() * a + number(),
+                       lambda: sp.exp(-a * a), lambda: sp.atan2(a, b), lambda: sp.sqrt(a * a + 1),
+                       lambda: sp.Abs(a), lambda: sp.Max(a, b), lambda: sp.Min(a, number()),
+                       lambda: sp.log(a * a + 1), lambda: sp.sign(a) * b * b])()
+
+
+def test_random_terms_compute_what_sympy_computes():
+    """Seeded random terms of every function, literals in every place: the compiled values (and,
+    without kinks, gradients) equal sympy's own lambdified expression and derivatives to 1e-9.
+    A random run found atan2(y, y), which symengine writes with a sign it cannot compile."""
+    import random
+
+    rng, points, compared = random.Random(5), np.random.default_rng(5), 0
+    with np.errstate(all="ignore"):         # sympy's numpy code outside a domain
+        for _ in range(60):
+            expr = _random_term(rng, 4)
+            if not expr.free_symbols & {x, xd, xdd, y}:
+                continue
+            term = compile_term(expr, {"x", "y"}, {"g"})
+            symbols = [dof_symbol(v.dof, v.order) for v in term.variables]
+            values, times = points.uniform(-2, 2, (31, term.k)), points.uniform(0.01, 1, 31)
+            f, grad, _ = term.full(values, times, np.array([1.3] if term.parameters else []))
+            columns = [values[:, i] for i in range(term.k)] + [times, np.full(31, 1.3)]
+            want = sp.lambdify(symbols + [TIME, g], expr, "numpy")(*columns)
+            want = np.broadcast_to(np.asarray(want, float), (31,))
+            finite = np.isfinite(want)
+            assert np.array_equal(np.isfinite(f), finite), expr
+            scale = max(1.0, np.abs(want[finite]).max(initial=0.0))
+            assert np.abs(f[finite] - want[finite]).max(initial=0.0) <= 1e-9 * scale, expr
+            if not expr.has(sp.Abs, sp.Max, sp.Min, sp.sign):
+                for i, symbol in enumerate(symbols):
+                    slope = sp.lambdify(symbols + [TIME, g], sp.diff(expr, symbol), "numpy")(*columns)
+                    slope = np.broadcast_to(np.asarray(slope, float), (31,))
+                    both = np.isfinite(slope) & np.isfinite(grad[:, i])
+                    scale = max(1.0, np.abs(slope[both]).max(initial=0.0))
+                    assert np.abs(grad[both, i] - slope[both]).max(initial=0.0) <= 1e-8 * scale, expr
+            compared += 1
+    assert compared >= 40
+
+
 def test_an_undefined_symbol_is_a_clear_error():
     from stw_tui.sym.errors import StwError
 
