@@ -75,9 +75,10 @@ def _reciprocal_times(a, b):
 class _Tape:
     """A program as data: instructions ``(op, i, j, k)``, register k = op(register i, register j),
     or with j = -1 a call of the registers listed in i; ``op`` names an operator, ``neg``, or a
-    torch function: ("torch1", NAME) of one argument, ("torch", NAME, keywords) of several. Registers hold the arguments first, then
-    the numbers of the source, then every intermediate value. Being data, a tape is kept in the
-    terms' disk cache beside its source, and a new process reads it without parsing."""
+    torch function: ("torch1", NAME) of one argument, ("torch", NAME, keywords) of several.
+    Registers hold the arguments first, then the numbers of the source, then every intermediate
+    value. Being data, a tape is kept in the terms' disk cache beside its source, and a new
+    process reads it without parsing."""
 
     def __init__(self, names: list[str], functions):
         self.slots = {name: i for i, name in enumerate(names)}
