@@ -51,9 +51,11 @@ def _host_pow(base, exponent):
     return _through_torch(torch.pow)(base, exponent)
 
 
-def host_functions(names) -> dict:
+@functools.cache
+def host_functions(names: tuple[str, ...]) -> dict:
     """What the printed programs may call as ``torch.NAME``: torch's own function of each name
-    (``pow`` by 2 as the product torch computes), on numpy arguments."""
+    (``pow`` by 2 as the product torch computes), on numpy arguments. Made once per set of
+    names and shared by every program bound to it (read, never changed)."""
     table = {name: _through_torch(getattr(torch, name)) for name in names}
     table["pow"] = _host_pow
     return table

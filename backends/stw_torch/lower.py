@@ -54,11 +54,7 @@ class _Printer(TorchPrinter):
         return repr(float(expr))
 
     def _print_atan2(self, expr):
-        # torch.atan2 takes tensors only: a number filled like the other argument (as _print)
-        like = self._print(next(a for a in expr.args if a.free_symbols))
-        return "torch.atan2(" + ", ".join(
-            self._print(a) if a.free_symbols else f"torch.full_like({like}, {float(a)!r}, dtype=torch.float64)"
-            for a in expr.args) + ")"
+        return _atan2_filled(expr.args, self._print, lambda a: repr(float(a)))
 
 
 def _fold_numbers(expr: sp.Expr) -> sp.Expr:
@@ -197,14 +193,19 @@ def _print(e) -> str:
         return out
     if name == "Not":
         return f"torch.logical_not({_print(args[0])})"
-    if name == "atan2" and any(not a.free_symbols for a in args):
-        # torch.atan2 takes tensors only: a number is filled like the other argument (the
-        # same elementwise atan2 as of the number itself)
-        like = _print(next(a for a in args if a.free_symbols))
-        return "torch.atan2(" + ", ".join(
-            _print(a) if a.free_symbols else f"torch.full_like({like}, {_number(float(a))}, dtype=torch.float64)"
-            for a in args) + ")"
+    if name == "atan2":
+        return _atan2_filled(args, _print, lambda a: _number(float(a)))
     return f"{_FUNCTIONS[name]}({', '.join(_print(a) for a in args)})"
+
+
+def _atan2_filled(args, show, number) -> str:
+    """``torch.atan2`` of ``args`` printed by ``show``. torch.atan2 takes tensors only, so a
+    number (printed by ``number``) is filled like the other argument: the same elementwise
+    atan2 as of the number itself. Both printers (ours, and sympy's for the fallback) use it."""
+    like = next((show(a) for a in args if a.free_symbols), None)
+    return "torch.atan2(" + ", ".join(
+        show(a) if a.free_symbols else f"torch.full_like({like}, {number(a)}, dtype=torch.float64)"
+        for a in args) + ")"
 
 
 def _signed(term) -> tuple[str, str]:

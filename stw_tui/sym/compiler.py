@@ -68,7 +68,12 @@ def sign_as_piecewise(e):
     signs = e.atoms(se.sign)
     if not signs:
         return e
-    return e.xreplace({s: se.Piecewise((1, s.args[0] > 0), (-1, s.args[0] < 0), (0, True)) for s in signs})
+    return e.xreplace({s: _sign_piecewise(s.args[0]) for s in signs})
+
+
+def _sign_piecewise(u):
+    """sign(u) as a symengine Piecewise, which symengine can differentiate."""
+    return se.Piecewise((1, u > 0), (-1, u < 0), (0, True))
 
 
 def _canonical(expr: sp.Basic, memo: dict) -> sp.Basic:
@@ -105,7 +110,7 @@ def _convert(expr: sp.Basic):
     if isinstance(expr, sp.Abs):
         return se.Piecewise((args[0], args[0] >= 0), (-args[0], True))
     if isinstance(expr, sp.sign):
-        return se.Piecewise((1, args[0] > 0), (-1, args[0] < 0), (0, True))
+        return _sign_piecewise(args[0])
     if isinstance(expr, (sp.Max, sp.Min)):
         result = args[0]
         for arg in args[1:]:
