@@ -298,17 +298,51 @@ def _install_hanging(tmp_path) -> dict:
             "XDG_STATE_HOME": str(tmp_path / "state")}
 
 
+def _signal_masks(pid: int | str) -> str:
+    """The SigBlk/SigIgn/SigCgt lines of a process's /proc status (blocked and ignored signals are
+    inherited through exec: a child that ignores SIGINT never sees Ctrl+C)."""
+    try:
+        status = Path(f"/proc/{pid}/status").read_text()
+    except OSError:
+        return "(no /proc status)"
+    return " ".join(line.replace("\t", "") for line in status.splitlines()
+                    if line.startswith(("State", "SigBlk", "SigIgn", "SigCgt")))
+
+
+def _why_still_running(process: subprocess.Popen) -> str:
+    """What a child that outlived its Ctrl+C was doing: its signal masks, then every thread's
+    stack (faulthandler, enabled in it by PYTHONFAULTHANDLER, writes them on SIGABRT)."""
+    masks = _signal_masks(process.pid)
+    process.send_signal(signal.SIGABRT)
+    try:
+        _, err = process.communicate(timeout=QUICK)
+    except subprocess.TimeoutExpired:
+        err = "(no answer to SIGABRT either)"
+    return f"still running {QUICK:g} s after SIGINT; child: {masks}; this process: {_signal_masks('self')}\n{err}"
+
+
 def test_headless_ctrl_c_ends_a_hung_solve_at_once_with_an_error(tmp_path):
-    env = _install_hanging(tmp_path)
-    process = subprocess.Popen([sys.executable, "-m", "stw_tui.cli", "run", str(tmp_path / "hang.stw")],
-                               env=env, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    env = {**_install_hanging(tmp_path), "PYTHONFAULTHANDLER": "1"}
+    # As a terminal's foreground job has it: SIGINT at its default. An ignored signal stays ignored
+    # through exec, and a background job of a non-interactive shell (`pytest &` in a script)
+    # ignores SIGINT: Python then leaves it ignored and Ctrl+C never reaches stw. A handled
+    # signal is reset to its default by exec, so the parent handles it while it starts the child.
+    previous = signal.signal(signal.SIGINT, signal.default_int_handler)
+    try:
+        process = subprocess.Popen([sys.executable, "-m", "stw_tui.cli", "run", str(tmp_path / "hang.stw")],
+                                   env=env, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    finally:
+        signal.signal(signal.SIGINT, previous)
     try:
         for line in process.stdout:                          # `stw run` prints each line's result
             if line.strip() == "hanging now":
                 break
         pressed = time.monotonic()
         process.send_signal(signal.SIGINT)
-        _, err = process.communicate(timeout=QUICK)
+        try:
+            _, err = process.communicate(timeout=QUICK)
+        except subprocess.TimeoutExpired:
+            pytest.fail(_why_still_running(process))
         latency = time.monotonic() - pressed
     finally:
         process.kill()
