@@ -347,6 +347,33 @@ iterate 30
     assert not s.scene.extra_instances                                   # nothing had to be added
 
 
+def test_a_bound_is_checked_on_the_curve_exactly_whether_or_not_its_control_points_keep_it():
+    # Control points inside [lo, hi]: the check reports no violation and no worst time without
+    # sampling the curve (convex hull), and 100k samples of the curve agree. One control point
+    # pushed past hi: the curve goes past it by less than the control point, and the check finds
+    # where, as a brute-force grid does (scipy's own BSpline, not stw's evaluation).
+    s = run_lines(Session(), "time 0 1 knots=10\ndof x lo=-1 hi=1\n")
+    dof = s.scene.dofs["x"]
+    inside = 0.999 * np.sin(np.linspace(0.0, 3 * np.pi, dof.curve.n_coef))
+    assert np.isclose(np.abs(inside).max(), 0.999, atol=1e-3)
+    dof.curve = dof.curve.with_coef(inside)
+    check = check_scene(s.scene).checks["x.bounds"]
+    assert (check.instances, check.dense, check.worst_t) == (0.0, 0.0, None)
+    values = BSpline(dof.curve.knots, inside, 3)(FINE)
+    assert values.max() <= 1 and values.min() >= -1
+
+    past = inside.copy()
+    past[4:7] = 1.05, 1.1, 1.05
+    dof.curve = dof.curve.with_coef(past)
+    check = check_scene(s.scene).checks["x.bounds"]
+    values = BSpline(dof.curve.knots, past, 3)(FINE)
+    worst = int(np.argmax(values))
+    assert check.instances == pytest.approx(0.1, abs=1e-12)
+    assert 0 < values[worst] - 1 < 0.1                         # the curve stays inside the hull
+    assert check.dense == pytest.approx(0.1, abs=1e-12)        # the control point's, the larger
+    assert check.worst_t == pytest.approx(FINE[worst], abs=1e-4)
+
+
 def test_condition_tree_is_evaluated_like_its_boolean_formula():
     """The one `when` evaluator (numpy here, torch in the torch backend) against the formula
     written out with numpy's own operators."""

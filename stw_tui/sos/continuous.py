@@ -178,18 +178,32 @@ def _relation_samples(scene, constraint) -> list[_Samples]:
 
 def _bound_samples(scene, dof) -> list[_Samples]:
     """A bound's instances are the control points (see instances.bound_times): their violation is
-    the control points' own; the dense grid checks the curve, which they bound everywhere."""
+    the control points' own; the dense grid checks the curve, which they bound everywhere.
+
+    A bound that every control point keeps is not sampled: the curve is a convex combination of
+    its control points (B-splines are >= 0 and sum to 1), so it keeps the bound exactly, at
+    every t, and the grid could only find rounding (this was most of the check's time on the
+    arm's three bounded joints). A control point past the bound sends the curve to the grid,
+    which tells where the curve itself is worst."""
     x, coef = dof_symbol(dof.name), np.asarray(dof.curve.coef, float)
     t_inst = bound_times(scene, dof.name)
-    t_base = dense_times(scene, [x], scene.t0, scene.t1, np.union1d(t_inst, bound_extra_times(scene, dof.name)))
+    t_base = None
     out = []
     for bound, expr, at_points in ((dof.lo, x - (dof.lo or 0), coef - (dof.lo or 0)),
                                    (dof.hi, (dof.hi or 0) - x, (dof.hi or 0) - coef)):
-        if bound is not None:
-            def score_at(times, values=scene.evaluator(expr)):
-                return _score(values(times), TermKind.GE, 1.0)
-            dense = _densely(score_at, t_inst, t_base, exact=True)
-            out.append(replace(dense, v_inst=np.maximum(0.0, -at_points)))
+        if bound is None:
+            continue
+        v_inst = np.maximum(0.0, -at_points)
+        if not v_inst.any():
+            out.append(_Samples(t_inst, v_inst, t_inst, v_inst, exact=True))
+            continue
+        if t_base is None:
+            t_base = dense_times(scene, [x], scene.t0, scene.t1,
+                                 np.union1d(t_inst, bound_extra_times(scene, dof.name)))
+
+        def score_at(times, values=scene.evaluator(expr)):
+            return _score(values(times), TermKind.GE, 1.0)
+        out.append(replace(_densely(score_at, t_inst, t_base, exact=True), v_inst=v_inst))
     return out
 
 
