@@ -118,3 +118,43 @@ def test_a_model_known_positive_definite_skips_the_convexity_test_and_nothing_el
     # and without the flag the test is made (the nonconvex case above depends on it)
     _solve(la, parts, guess)
     assert len(calls) == 1
+
+
+def test_a_refused_step_retries_from_the_rows_that_bound_in_the_refused_attempt(monkeypatch):
+    # A refused step is tried again with a heavier proximal term: with the same model, only that
+    # term changes, so the rows that bound in the refused attempt are a closer guess than the last
+    # step's. In luxo, a retry whose refused attempt needed the interior-point method (9
+    # iterations) then settles by active-set passes alone. A retry with another model (Gauss-Newton
+    # then exact) starts from the last step's rows, as the first attempt did.
+    import stw_tui.sos.sqp.solver as solver
+    from conftest import SESSIONS
+    from stw_tui.session.session import Session
+
+    steps: list[list] = []
+    step, subproblem = solver.SQPBackend.step, solver.SQPBackend._subproblem
+
+    def counted_step(self, problem, inner, k):
+        steps.append([])
+        return step(self, problem, inner, k)
+
+    def recorded(self, la, H, ev, lin, *args, **kwargs):
+        sub, rho = subproblem(self, la, H, ev, lin, *args, **kwargs)
+        if sub is not None and sub.qp.elastic is None and lin.ge_rows.size:
+            steps[-1].append((la.numpy(lin.working).copy(), sub.working[lin.ge_rows], sub.qp.ipm_iterations))
+        return sub, rho
+
+    monkeypatch.setattr(solver.SQPBackend, "step", counted_step)
+    monkeypatch.setattr(solver.SQPBackend, "_subproblem", recorded)
+    session = Session()
+    session.run_file(SESSIONS / "luxo.stw")
+    assert all(run.converged for run in session.runs)
+    guided = []
+    for attempts in steps:
+        first_guess = attempts[0][0] if attempts else None
+        for (_, bound, ipm), (guess, _, ipm_after) in zip(attempts, attempts[1:]):
+            from_refused = np.array_equal(guess, bound)
+            assert from_refused or np.array_equal(guess, first_guess)
+            if from_refused and not np.array_equal(bound, first_guess):
+                guided.append((ipm, ipm_after))
+    assert guided                                             # retries started from the refused rows ...
+    assert any(ipm > 0 and ipm_after == 0 for ipm, ipm_after in guided)   # ... and settled at once

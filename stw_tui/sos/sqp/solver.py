@@ -193,6 +193,7 @@ class SQPBackend(Backend):
         models: dict[str, Any] = {}   # the model Hessian of each mode: only the proximal term changes
         damping = 2.0 * inner.evaluator.damping
         shift = inner.shift
+        refused = None   # (mode, the rows that bound) of a refused hard QP with inequality rows
         for mode, prox, backtrack in attempts:
             clock = time.perf_counter()
             if mode not in models:
@@ -208,7 +209,11 @@ class SQPBackend(Backend):
             clock = time.perf_counter()
             # Gauss-Newton (2JᵀWJ, weights >= 0) plus a positive diagonal is positive definite
             convex = mode == "gauss_newton" and float(np.min(damping + prox, initial=1.0)) > 0
-            sub, rho_elastic = self._subproblem(la, H, ev, lin, rho_elastic, settings, counts, convex)
+            # A retry of the same mode differs in its proximal term only: the rows that bound in
+            # the refused attempt are a closer guess than the last step's (the arm's retries
+            # settle in one or two active-set passes instead of ~10 interior-point iterations).
+            guess = lin if refused is None or refused[0] != mode else replace(lin, working=refused[1])
+            sub, rho_elastic = self._subproblem(la, H, ev, guess, rho_elastic, settings, counts, convex)
             ms["solve"] += _lap(clock)
             if sub is None:
                 continue
@@ -231,6 +236,8 @@ class SQPBackend(Backend):
             if trial.alpha > 0:
                 break
             radius = max(floor, 0.5 * min(radius, float(np.abs(d).max(initial=0.0))))
+            if sub.qp.elastic is None and lin.ci.shape[0]:
+                refused = mode, la.vector(sub.working[lin.ge_rows].astype(float)) > 0.5
         if sub is None:
             raise StwError("the KKT system stayed singular under regularization: are two "
                            "constraints contradicting each other?")
