@@ -142,6 +142,11 @@ class _Trial:
     ratio: float = 0.0
 
 
+def _live(la: LinearAlgebra, mask: np.ndarray, rows: np.ndarray):
+    """A bool ``mask`` over every inequality row, on the live ``rows`` only, as a backend vector."""
+    return la.vector(mask[rows].astype(float)) > 0.5
+
+
 class SQPBackend(Backend):
     """The shared SQP. Subclasses implement :meth:`algebra` (and may override :meth:`evaluator`)."""
 
@@ -210,8 +215,8 @@ class SQPBackend(Backend):
             # Gauss-Newton (2JᵀWJ, weights >= 0) plus a positive diagonal is positive definite
             convex = mode == "gauss_newton" and float(np.min(damping + prox, initial=1.0)) > 0
             # A retry of the same mode differs in its proximal term only: the rows that bound in
-            # the refused attempt are a closer guess than the last step's (the arm's retries
-            # settle in one or two active-set passes instead of ~10 interior-point iterations).
+            # the refused attempt are a closer guess than the last step's (luxo's and acrobat's
+            # retries settle by active-set passes instead of 9-17 interior-point iterations).
             guess = lin if refused is None or refused[0] != mode else replace(lin, working=refused[1])
             sub, rho_elastic = self._subproblem(la, H, ev, guess, rho_elastic, settings, counts, convex)
             ms["solve"] += _lap(clock)
@@ -237,7 +242,7 @@ class SQPBackend(Backend):
                 break
             radius = max(floor, 0.5 * min(radius, float(np.abs(d).max(initial=0.0))))
             if sub.qp.elastic is None and lin.ci.shape[0]:
-                refused = mode, la.vector(sub.working[lin.ge_rows].astype(float)) > 0.5
+                refused = mode, _live(la, sub.working, lin.ge_rows)
         if sub is None:
             raise StwError("the KKT system stayed singular under regularization: are two "
                            "constraints contradicting each other?")
@@ -337,7 +342,7 @@ class SQPBackend(Backend):
                               la.rows(la.jacobian(ev, "eq"), eq_rows), la.vector(ev.c_eq[eq_rows]),
                               la.rows(la.jacobian(ev, "ge"), ge_rows), la.vector(ev.c_ge[ge_rows]),
                               la.vector(st.lam_eq[eq_rows]), la.vector(-st.lam_ge[ge_rows]),
-                              la.vector(st.working_set[ge_rows].astype(float)) > 0.5)
+                              _live(la, st.working_set, ge_rows))
 
     def _subproblem(self, la, H, ev, lin: _Linearization, rho_elastic: float, settings,
                     counts: _Counts, convex: bool = False) -> tuple[_Subproblem | None, float]:
