@@ -159,9 +159,12 @@ def test_iterate_runs_in_the_worker_and_updates_status_and_plots():
 
 
 def endless_jet() -> Session:
-    """The particle-jet scene with tolerances no solve meets: `iterate N` runs all N iterations."""
+    """The particle-jet scene with tolerances no solve meets and steps of at most 1e-6 per control
+    point (its motion is of unit size): `iterate N` runs all N iterations. (Uncapped, the solve
+    reaches its optimum in one step and its rounding floor a few later, where a step that no
+    longer lowers the merit ends it as stalled.)"""
     session = jet_without_iterate()
-    for line in ("set tol_violation 0", "set tol_kkt 0", "set tol_step 0"):
+    for line in ("set tol_violation 0", "set tol_kkt 0", "set tol_step 0", "backend scipy max_step=1e-6"):
         session.execute(line)
     return session
 
@@ -220,7 +223,7 @@ def test_a_replay_halts_and_says_so_when_its_solve_is_stopped(tmp_path):
     script = tmp_path / "endless.stw"
     script.write_text(JET.read_text().split("iterate")[0]
                       + "set tol_violation 0\nset tol_kkt 0\nset tol_step 0\n"
-                      + "iterate 100000\nconst k = 2\n")
+                      + "backend scipy max_step=1e-6\niterate 100000\nconst k = 2\n")   # (endless_jet)
     app = create_app(script)
 
     async def scenario(pilot):
@@ -230,9 +233,9 @@ def test_a_replay_halts_and_says_so_when_its_solve_is_stopped(tmp_path):
         assert app.session.runs[-1].status is Status.STOPPED
         assert "k" not in app.session.scene.constants          # the line after did not run
         text = support.log_text(app)
-        assert "replay halted: the solve at line 16 was stopped" in text, text
+        assert "replay halted: the solve at line 17 was stopped" in text, text
         assert "end of endless.stw" not in text
-        assert app.script.upcoming() == (17, "const k = 2")
+        assert app.script.upcoming() == (18, "const k = 2")
         await pilot.press("f7")                                 # the rest, on request
         await support.settle(pilot)
         assert app.session.scene.constants["k"] == 2

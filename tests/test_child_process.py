@@ -34,7 +34,8 @@ def solver():
     process.close()
 
 
-ENDLESS = "set tol_kkt 0\nset tol_violation 0\nset tol_step 0\n"   # no solve converges: it runs until stopped
+# no solve converges, and steps of at most 1e-6 keep it moving (test_app.endless_jet): it runs until stopped
+ENDLESS = "set tol_kkt 0\nset tol_violation 0\nset tol_step 0\nbackend scipy max_step=1e-6\n"
 
 
 def jet(endless: bool = False) -> Session:

@@ -75,6 +75,6 @@ def test_cat_chases_in_windows_but_runs_straight_with_full_knowledge():
     assert prints[("cx", 0.5)] < 1.5 and prints[("cy", 0.5)] < 1.0
     assert np.hypot(prints[("cx - mx", 2.0)], prints[("cy - my", 2.0)]) < 0.01
     speed = s.scene.dofs["cx"].curve.evaluate(np.linspace(0, 2, 20_001), 1)
-    assert speed.min() >= 0.0
+    assert speed.min() >= -1e-12   # (zero at the rest start, up to rounding)
     assert len(s.runs) == 2 and all(run.converged for run in s.runs)
     assert len(s.runs[-1].reports) >= 7            # one solve at each of the 7 positions

@@ -60,13 +60,18 @@ def test_session_converges_to_the_same_motion(registered, problem, linear):
 
 def test_arm_throw_with_joint_ranges_reaches_the_same_motion_as_scipy(registered):
     # Without joint ranges the two backends' 1e-14 differences in evaluation grew into different
-    # local optima of the throw (a wrist turning over or not); with them both take the same path.
+    # local optima of the throw (a wrist turning over or not); with them both reach the same one.
+    # (Not by the same iterates: the final solve's first QP is nearly singular, and its step
+    # differs with rounding; the scipy backend takes 8 or 10 iterations to the same optimum with
+    # SuperLU or the banded LU.)
     text = (SESSIONS / "arm_throw.stw").read_text()
     ref, got = Session(), Session()
     ref.run_text(text)
     got.run_text("backend torch device=cpu\n" + text)
-    assert [len(r.reports) for r in got.runs] == [len(r.reports) for r in ref.runs]
+    assert len(got.runs) == len(ref.runs)
     assert all(r.converged for r in got.runs + ref.runs)
+    for a, b in zip(ref.runs, got.runs):
+        assert b.reports[-1].objective == pytest.approx(a.reports[-1].objective, rel=1e-9)
     assert np.abs(got.scene.coefficient_vector() - ref.scene.coefficient_vector()).max() <= 1e-5
 
 

@@ -20,6 +20,7 @@ from stw_tui.sos.compressed import add, csc, csr, transpose
 from stw_tui.sos.products import GramPlan
 from stw_tui.sos.sparse_matvec import matvec
 from stw_tui.sos.sqp.algebra import KKTSystem, LinearAlgebra, SingularSystem
+from stw_scipy.banded import BAND_MAX
 from stw_scipy.csr_rows import select_rows, stack_rows
 from stw_scipy.ordering import Ordering, factorize
 
@@ -132,7 +133,7 @@ class BarrierKKT:
                     return ReplayedKKT(self.ordering, placed, data)
                 K = sps.csc_array((data, placed.indices, placed.indptr), shape=placed.shape)
                 K.has_canonical_format = True
-                system = SparseKKT(K, "direct", la.rtol, la.maxiter, la._orderings)
+                system = SparseKKT(K, "direct", la.rtol, la.maxiter, la._orderings, la.band_max)
                 self.ordering = next((o for o in la._orderings if o.fits(K, "COLAMD", {})), None)
                 return system
         return la.kkt(la.add(self.H, la.gram(self.Ai, q)), self.Ae, e, exact=True)
@@ -211,9 +212,9 @@ class SparseKKT(KKTSystem):
     with ``orderings`` (ordering.py), SuperLU's column ordering of K's structure is replayed."""
 
     def __init__(self, K: sps.csc_array, method: str, rtol: float, maxiter: int,
-                 orderings: list | None = None):
+                 orderings: list | None = None, band_max: int = 0):
         self.K, self.method, self.rtol, self.maxiter = K, method, rtol, maxiter
-        self.orderings = orderings
+        self.orderings, self.band_max = orderings, band_max
         self.iterations = self.fallbacks = 0
         self._lu = None
         if method == "direct":
@@ -222,7 +223,7 @@ class SparseKKT(KKTSystem):
     def _factorize(self):
         if self._lu is None:
             try:
-                self._lu = factorize(self.K, self.orderings)
+                self._lu = factorize(self.K, self.orderings, band_max=self.band_max)
             except RuntimeError as exc:   # "Factor is exactly singular"
                 raise SingularSystem(str(exc)) from exc
             self.iterations += 1
@@ -287,8 +288,11 @@ class ReplayedKKT(KKTSystem):
 class SparseAlgebra(LinearAlgebra):
     """numpy vectors, scipy sparse (CSR) matrices, KKT systems by SuperLU, MINRES or CG."""
 
-    def __init__(self, method: str = "direct", rtol: float = 1e-12, maxiter: int = 1000):
+    def __init__(self, method: str = "direct", rtol: float = 1e-12, maxiter: int = 1000,
+                 factor: str = "auto"):
         self.method, self.rtol, self.maxiter = method, rtol, maxiter
+        # direct factorizations: banded LU where a KKT's band is narrow (banded.py), else SuperLU
+        self.band_max = BAND_MAX if factor == "auto" else 0
         self._layouts: list = []   # KKT placements by sparsity structure (kkt_matrix)
         self._grams: list = []     # (structure, GramPlan) of recent gram() factors
         self._transposes: list = []   # (matrix, its transpose) of recent rmatvec() calls
@@ -415,4 +419,4 @@ class SparseAlgebra(LinearAlgebra):
 
     def kkt(self, H, A, e, exact=False):
         return SparseKKT(kkt_matrix(H, A, e, self._layouts), "direct" if exact else self.method,
-                         self.rtol, self.maxiter, self._orderings)
+                         self.rtol, self.maxiter, self._orderings, self.band_max)

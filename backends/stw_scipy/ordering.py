@@ -27,6 +27,8 @@ import numpy as np
 import scipy.sparse as sps
 import scipy.sparse.linalg as spla
 
+from stw_scipy.banded import BandPlan
+
 ORDERINGS_KEPT = 12   # structures remembered: interior point, working sets, curvature tests
 
 
@@ -94,14 +96,18 @@ class PermutedLU:
         return self.lu.solve(b)[self.perm]
 
 
-def factorize(K: sps.csc_array, orderings: list | None, spec: str = "COLAMD",
-              **options) -> PermutedLU:
+def factorize(K: sps.csc_array, orderings: list | None, spec: str = "COLAMD", *,
+              band_max: int = 0, **options):
     """splu(K, permc_spec=spec, **options), replaying the ordering of K's structure when
     ``orderings`` (most recent first) holds it, and remembering it there otherwise (splu sorts a
     non-canonical K in place first: its ordering is not remembered).
 
+    ``band_max`` > 0: a KKT system (COLAMD, no other options) whose structure is a band of at
+    most that half-width in reverse Cuthill-McKee order is factorized by LAPACK's banded LU
+    instead (banded.py); its plan is remembered in ``orderings`` like an ordering.
+
     Raises:
-        RuntimeError: SuperLU's "Factor is exactly singular".
+        RuntimeError: SuperLU's "Factor is exactly singular" (or a banded LU's zero pivot).
     """
     if orderings is None or not K.has_canonical_format:
         return PermutedLU(spla.splu(K, permc_spec=spec, **options), None)
@@ -109,6 +115,12 @@ def factorize(K: sps.csc_array, orderings: list | None, spec: str = "COLAMD",
         if ordering.fits(K, spec, options):
             orderings.insert(0, orderings.pop(i))
             return ordering.factorize(K)
+    if band_max and spec == BandPlan.spec and options == BandPlan.options:
+        plan = BandPlan.of(K, band_max)
+        if plan is not None:
+            orderings.insert(0, plan)
+            del orderings[ORDERINGS_KEPT:]
+            return plan.factorize(K)
     lu = spla.splu(K, permc_spec=spec, **options)
     orderings.insert(0, Ordering(K, lu.perm_c, spec, options))
     del orderings[ORDERINGS_KEPT:]

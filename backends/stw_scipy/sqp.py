@@ -18,14 +18,19 @@ LINEAR_OPTIONS = (
     BackendOption("lin_tol", float, 1e-12, "relative tolerance of the iterative solvers", minimum=0.0,
                   exclusive=True),
     BackendOption("lin_maxiter", int, 1000, "iteration limit of the iterative solvers", minimum=1),
+    BackendOption("factor", str, "auto", "direct factorizations: auto (LAPACK's banded LU where a "
+                  "KKT system is a narrow band in reverse Cuthill-McKee order, else SuperLU) or "
+                  "superlu (always)", ("auto", "superlu")),
 )
 
 
 class ScipyBackend(SQPBackend):
-    """SQP with a sparse KKT solve: direct (SuperLU), MINRES, or CG on the least-squares form."""
+    """SQP with a sparse KKT solve: direct (banded LU or SuperLU), MINRES, or CG on the
+    least-squares form."""
 
     name = "scipy"
     options = LINEAR_OPTIONS + SQP_OPTIONS
 
     def algebra(self, problem) -> SparseAlgebra:
-        return SparseAlgebra(self.config["solver"], self.config["lin_tol"], self.config["lin_maxiter"])
+        return SparseAlgebra(self.config["solver"], self.config["lin_tol"], self.config["lin_maxiter"],
+                             self.config["factor"])

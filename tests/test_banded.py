@@ -1,0 +1,146 @@
+"""The banded LU of KKT systems (backends/stw_scipy/banded.py) against SuperLU and dense LAPACK."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+import scipy.sparse as sps
+import scipy.sparse.linalg as spla
+
+from stw_scipy.banded import BAND_MAX, BandedLU, BandPlan
+from stw_scipy.linear import SparseAlgebra, kkt_matrix
+from stw_scipy.ordering import PermutedLU, factorize
+
+
+def _time_banded_kkt(rng, dofs: int, points: int, rows: int, shuffle: bool = True):
+    """A KKT system shaped like a window problem's: ``dofs`` curves of ``points`` control points,
+    each coupled with the next three of every curve (H), and ``rows`` constraint rows that each
+    touch four consecutive control points of two curves; the unknowns in a shuffled order (RCM
+    has to find the band)."""
+    n = dofs * points
+    index = np.arange(n).reshape(dofs, points)
+    Hr, Hc = [], []
+    for k in range(points):
+        near = index[:, k:k + 4].ravel()
+        for a in index[:, k]:
+            Hr += [int(a)] * near.size
+            Hc += near.tolist()
+    H = sps.coo_array((rng.standard_normal(len(Hr)), (Hr, Hc)), shape=(n, n)).tocsr()
+    H = sps.csr_array(H + H.T + 4.0 * sps.eye_array(n))
+    Ar, Ac = [], []
+    for r in range(rows):
+        k = int(rng.integers(0, points - 3))
+        for d in rng.choice(dofs, min(2, dofs), replace=False):
+            Ar += [r] * 4
+            Ac += index[d, k:k + 4].tolist()
+    A = sps.coo_array((rng.standard_normal(len(Ar)), (Ar, Ac)), shape=(rows, n)).tocsr()
+    A.sum_duplicates()
+    if shuffle:
+        p = rng.permutation(n)
+        H, A = sps.csr_array(H[p][:, p]), sps.csr_array(A[:, p])
+    return H, A
+
+
+def test_banded_lu_solves_kkt_systems_as_superlu_does_to_rounding():
+    """Indefinite KKT systems with the -1e-10 (2,2) block of the SQP's QPs: the banded LU's
+    solution agrees with SuperLU's and with LAPACK's dense LU to rounding (relative 1e-9; these
+    systems' condition numbers are 1e2-1e4), for a vector and for a matrix of right-hand sides."""
+    rng = np.random.default_rng(3)
+    for dofs, points, rows in ((1, 12, 4), (3, 20, 15), (4, 27, 30)):
+        H, A = _time_banded_kkt(rng, dofs, points, rows)
+        K = kkt_matrix(H, A, 1e-10)
+        plan = BandPlan.of(K)
+        assert plan is not None   # a band of a few spans of every curve: 5, 26 and 44 wide
+        lu = plan.factorize(K)
+        b = rng.standard_normal(K.shape[0])
+        B = rng.standard_normal((K.shape[0], 3))
+        dense = np.linalg.solve(K.toarray(), b)
+        for got, want in ((lu.solve(b), spla.splu(K).solve(b)), (lu.solve(b), dense),
+                          (lu.solve(B), np.linalg.solve(K.toarray(), B))):
+            assert np.abs(got - want).max() <= 1e-9 * np.abs(want).max()
+        assert np.abs(K @ lu.solve(b) - b).max() <= 1e-9 * np.abs(b).max()
+
+
+def test_a_plan_is_made_once_per_structure_and_replays_from_values_alone():
+    """The next K of a structure is factorized by the remembered plan (no new RCM), bit for bit as
+    a plan made afresh would, also from its CSC values alone (the interior-point systems)."""
+    rng = np.random.default_rng(4)
+    H, A = _time_banded_kkt(rng, 3, 15, 10)
+    plans: list = []
+    for _ in range(5):
+        H.data[:] = rng.standard_normal(H.nnz)
+        A.data[:] = rng.standard_normal(A.nnz)
+        K = kkt_matrix(sps.csr_array(H + H.T + 8.0 * sps.eye_array(H.shape[0])), A, 1e-10)
+        b = rng.standard_normal(K.shape[0])
+        lu = factorize(K, plans, band_max=BAND_MAX)
+        assert isinstance(lu, BandedLU) and len(plans) == 1
+        fresh = BandPlan.of(K)
+        assert np.array_equal(lu.solve(b), fresh.factorize_values(K.data).solve(b))
+        assert np.array_equal(lu.solve(b), plans[0].factorize_values(K.data).solve(b))
+
+
+def test_wide_structures_stay_with_superlu_and_superlu_can_be_asked_for():
+    """A structure wider than the limit (dense coupling) gets no plan and is factorized by
+    SuperLU, as every KKT is when banding is off (band_max 0, the option factor=superlu)."""
+    rng = np.random.default_rng(5)
+    n, m = 70, 20
+    H = sps.random_array((n, n), density=0.5, rng=rng, format="csr")
+    K = kkt_matrix(sps.csr_array(H + H.T + n * sps.eye_array(n)),
+                   sps.random_array((m, n), density=0.5, rng=rng, format="csr"), 1e-10)
+    assert BandPlan.of(K) is None
+    assert isinstance(factorize(K, [], band_max=BAND_MAX), PermutedLU)
+    H, A = _time_banded_kkt(rng, 2, 10, 5)
+    K = kkt_matrix(H, A, 1e-10)
+    assert isinstance(factorize(K, [], band_max=BAND_MAX), BandedLU)
+    assert isinstance(factorize(K, []), PermutedLU)
+    assert SparseAlgebra(factor="superlu").band_max == 0 and SparseAlgebra().band_max == BAND_MAX
+
+
+def test_an_exactly_singular_kkt_is_refused_as_superlu_refuses_it():
+    """A zero pivot raises RuntimeError, which the KKT systems turn into SingularSystem (the QP then
+    regularizes), as SuperLU's "Factor is exactly singular" does."""
+    from stw_tui.sos.sqp.algebra import SingularSystem
+
+    rng = np.random.default_rng(6)
+    H, A = _time_banded_kkt(rng, 2, 10, 5, shuffle=False)
+    keep = np.ones(H.shape[0])
+    keep[3] = 0.0                       # an unknown that nothing touches: a zero column of K
+    D = sps.diags_array(keep)
+    H, A = sps.csr_array(D @ H @ D), sps.csr_array(A @ D)
+    H.eliminate_zeros()
+    A.eliminate_zeros()
+    K = kkt_matrix(H, A, 1e-10)
+    with pytest.raises(RuntimeError):
+        spla.splu(K)
+    with pytest.raises(RuntimeError):
+        BandPlan.of(K).factorize(K)
+    with pytest.raises(SingularSystem):
+        SparseAlgebra().kkt(H, A, 1e-10, exact=True)
+
+
+def test_the_scipy_backend_reaches_the_same_motion_with_either_factorization(monkeypatch):
+    """A bundled session's first solve, banded (the default) and with factor=superlu: the same
+    iterations and control points within 1e-9 (the factorizations differ in rounding only)."""
+    from pathlib import Path
+
+    import stw_scipy.banded as banded
+
+    from stw_tui.session.bench import _fresh, split_at_first_iterate
+    from stw_tui.session.session import Session
+
+    text = (Path(__file__).parent.parent / "sessions" / "point_mass_2d.stw").read_text()
+    pre, n = split_at_first_iterate(text)
+    setup = Session()
+    setup.run_text(pre)
+    runs, banded_lus = {}, []
+    made = banded.BandPlan.factorize_values
+    monkeypatch.setattr(banded.BandPlan, "factorize_values",
+                        lambda plan, data: banded_lus.append(1) or made(plan, data))
+    for factor in ("auto", "superlu"):
+        session = _fresh(setup, f"scipy solver=direct factor={factor}")
+        session.execute(f"iterate {n}")
+        runs[factor] = (len(session.runs[-1].reports), session.scene.coefficient_vector().copy(),
+                        len(banded_lus))
+    assert runs["auto"][2] > 0 and runs["superlu"][2] == runs["auto"][2]   # banded only by default
+    assert runs["auto"][0] == runs["superlu"][0]
+    assert np.abs(runs["auto"][1] - runs["superlu"][1]).max() <= 1e-9
