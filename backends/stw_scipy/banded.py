@@ -23,6 +23,8 @@ import scipy.sparse as sps
 from scipy.linalg import lapack
 from scipy.sparse.csgraph import reverse_cuthill_mckee
 
+from stw_tui.sos.compressed import same_structure, structure
+
 BAND_MAX = 48   # widest half-bandwidth factorized banded (the measured break-even is about 60)
 
 
@@ -39,8 +41,7 @@ class BandPlan:
         self.rows = 3 * width + 1   # LAPACK's LDAB: kl + ku + 1 rows of K', kl more for the fill of pivoting
         # entry (i, j) of K' sits at row kl + ku + i - j, column j of the band, stored by columns
         self.at = (2 * width + i - j) + j * self.rows
-        nnz = K.indptr[-1]
-        self.key = (K.shape, K.indptr.copy(), K.indices[:nnz].copy())
+        self.key = structure(K)
 
     @classmethod
     def of(cls, K: sps.csc_array, band_max: int = BAND_MAX) -> "BandPlan | None":
@@ -59,11 +60,7 @@ class BandPlan:
 
     def fits(self, K: sps.csc_array, spec: str, options: dict) -> bool:
         """Whether K has this structure and stands for SuperLU's factorization of a KKT."""
-        shape, indptr, indices = self.key
-        nnz = K.indptr[-1]
-        return (spec == self.spec and options == self.options and K.shape == shape
-                and nnz == indices.size and np.array_equal(K.indptr, indptr)
-                and np.array_equal(K.indices[:nnz], indices))
+        return spec == self.spec and options == self.options and same_structure(K, self.key)
 
     def factorize(self, K: sps.csc_array) -> "BandedLU":
         """The banded LU of K (of this structure)."""

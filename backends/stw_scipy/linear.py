@@ -16,7 +16,7 @@ import scipy.sparse as sps
 import scipy.sparse.linalg as spla
 from scipy.linalg import lapack
 
-from stw_tui.sos.compressed import add, csc, csr, transpose
+from stw_tui.sos.compressed import add, csc, csr, same_structure, structure, transpose
 from stw_tui.sos.products import GramPlan
 from stw_tui.sos.sparse_matvec import matvec
 from stw_tui.sos.sqp.algebra import KKTSystem, LinearAlgebra, SingularSystem
@@ -169,11 +169,11 @@ class _BarrierPlacement:
         placed.at_s, placed.at_a, placed.at_e = np.split(at, [union.size, union.size + 2 * Ae.nnz])
         placed.at_h, placed.at_g = placed.at_s[group[:h_key.size]], placed.at_s[group[h_key.size:]]
         placed.indices, placed.indptr, placed.shape = layout.indices, layout.indptr, layout.shape
-        placed.key = (_structure(H), _structure(plan), _structure(Ae))
+        placed.key = (structure(H), structure(plan), structure(Ae))
         return placed
 
     def fits(self, H: sps.csr_array, plan: GramPlan, Ae: sps.csr_array) -> bool:
-        return all(_same_structure(m, key) for m, key in zip((H, plan, Ae), self.key))
+        return all(same_structure(m, key) for m, key in zip((H, plan, Ae), self.key))
 
     def values(self, H: sps.csr_array, Ae: sps.csr_array) -> np.ndarray:
         """K's data with H's and Aₑ's values in place, zeros where the Gram values and -e go."""
@@ -182,17 +182,6 @@ class _BarrierPlacement:
         data[self.at_a] = np.concatenate([a, a])
         data[self.at_h] = H.data[:H.nnz]
         return data
-
-
-def _structure(m) -> tuple:
-    return m.shape, m.indptr.copy(), m.indices[:m.indptr[-1]].copy()
-
-
-def _same_structure(m, key) -> bool:
-    shape, indptr, indices = key
-    nnz = m.indptr[-1]
-    return (m.shape == shape and nnz == indices.size and np.array_equal(m.indptr, indptr)
-            and np.array_equal(m.indices[:nnz], indices))
 
 
 def _csr(m) -> sps.csr_array:
@@ -365,7 +354,7 @@ class SparseAlgebra(LinearAlgebra):
 
     def gram_plan(self, a: sps.csr_array) -> GramPlan:
         """The Gram plan of ``a``'s structure (made once, kept for the next few structures)."""
-        plan = next((p for key, p in self._grams if _same_structure(a, key)), None)
+        plan = next((p for key, p in self._grams if same_structure(a, key)), None)
         if plan is None:
             plan = GramPlan(a)
             self._grams.insert(0, ((a.shape, a.indptr.copy(), a.indices[:a.nnz].copy()), plan))

@@ -28,6 +28,7 @@ import scipy.sparse as sps
 import scipy.sparse.linalg as spla
 
 from stw_scipy.banded import BandPlan
+from stw_tui.sos.compressed import same_structure, structure
 
 ORDERINGS_KEPT = 12   # structures remembered: interior point, working sets, curvature tests
 
@@ -49,16 +50,12 @@ class Ordering:
         # K's storage position of each entry of K', column by column in K's stored row order
         self.source = np.repeat(K.indptr[old] - self.indptr[:-1], counts) + np.arange(nnz)
         self.indices = self.perm[K.indices[self.source]].astype(np.intc)
-        self.key = (K.shape, K.indptr.copy(), K.indices[:nnz].copy())
+        self.key = structure(K)
         self._permuted = None   # K' (factorize_values), made on first use
 
     def fits(self, K: sps.csc_array, spec: str, options: dict) -> bool:
         """Whether K has this structure and is to be factorized the same way."""
-        shape, indptr, indices = self.key
-        nnz = K.indptr[-1]
-        return (spec == self.spec and options == self.options and K.shape == shape
-                and nnz == indices.size and np.array_equal(K.indptr, indptr)
-                and np.array_equal(K.indices[:nnz], indices))
+        return spec == self.spec and options == self.options and same_structure(K, self.key)
 
     def factorize(self, K: sps.csc_array) -> "PermutedLU":
         """What ``splu(K, permc_spec=spec, **options)`` gives, bit for bit, without the ordering."""

@@ -98,3 +98,17 @@ def add(a, b):
                   indptr, indices, data)
     nnz = int(indptr[-1])
     return csr(data[:nnz], indices[:nnz], indptr, a.shape)
+
+
+def structure(m) -> tuple:
+    """A compressed array's sparsity structure (shape, pointers, indices; copies), to recognize
+    the next array of the same structure by :func:`same_structure`."""
+    return m.shape, m.indptr.copy(), m.indices[:m.indptr[-1]].copy()
+
+
+def same_structure(m, key: tuple) -> bool:
+    """Whether ``m`` has the structure ``key`` (:func:`structure`) of an earlier array."""
+    shape, indptr, indices = key
+    nnz = m.indptr[-1]
+    return (m.shape == shape and nnz == indices.size and np.array_equal(m.indptr, indptr)
+            and np.array_equal(m.indices[:nnz], indices))
