@@ -551,3 +551,36 @@ def test_the_widest_gram_diagonal_is_the_products_own_number():
         got = la.max_gram_diagonal(A)
         assert got == LinearAlgebra.max_gram_diagonal(la, A)            # bit for bit
         assert got == pytest.approx(float(((A.toarray() ** 2).sum(0)).max(initial=0.0)), rel=1e-12)
+
+
+CATCH = """
+time 0 2 knots=20
+dof cx, cy
+constraint start: cx = 0, cy = 0, cx' = 0, cy' = 0 @ 0
+constraint catch: cx = 3, cy = 1 @ 2
+objective effort: cx'', cy''
+"""
+
+
+def test_a_limited_step_the_model_predicted_exactly_lifts_the_limit(monkeypatch):
+    """A QP (linear constraints, quadratic objective) whose first step the limit cuts (the cat
+    runs 3 m, the limit starts at 0.5): the model predicts the merit exactly along it (ratio 1 to
+    rounding), so the limit goes to its ceiling and the next step is the QP's own, the solution
+    at the second iteration, where doubling the limit took three."""
+    from stw_tui.sos.sqp import solver
+
+    fast = _solve(CATCH, "scipy", 10)
+    monkeypatch.setattr(solver, "RATIO_EXACT", -1.0)   # doubling only
+    slow = _solve(CATCH, "scipy", 10)
+    assert [r.converged for r in fast.runs[-1].reports] == [False, True]
+    assert len(slow.runs[-1].reports) == 3 and slow.runs[-1].converged
+    assert fast.runs[-1].reports[0].step_length == 1.0
+    # The Euler-Lagrange solution, which the cubic B-spline holds exactly: x'''' = 0 with x(0) =
+    # x'(0) = 0, x(2) = 3 and the natural end x''(2) = 0 give x = 9/8 t^2 - 3/16 t^3, and y = x/3.
+    # Both stop once the KKT residual is below tol_kkt (1e-6): within 1e-6 of it.
+    t = np.linspace(0, 2, 101)
+    exact = 9 / 8 * t ** 2 - 3 / 16 * t ** 3
+    for session in (fast, slow):
+        x, y = (session.scene.dofs[d].curve.evaluate(t) for d in ("cx", "cy"))
+        np.testing.assert_allclose(x, exact, atol=1e-6)
+        np.testing.assert_allclose(y, exact / 3, atol=1e-6)

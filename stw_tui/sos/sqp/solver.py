@@ -59,6 +59,7 @@ PROX_MIN, PROX_MAX = 1e-10, 1e8   # range of the adaptive proximal (Levenberg-Ma
 RETRIES = 5              # a refused full step is retried with 10x, 100x, ... heavier proximal terms
 ETA = 1e-4               # Armijo: accept a step whose merit decrease is this share of the slope's
 RATIO_POOR, RATIO_GOOD = 0.25, 0.75   # trust-radius update: shrink below, grow above (when it bound)
+RATIO_EXACT = 1e-9      # |ratio - 1| up to which the model predicted a step exactly (rounding)
 RADIUS_FLOOR, RADIUS_CEILING = 1e-6, 1e2   # the step limit stays within these multiples of its start
 MIN_STEP = 1e-8          # smallest backtracking step before declaring a stall
 ACTIVE_FRACTION = 1e-6   # an inequality whose multiplier exceeds this share of the largest binds
@@ -323,6 +324,12 @@ class SQPBackend(Backend):
         taken = trial.alpha * float(np.abs(d).max(initial=0.0))
         if trial.alpha == 0.0 or trial.ratio < RATIO_POOR:
             return max(floor, 0.5 * min(radius, taken)) if taken > 0 else radius
+        if trial.alpha == 1.0 and taken >= 0.99 * radius and abs(trial.ratio - 1.0) <= RATIO_EXACT:
+            # A step stopped by the limit along which the model predicted the merit exactly: the
+            # problem is a QP there (linear constraints, quadratic objective), and doubling the
+            # limit step by step only delays the step the model already has (cat_mouse's full
+            # solve: 3 iterations to 2). Nonlinear sessions' limited steps miss 1 by 1.7e-4 or more.
+            return ceiling
         if trial.ratio > RATIO_GOOD:
             return min(ceiling, 2.0 * radius)
         if trial.alpha == 1.0 and taken >= 0.99 * radius:
