@@ -8,8 +8,9 @@ There LAPACK's banded LU with partial pivoting costs a fraction of SuperLU's gen
 whose per-call analysis dominates at these sizes (same-run medians, this machine): the arm's
 interior-point systems, 184 rows, half-width 38: 114 µs against 240; acrobat's, 742 rows,
 half-width 23: 345 µs against 1.7 ms; luxo's, 295 rows: 189 µs against 744; the point mass's,
-46 rows: 9 µs against 101. Basketball's systems are wider (half-width 71-85) and slower banded
-(2.1 ms against 1.8): a structure wider than BAND_MAX stays with SuperLU.
+46 rows: 9 µs against 101. Basketball's systems are wider (half-width 56-87, 603-714 rows), where
+the two cost about the same (0.9-2.6 ms banded, 0.9-2.9 ms SuperLU): a structure wider than
+BAND_MAX stays with SuperLU.
 
 A :class:`BandPlan` is worked out once per sparsity structure (the permutation and where each of
 K's stored entries goes in LAPACK's band storage), so the next K of that structure is one
@@ -25,7 +26,7 @@ from scipy.sparse.csgraph import reverse_cuthill_mckee
 
 from stw_tui.sos.compressed import same_structure, structure
 
-BAND_MAX = 48   # widest half-bandwidth factorized banded (the measured break-even is about 60)
+BAND_MAX = 48   # widest half-bandwidth factorized banded (from 56 on, no faster than SuperLU)
 
 
 class BandPlan:

@@ -197,8 +197,9 @@ def _canonical(m):
 
 
 class SparseKKT(KKTSystem):
-    """K solved by SuperLU (``direct``) or by MINRES / CG with a factorization as fallback;
-    with ``orderings`` (ordering.py), SuperLU's column ordering of K's structure is replayed."""
+    """K solved by a factorization (``direct``) or by MINRES / CG with a factorization as
+    fallback; with ``orderings`` (ordering.py), SuperLU's column ordering of K's structure is
+    replayed, and with ``band_max`` a K that is a band that narrow is factorized banded instead."""
 
     def __init__(self, K: sps.csc_array, method: str, rtol: float, maxiter: int,
                  orderings: list | None = None, band_max: int = 0):
@@ -275,7 +276,8 @@ class ReplayedKKT(KKTSystem):
 
 
 class SparseAlgebra(LinearAlgebra):
-    """numpy vectors, scipy sparse (CSR) matrices, KKT systems by SuperLU, MINRES or CG."""
+    """numpy vectors, scipy sparse (CSR) matrices, KKT systems by banded LU or SuperLU, MINRES
+    or CG."""
 
     def __init__(self, method: str = "direct", rtol: float = 1e-12, maxiter: int = 1000,
                  factor: str = "auto"):
@@ -357,7 +359,7 @@ class SparseAlgebra(LinearAlgebra):
         plan = next((p for key, p in self._grams if same_structure(a, key)), None)
         if plan is None:
             plan = GramPlan(a)
-            self._grams.insert(0, ((a.shape, a.indptr.copy(), a.indices[:a.nnz].copy()), plan))
+            self._grams.insert(0, (structure(a), plan))
             del self._grams[GRAMS_KEPT:]
         return plan
 
