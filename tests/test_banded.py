@@ -144,3 +144,79 @@ def test_the_scipy_backend_reaches_the_same_motion_with_either_factorization(mon
     assert runs["auto"][2] > 0 and runs["superlu"][2] == runs["auto"][2]   # banded only by default
     assert runs["auto"][0] == runs["superlu"][0]
     assert np.abs(runs["auto"][1] - runs["superlu"][1]).max() <= 1e-9
+
+
+def _pd_candidates(rng):
+    """Symmetric matrices shaped like the curvature test's H + ρAᵀA (a band in a shuffled order):
+    positive definite, indefinite (a negative shift), and one with a NaN."""
+    H, A = _time_banded_kkt(rng, 4, 30, 60)
+    base = sps.csr_array(H @ H.T + 1e4 * (A.T @ A))
+    n = base.shape[0]
+    lowest = float(np.linalg.eigvalsh(base.toarray()).min())
+    shifts = (1e-3, -0.5 * lowest, -1.5 * lowest, -(lowest + 10.0))   # definite twice, then not
+    return n, [sps.csr_array(base + s * sps.eye_array(n)) for s in shifts]
+
+
+def test_banded_cholesky_tells_positive_definite_matrices_as_their_eigenvalues_do():
+    """The curvature test's banded Cholesky (CholeskyBandPlan) against the smallest eigenvalue
+    (numpy's dense eigvalsh, an independent computation), on matrices far from the boundary both
+    ways; and against the algebra's own test of that size (LAPACK's dense Cholesky)."""
+    from stw_scipy.banded import CholeskyBandPlan
+
+    rng = np.random.default_rng(8)
+    n, matrices = _pd_candidates(rng)
+    superlu = SparseAlgebra(factor="superlu")
+    answers = []
+    for M in matrices:
+        plan = CholeskyBandPlan.of(M)
+        assert plan is not None and plan.fits(M)
+        lowest = float(np.linalg.eigvalsh(M.toarray()).min())
+        assert abs(lowest) > 1e-9 * float(np.abs(M.diagonal()).max())   # not within rounding of singular
+        answers.append(plan.positive_definite(M))
+        assert answers[-1] == (lowest > 0) == superlu.positive_definite(M)
+    assert answers == [True, True, False, False]
+    bad = matrices[0].copy()
+    bad.data[5] = np.nan
+    assert not CholeskyBandPlan.of(bad).positive_definite(bad)
+
+
+def test_the_curvature_test_takes_the_banded_cholesky_above_the_dense_size(monkeypatch):
+    """Above DENSE_TEST_MAX rows the default algebra tests by the banded Cholesky (a plan made once
+    per structure), factor=superlu by SuperLU's LDLᵀ; both answer the same."""
+    import stw_scipy.banded as banded
+    import stw_scipy.linear as linear
+
+    rng = np.random.default_rng(9)
+    H, A = _time_banded_kkt(rng, 5, 70, 100)
+    M = sps.csr_array(H @ H.T + 1e4 * (A.T @ A) + 1e-3 * sps.eye_array(H.shape[0]))
+    assert M.shape[0] > linear.DENSE_TEST_MAX
+    made = []
+    of = banded.CholeskyBandPlan.of.__func__
+    monkeypatch.setattr(banded.CholeskyBandPlan, "of",
+                        classmethod(lambda cls, m, band_max=banded.CHOLESKY_BAND_MAX:
+                                    made.append(1) or of(cls, m, band_max)))
+    la = SparseAlgebra()
+    assert la.positive_definite(M) and la.positive_definite(M)
+    assert len(made) == 1 and la._cholesky_plans[0][1] is not None
+    assert SparseAlgebra(factor="superlu").positive_definite(M) and len(made) == 1
+
+
+def test_the_solver_runs_blas_on_one_thread_unless_told_otherwise():
+    """Once a scipy algebra is made, numpy's and scipy's OpenBLAS use one thread; a thread count
+    the user set in the environment is left as it is. (In child processes: the limit is global.)"""
+    import subprocess
+    import sys
+
+    from conftest import ROOT
+
+    probe = ("from threadpoolctl import threadpool_info\n"
+             "from stw_scipy.sqp import ScipyBackend\n"
+             "ScipyBackend().algebra(None)\n"
+             "print(sorted({i['num_threads'] for i in threadpool_info() if i['user_api'] == 'blas'}))\n")
+    env = {k: v for k, v in __import__("os").environ.items()
+           if k not in ("OPENBLAS_NUM_THREADS", "OMP_NUM_THREADS", "MKL_NUM_THREADS")}
+    env["PYTHONPATH"] = f"{ROOT}:{ROOT / 'backends'}"
+    run = lambda extra: subprocess.run([sys.executable, "-c", probe], env={**env, **extra},  # noqa: E731
+                                       capture_output=True, text=True, timeout=120)
+    assert run({}).stdout.strip() == "[1]", run({}).stderr
+    assert run({"OPENBLAS_NUM_THREADS": "2"}).stdout.strip() == "[2]"

@@ -27,6 +27,9 @@ from scipy.sparse.csgraph import reverse_cuthill_mckee
 from stw_tui.sos.compressed import same_structure, structure
 
 BAND_MAX = 48   # widest half-bandwidth factorized banded (from 56 on, no faster than SuperLU)
+# ... and tested for positive definiteness by a banded Cholesky, where SuperLU's LDLᵀ costs 2x
+# as much at half-width 83 (basketball, 459 rows) and 5-7x at 41-62 (459-6000 rows)
+CHOLESKY_BAND_MAX = 96
 
 
 class BandPlan:
@@ -98,3 +101,45 @@ class BandedLU:
         if info < 0:   # pragma: no cover - an argument LAPACK refuses: a bug here
             raise ValueError(f"dgbtrs: illegal argument {-info}")
         return x[self.rank]
+
+
+class CholeskyBandPlan:
+    """The positive-definiteness test of symmetric matrices of one sparsity structure by LAPACK's
+    banded Cholesky (``dpbtrf``) in RCM order: where each stored entry of the lower triangle of
+    M' = P M Pᵀ lands in the band storage (the upper triangle's entries are its mirror)."""
+
+    def __init__(self, m: sps.csr_array, width: int, keep: np.ndarray, at: np.ndarray):
+        self.width, self.keep, self.at, self.n = width, keep, at, m.shape[0]
+        self.key = structure(m)
+
+    @classmethod
+    def of(cls, m: sps.csr_array, band_max: int = CHOLESKY_BAND_MAX) -> "CholeskyBandPlan | None":
+        """The plan for ``m``'s structure; None when its RCM band is wider than ``band_max`` or an
+        entry of its lower triangle is stored twice (scipy would sum the two)."""
+        n, nnz = m.shape[0], m.indptr[-1]
+        if n == 0:
+            return None
+        perm = reverse_cuthill_mckee(m, symmetric_mode=True)
+        rank = np.empty(n, dtype=np.intp)
+        rank[perm] = np.arange(n)
+        i, j = rank[np.repeat(np.arange(n), np.diff(m.indptr))], rank[m.indices[:nnz]]
+        width = int(np.abs(i - j).max(initial=0))
+        if width > band_max:
+            return None
+        keep = np.flatnonzero(i >= j)
+        at = (i - j)[keep] + j[keep] * (width + 1)   # row i - j, column j of the lower band
+        if np.bincount(at).max(initial=0) > 1:
+            return None
+        return cls(m, width, keep, at)
+
+    def fits(self, m: sps.csr_array) -> bool:
+        """Whether ``m`` has this plan's structure."""
+        return same_structure(m, self.key)
+
+    def positive_definite(self, m: sps.csr_array) -> bool:
+        """Whether ``m`` (of this structure) is positive definite: its Cholesky factorization runs
+        to the end with finite pivots (LAPACK may carry a NaN through instead of stopping)."""
+        band = np.zeros((self.width + 1, self.n), order="F")
+        band.T.reshape(-1)[self.at] = m.data[self.keep]
+        factor, info = lapack.dpbtrf(band, lower=1, overwrite_ab=1)
+        return info == 0 and bool(np.isfinite(factor[0]).all())

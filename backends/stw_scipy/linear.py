@@ -20,7 +20,7 @@ from stw_tui.sos.compressed import add, csc, csr, same_structure, structure, tra
 from stw_tui.sos.products import GramPlan
 from stw_tui.sos.sparse_matvec import matvec
 from stw_tui.sos.sqp.algebra import KKTSystem, LinearAlgebra, SingularSystem
-from stw_scipy.banded import BAND_MAX
+from stw_scipy.banded import BAND_MAX, CholeskyBandPlan
 from stw_scipy.csr_rows import select_rows, stack_rows
 from stw_scipy.ordering import Ordering, factorize
 
@@ -66,6 +66,7 @@ LAYOUTS_KEPT = 8   # KKT structures remembered per algebra (Newton / Gauss-Newto
 GRAMS_KEPT = 4     # structures of interior-point inequality rows remembered per algebra
 TRANSPOSES_KEPT = 4
 PLACEMENTS_KEPT = 4   # interior-point KKT structures remembered per algebra
+CHOLESKY_PLANS_KEPT = 4   # structures of positive-definiteness tests remembered per algebra
 
 
 class _Layout:
@@ -289,6 +290,7 @@ class SparseAlgebra(LinearAlgebra):
         self._transposes: list = []   # (matrix, its transpose) of recent rmatvec() calls
         self._placements: list = []   # interior-point KKT placements (BarrierKKT)
         self._orderings: list = []    # SuperLU column orderings by KKT structure (ordering.py)
+        self._cholesky_plans: list = []   # (structure, banded test or None: too wide) (banded.py)
 
     def vector(self, values):
         return np.array(values, dtype=float)
@@ -397,6 +399,17 @@ class SparseAlgebra(LinearAlgebra):
             # LAPACK may carry a NaN through instead of stopping: a NaN entry reaches a pivot.
             factor, info = lapack.dpotrf(m.toarray(), lower=1, overwrite_a=1, clean=0)
             return info == 0 and bool(np.isfinite(factor.diagonal()).all())
+        if self.band_max:
+            # LAPACK's banded Cholesky where m is a narrow band in RCM order (banded.py): on
+            # basketball's 459 rows, half-width 83, 0.56 ms against the LDLᵀ's 1.2 ms, and 0.07
+            # against 1.1 where it stops at an early pivot (not positive definite)
+            plan = next((p for key, p in self._cholesky_plans if same_structure(m, key)), False)
+            if plan is False:
+                plan = CholeskyBandPlan.of(m)
+                self._cholesky_plans.insert(0, (structure(m), plan))
+                del self._cholesky_plans[CHOLESKY_PLANS_KEPT:]
+            if plan is not None:
+                return plan.positive_definite(m)
         # LDLᵀ in SuperLU's clothes: a symmetric ordering and the diagonal always taken as pivot
         # (SuperLU leaves it only for an exact zero, which perm_r != perm_c then shows). All
         # pivots positive <=> all leading minors positive <=> positive definite (Sylvester).

@@ -7,6 +7,8 @@ evaluates the window problem with the core's compiled numpy terms.
 
 from __future__ import annotations
 
+import os
+
 from stw_tui.sos.backend import BackendOption
 from stw_tui.sos.sqp import SQP_OPTIONS, SQPBackend
 
@@ -32,5 +34,28 @@ class ScipyBackend(SQPBackend):
     options = LINEAR_OPTIONS + SQP_OPTIONS
 
     def algebra(self, problem) -> SparseAlgebra:
+        single_threaded_blas()
         return SparseAlgebra(self.config["solver"], self.config["lin_tol"], self.config["lin_maxiter"],
                              self.config["factor"])
+
+
+_BLAS_THREAD_VARIABLES = ("OPENBLAS_NUM_THREADS", "OMP_NUM_THREADS", "MKL_NUM_THREADS")
+_blas_limited = False
+
+
+def single_threaded_blas() -> None:
+    """Limit BLAS (the OpenBLAS of numpy and of scipy) to one thread, once a process, unless the
+    user set a thread count in the environment. A window problem's LAPACK calls are small: on two
+    cores OpenBLAS's threads turn the blocked banded Cholesky of basketball's curvature tests
+    (459 rows, half-width 83, 0.5 ms) into stalls of up to 180 ms, and cost luxo's interior-point
+    solves a quarter of their time (231 -> 170 ms single-threaded). One thread also makes the
+    numbers independent of the machine's core count (a threaded sum splits differently)."""
+    global _blas_limited
+    if _blas_limited or any(v in os.environ for v in _BLAS_THREAD_VARIABLES):
+        return
+    _blas_limited = True
+    try:
+        from threadpoolctl import threadpool_limits
+    except ImportError:   # pragma: no cover - a dependency of the package; a partial install
+        return
+    threadpool_limits(limits=1, user_api="blas")
