@@ -27,6 +27,11 @@ import catalogue  # noqa: E402
 
 ROOT = Path(__file__).resolve().parent.parent
 SESSIONS = ROOT / "sessions"
+# Lines after which the particle jet's `iterate N` runs all N iterations (until stopped): tolerances
+# no solve meets, and steps of at most 1e-6 per control point, its motion being of unit size.
+# (Uncapped, the solve reaches its optimum in one step and its rounding floor a few later, where a
+# step that no longer lowers the merit ends it as stalled.)
+ENDLESS = "set tol_violation 0\nset tol_kkt 0\nset tol_step 0\nbackend scipy max_step=1e-6\n"
 
 
 @pytest.fixture

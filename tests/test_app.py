@@ -11,6 +11,7 @@ import os
 import pytest
 
 import test_app_support as support
+from conftest import ENDLESS
 from stw_tui.app import create_app
 from stw_tui.session.session import Session
 from stw_tui.sos.backend import Status
@@ -159,12 +160,9 @@ def test_iterate_runs_in_the_worker_and_updates_status_and_plots():
 
 
 def endless_jet() -> Session:
-    """The particle-jet scene with tolerances no solve meets and steps of at most 1e-6 per control
-    point (its motion is of unit size): `iterate N` runs all N iterations. (Uncapped, the solve
-    reaches its optimum in one step and its rounding floor a few later, where a step that no
-    longer lowers the merit ends it as stalled.)"""
+    """The particle-jet scene made endless (conftest.ENDLESS): `iterate N` runs all N iterations."""
     session = jet_without_iterate()
-    for line in ("set tol_violation 0", "set tol_kkt 0", "set tol_step 0", "backend scipy max_step=1e-6"):
+    for line in ENDLESS.splitlines():
         session.execute(line)
     return session
 
@@ -221,9 +219,7 @@ def test_escape_returns_to_the_console_and_never_stops_a_solve():
 
 def test_a_replay_halts_and_says_so_when_its_solve_is_stopped(tmp_path):
     script = tmp_path / "endless.stw"
-    script.write_text(JET.read_text().split("iterate")[0]
-                      + "set tol_violation 0\nset tol_kkt 0\nset tol_step 0\n"
-                      + "backend scipy max_step=1e-6\niterate 100000\nconst k = 2\n")   # (endless_jet)
+    script.write_text(JET.read_text().split("iterate")[0] + ENDLESS + "iterate 100000\nconst k = 2\n")
     app = create_app(script)
 
     async def scenario(pilot):

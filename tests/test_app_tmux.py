@@ -16,6 +16,8 @@ from pathlib import Path
 
 import pytest
 
+from conftest import ENDLESS
+
 ROOT = Path(__file__).resolve().parent.parent
 STW = Path(sys.executable).parent / "stw"
 
@@ -66,8 +68,7 @@ def wait_for(base: list[str], name: str, text: str, timeout: float = 60) -> str:
 def test_ctrl_q_ends_the_process_within_a_second_while_a_solve_runs(tmp_path):
     jet = (ROOT / "sessions" / "particle_jet.stw").read_text().split("iterate")[0]
     script = tmp_path / "endless.stw"
-    script.write_text(jet + "set tol_violation 0\nset tol_kkt 0\nset tol_step 0\n"   # (test_app.endless_jet)
-                      "backend scipy max_step=1e-6\niterate 1000000\n")
+    script.write_text(jet + ENDLESS + "iterate 1000000\n")
     name = f"stw-test-{uuid.uuid4().hex[:8]}"
     base = start(name, f"{STW} {script}")
     try:

@@ -11,6 +11,7 @@ import threading
 import numpy as np
 import pytest
 
+from conftest import ENDLESS
 from stw_tui.session.child_process import NotPortable, SolverProcess, runs_in_solver_process
 from stw_tui.session.session import Session
 from stw_tui.sos.backend import Status
@@ -34,8 +35,6 @@ def solver():
     process.close()
 
 
-# no solve converges, and steps of at most 1e-6 keep it moving (test_app.endless_jet): it runs until stopped
-ENDLESS = "set tol_kkt 0\nset tol_violation 0\nset tol_step 0\nbackend scipy max_step=1e-6\n"
 
 
 def jet(endless: bool = False) -> Session:

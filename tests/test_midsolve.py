@@ -15,6 +15,7 @@ from pathlib import Path
 import numpy as np
 
 import catalogue
+from conftest import ENDLESS
 from stw_tui.session import autosave, interpreter, midsolve
 from stw_tui.session.autosave import Checkpoints
 from stw_tui.session.resume import resume
@@ -170,9 +171,7 @@ def test_stw_run_killed_with_sigkill_during_a_long_iterate_resumes_from_its_runn
 
     jet = (ROOT / "sessions" / "particle_jet.stw").read_text().split("iterate")[0]
     script = tmp_path / "endless.stw"
-    # tolerances no solve meets, steps of at most 1e-6 (test_app.endless_jet): it runs on
-    script.write_text(jet + "set tol_violation 0\nset tol_kkt 0\nset tol_step 0\n"
-                      "backend scipy max_step=1e-6\niterate 1000000\n")
+    script.write_text(jet + ENDLESS + "iterate 1000000\n")
     journal = tmp_path / "j.stw"
     env = {**os.environ, "PYTHONPATH": os.pathsep.join(sys.path), midsolve.EVERY_VARIABLE: "0.2",
            "STW_CACHE_DIR": "off"}

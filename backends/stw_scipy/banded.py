@@ -8,9 +8,10 @@ There LAPACK's banded LU with partial pivoting costs a fraction of SuperLU's gen
 whose per-call analysis dominates at these sizes (same-run medians, this machine): the arm's
 interior-point systems, 184 rows, half-width 38: 114 µs against 240; acrobat's, 742 rows,
 half-width 23: 345 µs against 1.7 ms; luxo's, 295 rows: 189 µs against 744; the point mass's,
-46 rows: 9 µs against 101. Basketball's systems are wider (half-width 56-87, 603-714 rows), where
-the two cost about the same (0.9-2.6 ms banded, 0.9-2.9 ms SuperLU): a structure wider than
-BAND_MAX stays with SuperLU.
+46 rows: 9 µs against 101. Basketball's systems are wider (half-width 56-87, 603-714 rows):
+banded they cost 0.9-2.6 ms against SuperLU's 0.9-2.9 (1.0-1.9x faster on one BLAS thread), but
+the solve then takes 97 iterations instead of 88 to a point 1.8e-5 away, slower on the whole: a
+structure wider than BAND_MAX stays with SuperLU.
 
 A :class:`BandPlan` is worked out once per sparsity structure (the permutation and where each of
 K's stored entries goes in LAPACK's band storage), so the next K of that structure is one
@@ -26,10 +27,23 @@ from scipy.sparse.csgraph import reverse_cuthill_mckee
 
 from stw_tui.sos.compressed import same_structure, structure
 
-BAND_MAX = 48   # widest half-bandwidth factorized banded (from 56 on, no faster than SuperLU)
+BAND_MAX = 48   # widest half-bandwidth factorized banded (basketball's 56-87 stay with SuperLU)
 # ... and tested for positive definiteness by a banded Cholesky, where SuperLU's LDLᵀ costs 2x
 # as much at half-width 83 (basketball, 459 rows) and 5-7x at 41-62 (459-6000 rows)
 CHOLESKY_BAND_MAX = 96
+
+
+def _rcm(m) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, int]:
+    """Reverse Cuthill-McKee of a compressed array's (symmetric) pattern: the permutation, each
+    index's rank in it, the ranks of each stored entry's outer (pointer) and inner (index)
+    position, and the half-bandwidth they span. Were the pattern not symmetric, as RCM's symmetric
+    mode takes it, the order would only be worse: the width is measured on the entries."""
+    n, nnz = m.shape[0], m.indptr[-1]
+    perm = reverse_cuthill_mckee(m, symmetric_mode=True).astype(np.intp)
+    rank = np.empty(n, dtype=np.intp)
+    rank[perm] = np.arange(n)
+    outer, inner = rank[np.repeat(np.arange(n), np.diff(m.indptr))], rank[m.indices[:nnz]]
+    return perm, rank, outer, inner, int(np.abs(outer - inner).max(initial=0))
 
 
 class BandPlan:
@@ -50,16 +64,9 @@ class BandPlan:
     @classmethod
     def of(cls, K: sps.csc_array, band_max: int = BAND_MAX) -> "BandPlan | None":
         """The plan for K's structure, or None when its RCM band is wider than ``band_max``."""
-        n, nnz = K.shape[0], K.indptr[-1]
-        if n == 0:
+        if K.shape[0] == 0:
             return None
-        # A KKT's pattern is symmetric, as RCM's symmetric mode takes it; were it not, the order
-        # would only be worse: the width is measured on K's own entries.
-        perm = reverse_cuthill_mckee(K, symmetric_mode=True).astype(np.intp)
-        rank = np.empty(n, dtype=np.intp)
-        rank[perm] = np.arange(n)
-        i, j = rank[K.indices[:nnz]], rank[np.repeat(np.arange(n), np.diff(K.indptr))]
-        width = int(np.abs(i - j).max(initial=0))
+        perm, rank, j, i, width = _rcm(K)   # CSC: the pointer is the column, the index the row
         return cls(K, perm, rank, width, i, j) if width <= band_max else None
 
     def fits(self, K: sps.csc_array, spec: str, options: dict) -> bool:
@@ -116,14 +123,9 @@ class CholeskyBandPlan:
     def of(cls, m: sps.csr_array, band_max: int = CHOLESKY_BAND_MAX) -> "CholeskyBandPlan | None":
         """The plan for ``m``'s structure; None when its RCM band is wider than ``band_max`` or an
         entry of its lower triangle is stored twice (scipy would sum the two)."""
-        n, nnz = m.shape[0], m.indptr[-1]
-        if n == 0:
+        if m.shape[0] == 0:
             return None
-        perm = reverse_cuthill_mckee(m, symmetric_mode=True)
-        rank = np.empty(n, dtype=np.intp)
-        rank[perm] = np.arange(n)
-        i, j = rank[np.repeat(np.arange(n), np.diff(m.indptr))], rank[m.indices[:nnz]]
-        width = int(np.abs(i - j).max(initial=0))
+        _, _, i, j, width = _rcm(m)   # CSR: the pointer is the row, the index the column
         if width > band_max:
             return None
         keep = np.flatnonzero(i >= j)
