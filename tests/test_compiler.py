@@ -219,3 +219,51 @@ def test_an_expression_whose_derivative_is_infinite_is_refused_clearly(line):
     with pytest.raises(StwError, match="infinite everywhere"):
         s.execute(line)
     assert not s.scene.objectives
+
+
+# --- size checks: counted without remembering leaves, against a plain count of the tree --------
+
+def _nodes(expr) -> int:
+    """Every node of ``expr`` as a tree, repeats included (an independent count)."""
+    return sum(1 for _ in sp.preorder_traversal(expr))
+
+
+SIZED = [
+    x,
+    sp.Float(0.25) * x + sp.Float(0.25) * y + sp.Float(0.5) * x * y,  # the same Float, twice
+    sp.sin(x + 1) ** 2 + sp.cos(x + 1) ** 2 * sp.sin(x + 1),         # shared subtrees
+    sp.Piecewise((x**2, x > 0), (-x, True)) + sp.atan2(y, sp.Float(1.5) * x),
+]
+
+
+@pytest.mark.parametrize("expr", SIZED, ids=["symbol", "floats", "shared", "piecewise"])
+def test_tree_size_counts_every_node_as_the_tree_holds_it(expr):
+    from stw_tui.sym import compiler
+
+    assert compiler._tree_size(expr, lambda s: 1) == _nodes(expr)
+
+
+def test_expanded_size_is_the_size_of_the_substituted_tree():
+    from stw_tui.sym import compiler
+
+    a, b = named_symbol("a"), named_symbol("b")
+    definitions = {a: sp.sin(x) + sp.Float(0.5) * y, b: a * a + sp.cos(a) * sp.Float(0.5)}
+    expr = b + a * sp.Float(2.5) + x
+
+    def substituted(e) -> int:   # the tree with each defined symbol replaced, unevaluated
+        if e in definitions:
+            return substituted(definitions[e])
+        return 1 + sum(substituted(arg) for arg in e.args)
+    assert compiler.expanded_size(expr, definitions) == substituted(expr) == 28
+
+
+def test_the_size_check_refuses_one_node_over_the_limit_and_passes_at_it():
+    from stw_tui.sym import compiler, limits
+    from stw_tui.sym.errors import LimitError
+
+    expr = SIZED[2]
+    size = _nodes(expr)
+    compiler._check_size(expr, size, 64)                   # at the limit: passes
+    with pytest.raises(LimitError, match="expression_size"):
+        compiler._check_size(expr, size - 1, 64)
+    assert limits.value_or_ceiling("expression_size") > size

@@ -25,7 +25,7 @@ from stw_tui.sos.spline import DofCurve
 from stw_tui.sos.window import WindowProblem
 from stw_tui.sym import language as lang
 from stw_tui.sym import limits
-from stw_tui.sym.compiler import compile_term
+from stw_tui.sym.compiler import compile_term, free_symbols
 from stw_tui.sym.errors import LimitError, SolveError, SourceError, StwError
 from stw_tui.sym.kinds import Capability, TermKind
 from stw_tui.sym.symbols import dof_symbol, dof_symbols, named_symbol
@@ -174,7 +174,8 @@ def _check_new_name(scene: Scene, name: str, allowed: tuple[str, ...]) -> None:
 
 def _uses_dof(scene: Scene, expr: sp.Basic) -> bool:
     dof_syms = {s for d in scene.dofs for s in dof_symbols(d)}
-    return bool(scene.expand(expr).free_symbols & dof_syms)
+    # compiler.free_symbols keeps the walk, which compile_term then asks of the same expansion
+    return bool(free_symbols(scene.expand(expr)) & dof_syms)
 
 
 # --- handlers --------------------------------------------------------------------------------

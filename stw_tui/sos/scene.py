@@ -15,6 +15,7 @@ import numpy as np
 import sympy as sp
 
 from stw_tui.sos.spline import DofCurve, times_checker
+from stw_tui.sym.compiler import free_symbols
 from stw_tui.sym.errors import LimitError, StwError
 from stw_tui.sym.kinds import TermKind
 from stw_tui.sym.symbols import named_symbol
@@ -195,8 +196,9 @@ class Scene:
         definitions = {named_symbol(n): e for n, e in {**self.derived, **self.lets}.items()}
         self._check_size(expr, definitions)
         for _ in range(100):
-            inside = expr.free_symbols & definitions.keys()
-            primed = {s for s in expr.free_symbols if s.name.endswith("'") and
+            symbols = free_symbols(expr)   # kept: compile_term asks it of the result again
+            inside = symbols & definitions.keys()
+            primed = {s for s in symbols if s.name.endswith("'") and
                       named_symbol(s.name.rstrip("'")) in definitions}
             if not inside and not primed:
                 return expr
