@@ -358,6 +358,29 @@ def test_a_cache_others_can_write_is_not_used(cache, monkeypatch, mode):
     assert not (cache.parent / "PWNED").exists()
 
 
+def test_a_safe_cache_is_checked_once_until_it_changes(cache, monkeypatch):
+    import os
+
+    import sympy as sp
+
+    from stw_tui.sos import kept
+    from stw_tui.sym import compiler
+    from stw_tui.sym.symbols import dof_symbol
+
+    monkeypatch.setattr(compiler, "_SAFE_ROOTS", {})
+    checks = []
+    checked_root = compiler._checked_root
+    monkeypatch.setattr(compiler, "_checked_root", lambda path: checks.append(path) or checked_root(path))
+    _compile_once()
+    compiler.compile_term(sp.cos(dof_symbol("x")) * 2, {"x"}, set())   # another entry, same folder
+    assert len(checks) == 1 and str(cache) in compiler._SAFE_ROOTS
+    os.chmod(cache, 0o755)            # still safe (only others' write bits matter), but changed
+    compiler.compile_term(sp.cos(dof_symbol("x")) * 5, {"x"}, set())
+    assert len(checks) == 2
+    kept.forget()                     # as a new process: checked again at the next entry
+    assert not compiler._SAFE_ROOTS
+
+
 def test_a_key_others_can_read_disables_the_cache(cache, monkeypatch):
     import os
 

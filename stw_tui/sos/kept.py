@@ -2,8 +2,9 @@
 
 Every `iterate` builds its window problem anew from the scene; the parts that depend only on
 what did not change are kept where they are made: subexpression expansions (scene.py), free
-symbols and passed size checks (compiler.py), exact degrees (instances.py), B-spline basis
-matrices (spline.py) and product plans (window.py). Each is keyed by everything it depends on.
+symbols, passed size checks and the disk cache's checked directories (compiler.py), exact
+degrees (instances.py), B-spline basis matrices (spline.py) and product plans (window.py). Each
+is keyed by everything it depends on.
 :func:`forget` empties them, for a benchmark that times a build from nothing but the compiled
 terms on disk, as a new process would do it.
 """
@@ -23,5 +24,6 @@ def forget() -> None:
     compiler.free_symbols.cache_clear()
     compiler._check_size.cache_clear()
     instances._exact_degree.cache_clear()
+    compiler._SAFE_ROOTS.clear()   # the disk cache's checks: made again once, as in a new process
     with compiler._CACHE_LOCK:
         compiler._CACHE.clear()
