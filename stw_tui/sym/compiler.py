@@ -501,12 +501,13 @@ def _cache_root() -> tuple[Path, bytes] | None:
     if known is not None and known[0] == _fingerprint(root):
         return known[1]
     found = _checked_root(Path(root))
-    if found is not None:
-        _SAFE_ROOTS[root] = (_fingerprint(root), found)
+    fingerprint = _fingerprint(root)
+    if found is not None and fingerprint is not None:   # gone since the check: not remembered
+        _SAFE_ROOTS[root] = (fingerprint, found)
     return found
 
 
-_SAFE_ROOTS: dict[str, tuple[tuple | None, tuple[Path, bytes]]] = {}   # root: (fingerprint, found)
+_SAFE_ROOTS: dict[str, tuple[tuple, tuple[Path, bytes]]] = {}   # root: (fingerprint, found)
 
 
 def _fingerprint(root: str) -> tuple | None:
