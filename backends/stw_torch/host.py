@@ -11,6 +11,8 @@ The numbers are TorchScript's: each node does the operation its source does, in 
 would (the tree is that order), with +, -, *, / and comparisons by numpy (correctly rounded, as
 torch's) and the functions (sin, cos, pow, where, ...) by torch itself on the arrays' memory.
 On the CPU a TorchScript op costs about 0.7 µs on a few hundred numbers, a numpy op about 0.35.
+From its second call with arguments of the same kinds, a program of ON_ROWS_FROM instructions or
+more runs on rows (host_levels.py): the same numbers in fewer, cheaper calls.
 """
 
 from __future__ import annotations
@@ -22,7 +24,11 @@ import operator
 import numpy as np
 import torch
 
+from .host_levels import GROUPED as _GROUPED, LevelPlan, signature as _signature
+
 HOST_FUNCTIONS_KEPT = 512   # host programs kept by source (a few MB of source at most)
+PLANS_KEPT = 8              # plans on rows a host program keeps, one per kind of arguments
+ON_ROWS_FROM = 8            # instructions from which a program runs on rows (host_levels)
 
 
 def _to_torch(a):
@@ -48,6 +54,10 @@ def _host_pow(base, exponent):
     # here, without the round trip through torch; any other exponent goes through torch's pow
     if exponent.__class__ is int and exponent == 2:
         return base * base
+    if base.__class__ in (int, float) and exponent.__class__ in (int, float):
+        # two numbers (a power of numbers that cse named), which torch.pow refuses: TorchScript
+        # folds it with C's pow, as numpy's power computes it (nan and inf included, no error)
+        return float(np.power(float(base), float(exponent)))
     return _through_torch(torch.pow)(base, exponent)
 
 
@@ -222,12 +232,38 @@ def host_function(tape: tuple, functions: tuple[str, ...]):
             i, j = operand(i, j), operand(j, i)
         steps.append((_bound(op, table), i, j, k))
 
-    def program(*values):
-        if len(values) != n_args:
-            raise TypeError(f"program takes {n_args} arguments, {len(values)} given")
+    def registers(values) -> list:
         r = template.copy()
         r[:n_args] = values
         for f, i, j, k in steps:
             r[k] = f(r[i], r[j]) if j >= 0 else f(r, i)
+        return r
+
+    # the program on rows it keeps (host_levels), planned on the first call of each kind of
+    # arguments; None where nothing would run on rows
+    names = [op if isinstance(op, str) and op in _GROUPED and step[0] is not _reciprocal_times else None
+             for (op, *_), step in zip(instructions, steps)]
+    one_array = [getattr(torch, op[1]) if not isinstance(op, str) and op[0] == "torch1" and op[1] != "pow"
+                 else None for op, *_ in instructions]
+    plans: dict = {}
+
+    def reference(values) -> list:
+        r = registers(values)
         return [r[k] for k in outputs]
+
+    def program(*values):
+        if len(values) != n_args:
+            raise TypeError(f"program takes {n_args} arguments, {len(values)} given")
+        if len(steps) < ON_ROWS_FROM:
+            return reference(values)
+        key = _signature(values)
+        plan = plans.get(key, False)
+        if plan:
+            return plan.run(values, reference)
+        r = registers(values)
+        if plan is False and len(plans) < PLANS_KEPT:
+            plan = LevelPlan(n_args, template, steps, names, one_array, outputs, r, constant, values)
+            plans[key] = plan if plan.schedule and plan.rows else None
+        return [r[k] for k in outputs]
+    program.plans = plans    # read by the tests: which kinds of arguments run on rows
     return program

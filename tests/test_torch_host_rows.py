@@ -1,0 +1,113 @@
+"""Host programs on rows (backends/stw_torch/host_levels.py): the same numbers as TorchScript, bit
+for bit, on every call after the first (which plans the rows), across changing instance counts,
+and nothing a caller holds is written over by the next call."""
+
+import random
+
+import numpy as np
+import pytest
+
+torch = pytest.importorskip("torch")
+
+import stw_torch.host_levels as host_levels  # noqa: E402
+from stw_torch.host import host_function, tape_of  # noqa: E402
+from stw_torch.lower import _HOST_NAMES, _compile  # noqa: E402
+from stw_torch.evaluate import TorchProblem  # noqa: E402
+from test_torch_backend import _random_expression  # noqa: E402
+
+import catalogue  # noqa: E402
+from stw_tui.sos.window import WindowProblem  # noqa: E402
+
+NAMES = ["_v0", "_v1", "_t", "_p0"]
+
+
+def _arguments(n: int, shift: float = 0.0) -> list[np.ndarray]:
+    return [np.linspace(0.1, 2.9, n) + shift, np.linspace(-1.7, 1.3, n) - shift,
+            np.linspace(0.0, 1.0, n), np.asarray(1.7 + shift)]
+
+
+def _torchscript(program, values: list[np.ndarray]) -> list[np.ndarray]:
+    return [r.numpy() for r in program([torch.from_numpy(a) for a in values], torch.from_numpy(values[2]))]
+
+
+def _random_programs(seed: int, count: int):
+    """(TorchScript program, host function) of seeded random programs large enough to run on rows."""
+    rng = random.Random(seed)
+    for _ in range(count):
+        try:
+            outputs = [_random_expression(rng, 5) for _ in range(4)]
+        except RuntimeError:              # symengine refuses a construct (cos of infinity)
+            continue
+        program, source = _compile(NAMES, outputs)
+        tape = tape_of(source, _HOST_NAMES) if source is not None else None
+        if tape is not None:
+            program.host_fn = host_function(tape, _HOST_NAMES)
+            yield program, program.host_fn, tape
+
+
+def _same(got, want) -> bool:
+    return len(got) == len(want) and all(np.array_equal(a, b, equal_nan=True) for a, b in zip(got, want))
+
+
+def test_programs_on_rows_give_torchscripts_numbers_call_after_call():
+    """Each random program, called on 23 instances, then 1, then 23 again with other numbers: every
+    call equals TorchScript's, the plan on rows runs from the second call on, and what an earlier
+    call returned is not changed by the later ones (the rows are kept and written again)."""
+    on_rows = grouped = 0
+    for program, host, tape in _random_programs(5, 40):
+        calls = [_arguments(23), _arguments(1, 0.3), _arguments(23, -0.2), _arguments(23, 0.4)]
+        with np.errstate(all="ignore"):
+            wants = [_torchscript(program, values) for values in calls]
+            gots = [[a.copy() for a in program.host(values, values[2])] if i == 0 else program.host(values, values[2])
+                    for i, values in enumerate(calls)]
+        assert all(_same(got, want) for got, want in zip(gots, wants)), tape
+        plans = [p for p in host.plans.values() if p is not None]
+        if len(tape[2]) >= 8 and plans:
+            on_rows += 1
+            grouped += any(step[0] == "group" for p in plans for step in p.schedule)
+    assert on_rows >= 25 and grouped >= 10
+
+
+def test_a_program_another_thread_is_running_runs_as_its_tape():
+    """While its rows are in use (the plan's lock held elsewhere), a call runs the tape as it is."""
+    program, host, _ = next((p, h, t) for p, h, t in _random_programs(7, 40) if len(t[2]) >= 30)
+    values = _arguments(17)
+    with np.errstate(all="ignore"):
+        want = _torchscript(program, values)
+        program.host(values, values[2])                    # plans the rows
+        (plan,) = [p for p in host.plans.values() if p is not None]
+        with plan._lock:
+            busy = program.host(values, values[2])
+        again = program.host(values, values[2])
+    assert _same(busy, want) and _same(again, want)
+
+
+def test_rows_too_large_to_keep_run_as_the_tape(monkeypatch):
+    """A plan whose rows for n instances would pass WORKSPACE_FLOATS keeps nothing: the tape runs."""
+    program, host, _ = next((p, h, t) for p, h, t in _random_programs(9, 40) if len(t[2]) >= 30)
+    monkeypatch.setattr(host_levels, "WORKSPACE_FLOATS", 64)
+    values = _arguments(40)
+    with np.errstate(all="ignore"):
+        want = _torchscript(program, values)
+        got = [program.host(values, values[2]) for _ in range(3)]
+    (plan,) = [p for p in host.plans.values() if p is not None]
+    assert plan._kept is None and all(_same(g, want) for g in got)
+
+
+@pytest.mark.parametrize("problem", catalogue.problems(*catalogue.QUICK), ids=str)
+def test_repeated_evaluations_on_the_host_give_the_device_paths_numbers(problem):
+    """A window's evaluations repeated on the host (programs on rows from the second) equal the
+    torch ops' and TorchScript's (the device path) bit for bit, at two points in turn."""
+    window = WindowProblem(problem.setup().scene)
+    points = [window.initial() + 0.01 * np.sin(np.arange(window.n_free) + k) for k in range(2)]
+    host = TorchProblem(window, torch.device("cpu"), host_linear=True)
+    device = TorchProblem(window, torch.device("cpu"), host_linear=True)
+    device.host = False
+    for s in points * 2:
+        got, want = host.evaluate(s), device.evaluate(s)
+        assert np.array_equal(got.gradient, want.gradient) and np.array_equal(got.c_eq, want.c_eq)
+        assert np.array_equal(got.J_eq.data, want.J_eq.data)
+        lam = np.linspace(-1.0, 2.0, window.row_counts["eq"])
+        lam_ge = -np.linspace(0.0, 1.5, window.row_counts["ge"])
+        assert np.array_equal(got.lagrangian_hessian(lam, lam_ge).data, want.lagrangian_hessian(lam, lam_ge).data)
+        assert np.array_equal(host.merit_values(s).c_eq, device.merit_values(s).c_eq)
