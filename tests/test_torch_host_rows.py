@@ -94,10 +94,11 @@ def test_rows_too_large_to_keep_run_as_the_tape(monkeypatch):
     assert plan._kept is None and all(_same(g, want) for g in got)
 
 
-@pytest.mark.parametrize("problem", catalogue.problems(*catalogue.QUICK), ids=str)
+@pytest.mark.parametrize("problem", catalogue.problems(*catalogue.QUICK, "arm_throw"), ids=str)
 def test_repeated_evaluations_on_the_host_give_the_device_paths_numbers(problem):
-    """A window's evaluations repeated on the host (programs on rows from the second) equal the
-    torch ops' and TorchScript's (the device path) bit for bit, at two points in turn."""
+    """A window's evaluations repeated on the host (its calls' programs on rows together from the
+    second: calls.Together) equal the torch ops' and TorchScript's (the device path) bit for bit,
+    at two points in turn."""
     window = WindowProblem(problem.setup().scene)
     points = [window.initial() + 0.01 * np.sin(np.arange(window.n_free) + k) for k in range(2)]
     host = TorchProblem(window, torch.device("cpu"), host_linear=True)
@@ -111,3 +112,25 @@ def test_repeated_evaluations_on_the_host_give_the_device_paths_numbers(problem)
         lam_ge = -np.linspace(0.0, 1.5, window.row_counts["ge"])
         assert np.array_equal(got.lagrangian_hessian(lam, lam_ge).data, want.lagrangian_hessian(lam, lam_ge).data)
         assert np.array_equal(host.merit_values(s).c_eq, device.merit_values(s).c_eq)
+    together = [t for t in host.plan.together.values() if t.buckets]
+    assert together and all(len(p.programs) >= 1 for t in together for p, _ in t.buckets)
+    if problem.name == "arm_throw":       # a linkage: many terms share rows
+        assert max(len(p.programs) for t in together for p, _ in t.buckets) >= 5
+
+
+def test_calls_too_large_for_one_workspace_are_split(monkeypatch):
+    """With room for only a few rows, the calls of a window are planned in smaller buckets (or
+    left to run one by one) and give the same numbers."""
+    import catalogue as cat
+
+    monkeypatch.setattr(host_levels, "WORKSPACE_FLOATS", 40_000)
+    window = WindowProblem(cat.problems("arm_throw")[0].setup().scene)
+    s = window.initial() + 0.01 * np.cos(np.arange(window.n_free))
+    host = TorchProblem(window, torch.device("cpu"), host_linear=True)
+    device = TorchProblem(window, torch.device("cpu"), host_linear=True)
+    device.host = False
+    for _ in range(2):
+        assert np.array_equal(host.evaluate(s).gradient, device.evaluate(s).gradient)
+    sizes = [len(p.programs) for t in host.plan.together.values() for p, _ in t.buckets]
+    assert sizes and all(p.fits() for t in host.plan.together.values() for p, _ in t.buckets)
+    assert len(sizes) > len(host.plan.together)     # split: more buckets than program kinds

@@ -14,11 +14,12 @@ pair) by fixed index arrays: a few ops per evaluation whatever the number of gro
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import numpy as np
 import torch
 
+from .host_levels import LevelPlan, fits
 from .lower import LoweredTerm, unoptimized
 
 
@@ -48,6 +49,8 @@ class CallPlan:
     n_slots: int
     autograd: bool = False  # derivatives by torch's autograd on the value programs (local())
     host: tuple | None = None   # on the CPU: inputs, f_order, h_order as numpy (values_host, local_host)
+    # on the CPU: (program kind, dtype of the slot values) -> the calls' programs run together
+    together: dict = field(default_factory=dict)
 
     @classmethod
     def build(cls, groups, n_slots: int, device: torch.device, autograd: bool = False) -> "CallPlan":
@@ -123,20 +126,35 @@ class CallPlan:
         x = v[self.host[0]]
         return [(c, x[c.start:c.start + c.k * c.n].reshape(c.k, c.n)) for c in self.calls]
 
+    def _host_rows(self, kind: str, v: np.ndarray) -> list[list[np.ndarray]]:
+        """Each call's rows of its program ``kind`` at numpy slot values ``v``: the host programs
+        of all calls run on rows together (:class:`Together`) from the second evaluation on."""
+        blocks = self._host_blocks(v)
+        inputs = [[*X, c.host_times, *c.host_params] for c, X in blocks]
+        programs = [c.term.program(kind, host=True) for c in self.calls]
+        times = [c.host_times for c in self.calls]
+        key = (kind, v.dtype)
+        together = self.together.get(key)
+        if together is None:
+            rows, self.together[key] = Together.first(programs, inputs, times)
+            return rows
+        return together.run(programs, inputs, times)
+
     def values_host(self, v: np.ndarray) -> np.ndarray:
         """:meth:`values` of numpy slot values, as numpy (CPU only)."""
-        parts = [c.term.host_rows("value", X, c.host_times, c.host_params)[0] for c, X in self._host_blocks(v)]
+        parts = [rows[0] for rows in self._host_rows("value", v)]
         return np.concatenate(parts)[self.host[1]] if parts else np.zeros(0)
 
     def local_host(self, v: np.ndarray, second: bool = True):
         """:meth:`local` of numpy slot values, as numpy arrays (CPU only)."""
         f, g, h = [], [], []
-        for c, X in self._host_blocks(v):
-            if self.autograd:
-                with unoptimized():
-                    rows = [r.numpy() for r in autograd_rows(c.term, torch.from_numpy(X), c.times, c.params, second)]
-            else:
-                rows = c.term.host_rows("full" if second else "first", X, c.host_times, c.host_params)
+        if self.autograd:
+            with unoptimized():
+                every = [[r.numpy() for r in autograd_rows(c.term, torch.from_numpy(X), c.times, c.params, second)]
+                         for c, X in self._host_blocks(v)]
+        else:
+            every = self._host_rows("full" if second else "first", v)
+        for c, rows in zip(self.calls, every):
             f.append(rows[0])
             g += rows[1:1 + c.k]
             h += rows[1 + c.k:]
@@ -178,6 +196,66 @@ class CallPlan:
         g_slot[:, self.inputs] = torch.cat(g, 1) if g else empty
         return (torch.cat(f, 1)[:, self.f_order] if f else empty, g_slot,
                 torch.cat(h, 1)[:, self.h_order] if h else empty)
+
+
+TOGETHER_WIDTH = 256   # rows this wide cost what one instance's do: any calls up to it share them
+
+
+class Together:
+    """The host programs of one kind of a problem's calls, run on rows together
+    (host_levels.LevelPlan of several parts): an evaluation makes a numpy call per depth and
+    operator across all its terms, not one per term and instruction (arm_throw: 17 programs per
+    evaluation).
+
+    Calls share rows in buckets by instance count: a bucket's rows are as wide as its longest
+    call's, and a call joins while its count is at least a quarter of that width, or the width is
+    at most TOGETHER_WIDTH. Calls without a host program run as before."""
+
+    def __init__(self, buckets: list[tuple[LevelPlan, list[int]]]):
+        self.buckets = buckets
+
+    @classmethod
+    def first(cls, programs: list, inputs: list, times: list) -> tuple[list, "Together"]:
+        """The calls' rows, each host program's tape run instruction by instruction (and read
+        for the plans), and the Together that runs them from then on."""
+        rows, traced = [], {}
+        with np.errstate(all="ignore"):   # inf and nan come out silently, as from TorchScript
+            for i, (program, values, t) in enumerate(zip(programs, inputs, times)):
+                if program.host_fn is None:
+                    rows.append(program.host(values, t))
+                    continue
+                traced[i] = program.host_fn.registers(values)
+                rows.append(program.finish([traced[i][k] for k in program.host_fn.outputs], t.shape[0]))
+        order = sorted(traced, key=lambda i: -times[i].shape[0])
+        buckets, members = [], []
+        for i in order:
+            n = times[i].shape[0]
+            if members and not (n * 4 >= times[members[0]].shape[0] or times[members[0]].shape[0] <= TOGETHER_WIDTH):
+                buckets.append(members)
+                members = []
+            members.append(i)
+        if members:
+            buckets.append(members)
+        plans = []
+        while buckets:   # halved while its registers (more than its rows) might not fit (basketball)
+            members = sorted(buckets.pop())
+            if len(members) > 1 and not fits(sum(len(traced[i]) for i in members), [times[i].shape[0] for i in members]):
+                buckets += [members[:len(members) // 2], members[len(members) // 2:]]
+                continue
+            plan = LevelPlan([(programs[i].host_fn, inputs[i], traced[i]) for i in members])
+            if plan.rows and plan.fits():
+                plans.append((plan, members))
+        return rows, cls(plans)
+
+    def run(self, programs: list, inputs: list, times: list) -> list:
+        """Each call's rows of its program, the planned calls on rows."""
+        rows: list = [None] * len(programs)
+        with np.errstate(all="ignore"):   # inf and nan come out silently, as from TorchScript
+            for plan, members in self.buckets:
+                for i, out in zip(members, plan.run([inputs[i] for i in members])):
+                    rows[i] = programs[i].finish(out, times[i].shape[0])
+        return [row if row is not None else program.host(values, t)
+                for row, program, values, t in zip(rows, programs, inputs, times)]
 
 
 def autograd_rows(term: LoweredTerm, X: torch.Tensor, times: torch.Tensor, params: list,

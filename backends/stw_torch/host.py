@@ -232,38 +232,49 @@ def host_function(tape: tuple, functions: tuple[str, ...]):
             i, j = operand(i, j), operand(j, i)
         steps.append((_bound(op, table), i, j, k))
 
-    def registers(values) -> list:
-        r = template.copy()
-        r[:n_args] = values
-        for f, i, j, k in steps:
+    return HostProgram(n_args, template, steps, instructions, outputs, constant)
+
+
+class HostProgram:
+    """A tape bound to its functions: called with numpy arrays, it returns the outputs. From its
+    second call with arguments of the same kinds, one of ON_ROWS_FROM instructions or more runs
+    on rows (:class:`host_levels.LevelPlan`); several programs can run on rows together too
+    (:class:`host_levels.LevelPlan` of several parts, calls.py)."""
+
+    def __init__(self, n_args: int, template: list, steps: list, instructions, outputs, constant: set):
+        self.n_args, self.template, self.steps = n_args, template, steps
+        self.outputs, self.constant = tuple(outputs), constant
+        # what may run on rows: each step's arithmetic operator, or its torch function of one array
+        self.names = [op if isinstance(op, str) and op in _GROUPED and step[0] is not _reciprocal_times
+                      else None for (op, *_), step in zip(instructions, steps)]
+        self.functions = [getattr(torch, op[1]) if not isinstance(op, str) and op[0] == "torch1"
+                          and op[1] != "pow" else None for op, *_ in instructions]
+        self.plans: dict = {}    # signature of the arguments -> LevelPlan (None: not worth it)
+
+    def registers(self, values) -> list:
+        """Every register's value, the tape run instruction by instruction on ``values``."""
+        r = self.template.copy()
+        r[:self.n_args] = values
+        for f, i, j, k in self.steps:
             r[k] = f(r[i], r[j]) if j >= 0 else f(r, i)
         return r
 
-    # the program on rows it keeps (host_levels), planned on the first call of each kind of
-    # arguments; None where nothing would run on rows
-    names = [op if isinstance(op, str) and op in _GROUPED and step[0] is not _reciprocal_times else None
-             for (op, *_), step in zip(instructions, steps)]
-    one_array = [getattr(torch, op[1]) if not isinstance(op, str) and op[0] == "torch1" and op[1] != "pow"
-                 else None for op, *_ in instructions]
-    plans: dict = {}
+    def reference(self, values) -> list:
+        """The outputs, the tape run instruction by instruction."""
+        r = self.registers(values)
+        return [r[k] for k in self.outputs]
 
-    def reference(values) -> list:
-        r = registers(values)
-        return [r[k] for k in outputs]
-
-    def program(*values):
-        if len(values) != n_args:
-            raise TypeError(f"program takes {n_args} arguments, {len(values)} given")
-        if len(steps) < ON_ROWS_FROM:
-            return reference(values)
+    def __call__(self, *values) -> list:
+        if len(values) != self.n_args:
+            raise TypeError(f"program takes {self.n_args} arguments, {len(values)} given")
+        if len(self.steps) < ON_ROWS_FROM:
+            return self.reference(values)
         key = _signature(values)
-        plan = plans.get(key, False)
+        plan = self.plans.get(key, False)
         if plan:
-            return plan.run(values, reference)
-        r = registers(values)
-        if plan is False and len(plans) < PLANS_KEPT:
-            plan = LevelPlan(n_args, template, steps, names, one_array, outputs, r, constant, values)
-            plans[key] = plan if plan.schedule and plan.rows else None
-        return [r[k] for k in outputs]
-    program.plans = plans    # read by the tests: which kinds of arguments run on rows
-    return program
+            return plan.run([values])[0]
+        r = self.registers(values)
+        if plan is False and len(self.plans) < PLANS_KEPT:
+            plan = LevelPlan([(self, values, r)])
+            self.plans[key] = plan if plan.rows else None
+        return [r[k] for k in self.outputs]

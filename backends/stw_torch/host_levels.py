@@ -1,13 +1,14 @@
-"""A host program run on a (registers, n) array it keeps: fewer, cheaper numpy and torch calls.
+"""Host programs run on a (registers, n) array they keep: fewer, cheaper numpy and torch calls.
 
 A tape (host.py) makes one numpy call per instruction, and one torch round trip per function
 (``from_numpy``, the function, ``.numpy()``). On a few dozen instances a call costs its overhead,
 not its numbers: arm_throw's 17 programs spent most of their time calling. Here each value the
-program computes has a row in an array kept between calls, so
+programs compute has a row in an array kept between calls, so
 
-- instructions at the same depth of the program's graph with the same operator (+, -, *, /,
-  negation) run as one numpy call on their rows (operands gathered with ``take`` where their rows
-  are not consecutive), where the cost model below says that is cheaper than one call each;
+- instructions at the same depth of their program's graph with the same operator (+, -, *, /,
+  negation), across all the programs run together (a window's terms: calls.Together), run as
+  one numpy call on their rows (operands gathered with ``take`` where their rows are not
+  consecutive), where the cost model below says that is cheaper than one call each;
 - the others write into their rows through views made once (``out=``), and torch's functions of
   one array (sin, cos, ...) write through tensor views of the same memory: no conversion.
 
@@ -53,43 +54,62 @@ def _consecutive(rows: list[int]) -> bool:
     return all(b == a + 1 for a, b in zip(rows, rows[1:]))
 
 
+def fits(rows: int, lengths) -> bool:
+    """Whether ``rows`` as wide as the longest of ``lengths`` fit in WORKSPACE_FLOATS."""
+    return rows * max(1, *lengths) <= WORKSPACE_FLOATS
+
+
 def signature(values: tuple) -> tuple:
     """What a plan depends on: each argument's type, dtype and number of dimensions."""
     return tuple((v.__class__, getattr(v, "dtype", None), getattr(v, "ndim", None)) for v in values)
 
 
 class LevelPlan:
-    """How to run a tape on rows, for arguments like those of the run it was read from.
+    """How to run one or several host programs (host.HostProgram) on rows, for arguments like
+    those of the run it was read from: ``parts`` lists each program with its arguments and every
+    register's value in that run (``program.registers``). Several programs share one array, rows
+    as wide as the longest one's instances, and their arithmetic of one depth and operator runs
+    as one call across them; each program's rows are used up to its own length only."""
 
-    ``steps`` are ``(op, i, j, k)`` as host.host_function binds them (op a function of
-    registers i and j, or with j = -1 of the register list and places i); ``names`` gives each
-    step's arithmetic operator (None: not plain arithmetic) and ``functions`` its torch function
-    of one array (None: not one); ``registers`` is every register's value in one run of the tape
-    on ``arguments``, and ``constant`` the registers computed from numbers alone."""
-
-    def __init__(self, n_args: int, template: list, steps: list, names: list, functions: list,
-                 outputs, registers: list, constant: set, arguments: tuple):
-        # the argument that gives the instances' number (None: no array, nothing on rows)
-        self.length_of = next((a for a, v in enumerate(arguments) if v.__class__ is np.ndarray and v.ndim == 1), None)
-        n = -1 if self.length_of is None else arguments[self.length_of].shape[0]
-        self.n_args, self.outputs, self.template = n_args, tuple(outputs), template
+    def __init__(self, parts: list):
+        self.programs = [program for program, _, _ in parts]
+        self.offsets, registers, template, steps, names, functions, constant = [], [], [], [], [], [], set()
+        self.lengths, self.length_of, part_of = [], [], []   # part_of: register -> its program
+        for c, (program, arguments, traced) in enumerate(parts):
+            o = len(registers)
+            self.offsets.append(o)
+            at = next((a for a, v in enumerate(arguments) if v.__class__ is np.ndarray and v.ndim == 1), None)
+            n = -1 if at is None else arguments[at].shape[0]
+            self.length_of.append(at)
+            self.lengths.append(n)
+            registers += traced
+            part_of += [c] * len(traced)
+            template += program.template
+            steps += [(f, tuple(p + o for p in i) if j < 0 else i + o, j if j < 0 else j + o, k + o)
+                      for f, i, j, k in program.steps]
+            names += program.names
+            functions += program.functions
+            constant |= {r + o for r in program.constant}
+        self.template = template
         made = {k for *_, k in steps}
+        arguments = {o + a: (c, a) for c, (o, (program, _, _)) in enumerate(zip(self.offsets, parts))
+                     for a in range(program.n_args)}
 
-        def row_valued(r: int) -> bool:
-            return _is_row(registers[r], n) or _is_scalar(registers[r])
-
+        # each register once: an (n,) float64 array of its program's length (a row), or a number
+        is_row = [_is_row(v, self.lengths[c]) for v, c in zip(registers, part_of)]
+        row_valued = [row or _is_scalar(v) for row, v in zip(is_row, registers)]
         level = [0] * len(registers)
         buckets: dict[tuple, list] = {}     # (level, operator) -> its arithmetic steps
         by_level: dict[int, list] = {}      # level -> what runs there, in order
         for step, name, function in zip(steps, names, functions):
             _, i, j, k = step
-            level[k] = 1 + max((level[r] for r in ((i, j) if j >= 0 else i)), default=0)
-            on_rows = k not in constant and _is_row(registers[k], n)
-            if name is not None and on_rows and row_valued(i) and row_valued(j):
+            level[k] = 1 + (max(level[i], level[j]) if j >= 0 else max((level[r] for r in i), default=0))
+            on_rows = is_row[k] and k not in constant
+            if name is not None and on_rows and row_valued[i] and row_valued[j]:
                 if (level[k], name) not in buckets:
                     by_level.setdefault(level[k], []).append(("arith", name, buckets.setdefault((level[k], name), [])))
                 buckets[(level[k], name)].append(step)
-            elif function is not None and on_rows and _is_row(registers[i], n):
+            elif function is not None and on_rows and is_row[i]:
                 by_level.setdefault(level[k], []).append(("torch", function, step))
             else:
                 by_level.setdefault(level[k], []).append(("step", step))
@@ -102,8 +122,8 @@ class LevelPlan:
 
         operands = {r for members in buckets.values() for _, i, j, _ in members for r in (i, j)}
         operands |= {item[2][1] for items in by_level.values() for item in items if item[0] == "torch"}
-        self.argument_rows = [(a, place(a)) for a in range(n_args) if a in operands]
-        fixed = sorted(r for r in operands if r >= n_args and (r in constant or r not in made))
+        self.argument_rows = [(*arguments[r], place(r)) for r in sorted(operands & arguments.keys())]
+        fixed = sorted(r for r in operands if r not in arguments and (r in constant or r not in made))
         self.fixed = [(place(r), float(registers[r])) for r in fixed]
         in_rows: set[int] = set()           # registers whose value is in its row only
         schedule = []                       # ("group" | "row" | "torch" | "step", ...) by rows
@@ -111,21 +131,26 @@ class LevelPlan:
             for item in by_level[lvl]:
                 if item[0] == "step":       # as the tape runs it; its row operands read as views
                     _, i, j, k = item[1]
-                    reads = [(r, row[r]) for r in ((i, j) if j >= 0 else i) if r in in_rows]
-                    writes = place(k) if k in operands and k not in constant else -1
+                    reads = [(r, row[r], part_of[r]) for r in ((i, j) if j >= 0 else i) if r in in_rows]
+                    writes = (place(k), part_of[k]) if k in operands and k not in constant else None
                     schedule.append(("step", item[1], reads, writes))
                 elif item[0] == "torch":
                     _, function, (_, i, _, k) = item
-                    schedule.append(("torch", function, row[i], place(k)))
+                    schedule.append(("torch", function, row[i], place(k), part_of[k]))
                     in_rows.add(k)
                 else:
                     schedule += self._arith(item[1], item[2], row, place)
                     in_rows.update(k for *_, k in item[2])
-        self.schedule = schedule if self.length_of is not None else []
+        self.schedule = schedule
         self.rows = len(row)
-        self.output_rows = {r: row[r] for r in set(outputs) & in_rows}
-        self._kept: tuple | None = None     # (n, workspace) of the last call
+        self.output_rows = [(r, row[r], part_of[r]) for r in sorted(
+            {o + k for o, program in zip(self.offsets, self.programs) for k in program.outputs} & in_rows)]
+        self._kept: tuple | None = None     # (lengths, workspace) of the last call
         self._lock = threading.Lock()
+
+    def fits(self) -> bool:
+        """Whether its rows for the lengths it was read from fit in WORKSPACE_FLOATS."""
+        return fits(self.rows, self.lengths)
 
     @staticmethod
     def _arith(name: str, members: list, row: dict, place) -> list:
@@ -141,10 +166,11 @@ class LevelPlan:
         return [("row", GROUPED[name], a, None if unary else b, o)
                 for a, b, o in zip(left, right or left, outs)]
 
-    def _workspace(self, n: int) -> tuple:
-        """The rows for n instances, the fixed numbers in place, and the schedule bound to
-        views of them."""
-        R = np.empty((self.rows, n))
+    def _workspace(self, lengths: tuple) -> tuple:
+        """The rows for these lengths (zeros past each program's own), the fixed numbers in
+        place, and the schedule bound to views of them."""
+        width = max(1, *lengths)
+        R = np.zeros((self.rows, width))
         T = torch.from_numpy(R)
         for at, value in self.fixed:
             R[at] = value
@@ -166,32 +192,35 @@ class LevelPlan:
                 _, ufunc, i, j, k = item
                 bound.append((1, ufunc, R[i], None if j is None else R[j], R[k]))
             elif kind == "torch":
-                _, function, i, k = item
-                bound.append((2, function, T[i], T[k]))
+                _, function, i, k, c = item
+                bound.append((2, function, T[i, :lengths[c]], T[k, :lengths[c]]))
             else:
                 _, step, reads, writes = item
-                bound.append((3, step, [(r, R[at]) for r, at in reads], R[writes] if writes >= 0 else None))
-        arguments = [(a, R[at]) for a, at in self.argument_rows]
-        outputs = np.array(list(self.output_rows.values()), np.intp)
-        return R, bound, arguments, outputs
+                bound.append((3, step, [(r, R[at, :lengths[c]]) for r, at, c in reads],
+                              None if writes is None else R[writes[0], :lengths[writes[1]]]))
+        arguments = [(c, a, R[at, :lengths[c]] if lengths[c] >= 0 else R[at]) for c, a, at in self.argument_rows]
+        outputs = np.array([at for _, at, _ in self.output_rows], np.intp)
+        ends = [lengths[c] for _, _, c in self.output_rows]
+        return R, bound, arguments, outputs, ends
 
-    def run(self, values: tuple, reference) -> list:
-        """The tape's outputs for ``values`` (arguments of this plan's signature); through
-        ``reference`` (the tape as it is) while another thread runs this plan."""
+    def run(self, values: list) -> list:
+        """Each program's outputs for its ``values`` (arguments of this plan's kinds); through the
+        tapes as they are while another thread runs this plan."""
         if not self._lock.acquire(blocking=False):
-            return reference(values)
+            return [program.reference(v) for program, v in zip(self.programs, values)]
         try:
-            n = values[self.length_of].shape[0]
+            lengths = tuple(-1 if at is None else v[at].shape[0] for at, v in zip(self.length_of, values))
             kept = self._kept
-            if kept is None or kept[0] != n:
-                if self.rows * max(n, 1) > WORKSPACE_FLOATS:
-                    return reference(values)
-                kept = self._kept = (n, self._workspace(n))
-            R, bound, arguments, output_rows = kept[1]
+            if kept is None or kept[0] != lengths:
+                if self.rows * max(1, *lengths) > WORKSPACE_FLOATS:
+                    return [program.reference(v) for program, v in zip(self.programs, values)]
+                kept = self._kept = (lengths, self._workspace(lengths))
+            R, bound, arguments, output_rows, ends = kept[1]
             r = self.template.copy()
-            r[:self.n_args] = values
-            for a, view in arguments:
-                view[...] = values[a]
+            for o, program, v in zip(self.offsets, self.programs, values):
+                r[o:o + program.n_args] = v
+            for c, a, view in arguments:
+                view[...] = values[c][a]
             for step in bound:
                 kind = step[0]
                 if kind == 0:
@@ -217,8 +246,8 @@ class LevelPlan:
                     if writes is not None:
                         writes[...] = value
             if len(output_rows):            # copied out: the rows are written again next call
-                for reg, value in zip(self.output_rows, R.take(output_rows, 0)):
-                    r[reg] = value
-            return [r[k] for k in self.outputs]
+                for (reg, _, _), n, value in zip(self.output_rows, ends, R.take(output_rows, 0)):
+                    r[reg] = value[:n]
+            return [[r[o + k] for k in program.outputs] for o, program in zip(self.offsets, self.programs)]
         finally:
             self._lock.release()

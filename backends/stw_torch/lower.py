@@ -107,9 +107,13 @@ class Program:
         if self.host_fn is None:
             with unoptimized():
                 return [r.numpy() for r in self([torch.from_numpy(a) for a in inputs], torch.from_numpy(times))]
-        n = times.shape[0]
         with np.errstate(all="ignore"):   # inf and nan come out silently, as from TorchScript
             out = self.host_fn(*inputs)
+        return self.finish(out, times.shape[0])
+
+    def finish(self, out: list, n: int) -> list[np.ndarray]:
+        """The rows of :meth:`host` from the host function's outputs ``out`` on n instances: the
+        constant rows filled in, and every row an (n,) float64 array."""
         if self.constants:
             computed = iter(out)
             out = [self._filled(row, self.constants[row], n, None) if row in self.constants else next(computed)
