@@ -402,11 +402,17 @@ def _shake(scene: Scene, cmd) -> str:
     names = list(cmd.dofs) or list(scene.window.dofs or scene.dofs)
     seed = cmd.seed if cmd.seed is not None else scene.shake_count
     rng = np.random.default_rng(seed)
+    interval = scene.window.interval
     for name in names:
         dof = scene.dofs[name]
-        dof.curve = dof.curve.shaken(amplitude, rng)
+        # Only the control points the window frees (its solve could not bring the others back,
+        # and the motion outside the window would stay broken); the same draws either way
+        support = dof.curve.support()
+        moved = None if interval is None else (support[:, 0] < interval[1]) & (support[:, 1] > interval[0])
+        dof.curve = dof.curve.shaken(amplitude, rng, moved)
     scene.shake_count += 1
-    return f"shook {', '.join(names)} (amplitude {amplitude:g}, seed {seed})"
+    where = "" if interval is None else f", where window {scene.window.name} frees them"
+    return f"shook {', '.join(names)} (amplitude {amplitude:g}, seed {seed}{where})"
 
 
 def _refine(scene: Scene, cmd) -> str:

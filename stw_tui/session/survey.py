@@ -144,9 +144,9 @@ def plan_tasks(session, plan: SurveyPlan) -> list[StartTask]:
         raise StwError(f"no window named '{name}' (windows: {', '.join(scene.windows)})")
     window = scene.windows[name]
     if window.interval is not None:
-        # Every kind of start changes whole curves (shake has no interval), and a windowed solve
-        # cannot move them back outside its interval: each start would end unconverged after
-        # all its iterations (measured on the arm throw: 4 of 4, 70 s each).
+        # Keyframe and random starts change whole curves, and a windowed solve cannot move them
+        # back outside its interval: each start would end unconverged after all its iterations
+        # (measured on the arm throw: 4 of 4, 70 s each, when shake changed whole curves too).
         a, b = window.interval
         raise StwError(f"window {name} frees only [{a:g}, {b:g}], but a start changes whole curves, which "
                        f"a solve in it could not bring back outside it; survey window=all, or a window "

@@ -429,6 +429,8 @@ class DofCurve:
             c[1:-1] = (c[:-2] + 2 * c[1:-1] + c[2:]) / 4
         return self.with_coef(c)
 
-    def shaken(self, amplitude: float, rng: np.random.Generator) -> "DofCurve":
-        """Add ``amplitude * rng.standard_normal(n_coef)`` to the control points (seeded rng)."""
-        return self.with_coef(self.coef + amplitude * rng.standard_normal(self.n_coef))
+    def shaken(self, amplitude: float, rng: np.random.Generator, moved: np.ndarray | None = None) -> "DofCurve":
+        """Add ``amplitude * rng.standard_normal(n_coef)`` to the control points (seeded rng), or
+        only to those where the boolean mask ``moved`` holds (the same draws, the rest left)."""
+        noise = amplitude * rng.standard_normal(self.n_coef)
+        return self.with_coef(self.coef + (noise if moved is None else np.where(moved, noise, 0.0)))

@@ -103,8 +103,9 @@ COMMAND_HELP: dict[str, CommandHelp] = {
     "filter": CommandHelp("filter DOF [PASSES]", "Smooth a DOF curve's control points (1-2-1 filter).",
                           "filter x 2"),
     "shake": CommandHelp("shake [DOF…] amplitude=A [seed=S]",
-                         "Perturb control points with seeded random noise (default: the window's DOF) to "
-                         "leave a local minimum.", "shake x y amplitude=0.05 seed=3"),
+                         "Perturb control points with seeded random noise (default: the window's DOF; "
+                         "in a window with an interval, only the control points it frees) to leave a "
+                         "local minimum.", "shake x y amplitude=0.05 seed=3"),
     "refine": CommandHelp("refine DOF [[A, B]] | refine DOF @ T [multiplicity=M]",
                           "Insert knots halving every span of the DOF over [A, B] (default: the window), "
                           "or a knot at T, M times in all (2: the DOF's acceleration may jump there, "
