@@ -448,10 +448,18 @@ def test_views_never_compile_or_evaluate_on_the_ui_thread(monkeypatch):
         await support.settle(pilot)
         await pilot.press("f3", "right_square_bracket")          # Expr: the next equation
         await support.settle(pilot)
-        await pilot.press("f3", "right", "right", "end")         # Figure: scrub
+        await pilot.press("f3")                                  # Figure
+        figure = app.query_one("#figure-plot")
+        await support.until(pilot, lambda: app.focused is figure, "the figure focused")
+        await pilot.press("right", "right", "end")               # scrub
         await pilot.press("space")
-        await pilot.pause(0.3)                                   # playing
-        await pilot.press("space", "f3")                         # Conv
+        # wait for the player's state, not a fixed time: on a loaded machine a press that came
+        # before the figure was ready left it playing in a hidden tab, and the app never settled
+        await support.until(pilot, lambda: figure.playing, "playing")
+        await pilot.pause(0.3)
+        await pilot.press("space")
+        await support.until(pilot, lambda: not figure.playing, "stopped")
+        await pilot.press("f3")                                  # Conv
         await support.submit(pilot, "iterate 5")
         await pilot.press("f3", "f3")                            # Curves, Expr while it solves
         await support.settle(pilot)
