@@ -147,12 +147,32 @@ def test_bad_survey_plans_leave_the_scene(pendulum):
     session.run_text(PENDULUM + "window late [1, 2]\nuse all\n")
     for line, message in [("survey 2 window=nope", "no window named"), ("adopt 1", "no survey"),
                           ("survey 2 from=sketch", "keyframes"), ("survey 2 amplitude=-1", "amplitude"),
-                          ("survey 2 window=late", "frees only")]:
+                          ("survey 2 window=late from=random", "frees only")]:
         with pytest.raises(StwError, match=message):
             session.execute(line)
     assert session.scene.scheduler == ""
     session.execute("set scheduler tcp://10.0.0.5:8786")
     assert session.scene.scheduler == "tcp://10.0.0.5:8786"
+
+
+def test_shaken_starts_in_a_window_with_an_interval_keep_the_motion_outside_it():
+    """A survey in a window with an interval: its shaken starts move only the control points the
+    window frees (`shake` there), so each start's solve can converge, and every start's motion
+    before the window is the scene's own."""
+    session = Session()
+    session.run_text(PENDULUM + "iterate 100\nwindow late [1.5, 2.5]\n")
+    before = session.scene.dofs["th"].curve.coef.copy()
+    support = session.scene.dofs["th"].curve.support()
+    outside = support[:, 1] <= 1.5
+    table = run_survey(session, SurveyPlan(2, seed=3, amplitude=0.2, iterations=60, window="late"), SerialEngine())
+    results = [r for o in table.optima for r in o.members]
+    assert len(results) == 2 and not table.failed and not table.unconverged, table.summary()
+    for r in results:                     # each start replayed: shaken and solved in the window
+        start = Session()
+        start.run_text(PENDULUM + "iterate 100\nwindow late [1.5, 2.5]\nuse late\n" + "\n".join(r.lines))
+        assert start.runs[-1].converged and abs(start.runs[-1].reports[-1].objective - r.objective) < 1e-9
+        assert np.array_equal(start.scene.dofs["th"].curve.coef[outside], before[outside])
+        assert not np.array_equal(start.scene.dofs["th"].curve.coef, before)
 
 
 def test_sketch_and_random_starts_are_session_lines(pendulum):

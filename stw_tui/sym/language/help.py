@@ -252,7 +252,7 @@ COMMAND_HELP.update({
                           "[iterate=M]",
                           "Solve N starts made from the scene (shaken curves, the default; jittered keyframes; "
                           "or random curves, each with amplitude A, default 0.5) with up to M iterations each "
-                          "(default 100) in window W (default the one in use; one without an interval), and list the distinct local "
+                          "(default 100) in window W (default the one in use; with an interval, shaken starts only), and list the distinct local "
                           "optima they reach, best first, with how many starts reached each; starts that fail "
                           "or do not converge are counted apart. The same seed gives the same survey. Starts "
                           "run on Dask (K worker processes, default one per core), or on a local process pool "
