@@ -131,16 +131,14 @@ class CallPlan:
     def _host_rows(self, kind: str, v: np.ndarray) -> list[list[np.ndarray]]:
         """Each call's rows of its program ``kind`` at numpy slot values ``v``: the host programs
         of all calls run on rows together (:class:`Together`) from the second evaluation on."""
-        blocks = self._host_blocks(v)
-        inputs = [[*X, c.host_times, *c.host_params] for c, X in blocks]
-        programs = [c.term.program(kind, host=True) for c in self.calls]
-        times = [c.host_times for c in self.calls]
+        inputs = [[*X, c.host_times, *c.host_params] for c, X in self._host_blocks(v)]
         key = (kind, v.dtype)
         together = self.together.get(key)
         if together is None:
-            rows, self.together[key] = Together.first(programs, inputs, times)
+            programs = [c.term.program(kind, host=True) for c in self.calls]
+            rows, self.together[key] = Together.first(programs, inputs, [c.host_times for c in self.calls])
             return rows
-        return together.run(programs, inputs, times)
+        return together.run(inputs)
 
     def values_host(self, v: np.ndarray) -> np.ndarray:
         """:meth:`values` of numpy slot values, as numpy (CPU only)."""
@@ -228,7 +226,8 @@ class Together:
     call's, and a call joins while its count is at least a quarter of that width, or the width is
     at most TOGETHER_WIDTH. Calls without a host program run as before."""
 
-    def __init__(self, buckets: list[tuple[LevelPlan, list[int]]]):
+    def __init__(self, programs: list, times: list, buckets: list[tuple[LevelPlan, list[int]]]):
+        self.programs, self.times = programs, times   # each call's program of this kind, its times
         self.buckets = buckets
 
     @classmethod
@@ -267,17 +266,17 @@ class Together:
             plan = LevelPlan([(programs[i].host_fn, inputs[i], traced[i]) for i in members])
             if plan.rows and plan.fits():
                 plans.append((plan, members))
-        return rows, cls(plans)
+        return rows, cls(programs, times, plans)
 
-    def run(self, programs: list, inputs: list, times: list) -> list:
-        """Each call's rows of its program, the planned calls on rows."""
-        rows: list = [None] * len(programs)
+    def run(self, inputs: list) -> list:
+        """Each call's rows of its program at its ``inputs``, the planned calls on rows."""
+        rows: list = [None] * len(self.programs)
         with np.errstate(all="ignore"):   # inf and nan come out silently, as from TorchScript
             for plan, members in self.buckets:
                 for i, out in zip(members, plan.run([inputs[i] for i in members])):
-                    rows[i] = programs[i].finish(out, times[i].shape[0])
+                    rows[i] = self.programs[i].finish(out, self.times[i].shape[0])
         return [row if row is not None else program.host(values, t)
-                for row, program, values, t in zip(rows, programs, inputs, times)]
+                for row, program, values, t in zip(rows, self.programs, inputs, self.times)]
 
 
 def autograd_rows(term: LoweredTerm, X: torch.Tensor, times: torch.Tensor, params: list,

@@ -212,7 +212,7 @@ class LevelPlan:
             lengths = tuple(-1 if at is None else v[at].shape[0] for at, v in zip(self.length_of, values))
             kept = self._kept
             if kept is None or kept[0] != lengths:
-                if self.rows * max(1, *lengths) > WORKSPACE_FLOATS:
+                if not fits(self.rows, lengths):
                     return [program.reference(v) for program, v in zip(self.programs, values)]
                 kept = self._kept = (lengths, self._workspace(lengths))
             R, bound, arguments, output_rows, ends = kept[1]

@@ -407,8 +407,7 @@ def _shake(scene: Scene, cmd) -> str:
         dof = scene.dofs[name]
         # Only the control points the window frees (its solve could not bring the others back,
         # and the motion outside the window would stay broken); the same draws either way
-        support = dof.curve.support()
-        moved = None if interval is None else (support[:, 0] < interval[1]) & (support[:, 1] > interval[0])
+        moved = None if interval is None else dof.curve.touching(*interval)
         dof.curve = dof.curve.shaken(amplitude, rng, moved)
     scene.shake_count += 1
     where = "" if interval is None else f", where window {scene.window.name} frees them"

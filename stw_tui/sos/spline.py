@@ -265,6 +265,12 @@ class DofCurve:
         n = self.n_coef
         return np.column_stack([self.knots[:n], self.knots[DEGREE + 1:DEGREE + 1 + n]])
 
+    def touching(self, a: float, b: float) -> np.ndarray:
+        """(n_coef,) bool: the control points whose basis is nonzero somewhere inside (a, b), the
+        ones a window over [a, b] frees."""
+        support = self.support()
+        return (support[:, 0] < b) & (support[:, 1] > a)
+
     def greville(self) -> np.ndarray:
         """The time each control point stands for: the mean of the DEGREE knots inside its
         support (Greville abscissae)."""

@@ -243,7 +243,7 @@ class WindowProblem:
         for name in self.window_dofs:
             curve = self.scene.dofs[name].curve
             support = curve.support()
-            mask = np.ones(curve.n_coef, bool) if full else (support[:, 0] < b) & (support[:, 1] > a)
+            mask = np.ones(curve.n_coef, bool) if full else curve.touching(a, b)
             idx = np.flatnonzero(mask)
             if idx.size:
                 lo, hi = min(lo, support[idx, 0].min()), max(hi, support[idx, 1].max())
