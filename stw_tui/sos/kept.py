@@ -20,6 +20,7 @@ def forget() -> None:
     with scene._EXPANDED_LOCK:
         scene._EXPANDED.clear()
     spline._kept_basis.cache_clear()
+    spline._kept_nonzero_basis.cache_clear()
     window._plan_set_of.cache_clear()
     compiler.free_symbols.cache_clear()
     compiler._check_size.cache_clear()

@@ -1,9 +1,11 @@
-"""DOF curves: cubic B-splines with their own clamped knot vectors, built on scipy.interpolate.
+"""DOF curves: cubic B-splines with their own clamped knot vectors.
 
 Values, velocities and accelerations at any times are linear in the control points, ``X = B S``,
 ``Ẋ = B' S``, ``Ẍ = B'' S``, with sparse basis matrices (at most four nonzeros a row). The
 derivative bases are the lower-degree design matrices times the sparse B-spline differentiation
-matrix, so every matrix comes from ``BSpline.design_matrix`` in one vectorized call.
+matrix, so every matrix comes from one design matrix (``BSpline.design_matrix``'s, computed by
+bspline_kernel without importing scipy.interpolate). Fitting and knot insertion, user tools,
+import scipy.interpolate when first used.
 """
 
 from __future__ import annotations
@@ -15,45 +17,12 @@ from typing import Callable, Sequence
 import numpy as np
 import scipy.sparse as sps
 import scipy.sparse.linalg as spla
-from scipy.interpolate import BSpline, insert, make_lsq_spline
+
+from stw_tui.sos import bspline_kernel
 
 DEGREE = 3
 # Times this far outside [t0, t1] are rounding noise (e.g. t0 + k*dt sums) and get clamped.
 _TIME_SLACK = 1e-12
-
-
-def _spline_values(knots: np.ndarray, coef: np.ndarray, times: np.ndarray, order: int) -> np.ndarray:
-    """``BSpline.construct_fast(knots, coef, 3)(times, nu=order)``: the public route, and the
-    reference the direct kernel (:data:`_KERNEL`) is probed against."""
-    return BSpline.construct_fast(knots, coef, DEGREE)(times, nu=order)
-
-
-def _kernel_values():
-    """The direct kernel call, if it gives BSpline's values on a probe, bit for bit; else None.
-
-    The dense check evaluates curves some 500 times per check; BSpline's call spends three times
-    the kernel's time on conversions of arrays that are already float, contiguous and 1-D here.
-    The kernel is scipy's private ``_dierckx.evaluate_spline`` (scipy >= 1.15): where it is
-    missing or answers differently from BSpline on the probe, BSpline itself is called.
-    """
-    try:
-        from scipy.interpolate import _dierckx
-
-        def direct(knots, coef, times, order):
-            return _dierckx.evaluate_spline(knots, coef.reshape(-1, 1), DEGREE, times, order, True).reshape(-1)
-
-        knots = np.r_[[0.0] * 4, 0.3, 0.5, [1.0] * 4]
-        coef = np.array([0.1, -2.0, 3.5, 0.25, 1.0, -0.75])
-        times = np.linspace(0.0, 1.0, 13)
-        if all(np.array_equal(direct(knots, coef, times, nu), _spline_values(knots, coef, times, nu))
-               for nu in (0, 1, 2)):
-            return direct
-    except Exception:   # noqa: BLE001 - any scipy without that kernel: the public route
-        pass
-    return None
-
-
-_KERNEL = _kernel_values()
 
 
 def times_checker(times) -> Callable[["DofCurve"], np.ndarray]:
@@ -136,11 +105,24 @@ def _kept_basis(knots: bytes, times: bytes, order: int) -> sps.csr_array:
         D = _difference_matrix(knots_, degree)
         chain = D if chain is None else D @ chain
         knots_, degree = knots_[1:-1], degree - 1
-    M = sps.csr_array(BSpline.design_matrix(times_, knots_, degree))
+    M = bspline_kernel.design_matrix(times_, knots_, degree)
     M = M if chain is None else sps.csr_array(M @ chain)
     for part in (M.data, M.indices, M.indptr):
         part.flags.writeable = False
     return M
+
+
+# Kept as _kept_basis is: the dense check evaluates curves at the same times check after check
+# (acrobat: 2557 evaluations at 644 distinct knots, times and orders), and the recursion costs
+# some 50 us, ten times the sum over its four terms on a few hundred times.
+@lru_cache(maxsize=512)
+def _kept_nonzero_basis(knots: bytes, times: bytes, order: int) -> tuple[np.ndarray, np.ndarray]:
+    """bspline_kernel.nonzero_basis of the curves on these knots at these times (float64 bytes),
+    read-only, with its first columns ``ell - DEGREE``."""
+    h, ell = bspline_kernel.nonzero_basis(np.frombuffer(knots), np.frombuffer(times), DEGREE, order)
+    first = ell - DEGREE
+    h.flags.writeable = first.flags.writeable = False
+    return h, first
 
 
 @lru_cache(maxsize=16)
@@ -217,9 +199,13 @@ class DofCurve:
         times = np.concatenate([[self.t0], times, [self.t1]])
         weights = np.concatenate([[1e-3], weights, [1e-3]])
         values = np.broadcast_to(np.asarray(f(times), dtype=float), times.shape)
-        # make_lsq_spline minimizes Σ (w_j (y_j - s(x_j)))², banded solve.
-        spl = make_lsq_spline(times, values, self.knots, DEGREE, w=np.sqrt(weights))
-        return self.with_coef(spl.c)
+        # Σ (w_j (y_j - s(x_j)))² by banded normal equations (make_lsq_spline's "norm-eq"; its
+        # QR differs by ~1e-14 relative and needs scipy.interpolate, 0.3 s to import). The change
+        # from the start value is fitted: B-splines sum to one, so a constant comes out exact,
+        # not within rounding of itself (a pose the session states, e.g. -pi/2).
+        start = values[0]
+        change = bspline_kernel.least_squares(times, values - start, self.knots, DEGREE, np.sqrt(weights))
+        return self.with_coef(change + start)
 
     def with_coef(self, coef: np.ndarray) -> "DofCurve":
         """The same knots with other control points.
@@ -332,13 +318,13 @@ class DofCurve:
     def values_at(self, times: np.ndarray, order: int) -> np.ndarray:
         """:meth:`evaluate` at times already checked (:meth:`checked_times`): several orders
         and curves at the same times check them once (the dense check, Scene.evaluator)."""
-        # The knots and control points were checked when the curve was made, and BSpline's
-        # checks cost more than evaluating a few hundred points (the dense check).
-        # (Knots and control points are contiguous float copies, _readonly; the kernel needs the
-        # times so too, as BSpline makes them.)
-        if _KERNEL is not None and times.dtype == np.float64 and times.ndim == 1 and times.flags.c_contiguous:
-            return _KERNEL(self.knots, self.coef, times, order)
-        return _spline_values(self.knots, self.coef, times, order)
+        if times.size == 0:
+            return np.zeros(0)
+        h, first = _kept_nonzero_basis(self.knots.tobytes(), times.tobytes(), order)
+        out = self.coef[first] * h[0]
+        for a in range(1, DEGREE + 1):   # summed in scipy's order: its values to the last bit
+            out += self.coef[first + a] * h[a]
+        return out
 
     # --- user tools (paper 4.1, 4.2, 4.3) ----------------------------------------------------
     def refined(self, a: float, b: float, factor: int = 2) -> "DofCurve":
@@ -360,6 +346,8 @@ class DofCurve:
         hit = (lo < b - slack) & (hi > a + slack)
         fractions = np.arange(1, int(factor)) / int(factor)
         new = np.sort((lo[hit, None] + (hi - lo)[hit, None] * fractions[None, :]).ravel())
+        from scipy.interpolate import BSpline, insert   # 0.3 s of imports a replay rarely needs
+
         spline = BSpline(self.knots, self.coef, DEGREE)
         for knot in new:  # one call per new knot; a user tool, not a hot path
             spline = insert(knot, spline)
@@ -382,6 +370,8 @@ class DofCurve:
         missing = int(multiplicity) - int(np.count_nonzero(self.knots == t))
         if missing <= 0:
             return self
+        from scipy.interpolate import BSpline, insert   # 0.3 s of imports a replay rarely needs
+
         spline = insert(t, BSpline(self.knots, self.coef, DEGREE), m=missing)
         return DofCurve(spline.t, spline.c[:len(spline.t) - DEGREE - 1])
 
