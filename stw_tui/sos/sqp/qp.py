@@ -32,7 +32,8 @@ IPM_TOL = 1e-11            # relative residuals and complementarity at which the
 IPM_MAX = 100              # interior-point iteration limit (hitting it is reported, never silent)
 IPM_ACCEPTABLE = 1e-6      # when the method stalls short of IPM_TOL, its best iterate is used if it got this far
 IPM_STALL = 20             # iterations without halving the best error: stalled (round-off, or an infeasible QP)
-INFEASIBLE_STALL = 5       # ... of a hard QP whose equality rows are met only through huge multipliers:
+INFEASIBLE_STALL = 1       # ... of a hard QP whose equality rows are met only through huge multipliers (one: the
+                           # elastic QP takes over with the same capped weight, so nothing is gained by waiting):
 INFEASIBLE_MULTIPLIER = 1e6   # |y| this large, and ε|y - y0| above 1e-3 of the rows' scale
 FLOOR_STALL = 5            # stalled iterations with an acceptable best iterate: the rounding floor (polish, or stop)
 POLISH_TOL = 1e-9          # relative: how negative a binding row's multiplier may come out of a working-set solve ...
