@@ -82,9 +82,15 @@ def spline_values(knots: np.ndarray, coef: np.ndarray, times: np.ndarray, degree
     """The spline's ``nu``-th derivative at ``times``, as ``BSpline(knots, coef, degree)(times,
     nu)`` gives it: the basis values times their control points, summed in the C code's order."""
     h, ell = nonzero_basis(knots, times, degree, nu)
-    first = ell - degree
+    return combine(coef, h, ell - degree)
+
+
+def combine(coef: np.ndarray, h: np.ndarray, first: np.ndarray) -> np.ndarray:
+    """Σ_a coef[first + a] h[a]: basis values (:func:`nonzero_basis`) times their control
+    points, added from a = 0 up as scipy's ``_evaluate_spline`` adds them (its values, bit for
+    bit)."""
     out = coef[first] * h[0]
-    for a in range(1, degree + 1):
+    for a in range(1, h.shape[0]):
         out += coef[first + a] * h[a]
     return out
 

@@ -321,10 +321,7 @@ class DofCurve:
         if times.size == 0:
             return np.zeros(0)
         h, first = _kept_nonzero_basis(self.knots.tobytes(), times.tobytes(), order)
-        out = self.coef[first] * h[0]
-        for a in range(1, DEGREE + 1):   # summed in scipy's order: its values to the last bit
-            out += self.coef[first + a] * h[a]
-        return out
+        return bspline_kernel.combine(self.coef, h, first)
 
     # --- user tools (paper 4.1, 4.2, 4.3) ----------------------------------------------------
     def refined(self, a: float, b: float, factor: int = 2) -> "DofCurve":
