@@ -35,6 +35,7 @@ from sympy.core.sorting import default_sort_key
 from stw_tui.sym import limits
 from stw_tui.sym.errors import LimitError, StwError
 from stw_tui.sym.symbols import TIME, split_dof_symbol
+from stw_tui.sym.tree_key import tree_text
 
 MAX_TERMS = 256   # compiled terms kept in memory (each holds its machine code, up to ~1 MB)
 _CACHE: dict[tuple, "CompiledTerm"] = {}   # in least-recently-used order
@@ -624,8 +625,12 @@ def _store(path: Path, key: bytes, entry) -> None:
 
 
 def _build(expr: sp.Expr, variables: tuple[LocalVar, ...], parameters: tuple[str, ...]) -> CompiledTerm:
-    e = _to_symengine(expr)        # once: the key's text and, on a miss, what is compiled
-    key = _term_key(e, variables, parameters)
+    text, e = tree_text(expr), None
+    if text is not None:   # named without converting: a hit then converts nothing
+        key = f"{text}|symengine {se.__version__}|{variables}|{parameters}"
+    else:
+        e = _to_symengine(expr)    # once: the key's text and, on a miss, what is compiled
+        key = _term_key(e, variables, parameters)
     entry = cached_entry("", key)
     if entry is not None:
         pairs, value_fn, full_fn = entry
