@@ -82,16 +82,24 @@ def spline_values(knots: np.ndarray, coef: np.ndarray, times: np.ndarray, degree
     """The spline's ``nu``-th derivative at ``times``, as ``BSpline(knots, coef, degree)(times,
     nu)`` gives it: the basis values times their control points, summed in the C code's order."""
     h, ell = nonzero_basis(knots, times, degree, nu)
-    return combine(coef, h, ell - degree)
+    return combine(coef, h, columns(ell, degree))
 
 
-def combine(coef: np.ndarray, h: np.ndarray, first: np.ndarray) -> np.ndarray:
-    """Σ_a coef[first + a] h[a]: basis values (:func:`nonzero_basis`) times their control
-    points, added from a = 0 up as scipy's ``_evaluate_spline`` adds them (its values, bit for
-    bit)."""
-    out = coef[first] * h[0]
-    for a in range(1, h.shape[0]):
-        out += coef[first + a] * h[a]
+def columns(ell: np.ndarray, degree: int) -> np.ndarray:
+    """(k + 1, len(ell)): the control points ``ell - k + a`` that the rows a of
+    :func:`nonzero_basis` multiply."""
+    return (ell - degree) + np.arange(degree + 1)[:, None]
+
+
+def combine(coef: np.ndarray, h: np.ndarray, at: np.ndarray) -> np.ndarray:
+    """Σ_a coef[at[a]] h[a]: basis values (:func:`nonzero_basis`) times their control points
+    (:func:`columns`), added from a = 0 up as scipy's ``_evaluate_spline`` adds them (its values,
+    bit for bit)."""
+    terms = coef[at]
+    terms *= h
+    out = terms[0] + terms[1] if h.shape[0] > 1 else terms[0].copy()
+    for a in range(2, h.shape[0]):
+        out += terms[a]
     return out
 
 

@@ -117,12 +117,12 @@ def _kept_basis(knots: bytes, times: bytes, order: int) -> sps.csr_array:
 # some 50 us, ten times the sum over its four terms on a few hundred times.
 @lru_cache(maxsize=512)
 def _kept_nonzero_basis(knots: bytes, times: bytes, order: int) -> tuple[np.ndarray, np.ndarray]:
-    """bspline_kernel.nonzero_basis of the curves on these knots at these times (float64 bytes),
-    read-only, with its first columns ``ell - DEGREE``."""
+    """bspline_kernel.nonzero_basis of the curves on these knots at these times (float64 bytes)
+    and the control points each value multiplies (bspline_kernel.columns), read-only."""
     h, ell = bspline_kernel.nonzero_basis(np.frombuffer(knots), np.frombuffer(times), DEGREE, order)
-    first = ell - DEGREE
-    h.flags.writeable = first.flags.writeable = False
-    return h, first
+    at = bspline_kernel.columns(ell, DEGREE)
+    h.flags.writeable = at.flags.writeable = False
+    return h, at
 
 
 @lru_cache(maxsize=16)
@@ -320,8 +320,8 @@ class DofCurve:
         and curves at the same times check them once (the dense check, Scene.evaluator)."""
         if times.size == 0:
             return np.zeros(0)
-        h, first = _kept_nonzero_basis(self.knots.tobytes(), times.tobytes(), order)
-        return bspline_kernel.combine(self.coef, h, first)
+        h, at = _kept_nonzero_basis(self.knots.tobytes(), times.tobytes(), order)
+        return bspline_kernel.combine(self.coef, h, at)
 
     # --- user tools (paper 4.1, 4.2, 4.3) ----------------------------------------------------
     def refined(self, a: float, b: float, factor: int = 2) -> "DofCurve":
