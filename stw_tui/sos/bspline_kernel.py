@@ -24,10 +24,9 @@ import scipy.sparse as sps
 def intervals(knots: np.ndarray, times: np.ndarray, degree: int) -> np.ndarray:
     """For each time, the index ``ell`` with ``knots[ell] <= t < knots[ell + 1]``, as scipy's
     ``_find_interval`` picks it: the last nonempty span for t at the right end, the first for t
-    before the left end."""
-    last = knots.size - degree - 2
-    ell = np.searchsorted(knots, times, side="right") - 1
-    return np.clip(ell, degree, last, out=ell)
+    before the left end (counted among the knots between the clamped ends, so no clipping)."""
+    inner = knots[degree + 1:knots.size - degree - 1]
+    return np.searchsorted(inner, times, side="right") + degree
 
 
 @lru_cache(maxsize=8)
@@ -51,29 +50,25 @@ def nonzero_basis(knots: np.ndarray, times: np.ndarray, degree: int, nu: int = 0
         (values, ell): values of shape (k + 1, len(times)), row a holding basis function
         ``ell - k + a`` at each time, and ell from :func:`intervals`.
     """
-    k, count = degree, times.size
+    k = degree
     ell = intervals(knots, times, k)
     # knots[ell + o] for o = 1 - k .. k, row o + k - 1: every knot the recursion reads.
     near = knots.take(ell + _offsets(k))
     before, after = times - near, near - times         # x - knots[ell + o], knots[ell + o] - x
-    h = np.ones((1, count))
+    h = np.ones((1, times.size))
     for j in range(1, k + 1):
         xb, xa = near[k:k + j], near[k - j:k]          # knots[ell + n], knots[ell + n - j], n = 1..j
-        new = np.empty((j + 1, count))
         if j <= k - nu:
-            # C: h[n-1] += w*(xb - x); h[n] = w*(x - xa), w = hh[n-1]/(xb - xa), n = 1..j.
+            # C: h[n-1] += w*(xb - x); h[n] = w*(x - xa), w = hh[n-1]/(xb - xa), n = 1..j; so
+            # h[0] = 0.0 + down[0] (exact), h[i] = up[i-1] + down[i], h[j] = up[j-1].
             w = h / (xb - xa)
             up, down = w * before[k - j:k], w * after[k:k + j]
-            new[0] = down[0]                           # 0.0 + down[0]
-            np.add(up[:-1], down[1:], out=new[1:j])
-            new[j] = up[-1]
+            h = np.concatenate((down[:1], up[:-1] + down[1:], up[-1:]))
         else:
-            # C: h[n-1] -= w; h[n] = w, w = j*hh[n-1]/(xb - xa).
+            # C: h[n-1] -= w; h[n] = w, w = j*hh[n-1]/(xb - xa); so h[0] = 0.0 - w[0] (exact),
+            # h[i] = w[i-1] - w[i], h[j] = w[j-1].
             w = (j * h) / (xb - xa)
-            np.negative(w[0], out=new[0])              # 0.0 - w[0]
-            np.subtract(w[:-1], w[1:], out=new[1:j])
-            new[j] = w[-1]
-        h = new
+            h = np.concatenate((-w[:1], w[:-1] - w[1:], w[-1:]))
     return h, ell
 
 
