@@ -251,6 +251,8 @@ class WindowProblem:
         self.free = np.concatenate(free).astype(np.int64) if free else np.zeros(0, np.int64)
         if self.free.size == 0:
             raise StwError(f"window '{self.window.name}' has no free control points")
+        self._free_mask = np.zeros(self.n_total, bool)
+        self._free_mask[self.free] = True
         # Constraint instances and objective quadrature cover every time the free control points
         # can change: the union of their supports, up to three knot spans past the window. (The
         # paper's one span past it (4.2) lets a window break constraints just outside itself.)
@@ -344,13 +346,13 @@ class WindowProblem:
         Returns the kept times and their basis rows (reused when P is assembled)."""
         if times.size == 0:
             return times, []
-        free_mask = np.zeros(self.n_total, bool)
-        free_mask[self.free] = True
         blocks = blocks if blocks is not None else self._basis_rows(term, times)
         keep = np.zeros(times.size, bool)
         for block in blocks:
-            hit = free_mask[block.col] & (block.data != 0)
+            hit = self._free_mask[block.col] & (block.data != 0)
             keep[block.row[hit]] = True
+        if keep.all():   # most groups: every instance lies where the window reaches
+            return times, blocks
         return times[keep], [block.kept(keep) for block in blocks]
 
     def _assemble_patterns(self) -> None:
