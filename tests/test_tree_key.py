@@ -45,6 +45,8 @@ def test_what_changes_the_code_changes_the_text():
 def test_nodes_it_does_not_know_leave_the_term_to_the_symengine_text():
     assert tree_text(sp.Dummy("x") + y) is None           # two dummies may share a name
     assert tree_text(sp.Function("f")(x) + y) is None
+    a, b = sp.symbols("a b", commutative=False)
+    assert tree_text(a * b) is None                        # a product whose order matters
 
 
 def _random_tree(rng: random.Random, depth: int) -> sp.Expr:

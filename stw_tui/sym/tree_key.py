@@ -46,8 +46,8 @@ def _leaf(node: sp.Basic) -> str | None:
         return f"Q{node.p}/{node.q}"
     if isinstance(node, sp.Float):
         return f"F{node._mpf_!r}:{node._prec}"
-    if type(node) is sp.Symbol:          # not a Dummy: two dummies may share a name
-        return f"S{node.name!r}"
+    if type(node) is sp.Symbol and node.is_commutative:   # not a Dummy (two may share a name),
+        return f"S{node.name!r}"                          # nor one whose products keep order
     if isinstance(node, _NAMED_ATOMS):
         return type(node).__name__
     return None
