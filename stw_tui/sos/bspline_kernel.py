@@ -103,9 +103,8 @@ def design_matrix(times: np.ndarray, knots: np.ndarray, degree: int) -> sps.csr_
     all ``degree + 1`` entries of a row stored, zeros included, as scipy stores them."""
     h, ell = nonzero_basis(knots, times, degree)
     index = np.int32 if times.size * (degree + 1) < np.iinfo(np.int32).max else np.int64
-    columns = (ell - degree).astype(index)[:, None] + np.arange(degree + 1, dtype=index)
     rows = np.arange(0, (times.size + 1) * (degree + 1), degree + 1, dtype=index)
-    return sps.csr_array((h.T.ravel(), columns.ravel(), rows),
+    return sps.csr_array((h.T.ravel(), columns(ell, degree).T.ravel().astype(index), rows),
                          shape=(times.size, knots.size - degree - 1))
 
 
@@ -130,9 +129,9 @@ def least_squares(times: np.ndarray, values: np.ndarray, knots: np.ndarray, degr
     # Entry (r, s), s <= r, of point j adds h[r] h[s] w_j² at band r - s of column ell - k + s.
     r, s = np.tril_indices(k + 1)
     band = np.zeros((k + 1, n))
-    np.add.at(band, ((r - s)[None, :], (ell - k)[:, None] + s[None, :]),
+    at = columns(ell, k).T                            # (points, k + 1)
+    np.add.at(band, ((r - s)[None, :], at[:, s]),
               (h[r].T * h[s].T) * weight[:, None])     # added point after point, as scipy adds
     rhs = np.zeros(n)
-    np.add.at(rhs, (ell - k)[:, None] + np.arange(k + 1)[None, :],
-              (h.T * values[:, None]) * weight[:, None])
+    np.add.at(rhs, at, (h.T * values[:, None]) * weight[:, None])
     return cho_solve_banded((cholesky_banded(band, lower=True), True), rhs)

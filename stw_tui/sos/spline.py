@@ -299,7 +299,7 @@ class DofCurve:
     def basis_at(self, times: np.ndarray, order: int) -> sps.csr_array:
         """:meth:`basis` at times already checked (:meth:`checked_times`): a term's variables
         share their times, and a window build asked for some 13000 checks of the same arrays."""
-        if times.size == 0:  # design_matrix rejects empty input
+        if times.size == 0:  # nothing to look up
             return sps.csr_array((0, self.n_coef))
         return _kept_basis(self.knots.tobytes(), times.tobytes(), order)
 
