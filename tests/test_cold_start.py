@@ -33,3 +33,39 @@ def test_a_process_of_its_own_prints_what_main_prints(tmp_path, capsys):
         return [line.rsplit(None, 1)[0] if line[:5].strip().isdigit() else line
                 for line in text.splitlines()]
     assert without_times(done.stdout) == without_times(inside)
+
+
+def _run_in_own_process(script: str) -> list[str]:
+    done = subprocess.run([sys.executable, "-c", script], env=dict(os.environ, STW_CACHE_DIR="off"),
+                          capture_output=True, text=True, check=True)
+    return done.stdout.strip().splitlines()
+
+
+def test_a_process_of_its_own_never_runs_the_numpy_subpackages_scipy_only_lists(tmp_path):
+    """scipy.sparse's array-API shim reads every name of numpy: numpy.f2py, testing and ctypeslib
+    stay deferred through a whole `stw run` (lazy_numpy), and load on first use."""
+    path = tmp_path / "s.stw"
+    path.write_text(SESSION, encoding="utf-8")
+    lines = _run_in_own_process(
+        "import sys\n"
+        "import stw_tui.cli.main as cli\n"
+        "cli._OWN_PROCESS = True\n"
+        f"assert cli.main(['run', {str(path)!r}]) == 0\n"
+        "import scipy.sparse\n"
+        "print(sorted(m for m in ('numpy.f2py', 'numpy.testing', 'numpy.ctypeslib')\n"
+        "             if type(sys.modules[m]).__name__ != '_LazyModule'))\n"
+        "import numpy\n"
+        "numpy.testing.assert_allclose([1.0], [1.0])\n"
+        "from numpy.f2py import crackfortran\n"
+        "print(type(sys.modules['numpy.testing']).__name__, callable(crackfortran.crackfortran))\n")
+    assert lines[-2:] == ["[]", "module True"]
+
+
+def test_main_inside_a_program_defers_no_numpy_subpackage():
+    lines = _run_in_own_process(
+        "import sys\n"
+        "from stw_tui.cli.main import _long_lived_imports\n"
+        "with _long_lived_imports():\n"
+        "    import scipy.sparse\n"
+        "print(type(sys.modules['numpy.f2py']).__name__)\n")
+    assert lines[-1] == "module"

@@ -56,12 +56,16 @@ _OWN_PROCESS = False   # main() runs in a process of its own (console()), not in
 def _long_lived_imports():
     """In a process of its own, import with the cyclic collector paused, then freeze what was
     imported out of its sight: numpy, scipy.sparse and sympy make ~10^5 objects that live until
-    the process ends, and walking them cost 0.1-0.2 s of collections during the import."""
+    the process ends, and walking them cost 0.1-0.2 s of collections during the import. numpy's
+    subpackages that scipy's import touches and stw never reads are deferred (lazy_numpy)."""
     if not _OWN_PROCESS:
         yield
         return
     gc.disable()
     try:
+        from stw_tui.cli.lazy_numpy import defer_unused_numpy_subpackages
+
+        defer_unused_numpy_subpackages()
         yield
     finally:
         gc.freeze()
@@ -277,6 +281,10 @@ def _launch_tui(argv: list[str]) -> int:
                         help="reopen the last autosaved journal (or JOURNAL) and restore its checkpointed state")
     parser.add_argument("--resolve", action="store_true", help="with --resume: solve everything again")
     args = parser.parse_args(argv)
+    if _OWN_PROCESS:
+        from stw_tui.cli.lazy_numpy import defer_unused_numpy_subpackages
+
+        defer_unused_numpy_subpackages()
     try:
         from stw_tui.app import run_app
     except ImportError as exc:  # the TUI is optional for the headless core
