@@ -942,3 +942,33 @@ def test_an_autosaved_session_says_where_its_journal_is_and_preview_accept_work_
         assert journal.read_text().splitlines()[-5:] == ["iterate 20", "iterate 20", "reject", "iterate 20", "accept"]
 
     run(scenario, app)
+
+
+def test_a_journalled_session_is_made_by_the_worker_after_the_app_shows(tmp_path):
+    """`stw SESSION` journals by default: its session is made off the UI thread, as an unjournalled
+    one is, so the first frame does not wait for the core's imports (numpy, scipy, sympy)."""
+    import subprocess
+    import sys
+
+    journal = tmp_path / "j.stw"
+    shown = subprocess.run(
+        [sys.executable, "-c", "import sys\nfrom stw_tui.app import create_app\n"
+         f"app = create_app(journal={str(journal)!r}, solver_process=False)\n"
+         "print(app.session, sorted(m for m in ('sympy', 'scipy', 'stw_tui.session.session') if m in sys.modules))"],
+        capture_output=True, text=True, check=True).stdout.split()
+    assert shown == ["None", "[]"]
+
+    app = create_app(journal=journal, solver_process=False)
+
+    async def scenario(pilot):
+        await support.submit(pilot, "dof x")
+        await support.submit(pilot, "constraint c: x = 1 @ 0")
+        await support.submit(pilot, "objective o: x''")
+        await support.submit(pilot, "iterate 2")
+        await support.settle(pilot)
+        assert app.session.journal.path == journal and app.session.checkpoints is not None
+        assert f"journal: {journal}" in support.log_text(app)
+
+    run(scenario, app)
+    assert journal.read_text(encoding="utf-8").splitlines()[:3] == ["dof x", "constraint c: x = 1 @ 0",
+                                                                    "objective o: x''"]

@@ -26,7 +26,7 @@ def settings_file() -> Path:
 
 def create_app(session_path: str | Path | None = None, step: bool = False, session: "Session | None" = None,
                *, show_timing: bool = True, blink: bool = True, settings_path: str | Path | None = None,
-               solver_process: bool = True) -> StwApp:
+               solver_process: bool = True, journal: str | Path | None = None) -> StwApp:
     """A ready-to-run app.
 
     Args:
@@ -38,9 +38,12 @@ def create_app(session_path: str | Path | None = None, step: bool = False, sessi
         settings_path: a JSON file that remembers the theme between runs (None: not remembered).
         solver_process: run solves in a child process (False: in a thread of this one, where a
             plugin installed only in this process, as tests do, is found).
+        journal: without ``session``, the file the new session journals to (its solves
+            checkpointed beside it); the session is made, with the core's imports, off the UI
+            thread once the app shows.
     """
     return StwApp(session=session, session_path=session_path, step=step, show_timing=show_timing, blink=blink,
-                  settings_path=settings_path, solver_process=solver_process)
+                  settings_path=settings_path, solver_process=solver_process, journal=journal)
 
 
 # Seconds a thread may hold the interpreter lock while another waits for it (Python's default is
@@ -67,22 +70,20 @@ def run_app(session_path: str | Path | None = None, step: bool = False,
             a second finalizing them, and a solve abandoned by Ctrl+Q (a daemon thread) is not
             waited for. False: return the exit code instead (for callers that go on).
     """
-    if session is None and journal is not None:
-        from stw_tui.session.autosave import Checkpoints
-        from stw_tui.session.session import Session
-
-        session = Session(journal_path=journal)
-        session.checkpoints = Checkpoints(Path(journal))
+    # A new session (journalled or not) is made by the app's worker once the app shows: the core's
+    # imports (numpy, scipy, sympy) took 1.2 s before the first frame when it was made here.
     # Its Runner starts multiprocessing's helpers here, before Textual replaces stderr
     # (child_process.start_helpers).
-    app = create_app(session_path, step=step, session=session, settings_path=settings_file())
+    app = create_app(session_path, step=step, session=session, settings_path=settings_file(),
+                     journal=journal if session is None else None)
     sys.setswitchinterval(SWITCH_INTERVAL)
     app.run()
     code = app.return_code or 0
-    if session is not None and session.journal.path is not None:   # the screen is restored: say it
+    kept = session.journal.path if session is not None else journal
+    if kept is not None:   # the screen is restored: say it
         from stw_tui.session.autosave import kept_note
 
-        print(kept_note(session.journal.path), file=sys.stderr)
+        print(kept_note(Path(kept)), file=sys.stderr)
     if exit_process:
         engines = sys.modules.get("stw_tui.session.survey_engines")
         if engines is not None:   # a survey's Dask workers would outlive os._exit

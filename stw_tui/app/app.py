@@ -103,7 +103,8 @@ class StwApp(App[int]):
 
     def __init__(self, session: "Session | None" = None, session_path: str | Path | None = None,
                  step: bool = False, show_timing: bool = True, blink: bool = True,
-                 settings_path: str | Path | None = None, solver_process: bool = True):
+                 settings_path: str | Path | None = None, solver_process: bool = True,
+                 journal: str | Path | None = None):
         super().__init__()
         if "TEXTUAL_ANIMATIONS" not in os.environ:
             # The tab underline slides for 0.3 s after F2/F3: ~18 frames of the whole screen's
@@ -111,7 +112,8 @@ class StwApp(App[int]):
             # the solver loses). It jumps instead; TEXTUAL_ANIMATIONS=full brings it back.
             self.animation_level = "none"
         self.settings_path = Path(settings_path) if settings_path else None
-        self.runner = Runner(self, session, solver_process=solver_process)
+        self.runner = Runner(self, session, solver_process=solver_process,
+                             journal=Path(journal) if journal is not None and session is None else None)
         self.session_path = Path(session_path) if session_path else None
         self.stepping = step
         self.show_timing = show_timing
@@ -206,7 +208,7 @@ class StwApp(App[int]):
         self.repl.write_note("stw — Spacetime Windows. Type a command (`help` lists them); "
                              "F1 help, F2 panels, F3 plots, F5 iterate, F4 stops, Esc back here, Ctrl+P palette, "
                              "Ctrl+Q quits.")
-        journal = self.runner.session.journal.path if self.runner.session is not None else None
+        journal = self.runner.session.journal.path if self.runner.session is not None else self.runner.journal
         if journal is not None:   # autosaved (stw_tui/session/autosave.py): say where, once
             self.repl.write_note(f"journal: {journal} (`journal` says more; `stw --resume` reopens it)")
         self.status_line.show(state="loading")

@@ -81,9 +81,11 @@ class Script:
 class Runner:
     """The queue of jobs and the state of the one running in the worker."""
 
-    def __init__(self, app: "App", session: "Session | None" = None, solver_process: bool = True):
+    def __init__(self, app: "App", session: "Session | None" = None, solver_process: bool = True,
+                 journal: Path | None = None):
         self.app = app
         self.session = session
+        self.journal = journal   # the file a session made here journals to (None: not journalled)
         # Solves run in a child process: the UI thread then never waits for the solver's
         # interpreter lock (stw_tui/session/child_process.py).
         self.solver = SolverProcess() if solver_process else None
@@ -156,9 +158,7 @@ class Runner:
         """Execute ``job`` on the session and post what happened. Never raises."""
         try:
             if self.session is None:   # the first job loads the core here, off the UI thread
-                from stw_tui.session.session import Session
-
-                self.session = Session()
+                self.session = _new_session(self.journal)
         except Exception as exc:  # e.g. a broken install: say so instead of staying busy forever
             self._post(CommandFinished(job, None, exc, SceneInfo()))
             return
@@ -222,3 +222,16 @@ def survey_snapshot(table):
     from dataclasses import replace
 
     return replace(table, results=list(table.results), notes=list(table.notes))
+
+
+def _new_session(journal: Path | None) -> "Session":
+    """A new session (the core's first import: numpy, scipy, sympy, about a second), journalled to
+    ``journal`` with its solves checkpointed beside it when one is given."""
+    from stw_tui.session.session import Session
+
+    session = Session(journal_path=journal)
+    if journal is not None:
+        from stw_tui.session.autosave import Checkpoints
+
+        session.checkpoints = Checkpoints(Path(journal))
+    return session
