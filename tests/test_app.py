@@ -972,3 +972,33 @@ def test_a_journalled_session_is_made_by_the_worker_after_the_app_shows(tmp_path
     run(scenario, app)
     assert journal.read_text(encoding="utf-8").splitlines()[:3] == ["dof x", "constraint c: x = 1 @ 0",
                                                                     "objective o: x''"]
+
+
+def test_a_replay_measures_the_scene_once_at_its_end_and_again_where_it_pauses(tmp_path, monkeypatch):
+    """The views redraw at most ten times a second: a replay measures the scene for them
+    (the dense check, the figure's bounds) after its last line only, and, where it pauses on an
+    error, at the pause, so the equations panel never shows an earlier scene's violations."""
+    import stw_tui.app.runner as runner_module
+
+    measured = []
+    real = runner_module.scene_info
+    monkeypatch.setattr(runner_module, "scene_info", lambda scene, proposal=None: measured.append(
+        sorted(scene.constraints)) or real(scene, proposal))
+    script = tmp_path / "s.stw"
+    script.write_text("time 0 1\ndof x\nconstraint a: x = 1 @ 0\nconstraint b: x = 2 @ 1\n"
+                      "objective o: x''\niterate 5\nprint x @ 0.5\n", encoding="utf-8")
+    app = create_app(script, solver_process=False)
+
+    async def scenario(pilot):
+        assert measured[-1] == ["a", "b"] and len(measured) == 2      # at startup, after the last line
+        assert app._info.violations["b"] < 1e-6                      # the solved scene's own
+        broken = tmp_path / "broken.stw"
+        broken.write_text("constraint c: x = 0 @ 0.5\nconstraint d: x = @ 1\nconstraint e: x = 3 @ 1\n",
+                          encoding="utf-8")
+        app._open(broken)
+        await support.settle(pilot)
+        assert "replay paused" in support.log_text(app)
+        assert measured[-1] == ["a", "b", "c"] and len(measured) == 3    # measured where it paused
+        assert app._info.violations["c"] > 0.5
+
+    run(scenario, app)

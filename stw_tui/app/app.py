@@ -253,6 +253,8 @@ class StwApp(App[int]):
             self.refresh_bindings()
             self._show_state()
             return
+        # A replay measures its last line only (and a paused one where it stopped); a step, each
+        job.measure = not self.script.running or self.script.upcoming() is None
         self.runner.submit(job)
 
     def _show_state(self) -> None:
@@ -278,7 +280,7 @@ class StwApp(App[int]):
 
     def on_command_started(self, event: CommandStarted) -> None:
         job = event.job
-        if job.origin != Origin.STARTUP and job.line.strip():
+        if job.origin not in (Origin.STARTUP, Origin.MEASURE) and job.line.strip():
             self.repl.write_command(job.line, job.number, job.origin, job.continuation)
         if job.is_solve:
             self.query_one(ConvergencePlot).set_reports([])
@@ -395,6 +397,8 @@ class StwApp(App[int]):
             return
         self.repl.set_prompt(self.session.in_block)
         self._refresh_views(event.info)
+        if event.info is None and not (self.script is not None and self.script.running):
+            self.runner.submit(Job("", origin=Origin.MEASURE))   # a replay paused on an unmeasured line
         self.runner.finished()
         self._feed_script()
         self._show_state()

@@ -25,6 +25,7 @@ class Origin(enum.StrEnum):
     KEY = "key"           # a key binding (F5, Ctrl+Z)
     FILE = "file"         # the opened session file
     STARTUP = "startup"   # the empty job that loads the core when the app starts
+    MEASURE = "measure"   # an empty job that measures the scene for the views (after a replay paused)
     COMPARE = "compare"   # the backend comparison task
 
 
@@ -39,6 +40,10 @@ class Job:
     # A read-only task instead of a command line (e.g. comparing backends): called with the
     # session in the worker, not journalled; its result comes back in a TaskFinished message.
     task: "Callable[[Session], Any] | None" = None
+    # Measure the scene for the views afterwards (queries.scene_info: the dense check, the
+    # figure's bounds). A replayed line with more to come does not: the views redraw at most
+    # ten times a second, and measuring after every line was 40% of a replay (arm_throw).
+    measure: bool = True
 
     @property
     def is_solve(self) -> bool:
@@ -81,7 +86,7 @@ class CommandFinished(Message):
     job: "Job"
     outcome: Any
     error: BaseException | None
-    info: "SceneInfo"
+    info: "SceneInfo | None"      # None: not measured (``job.measure``); the views keep the last
     scene: "Scene | None" = None
 
 
