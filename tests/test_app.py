@@ -1002,3 +1002,27 @@ def test_a_replay_measures_the_scene_once_at_its_end_and_again_where_it_pauses(t
         assert app._info.violations["c"] > 0.5
 
     run(scenario, app)
+
+
+def test_a_replay_refreshes_the_views_twice_a_second_and_its_end_at_once(tmp_path):
+    from stw_tui.app.app import REPLAY_VIEW_INTERVAL, VIEW_INTERVAL
+
+    script = tmp_path / "s.stw"
+    script.write_text("time 0 1\ndof x\nconstraint a: x = 1 @ 0\nobjective o: x''\niterate 3\n", encoding="utf-8")
+    app = create_app(script, solver_process=False)
+    seen = []
+    refresh = app._refresh_views
+
+    def recording(info=None):
+        refresh(info)
+        seen.append((app.script is not None and app.script.upcoming() is not None,
+                     app._views.throttle.interval, app._views.pending))
+    app._refresh_views = recording
+
+    async def scenario(pilot):
+        # the startup job's and the four lines' before the last
+        assert [interval for more, interval, _ in seen if more] == [REPLAY_VIEW_INTERVAL] * 5
+        assert seen[-1] == (False, VIEW_INTERVAL, False)     # the last line: shown at once
+        assert not app._views.pending
+
+    run(scenario, app)

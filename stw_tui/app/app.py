@@ -45,6 +45,10 @@ if TYPE_CHECKING:
 PANELS = (("DOF", DofPanel), ("Eqns", EquationsPanel), ("Const", ConstantsPanel), ("Win", WindowsPanel),
           ("Time", TimePanel), ("Opt", OptimizationPanel))
 VIEW_INTERVAL = 0.1   # seconds between refreshes of the panels and plots
+# ... while a session replays (the console shows each line as it runs): each refresh samples the
+# scene for the plots in background threads, which took the interpreter lock from the replay
+# (arm_throw's replay in the app, 4 alternating runs: 6.6-7.2 s at 0.1, 5.1-5.7 s at 0.5)
+REPLAY_VIEW_INTERVAL = 0.5
 # Seconds between redraws from a running solve (status, curves, figure). Each redraw takes the
 # interpreter lock from the solver: on basketball in tmux the solve took 21.6 and 22.5 s redrawn
 # at every iteration, 18.1 and 18.5 s with the status line alone, 16.7 and 15.8 s undrawn;
@@ -421,9 +425,17 @@ class StwApp(App[int]):
         return not any(plot.redraw_pending for plot in self.query(ScenePlot))
 
     def _refresh_views(self, info=None) -> None:
-        """Show the scene in the panels and plots, at most ~10 times a second (a replay is fast)."""
+        """Show the scene in the panels and plots, at most ~10 times a second (twice while a
+        session replays; its last line, or the one it pauses at, at once)."""
         if info is not None:
             self._info = info
+        script = self.script
+        replaying = script is not None and script.running and script.upcoming() is not None
+        interval = REPLAY_VIEW_INTERVAL if replaying else VIEW_INTERVAL
+        if interval != self._views.throttle.interval:
+            self._views.throttle.interval = interval
+            if not replaying:
+                self._views.cancel()   # a refresh waiting out the replay's interval: now instead
         self._views.request()
 
     def _show_views(self) -> None:
