@@ -83,12 +83,51 @@ def test_fitting_a_constant_gives_that_constant_exactly():
     assert np.all(curve.coef == -np.pi / 2)
 
 
-def test_a_replay_that_fits_and_evaluates_curves_does_not_import_scipy_interpolate():
+def test_a_replay_that_fits_refines_and_evaluates_curves_does_not_import_scipy_interpolate():
     """scipy.interpolate pulls scipy.optimize, special, spatial and fft in: 0.3 s of `stw run`."""
     script = ("import sys\n"
               "from stw_tui.session.session import Session\n"
               "s = Session()\n"
-              "s.run_text('time 0 1 knots=8\\ndof X = sin(t)\\ndof Y = 0.5\\nprint X + Y on [0.2, 0.4]\\n')\n"
+              "s.run_text('time 0 1 knots=8\\ndof X = sin(t)\\ndof Y = 0.5\\nprint X + Y on [0.2, 0.4]\\n'\n"
+              "           'refine X [0.2, 0.5]\\nrefine Y @ 0.3 multiplicity=2\\nprint X @ 0.35\\n')\n"
               "print(sorted(m for m in ('scipy.interpolate', 'scipy.optimize') if m in sys.modules))\n")
     done = subprocess.run([sys.executable, "-c", script], capture_output=True, text=True, check=True)
     assert done.stdout.strip().splitlines()[-1] == "[]"
+
+
+@pytest.mark.parametrize("seed", range(4))
+def test_knot_insertion_equals_scipys_insert_bit_for_bit(seed):
+    """Boehm insertion as FITPACK's fpinst does it: new knots and coefficients equal
+    scipy.interpolate.insert's exactly, at new places and at existing knots, up to three times."""
+    from scipy.interpolate import insert
+
+    rng = np.random.default_rng(100 + seed)
+    at_knots = 0
+    for _ in range(500):
+        knots = random_knots(rng, 3)
+        coef = rng.standard_normal(knots.size - 4)
+        inner = knots[4:-4]
+        if inner.size and rng.random() < 0.3:
+            x, at_knots = float(inner[rng.integers(0, inner.size)]), at_knots + 1
+        else:
+            x = float(rng.uniform(knots[0], knots[-1]))
+        times = int(rng.integers(1, 4))
+        want = insert(x, BSpline(knots, coef, 3), m=times)
+        got_knots, got_coef = bspline_kernel.insert_knot(knots, coef, x, 3, times)
+        assert np.array_equal(got_knots, want.t)
+        assert np.array_equal(got_coef, want.c[:want.t.size - 4])   # FITPACK pads c to len(t)
+    assert at_knots > 100
+
+
+def test_knot_insertion_keeps_the_curve_and_refuses_the_ends():
+    rng = np.random.default_rng(7)
+    knots = np.r_[[0.0] * 4, np.sort(rng.uniform(0, 2, 6)), [2.0] * 4]
+    coef = rng.standard_normal(knots.size - 4)
+    times = np.linspace(0, 2, 101)
+    new_knots, new_coef = bspline_kernel.insert_knot(knots, coef, 0.7, 3, 2)
+    assert new_knots.size == knots.size + 2 and np.count_nonzero(new_knots == 0.7) == 2
+    np.testing.assert_allclose(bspline_kernel.spline_values(new_knots, new_coef, times, 3),
+                               bspline_kernel.spline_values(knots, coef, times, 3), rtol=0, atol=1e-13)
+    for end in (0.0, 2.0, -1.0):
+        with pytest.raises(ValueError, match="inside the spline's span"):
+            bspline_kernel.insert_knot(knots, coef, end, 3)

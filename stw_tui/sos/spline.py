@@ -4,8 +4,8 @@ Values, velocities and accelerations at any times are linear in the control poin
 ``Ẋ = B' S``, ``Ẍ = B'' S``, with sparse basis matrices (at most four nonzeros a row). The
 derivative bases are the lower-degree design matrices times the sparse B-spline differentiation
 matrix, so every matrix comes from one design matrix (``BSpline.design_matrix``'s, computed by
-bspline_kernel without importing scipy.interpolate). Fitting and knot insertion, user tools,
-import scipy.interpolate when first used.
+bspline_kernel without importing scipy.interpolate). Fitting and knot insertion (user tools)
+are bspline_kernel's too: scipy's arithmetic, bit for bit, without its 0.3 s of imports.
 """
 
 from __future__ import annotations
@@ -343,13 +343,10 @@ class DofCurve:
         hit = (lo < b - slack) & (hi > a + slack)
         fractions = np.arange(1, int(factor)) / int(factor)
         new = np.sort((lo[hit, None] + (hi - lo)[hit, None] * fractions[None, :]).ravel())
-        from scipy.interpolate import BSpline, insert   # 0.3 s of imports a replay rarely needs
-
-        spline = BSpline(self.knots, self.coef, DEGREE)
-        for knot in new:  # one call per new knot; a user tool, not a hot path
-            spline = insert(knot, spline)
-        # FITPACK pads c to len(t); the trailing entries are not control points.
-        return DofCurve(spline.t, spline.c[:len(spline.t) - DEGREE - 1])
+        knots, coef = self.knots, self.coef
+        for knot in new:  # one insertion per new knot; a user tool, not a hot path
+            knots, coef = bspline_kernel.insert_knot(knots, coef, float(knot), DEGREE)
+        return DofCurve(knots, coef)
 
     def with_knot(self, t: float, multiplicity: int = 1) -> "DofCurve":
         """The same curve with a knot at ``t`` repeated ``multiplicity`` times in all (Boehm
@@ -367,10 +364,7 @@ class DofCurve:
         missing = int(multiplicity) - int(np.count_nonzero(self.knots == t))
         if missing <= 0:
             return self
-        from scipy.interpolate import BSpline, insert   # 0.3 s of imports a replay rarely needs
-
-        spline = insert(t, BSpline(self.knots, self.coef, DEGREE), m=missing)
-        return DofCurve(spline.t, spline.c[:len(spline.t) - DEGREE - 1])
+        return DofCurve(*bspline_kernel.insert_knot(self.knots, self.coef, t, DEGREE, missing))
 
     def sketched(self, keys: Sequence[tuple[float, float]], smoothness: float = 1e-3,
                  anchor: float = 1e-9) -> "DofCurve":
