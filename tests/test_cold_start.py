@@ -69,3 +69,14 @@ def test_main_inside_a_program_defers_no_numpy_subpackage():
         "    import scipy.sparse\n"
         "print(type(sys.modules['numpy.f2py']).__name__)\n")
     assert lines[-1] == "module"
+
+
+def test_a_reader_that_leaves_early_gets_no_traceback():
+    """`stw backends | head -1`: the pipe closes before stw writes; it ends quietly, with the
+    status a shell gives a command that SIGPIPE ended."""
+    child = subprocess.Popen([sys.executable, "-m", "stw_tui.cli.main", "backends"],
+                             stdout=subprocess.PIPE, stderr=subprocess.PIPE)
+    child.stdout.close()           # the reader is gone before the plugins are loaded
+    error = child.stderr.read().decode()
+    assert child.wait(timeout=60) == 141
+    assert "Traceback" not in error and "BrokenPipeError" not in error, error

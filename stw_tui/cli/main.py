@@ -56,16 +56,12 @@ _OWN_PROCESS = False   # main() runs in a process of its own (console()), not in
 def _long_lived_imports():
     """In a process of its own, import with the cyclic collector paused, then freeze what was
     imported out of its sight: numpy, scipy.sparse and sympy make ~10^5 objects that live until
-    the process ends, and walking them cost 0.1-0.2 s of collections during the import. numpy's
-    subpackages that scipy's import touches and stw never reads are deferred (lazy_numpy)."""
+    the process ends, and walking them cost 0.1-0.2 s of collections during the import."""
     if not _OWN_PROCESS:
         yield
         return
     gc.disable()
     try:
-        from stw_tui.cli.lazy_numpy import defer_unused_numpy_subpackages
-
-        defer_unused_numpy_subpackages()
         yield
     finally:
         gc.freeze()
@@ -257,7 +253,11 @@ def console() -> None:
     on the arm). main() called inside another program (tests) leaves the collector alone."""
     global _OWN_PROCESS
     _OWN_PROCESS = True
-    code = main()
+    try:
+        code = main()
+    except BrokenPipeError:   # `stw backends | head`: the reader left; end quietly, as cat does
+        os.dup2(os.open(os.devnull, os.O_WRONLY), sys.stdout.fileno())   # no error at exit's flush
+        code = 141   # 128 + SIGPIPE, what a shell reports for a command killed by it
     gc.freeze()
     sys.exit(code)
 
@@ -268,6 +268,10 @@ def main(argv: list[str] | None = None) -> int:
     if not argv or (argv[0] not in SUBCOMMANDS and argv[0] not in ("-h", "--help")):
         return _launch_tui(argv)
     args = build_parser().parse_args(argv)
+    if _OWN_PROCESS:   # every command loads numpy and scipy.sparse (`stw backends` too: its plugins)
+        from stw_tui.cli.lazy_numpy import defer_unused_numpy_subpackages
+
+        defer_unused_numpy_subpackages()
     return args.func(args)
 
 
