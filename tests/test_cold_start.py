@@ -80,3 +80,14 @@ def test_a_reader_that_leaves_early_gets_no_traceback():
     error = child.stderr.read().decode()
     assert child.wait(timeout=60) == 141
     assert "Traceback" not in error and "BrokenPipeError" not in error, error
+
+
+def test_run_with_a_backend_that_is_not_there_says_so_and_runs_nothing(tmp_path, capsys):
+    path = tmp_path / "s.stw"
+    path.write_text(SESSION, encoding="utf-8")
+    assert main(["run", str(path), "--backend", "nosuch"]) == 2
+    captured = capsys.readouterr()
+    assert "--backend nosuch: no backend named 'nosuch' (installed:" in captured.err
+    assert "Traceback" not in captured.err and captured.out == ""
+    assert main(["run", str(path), "--backend", "scipy solver=bogus"]) == 2
+    assert "option solver: 'bogus' is not one of" in capsys.readouterr().err

@@ -92,7 +92,11 @@ def _run(args: argparse.Namespace) -> int:
         print(f"[{number}] {outcome.message}")
 
     if args.backend:
-        session.execute(f"backend {args.backend}")
+        try:
+            session.execute(f"backend {args.backend}")
+        except StwError as exc:   # e.g. a backend that is not installed: say so, run nothing
+            print(f"stw run: --backend {args.backend}: {exc}", file=sys.stderr)
+            return 2
     try:
         session.run_file(args.session, on_line=on_line)
     except SourceError as exc:
