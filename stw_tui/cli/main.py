@@ -272,11 +272,17 @@ def main(argv: list[str] | None = None) -> int:
     if not argv or (argv[0] not in SUBCOMMANDS and argv[0] not in ("-h", "--help")):
         return _launch_tui(argv)
     args = build_parser().parse_args(argv)
-    if _OWN_PROCESS:   # every command loads numpy and scipy.sparse (`stw backends` too: its plugins)
+    _defer_unused_numpy()   # every command loads numpy and scipy.sparse (`stw backends`: its plugins)
+    return args.func(args)
+
+
+def _defer_unused_numpy() -> None:
+    """In a process of its own, numpy's subpackages that scipy's import lists but stw never reads
+    are deferred (cli/lazy_numpy.py); `stw --help` does not get here, so it imports no numpy."""
+    if _OWN_PROCESS:
         from stw_tui.cli.lazy_numpy import defer_unused_numpy_subpackages
 
         defer_unused_numpy_subpackages()
-    return args.func(args)
 
 
 def _launch_tui(argv: list[str]) -> int:
@@ -289,10 +295,7 @@ def _launch_tui(argv: list[str]) -> int:
                         help="reopen the last autosaved journal (or JOURNAL) and restore its checkpointed state")
     parser.add_argument("--resolve", action="store_true", help="with --resume: solve everything again")
     args = parser.parse_args(argv)
-    if _OWN_PROCESS:
-        from stw_tui.cli.lazy_numpy import defer_unused_numpy_subpackages
-
-        defer_unused_numpy_subpackages()
+    _defer_unused_numpy()
     try:
         from stw_tui.app import run_app
     except ImportError as exc:  # the TUI is optional for the headless core
