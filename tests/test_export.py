@@ -3,6 +3,7 @@ positions with an independent forward kinematics, and the file commands' parsing
 
 import csv
 import json
+import os
 
 import numpy as np
 import pytest
@@ -149,8 +150,15 @@ def test_export_paths_are_plain_text(tmp_path, monkeypatch):
     s.execute('export json "sub/with space #1.json"')
     assert (tmp_path.parent / "out-1.csv").exists() and (tmp_path / "sub" / "with space #1.json").exists()
     (tmp_path.parent / "out-1.csv").unlink()
-    with pytest.raises(StwError, match="cannot write"):
+    with pytest.raises(StwError, match="cannot write sub: sub is a folder"):
         s.execute("export csv sub")      # a folder
+    with pytest.raises(StwError, match="cannot write nowhere/x.csv: there is no folder nowhere$") as info:
+        s.execute("export csv nowhere/x.csv")
+    assert ".tmp" not in str(info.value)
+    (tmp_path / "locked").mkdir(mode=0o500)
+    if not os.access(tmp_path / "locked", os.W_OK):   # (root may write anywhere)
+        with pytest.raises(StwError, match="cannot write locked/x.csv: Permission denied$"):
+            s.execute("export csv locked/x.csv")
 
 
 def test_headless_export_matches_the_console(tmp_path, capsys):

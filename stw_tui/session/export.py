@@ -117,8 +117,10 @@ def write_text(path: str | Path, text: str) -> Path:
         if target.is_dir():
             raise IsADirectoryError(f"{target} is a folder")
         replace_text(target, text)
-    except OSError as exc:
-        raise StwError(f"cannot write {path}: {exc}") from exc
+    except FileNotFoundError as exc:
+        raise StwError(f"cannot write {path}: there is no folder {target.parent}") from exc
+    except OSError as exc:   # strerror alone: the temporary file's name would only puzzle
+        raise StwError(f"cannot write {path}: {exc.strerror or exc}") from exc
     return target
 
 
