@@ -60,4 +60,4 @@ def test_columns_keep_each_rows_stored_order_for_any_column_order():
     P.indices = P.indices.astype(np.int32)
     P.indptr = P.indptr.astype(np.int32)
     for columns in (np.arange(3, 9), rng.permutation(12)[:7], np.zeros(0, np.int64)):
-        assert same(_columns(P, columns, 12), P[:, columns].tocsr())
+        assert same(_columns(P, columns), P[:, columns].tocsr())

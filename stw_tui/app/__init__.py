@@ -74,8 +74,7 @@ def run_app(session_path: str | Path | None = None, step: bool = False,
     # imports (numpy, scipy, sympy) took 1.2 s before the first frame when it was made here.
     # Its Runner starts multiprocessing's helpers here, before Textual replaces stderr
     # (child_process.start_helpers).
-    app = create_app(session_path, step=step, session=session, settings_path=settings_file(),
-                     journal=journal if session is None else None)
+    app = create_app(session_path, step=step, session=session, settings_path=settings_file(), journal=journal)
     sys.setswitchinterval(SWITCH_INTERVAL)
     app.run()
     code = app.return_code or 0

@@ -221,13 +221,13 @@ def _stacked(blocks: list[BasisRows], n_cols: int) -> sps.csr_array:
     return P
 
 
-def _columns(P: sps.csr_array, columns: np.ndarray, n_cols: int) -> sps.csr_array:
+def _columns(P: sps.csr_array, columns: np.ndarray) -> sps.csr_array:
     """``P[:, columns]`` for distinct ``columns`` (the free control points), as scipy's indexing
     makes it: each row keeps its entries in stored order, renumbered, without its two passes and
     checks (a few hundred µs a window build)."""
     if P.indices.dtype != np.int32 or P.indptr.dtype != np.int32:
         return P[:, columns].tocsr()
-    number = np.full(n_cols, -1, np.int32)
+    number = np.full(P.shape[1], -1, np.int32)
     number[columns] = np.arange(columns.size, dtype=np.int32)
     renumbered = number[P.indices]
     kept = renumbered >= 0
@@ -421,7 +421,7 @@ class WindowProblem:
         self.n_slots = slot
         self.row_counts = counts
         self.P = _stacked(rows, self.n_total)
-        self.Pf = _columns(self.P, self.free, self.n_total)
+        self.Pf = _columns(self.P, self.free)
         self._g_pattern = {kind: (np.concatenate(r) if r else np.zeros(0, int),
                                   np.concatenate(c) if c else np.zeros(0, int))
                            for kind, (r, c) in g_idx.items()}
