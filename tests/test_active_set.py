@@ -158,3 +158,40 @@ def test_a_refused_step_retries_from_the_rows_that_bound_in_the_refused_attempt(
                 guided.append((ipm, ipm_after))
     assert guided                                             # retries started from the refused rows ...
     assert any(ipm > 0 and ipm_after == 0 for ipm, ipm_after in guided)   # ... and settled at once
+
+
+@pytest.mark.parametrize("la", catalogue.linear_algebras(), ids=lambda la: type(la).__name__)
+def test_the_interior_point_method_crosses_over_to_its_settled_rows_before_it_converges(la, monkeypatch):
+    # Its binding rows settle iterations before the residuals reach IPM_TOL; the exact solution on
+    # them (what solve_qp makes of the converged iterate) ends it then, and is the same solution.
+    parts = _box_qp(np.random.default_rng(5))
+    crossed = _solve(la, parts, None)
+    monkeypatch.setattr(qp_module, "CROSSOVER_ERROR", -1.0)   # never: the method runs to IPM_TOL
+    converged = _solve(la, parts, None)
+    assert crossed.ipm_iterations < converged.ipm_iterations
+    d, y, z = la.numpy(crossed.d), la.numpy(crossed.y), la.numpy(crossed.z)
+    assert _kkt_error(*parts, d, y, z) <= 1e-8               # independently: the convex QP's minimizer
+    np.testing.assert_allclose(d, la.numpy(converged.d), atol=1e-12)
+    np.testing.assert_allclose(z, la.numpy(converged.z), atol=1e-9)
+
+
+def test_an_early_set_that_is_not_the_solution_lets_the_interior_point_method_go_on(monkeypatch):
+    # Crossing over as soon as the residuals allow (before the rows settle) tries sets that fail
+    # the KKT test; each is tried once, and the method goes on to the same solution.
+    la = catalogue.linear_algebras()[0]
+    parts = _box_qp(np.random.default_rng(0))                # (a seed where an early set fails)
+    reference = _solve(la, parts, None)
+    monkeypatch.setattr(qp_module, "CROSSOVER_ERROR", 1e3)
+    tried = []
+    on_set = qp_module._on_working_set
+
+    def recorded(*args):
+        result = on_set(*args)
+        tried.append((la.numpy(args[-1]).tobytes(), result is not None))
+        return result
+
+    monkeypatch.setattr(qp_module, "_on_working_set", recorded)
+    early = _solve(la, parts, None)
+    assert any(not ok for _, ok in tried) and tried[-1][1]    # some failed, the last one held
+    assert len({key for key, _ in tried}) == len(tried)       # no set solved twice
+    np.testing.assert_allclose(la.numpy(early.d), la.numpy(reference.d), atol=1e-10)

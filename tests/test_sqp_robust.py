@@ -154,7 +154,13 @@ def test_a_hard_qp_at_its_rounding_floor_is_polished_there_not_after_stalling(mo
 
     H, Ae, Ai, g, ce, ci, y0 = matrix("H"), matrix("Ae"), matrix("Ai"), f["g"], f["ce"], f["ci"], f["y0"]
     # The floor is SuperLU's rounding (the banded LU's reaches IPM_TOL on this QP in 13 iterations)
+    crossed = Q.solve_qp(SparseAlgebra(factor="superlu"), H, g, Ae, ce, Ai, ci, y0=y0)
+    monkeypatch.setattr(Q, "CROSSOVER_ERROR", -1.0)   # this rule alone (the crossover ends it sooner)
     soon = Q.solve_qp(SparseAlgebra(factor="superlu"), H, g, Ae, ce, Ai, ci, y0=y0)
+    # The rows it crosses over to are the ones it would have polished at the floor: the same answer
+    assert crossed.ipm_iterations < soon.ipm_iterations
+    for a, b in ((crossed.d, soon.d), (crossed.y, soon.y), (crossed.z, soon.z)):
+        np.testing.assert_array_equal(a, b)
     monkeypatch.setattr(Q, "FLOOR_STALL", 10 ** 9)
     late = Q.solve_qp(SparseAlgebra(factor="superlu"), H, g, Ae, ce, Ai, ci, y0=y0)
     assert soon.ipm_iterations + 10 <= late.ipm_iterations

@@ -38,6 +38,7 @@ INFEASIBLE_MULTIPLIER = 1e6   # |y| this large, and ε|y - y0| above 1e-3 of the
 FLOOR_STALL = 5            # stalled iterations with an acceptable best iterate: the rounding floor (polish, or stop)
 POLISH_TOL = 1e-9          # relative: how negative a binding row's multiplier may come out of a working-set solve ...
 FEASIBLE_TOL = 1e-12       # ... and how far its step may leave another inequality row's linearization (rounding)
+CROSSOVER_ERROR = 1e-4     # scaled residual below which the interior-point method tries its binding rows as the solution's
 ACTIVE_SET_PASSES = 5      # factorizations the active-set method may spend before the interior-point method takes over,
 ACTIVE_SET_SETTLING = 0.8  # and how much fewer rows each of its passes must change than the last
 
@@ -90,9 +91,20 @@ def solve_qp(la: LinearAlgebra, H: Matrix, g: Vector, Ae: Matrix, ce: Vector, Ai
         guess = _active_set(la, H, g, Ae, ce, Ai, ci, y0, z0, working, convex)
         if guess is not None:
             return guess
-    result, w = _interior_point(la, H, g, Ae, ce, Ai, ci, y0, elastic, tol, max_ipm)
+    tried: dict[bytes, QPResult | None] = {}
+
+    def polish(binding) -> QPResult | None:   # each set of rows is solved at most once
+        key = la.numpy(binding).tobytes()
+        if key not in tried:
+            tried[key] = _on_working_set(la, H, g, Ae, ce, Ai, ci, y0, z0, binding)
+        return tried[key]
+
+    result, w = _interior_point(la, H, g, Ae, ce, Ai, ci, y0, elastic, tol, max_ipm,
+                                None if elastic is not None else polish)
+    if w is None:            # crossed over to its binding rows before converging
+        return result
     if elastic is None and not result.capped:
-        polished = _on_working_set(la, H, g, Ae, ce, Ai, ci, y0, z0, result.z > w)
+        polished = polish(result.z > w)
         if polished is not None:
             polished.linear_iterations += result.linear_iterations
             polished.ipm_iterations, polished.fallbacks = result.ipm_iterations, result.fallbacks + polished.fallbacks
@@ -213,11 +225,20 @@ def _unmeetable(la, y, y0, scale_c) -> bool:
             and KKT_EPS * la.max_abs(y - y0) > 1e-3 * scale_c)
 
 
-def _interior_point(la, H, g, Ae, ce, Ai, ci, y0, rho, tol, max_ipm) -> tuple[QPResult, Vector]:
+def _interior_point(la, H, g, Ae, ce, Ai, ci, y0, rho, tol, max_ipm,
+                    crossover=None) -> tuple[QPResult, Vector | None]:
     """Mehrotra's predictor-corrector on the QP (elastic with weight ``rho``, else hard): its
     result and slacks w. It ends at IPM_TOL, or at its rounding floor (FLOOR_STALL iterations
     without progress once the best iterate is acceptable), or stalled (IPM_STALL; INFEASIBLE_STALL
     for a hard QP that meets its equality rows only through runaway multipliers), or at max_ipm.
+
+    ``crossover(binding)``: the QP's exact solution on the rows ``binding`` (z > w), or None.
+    Once the residuals are below CROSSOVER_ERROR it is tried on the binding rows whenever two
+    iterations in a row agree on them, and the first solution ends the method, returned with
+    slacks None (unless its equality rows are met only through runaway multipliers, which the
+    method goes on to report). The rows settle iterations before the residuals reach IPM_TOL
+    (arm_throw: from the 8th of 12), and the solution on them is what solve_qp would make of the
+    converged iterate anyway: a function of the rows alone.
     """
     n, me, mi = g.shape[0], ce.shape[0], ci.shape[0]
     elastic = rho is not None
@@ -240,8 +261,9 @@ def _interior_point(la, H, g, Ae, ce, Ai, ci, y0, rho, tol, max_ipm) -> tuple[QP
     best, best_error, since_best = (d, y, z, w), np.inf, 0
     barrier_kkt = la.barrier_kkt(H, Ai, Ae)   # H, Aᵢ, Aₑ fixed: only q and e change below
     e_hard = KKT_EPS + la.zeros(me)           # a hard QP's (2,2) block: the same every iteration
-    k = 0
+    k, binding = 0, None
     for k in range(1, max_ipm + 1):
+        last_binding = binding
         r_d = la.matvec(H, d) + g + la.rmatvec(Ae, y) - la.rmatvec(Ai, z)
         r_e = la.matvec(Ae, d) + ce - KKT_EPS * (y - y0)
         r_i = la.matvec(Ai, d) + ci - w
@@ -258,6 +280,14 @@ def _interior_point(la, H, g, Ae, ce, Ai, ci, y0, rho, tol, max_ipm) -> tuple[QP
         if error <= tol:
             converged = True
             break
+        binding = z > w
+        if (crossover is not None and error <= CROSSOVER_ERROR and last_binding is not None
+                and not la.numpy(binding != last_binding).any()):
+            crossed = crossover(binding)
+            if crossed is not None and not _unmeetable(la, crossed.y, y0, scale_c):
+                crossed.linear_iterations += linear_its
+                crossed.ipm_iterations, crossed.fallbacks = k, crossed.fallbacks + fallbacks
+                return crossed, None
         if error < 0.5 * best_error:
             since_best = 0
         else:
