@@ -86,6 +86,8 @@ class SolverState:
     regularization: float = 0.0      # proximal (Levenberg-Marquardt) weight; 0: the backend's default
     trust_radius: float = 0.0        # step limit; 0: the backend's initial one
     elastic_weight: float = 0.0      # cost of an elastic slack once elastic mode was needed; 0: not yet
+    newton_refusals: int = 0         # exact-Hessian steps refused in a row (SQP, hessian=auto) ...
+    newton_wait: int = 0             # ... and the iterations left before the next is tried
 
     @classmethod
     def start(cls, problem) -> "SolverState":
