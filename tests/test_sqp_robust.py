@@ -311,6 +311,52 @@ def test_interior_point_kkt_scattered_in_place_is_the_assembled_one_bit_for_bit(
                 assert np.array_equal(fresh, spla.splu(want, permc_spec="COLAMD").solve(b))
 
 
+@pytest.mark.parametrize("factor", ["superlu", "auto"])
+def test_working_set_kkt_masked_from_all_rows_is_the_assembled_one_bit_for_bit(factor):
+    """A working set's system masked out of K with every inequality row (WorkingSetKKT, its
+    layout kept per structure of H, Aₑ and Aᵢ) holds exactly what kkt_matrix builds from the
+    stacked rows, for any set of rows, none and all included; it solves as that K factorized
+    afresh; and where kkt_matrix would sum a repeated entry, or e = 0 leaves the diagonal out,
+    the general assembly is used."""
+    import scipy.sparse as sps
+    from stw_scipy.csr_rows import select_rows, stack_rows
+    from stw_scipy.linear import SparseAlgebra, kkt_matrix
+    from stw_scipy.ordering import factorize
+    from stw_tui.sos.sqp.algebra import SingularSystem
+
+    la, rng = SparseAlgebra(factor=factor), np.random.default_rng(11)
+    for k in range(30):
+        n, me, mi = int(rng.integers(2, 25)), int(rng.integers(0, 8)), int(rng.integers(1, 12))
+        H = sps.random_array((n, n), density=0.3, rng=rng, format="csr")
+        H = sps.csr_array(H + H.T + sps.eye_array(n))   # rows unsorted, as the SQP's sums leave them
+        Ai = sps.random_array((mi, n), density=0.3, rng=rng, format="csr")
+        Ae = sps.random_array((me, n), density=0.4, rng=rng, format="csr")
+        if k % 5 == 3 and Ai.nnz:                         # a row storing one entry twice
+            r = int(np.flatnonzero(np.diff(Ai.indptr))[0])
+            at = int(Ai.indptr[r])
+            indptr = Ai.indptr.copy()
+            indptr[r + 1:] += 1
+            Ai = sps.csr_array((np.insert(Ai.data, at, 1.0), np.insert(Ai.indices, at, Ai.indices[at]),
+                                indptr), shape=Ai.shape)
+        e = 0.0 if k % 5 == 4 else 1e-10
+        systems = la.working_set_kkt(H, Ae, Ai, e)
+        if k % 5 == 3 and Ai.nnz:
+            assert systems.placed is None
+        for binding in (np.zeros(mi, bool), np.ones(mi, bool), rng.random(mi) < 0.5, rng.random(mi) < 0.5):
+            want = kkt_matrix(H, stack_rows([Ae, select_rows(Ai, np.flatnonzero(binding))]), e)
+            try:
+                fresh = factorize(want, [], band_max=la.band_max)
+            except RuntimeError:   # exactly singular (e = 0 and dependent rows): so is the masked one
+                with pytest.raises(SingularSystem):
+                    systems(binding)
+                continue
+            got = systems(binding)
+            assert np.array_equal(got.K.indptr, want.indptr) and np.array_equal(got.K.indices, want.indices)
+            assert np.array_equal(got.K.data, want.data)
+            b = rng.standard_normal(want.shape[0])
+            assert np.array_equal(got.solve(b), fresh.solve(b))
+
+
 def test_a_bound_against_a_constraint_is_infeasible_and_names_both():
     # The hard QP "converged" here with huge multipliers (its equality rows are regularized) to a
     # step that does not meet the linearization; the line search then failed and the advice was

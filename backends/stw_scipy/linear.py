@@ -185,6 +185,60 @@ class _BarrierPlacement:
         return data
 
 
+class _WorkingSetLayout:
+    """Where the entries of K = [[H, Aᵀ], [A, -e I]] go for every working set of one structure of
+    H, Aₑ and Aᵢ (A: Aₑ's rows and the binding ones of Aᵢ): the layout of K with all of Aᵢ's rows,
+    of which a working set's K is the masked copy, entry for entry what kkt_matrix builds (its
+    rows and columns are a subset, relabelled in order, and each column's rows stay sorted).
+    None from :meth:`of` when H or a row of A stores an entry twice (kkt_matrix would sum them)."""
+
+    @classmethod
+    def of(cls, H: sps.csr_array, Ae: sps.csr_array, Ai: sps.csr_array) -> "_WorkingSetLayout | None":
+        A = stack_rows([Ae, Ai])
+        layout = _Layout(H, A, np.ones(A.shape[0], bool))
+        if layout.repeats:
+            return None
+        placed = cls()
+        placed.layout, placed.fixed = layout, H.shape[0] + Ae.shape[0]   # rows every set keeps
+        placed.columns = np.repeat(np.arange(layout.shape[0]), np.diff(layout.indptr))
+        placed.key = (structure(H), structure(Ae), structure(Ai))
+        return placed
+
+    def fits(self, H: sps.csr_array, Ae: sps.csr_array, Ai: sps.csr_array) -> bool:
+        return all(same_structure(m, key) for m, key in zip((H, Ae, Ai), self.key))
+
+
+class WorkingSetKKT:
+    """The working-set systems of one QP (LinearAlgebra.working_set_kkt): K's values with every
+    row of Aᵢ placed once, and per working set the masked copy of the kept rows and columns,
+    instead of stacking the rows and working out K's layout anew for each new set (most of a
+    trial's cost before its factorization: 0.25 of 0.55 ms on the arm, 0.6 of 2.6 on basketball)."""
+
+    def __init__(self, algebra: "SparseAlgebra", H, Ae, Ai, e: float):
+        self.algebra, self.H, self.Ae, self.Ai, self.e = algebra, _csr(H), _csr(Ae), _csr(Ai), float(e)
+        self.placed = algebra.working_set_layout(self.H, self.Ae, self.Ai) if self.e != 0 else None
+        if self.placed is not None:
+            m = self.Ae.shape[0] + self.Ai.shape[0]
+            a = np.concatenate([self.Ae.data[:self.Ae.nnz], self.Ai.data[:self.Ai.nnz]])
+            self.values = np.concatenate([self.H.data[:self.H.nnz], a, a, np.full(m, -self.e)])[self.placed.layout.order]
+
+    def __call__(self, binding: np.ndarray) -> "SparseKKT":
+        la, placed = self.algebra, self.placed
+        if placed is None:   # e = 0 (kkt_matrix leaves the diagonal out) or repeated entries
+            A = stack_rows([self.Ae, select_rows(self.Ai, np.flatnonzero(binding))])
+            return la.kkt(self.H, A, self.e, exact=True)
+        layout = placed.layout
+        kept = np.concatenate([np.ones(placed.fixed, bool), binding])
+        entries = kept[layout.indices] & kept[placed.columns]
+        label = np.cumsum(kept, dtype=np.intc) - 1                 # a kept row's (column's) new number
+        size = int(label[-1]) + 1 if label.size else 0
+        indptr = np.zeros(size + 1, dtype=np.intc)
+        np.cumsum(np.bincount(placed.columns[entries], minlength=kept.size)[kept], out=indptr[1:])
+        K = csc(self.values[entries], label[layout.indices[entries]], indptr, (size, size))
+        K.has_canonical_format = True   # sorted, no duplicates, as kkt_matrix's
+        return SparseKKT(K, "direct", la.rtol, la.maxiter, la._orderings, la.band_max)
+
+
 def _kept_by_structure(kept: list, m, make, limit: int):
     """``make(m)``, or what it made for an earlier array of ``m``'s structure: ``kept`` holds the
     last ``limit`` (structure, made) pairs, newest first (a None made is remembered too)."""
@@ -301,6 +355,7 @@ class SparseAlgebra(LinearAlgebra):
         self._grams: list = []     # (structure, GramPlan) of recent gram() factors
         self._transposes: list = []   # (matrix, its transpose) of recent rmatvec() calls
         self._placements: list = []   # interior-point KKT placements (BarrierKKT)
+        self._working_sets: list = []  # working-set KKT layouts (WorkingSetKKT)
         self._orderings: list = []    # SuperLU column orderings by KKT structure (ordering.py)
         self._cholesky_plans: list = []   # (structure, banded test or None: too wide) (banded.py)
 
@@ -374,6 +429,21 @@ class SparseAlgebra(LinearAlgebra):
 
     def barrier_kkt(self, H, Ai, Ae):
         return BarrierKKT(self, H, Ai, Ae)
+
+    def working_set_kkt(self, H, Ae, Ai, e):
+        return WorkingSetKKT(self, H, Ae, Ai, e)
+
+    def working_set_layout(self, H, Ae, Ai) -> _WorkingSetLayout | None:
+        """The working-set layout of these structures (worked out once, the last few kept)."""
+        for i, placed in enumerate(self._working_sets):
+            if placed.fits(H, Ae, Ai):
+                self._working_sets.insert(0, self._working_sets.pop(i))
+                return placed
+        placed = _WorkingSetLayout.of(H, Ae, Ai)
+        if placed is not None:
+            self._working_sets.insert(0, placed)
+            del self._working_sets[PLACEMENTS_KEPT:]
+        return placed
 
     def barrier_placement(self, H, plan, Ae) -> _BarrierPlacement | None:
         """The placement of K's entries for these structures (worked out once, the last few kept)."""

@@ -138,6 +138,17 @@ class LinearAlgebra(ABC):
         SingularSystem). The default assembles each system anew."""
         return lambda q, e: self.kkt(self.add(H, self.gram(Ai, q)), Ae, e, exact=True)
 
+    def working_set_kkt(self, H: Matrix, Ae: Matrix, Ai: Matrix, e: float) -> Callable[[Vector], KKTSystem]:
+        """The working-set systems of one QP, [[H, Aᵀ], [A, -e I]] with A the rows of Aₑ and the
+        rows of Aᵢ that a bool vector ``binding`` picks, as a function of ``binding``: H, Aₑ and
+        Aᵢ stay fixed while the active-set method tries its sets, so a backend may prepare their
+        assembly once. Each call is :meth:`kkt` with ``exact`` (raises SingularSystem). The
+        default stacks the rows and assembles each system anew."""
+        def system(binding: Vector) -> KKTSystem:
+            A = self.stack_rows([Ae, self.rows(Ai, np.flatnonzero(self.numpy(binding)))])
+            return self.kkt(H, A, e, exact=True)
+        return system
+
     @abstractmethod
     def positive_definite(self, m: Matrix) -> bool:
         """Whether the symmetric matrix ``m`` is positive definite (a Cholesky-type factorization

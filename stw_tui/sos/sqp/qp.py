@@ -87,8 +87,9 @@ def solve_qp(la: LinearAlgebra, H: Matrix, g: Vector, Ae: Matrix, ce: Vector, Ai
         x = system.solve(la.concat([-g, -ce - KKT_EPS * y0]))
         return QPResult(x[:n], x[n:], la.zeros(0), system.iterations, 0, system.fallbacks, system=system)
     z0 = la.zeros(mi) if z0 is None else z0
+    systems = la.working_set_kkt(H, Ae, Ai, KKT_EPS) if elastic is None else None
     if elastic is None and working is not None:
-        guess = _active_set(la, H, g, Ae, ce, Ai, ci, y0, z0, working, convex)
+        guess = _active_set(la, H, g, Ae, ce, Ai, ci, y0, z0, working, convex, systems)
         if guess is not None:
             return guess
     tried: dict[bytes, QPResult | None] = {}
@@ -96,7 +97,7 @@ def solve_qp(la: LinearAlgebra, H: Matrix, g: Vector, Ae: Matrix, ce: Vector, Ai
     def polish(binding) -> QPResult | None:   # each set of rows is solved at most once
         key = la.numpy(binding).tobytes()
         if key not in tried:
-            tried[key] = _on_working_set(la, H, g, Ae, ce, Ai, ci, y0, z0, binding)
+            tried[key] = _on_working_set(la, H, g, Ae, ce, Ai, ci, y0, z0, binding, systems)
         return tried[key]
 
     result, w = _interior_point(la, H, g, Ae, ce, Ai, ci, y0, elastic, tol, max_ipm,
@@ -112,7 +113,7 @@ def solve_qp(la: LinearAlgebra, H: Matrix, g: Vector, Ae: Matrix, ce: Vector, Ai
     return result
 
 
-def _on_working_set(la, H, g, Ae, ce, Ai, ci, y0, z0, binding) -> QPResult | None:
+def _on_working_set(la, H, g, Ae, ce, Ai, ci, y0, z0, binding, systems=None) -> QPResult | None:
     """The QP's solution if the inequality rows ``binding`` (a backend bool vector) are the ones
     that bind: one KKT factorization with them as equality rows, every row stabilized around its
     previous multiplier; None when a binding row comes out with a negative multiplier or
@@ -129,11 +130,11 @@ def _on_working_set(la, H, g, Ae, ce, Ai, ci, y0, z0, binding) -> QPResult | Non
     dependent rows' multipliers drift apart without bound, inflate the merit weight, and make
     the steps depend on rounding.
     """
-    trial = _working_set_trial(la, H, g, Ae, ce, Ai, ci, y0, z0, binding)
+    trial = _working_set_trial(la, H, g, Ae, ce, Ai, ci, y0, z0, binding, systems)
     return None if trial is None else trial.result
 
 
-def _active_set(la, H, g, Ae, ce, Ai, ci, y0, z0, binding, convex=False) -> QPResult | None:
+def _active_set(la, H, g, Ae, ce, Ai, ci, y0, z0, binding, convex=False, systems=None) -> QPResult | None:
     """The QP's solution by a primal-dual active-set method (Hintermüller, Ito & Kunisch 2003)
     from the rows ``binding``: each pass solves with the current rows as equality rows, then
     drops those whose multiplier came out negative and adds those left violated, all at once.
@@ -155,7 +156,7 @@ def _active_set(la, H, g, Ae, ce, Ai, ci, y0, z0, binding, convex=False) -> QPRe
     linear_its = fallbacks = 0
     limit = int(la.numpy(binding).sum())
     for _ in range(ACTIVE_SET_PASSES):
-        trial = _working_set_trial(la, H, g, Ae, ce, Ai, ci, y0, z0, binding)
+        trial = _working_set_trial(la, H, g, Ae, ce, Ai, ci, y0, z0, binding, systems)
         if trial is None:
             return None
         linear_its += trial.linear_iterations
@@ -182,15 +183,15 @@ class _Trial:
     fallbacks: int
 
 
-def _working_set_trial(la, H, g, Ae, ce, Ai, ci, y0, z0, binding) -> _Trial | None:
+def _working_set_trial(la, H, g, Ae, ce, Ai, ci, y0, z0, binding, systems=None) -> _Trial | None:
     """The QP solved with the rows ``binding`` as equality rows (:func:`_on_working_set`), and
-    whether that is its solution; None when the system is singular or the step not finite."""
+    whether that is its solution; None when the system is singular or the step not finite.
+    ``systems``: the QP's working-set systems (LinearAlgebra.working_set_kkt), made once."""
     n, me = g.shape[0], ce.shape[0]
-    A = la.stack_rows([Ae, la.rows(Ai, np.flatnonzero(la.numpy(binding)))])
     c = la.concat([ce, ci[binding]])
     center = la.concat([y0, -z0[binding]])   # a binding row's equality multiplier is -z
     try:
-        system = la.kkt(H, A, KKT_EPS, exact=True)
+        system = (systems or la.working_set_kkt(H, Ae, Ai, KKT_EPS))(binding)
     except SingularSystem:
         return None
     rhs = la.concat([-g, -c])
