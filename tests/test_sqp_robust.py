@@ -266,6 +266,18 @@ def test_sparse_gram_and_transposed_products_are_scipys_bit_for_bit():
         assert np.array_equal(la.rmatvec(A, x), A.T @ x)
 
 
+def _random_qp_parts(rng):
+    """H (symmetric, rows unsorted as the SQP's sums leave them), Aᵢ and Aₑ of random sizes."""
+    import scipy.sparse as sps
+
+    n, me, mi = int(rng.integers(2, 25)), int(rng.integers(0, 8)), int(rng.integers(1, 12))
+    H = sps.random_array((n, n), density=0.3, rng=rng, format="csr")
+    H = sps.csr_array(H + H.T + sps.eye_array(n))
+    Ai = sps.random_array((mi, n), density=0.3, rng=rng, format="csr")
+    Ae = sps.random_array((me, n), density=0.4, rng=rng, format="csr")
+    return H, Ai, Ae
+
+
 @pytest.mark.parametrize("factor", ["superlu", "auto"])
 def test_interior_point_kkt_scattered_in_place_is_the_assembled_one_bit_for_bit(factor):
     """The interior-point systems scattered into a structure placed once per QP (BarrierKKT) hold
@@ -280,11 +292,8 @@ def test_interior_point_kkt_scattered_in_place_is_the_assembled_one_bit_for_bit(
 
     la, rng = SparseAlgebra(factor=factor), np.random.default_rng(9)
     for k in range(40):
-        n, me, mi = int(rng.integers(2, 25)), int(rng.integers(0, 8)), int(rng.integers(1, 12))
-        H = sps.random_array((n, n), density=0.3, rng=rng, format="csr")
-        H = sps.csr_array(H + H.T + sps.eye_array(n))   # rows unsorted, as the SQP's sums leave them
-        Ai = sps.random_array((mi, n), density=0.3, rng=rng, format="csr")
-        Ae = sps.random_array((me, n), density=0.4, rng=rng, format="csr")
+        H, Ai, Ae = _random_qp_parts(rng)
+        n, me, mi = H.shape[0], Ae.shape[0], Ai.shape[0]
         if k % 4 == 1:
             H.data[0] = 0.0                               # a stored zero of H
         system = la.barrier_kkt(H, Ai, Ae)
@@ -326,11 +335,8 @@ def test_working_set_kkt_masked_from_all_rows_is_the_assembled_one_bit_for_bit(f
 
     la, rng = SparseAlgebra(factor=factor), np.random.default_rng(11)
     for k in range(30):
-        n, me, mi = int(rng.integers(2, 25)), int(rng.integers(0, 8)), int(rng.integers(1, 12))
-        H = sps.random_array((n, n), density=0.3, rng=rng, format="csr")
-        H = sps.csr_array(H + H.T + sps.eye_array(n))   # rows unsorted, as the SQP's sums leave them
-        Ai = sps.random_array((mi, n), density=0.3, rng=rng, format="csr")
-        Ae = sps.random_array((me, n), density=0.4, rng=rng, format="csr")
+        H, Ai, Ae = _random_qp_parts(rng)
+        mi = Ai.shape[0]
         if k % 5 == 3 and Ai.nnz:                         # a row storing one entry twice
             r = int(np.flatnonzero(np.diff(Ai.indptr))[0])
             at = int(Ai.indptr[r])

@@ -251,6 +251,20 @@ def _kept_by_structure(kept: list, m, make, limit: int):
     return made
 
 
+def _recent(kept: list, fits, make, limit: int = PLACEMENTS_KEPT):
+    """The newest of ``kept`` that ``fits``, moved to the front; else ``make()``, put in front
+    (the last ``limit`` kept) unless it is None."""
+    for i, placed in enumerate(kept):
+        if fits(placed):
+            kept.insert(0, kept.pop(i))
+            return placed
+    placed = make()
+    if placed is not None:
+        kept.insert(0, placed)
+        del kept[limit:]
+    return placed
+
+
 def _csr(m) -> sps.csr_array:
     return m if isinstance(m, sps.csr_array) else sps.csr_array(m)
 
@@ -435,27 +449,13 @@ class SparseAlgebra(LinearAlgebra):
 
     def working_set_layout(self, H, Ae, Ai) -> _WorkingSetLayout | None:
         """The working-set layout of these structures (worked out once, the last few kept)."""
-        for i, placed in enumerate(self._working_sets):
-            if placed.fits(H, Ae, Ai):
-                self._working_sets.insert(0, self._working_sets.pop(i))
-                return placed
-        placed = _WorkingSetLayout.of(H, Ae, Ai)
-        if placed is not None:
-            self._working_sets.insert(0, placed)
-            del self._working_sets[PLACEMENTS_KEPT:]
-        return placed
+        return _recent(self._working_sets, lambda placed: placed.fits(H, Ae, Ai),
+                       lambda: _WorkingSetLayout.of(H, Ae, Ai))
 
     def barrier_placement(self, H, plan, Ae) -> _BarrierPlacement | None:
         """The placement of K's entries for these structures (worked out once, the last few kept)."""
-        for i, placed in enumerate(self._placements):
-            if placed is not None and placed.fits(H, plan, Ae):
-                self._placements.insert(0, self._placements.pop(i))
-                return placed
-        placed = _BarrierPlacement.of(H, plan, Ae)
-        if placed is not None:
-            self._placements.insert(0, placed)
-            del self._placements[PLACEMENTS_KEPT:]
-        return placed
+        return _recent(self._placements, lambda placed: placed.fits(H, plan, Ae),
+                       lambda: _BarrierPlacement.of(H, plan, Ae))
 
     def max_gram_diagonal(self, a):
         # The diagonal of gram(a, 1) without the product: each column's squares summed in row
