@@ -225,8 +225,7 @@ class WorkingSetKKT:
     def __call__(self, binding: np.ndarray) -> "SparseKKT":
         la, placed = self.algebra, self.placed
         if placed is None:   # e = 0 (kkt_matrix leaves the diagonal out) or repeated entries
-            A = stack_rows([self.Ae, select_rows(self.Ai, np.flatnonzero(binding))])
-            return la.kkt(self.H, A, self.e, exact=True)
+            return LinearAlgebra.working_set_kkt(la, self.H, self.Ae, self.Ai, self.e)(binding)
         layout = placed.layout
         kept = np.concatenate([np.ones(placed.fixed, bool), binding])
         entries = kept[layout.indices] & kept[placed.columns]
