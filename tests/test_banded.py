@@ -220,3 +220,98 @@ def test_the_solver_runs_blas_on_one_thread_unless_told_otherwise():
                                        capture_output=True, text=True, timeout=120)
     assert run({}).stdout.strip() == "[1]", run({}).stderr
     assert run({"OPENBLAS_NUM_THREADS": "2"}).stdout.strip() == "[2]"
+
+
+def test_an_iterate_takes_over_the_last_algebras_plans_and_solves_bit_for_bit(monkeypatch):
+    """Each `iterate` makes a new algebra: it starts from the last one's plans (KKT layouts,
+    orderings, banded plans), so a second solve of the same window works out no structure again,
+    and reaches the control points of a solve that starts from none, bit for bit. An algebra with
+    banding off never takes over banded plans."""
+    from pathlib import Path
+
+    import stw_scipy.banded as banded
+    import stw_scipy.linear as linear
+
+    from stw_tui.session.bench import _fresh, split_at_first_iterate
+    from stw_tui.session.session import Session
+
+    text = (Path(__file__).parent.parent / "sessions" / "arm_throw.stw").read_text()
+    pre, n = split_at_first_iterate(text)
+    setup = Session()
+    setup.run_text(pre)
+    made = []
+    of, layout = banded.BandPlan.of, linear._Layout.__init__
+    monkeypatch.setattr(banded.BandPlan, "of", classmethod(lambda cls, *a, **k: made.append("band") or of(*a, **k)))
+    monkeypatch.setattr(linear._Layout, "__init__", lambda self, *a: made.append("layout") or layout(self, *a))
+
+    def solve(options="") -> tuple[np.ndarray, int]:
+        del made[:]
+        session = _fresh(setup, f"scipy solver=direct {options}")
+        session.execute(f"iterate {n}")
+        return session.scene.coefficient_vector().copy(), len(made)
+
+    monkeypatch.setattr(linear, "_LATEST_STRUCTURES", {})
+    fresh, plans_fresh = solve()
+    again, plans_again = solve()
+    assert plans_fresh > 0 and plans_again < plans_fresh / 2
+    assert np.array_equal(fresh, again)
+    monkeypatch.setattr(linear, "_LATEST_STRUCTURES", {})
+    assert np.array_equal(solve()[0], fresh)                      # from none again: the same
+    superlu = linear.SparseAlgebra(factor="superlu")
+    assert not any(isinstance(o, banded.BandPlan) for o in superlu._orderings)
+    assert any(isinstance(o, banded.BandPlan) for o in linear.SparseAlgebra()._orderings)
+
+
+def test_a_kept_ordering_factorizes_each_callers_values_when_two_threads_share_it():
+    """A hung solve left running beside the next one may replay the same SuperLU ordering: each
+    factorization is of its own caller's values (the ordering's scratch matrix is locked)."""
+    import threading
+
+    from stw_scipy.ordering import Ordering
+
+    rng = np.random.default_rng(8)
+    n = 400
+    A = sps.random_array((n, n), density=0.02, rng=rng, format="csc") + 10.0 * sps.eye_array(n, format="csc")
+    K = sps.csc_array(A)
+    K.sort_indices()
+    ordering = Ordering(K, spla.splu(K).perm_c, "COLAMD", {})
+    wrong = []
+
+    def work(seed: int) -> None:
+        local = np.random.default_rng(seed)
+        for _ in range(40):
+            data = K.data * local.uniform(0.5, 1.5, K.nnz)
+            Ki = sps.csc_array((data, K.indices, K.indptr), shape=K.shape)
+            b = local.standard_normal(n)
+            x = ordering.factorize_values(data).solve(b)
+            wrong.append(np.abs(Ki @ x - b).max() > 1e-8 * np.abs(b).max())
+
+    threads = [threading.Thread(target=work, args=(s,)) for s in (1, 2, 3)]
+    for t in threads:
+        t.start()
+    for t in threads:
+        t.join()
+    assert len(wrong) == 120 and not any(wrong)
+
+
+def test_orderings_kept_are_the_newest_and_older_ones_within_the_entry_budget(monkeypatch):
+    """The newest ORDERINGS_KEPT structures stay whatever their size; older ones only while all
+    kept hold at most ORDERINGS_ENTRIES stored entries (a large window's plans are not hoarded)."""
+    import stw_scipy.ordering as ordering
+
+    monkeypatch.setattr(ordering, "ORDERINGS_KEPT", 3)
+    monkeypatch.setattr(ordering, "ORDERINGS_ENTRIES", 100)
+
+    class Plan:
+        def __init__(self, entries):
+            self.key = ((1, 1), np.zeros(2), np.zeros(entries))
+
+    kept: list = []
+    small = [Plan(10) for _ in range(12)]
+    for plan in small:
+        ordering._remember(kept, plan)
+    assert kept == small[::-1][:10]                 # 10 x 10 entries: the budget
+    big = [Plan(60) for _ in range(4)]
+    for plan in big:
+        ordering._remember(kept, plan)
+    assert kept == big[::-1][:3]                    # the newest 3 (180 entries) whatever their size

@@ -355,6 +355,26 @@ class ReplayedKKT(KKTSystem):
         return self._lu.solve(rhs)
 
 
+# Each `iterate` makes a new algebra, and its window problem mostly has the last one's sparsity
+# structures: the plans worked out for them (layouts, orderings, placements: 0.5 ms of the
+# pendulum's 6.4 ms `iterate`) are taken over from the algebra made last with the same band
+# limit (a superlu-only algebra must not meet banded plans), as copies of its lists. Every plan
+# is checked against a matrix's structure before it is used, and none changes once made (an
+# Ordering's scratch matrix is locked), so an abandoned, hung solve still running beside the
+# next one shares nothing it could spoil.
+_STRUCTURE_LISTS = ("_layouts", "_grams", "_placements", "_working_sets", "_orderings", "_cholesky_plans")
+_LATEST_STRUCTURES: dict[int, dict[str, list]] = {}
+
+
+def inherit_structures(algebra: "SparseAlgebra") -> None:
+    """Give ``algebra`` copies of the per-structure plans of the last algebra with its band
+    limit, and make its own lists the ones the next algebra copies."""
+    last = _LATEST_STRUCTURES.get(algebra.band_max, {})
+    for name in _STRUCTURE_LISTS:
+        setattr(algebra, name, list(last.get(name, ())))   # one C-level copy: atomic under the GIL
+    _LATEST_STRUCTURES[algebra.band_max] = {name: getattr(algebra, name) for name in _STRUCTURE_LISTS}
+
+
 class SparseAlgebra(LinearAlgebra):
     """numpy vectors, scipy sparse (CSR) matrices, KKT systems by banded LU or SuperLU, MINRES
     or CG."""
@@ -364,13 +384,15 @@ class SparseAlgebra(LinearAlgebra):
         self.method, self.rtol, self.maxiter = method, rtol, maxiter
         # direct factorizations: banded LU where a KKT's band is narrow (banded.py), else SuperLU
         self.band_max = BAND_MAX if factor == "auto" else 0
-        self._layouts: list = []   # KKT placements by sparsity structure (kkt_matrix)
-        self._grams: list = []     # (structure, GramPlan) of recent gram() factors
         self._transposes: list = []   # (matrix, its transpose) of recent rmatvec() calls
-        self._placements: list = []   # interior-point KKT placements (BarrierKKT)
-        self._working_sets: list = []  # working-set KKT layouts (WorkingSetKKT)
-        self._orderings: list = []    # SuperLU column orderings by KKT structure (ordering.py)
-        self._cholesky_plans: list = []   # (structure, banded test or None: too wide) (banded.py)
+        # What is worked out per sparsity structure, most recent first, from the last algebra's:
+        # self._layouts        KKT placements (kkt_matrix)
+        # self._grams          (structure, GramPlan) of recent gram() factors
+        # self._placements     interior-point KKT placements (BarrierKKT)
+        # self._working_sets   working-set KKT layouts (WorkingSetKKT)
+        # self._orderings      SuperLU column orderings and banded plans by KKT structure (ordering.py)
+        # self._cholesky_plans (structure, banded test or None: too wide) (banded.py)
+        inherit_structures(self)
 
     def vector(self, values):
         return np.array(values, dtype=float)

@@ -33,6 +33,8 @@ matrices costs more than the factorization. None is worth its dependency here.
 
 from __future__ import annotations
 
+import threading
+
 import numpy as np
 import scipy.sparse as sps
 import scipy.sparse.linalg as spla
@@ -40,7 +42,11 @@ import scipy.sparse.linalg as spla
 from stw_scipy.banded import BandPlan
 from stw_tui.sos.compressed import same_structure, structure
 
-ORDERINGS_KEPT = 12   # structures remembered: interior point, working sets, curvature tests
+ORDERINGS_KEPT = 12   # structures always remembered: interior point, working sets, curvature tests ...
+# ... and older ones up to this many stored entries of K in all (about 28 bytes each: 56 MB). A
+# window's working sets each have a structure of their own: the arm's first solve meets 27,
+# basketball's 104 (about 6,000 entries each), and the next `iterate` of the window meets them again.
+ORDERINGS_ENTRIES = 2_000_000
 
 
 class Ordering:
@@ -62,6 +68,7 @@ class Ordering:
         self.indices = self.perm[K.indices[self.source]].astype(np.intc)
         self.key = structure(K)
         self._permuted = None   # K' (factorize_values), made on first use
+        self._lock = threading.Lock()   # K' is shared by every algebra that kept this ordering
 
     def fits(self, K: sps.csc_array, spec: str, options: dict) -> bool:
         """Whether K has this structure and is to be factorized the same way."""
@@ -75,14 +82,16 @@ class Ordering:
         """:meth:`factorize` of the K of this structure whose CSC values are ``data``: K itself
         need not be built. K' is one matrix kept for the purpose, its values swapped in (building
         a scipy matrix checks its arrays, which costs more than the gather)."""
-        if self._permuted is None:
-            shape = (self.indptr.size - 1,) * 2
-            self._permuted = sps.csc_array((np.zeros(self.source.size), self.indices, self.indptr),
-                                           shape=shape)
-        Kp = self._permuted
-        Kp.data = data[self.source]
-        Kp.has_canonical_format = True   # no duplicates; rows in K's order on purpose (see above)
-        return PermutedLU(spla.splu(Kp, permc_spec="NATURAL", **self.options), self.perm, self.inverse)
+        with self._lock:
+            if self._permuted is None:
+                shape = (self.indptr.size - 1,) * 2
+                self._permuted = sps.csc_array((np.zeros(self.source.size), self.indices, self.indptr),
+                                               shape=shape)
+            Kp = self._permuted
+            Kp.data = data[self.source]
+            Kp.has_canonical_format = True   # no duplicates; rows in K's order on purpose (see above)
+            lu = spla.splu(Kp, permc_spec="NATURAL", **self.options)
+        return PermutedLU(lu, self.perm, self.inverse)
 
 
 class PermutedLU:
@@ -125,10 +134,20 @@ def factorize(K: sps.csc_array, orderings: list | None, spec: str = "COLAMD", *,
     if band_max and spec == BandPlan.spec and options == BandPlan.options:
         plan = BandPlan.of(K, band_max)
         if plan is not None:
-            orderings.insert(0, plan)
-            del orderings[ORDERINGS_KEPT:]
+            _remember(orderings, plan)
             return plan.factorize(K)
     lu = spla.splu(K, permc_spec=spec, **options)
-    orderings.insert(0, Ordering(K, lu.perm_c, spec, options))
-    del orderings[ORDERINGS_KEPT:]
+    _remember(orderings, Ordering(K, lu.perm_c, spec, options))
     return PermutedLU(lu, None)
+
+
+def _remember(orderings: list, plan) -> None:
+    """Put ``plan`` first in ``orderings``; keep the newest ORDERINGS_KEPT, and older ones while
+    the structures kept hold at most ORDERINGS_ENTRIES stored entries in all."""
+    orderings.insert(0, plan)
+    entries = 0
+    for i, kept in enumerate(orderings):
+        entries += kept.key[2].size
+        if i >= ORDERINGS_KEPT and entries > ORDERINGS_ENTRIES:
+            del orderings[i:]
+            return

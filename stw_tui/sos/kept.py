@@ -4,7 +4,8 @@ Every `iterate` builds its window problem anew from the scene; the parts that de
 what did not change are kept where they are made: subexpression expansions (scene.py), free
 symbols, passed size checks and the disk cache's checked directories (compiler.py), exact
 degrees (instances.py), B-spline basis matrices (spline.py) and product plans (window.py). Each
-is keyed by everything it depends on.
+is keyed by everything it depends on. (A backend keeps its own: the scipy backend's
+factorization plans pass from one `iterate`'s algebra to the next, backends/stw_scipy/linear.py.)
 :func:`forget` empties them, for a benchmark that times a build from nothing but the compiled
 terms on disk, as a new process would do it.
 """
