@@ -315,3 +315,58 @@ def test_orderings_kept_are_the_newest_and_older_ones_within_the_entry_budget(mo
     for plan in big:
         ordering._remember(kept, plan)
     assert kept == big[::-1][:3]                    # the newest 3 (180 entries) whatever their size
+
+
+def _chain_with_a_spur(n: int = 60, reach: int = 3):
+    """A band (each node coupled with the next ``reach``) whose least-degree node is a spur
+    hung on its middle: scipy's RCM starts there and spreads both ways."""
+    rows, cols = [], []
+    for i in range(n):
+        for j in range(i, min(n, i + reach + 1)):
+            rows += [i, j]
+            cols += [j, i]
+    spur = n
+    rows += [spur, n // 2, spur]
+    cols += [n // 2, spur, spur]
+    K = sps.csc_array((np.ones(len(rows)), (rows, cols)), shape=(n + 1, n + 1))
+    K.sum_duplicates()
+    return K
+
+
+def test_rcm_from_the_far_end_when_scipys_start_doubles_the_band():
+    """scipy's RCM from the spur gives about twice the band of one from the chain's end; past the
+    limit the narrower order is kept, and the banded LU in it solves K as a dense solve does.
+    Up to the limit scipy's order is kept exactly (the systems it suits stay bit for bit)."""
+    from scipy.sparse.csgraph import reverse_cuthill_mckee
+
+    import stw_scipy.banded as banded
+
+    pattern = _chain_with_a_spur()
+    rng = np.random.default_rng(9)
+    K = sps.csc_array(pattern.multiply(rng.standard_normal(pattern.shape)) + 20.0 * sps.eye_array(pattern.shape[0]))
+    scipy_width = banded._rcm(K)[-1]
+    assert scipy_width >= 6                                   # from the spur: both ways at once
+    assert np.array_equal(banded._rcm(K, limit=scipy_width)[0], reverse_cuthill_mckee(K, symmetric_mode=True))
+    narrow = banded._rcm(K, limit=scipy_width - 1)
+    assert narrow[-1] <= 4                                    # the chain's own reach, plus the spur
+    plan = banded.BandPlan.of(K, band_max=4)
+    assert plan is not None and plan.width == narrow[-1]
+    b = np.arange(K.shape[0], dtype=float)
+    assert np.abs(plan.factorize(K).solve(b) - np.linalg.solve(K.toarray(), b)).max() <= 1e-9 * np.abs(b).max()
+
+
+def test_every_kkt_system_of_luxo_is_factorized_banded(monkeypatch):
+    """luxo.stw's working sets (the heel planted, the flight) made scipy's RCM start midway on 38
+    of its 170 systems (bands 60-73, so SuperLU); from the far end they are bands of 31-33."""
+    from pathlib import Path
+
+    import stw_scipy.ordering as ordering
+
+    from stw_tui.session.session import Session
+
+    general = []
+    splu = ordering.spla.splu
+    monkeypatch.setattr(ordering.spla, "splu", lambda K, permc_spec="COLAMD", **kw: (
+        general.append(permc_spec) if permc_spec == "COLAMD" else None) or splu(K, permc_spec=permc_spec, **kw))
+    Session().run_text((Path(__file__).parent.parent / "sessions" / "luxo.stw").read_text())
+    assert general == []

@@ -13,6 +13,10 @@ banded they cost 0.9-2.6 ms against SuperLU's 0.9-2.9 (1.0-1.9x faster on one BL
 the solve then takes 97 iterations instead of 88 to a point 1.8e-5 away, slower on the whole: a
 structure wider than BAND_MAX stays with SuperLU.
 
+RCM's start matters: scipy's, a node of least degree, can sit midway along the time axis and
+double the band (:func:`_rcm` then starts again from the far end: acrobat's and luxo's working
+sets, 164 of their 610 factorizations, went from SuperLU to bands of 24-33).
+
 A :class:`BandPlan` is worked out once per sparsity structure (the permutation and where each of
 K's stored entries goes in LAPACK's band storage), so the next K of that structure is one
 scatter of its values and one ``dgbtrf``.
@@ -23,7 +27,7 @@ from __future__ import annotations
 import numpy as np
 import scipy.sparse as sps
 from scipy.linalg import lapack
-from scipy.sparse.csgraph import reverse_cuthill_mckee
+from scipy.sparse.csgraph import breadth_first_order, reverse_cuthill_mckee
 
 from stw_tui.sos.compressed import same_structure, structure
 
@@ -33,17 +37,55 @@ BAND_MAX = 48   # widest half-bandwidth factorized banded (basketball's 56-87 st
 CHOLESKY_BAND_MAX = 96
 
 
-def _rcm(m) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, int]:
+def _rcm(m, limit: int | None = None) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, int]:
     """Reverse Cuthill-McKee of a compressed array's (symmetric) pattern: the permutation, each
     index's rank in it, the ranks of each stored entry's outer (pointer) and inner (index)
     position, and the half-bandwidth they span. Were the pattern not symmetric, as RCM's symmetric
-    mode takes it, the order would only be worse: the width is measured on the entries."""
-    n, nnz = m.shape[0], m.indptr[-1]
+    mode takes it, the order would only be worse: the width is measured on the entries.
+
+    scipy's RCM starts from a node of least degree, and on some working-set systems that start
+    doubles the band (acrobat's: 48-65 where 24-27 can be had; luxo's: 60-73 against 31-33):
+    such a node can sit midway along the time axis, and the search then spreads both ways.
+    Where its band is wider than ``limit``, RCM is run again from the node scipy's order ends
+    with, at the far end of the graph (one step of George and Liu's search for a pseudo-peripheral
+    node; more steps gave nothing narrower on the bundled sessions), and the narrower order kept.
+    Systems narrow enough keep scipy's order exactly."""
     perm = reverse_cuthill_mckee(m, symmetric_mode=True).astype(np.intp)
+    found = _band(m, perm)
+    if limit is not None and found[-1] > limit:
+        other = _band(m, _rcm_from(m, int(perm[0])))
+        if other[-1] < found[-1]:
+            found = other
+    return found
+
+
+def _band(m, perm: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, int]:
+    """_rcm's answer for the order ``perm`` of ``m``'s rows and columns."""
+    n, nnz = m.shape[0], m.indptr[-1]
     rank = np.empty(n, dtype=np.intp)
     rank[perm] = np.arange(n)
     outer, inner = rank[np.repeat(np.arange(n), np.diff(m.indptr))], rank[m.indices[:nnz]]
     return perm, rank, outer, inner, int(np.abs(outer - inner).max(initial=0))
+
+
+def _rcm_from(m, start: int) -> np.ndarray:
+    """Reverse Cuthill-McKee of ``m``'s (symmetric) pattern from ``start``: a breadth-first order
+    that visits each node's neighbours by increasing degree (each row's entries are sorted by
+    their column's rank in degree order, in scipy's C code), reversed. Nodes the search does not
+    reach (other components) follow in scipy's order; their band is their own."""
+    n, nnz = m.shape[0], m.indptr[-1]
+    by_degree = np.argsort(np.diff(m.indptr), kind="stable")
+    degree_rank = np.empty(n, dtype=m.indices.dtype)
+    degree_rank[by_degree] = np.arange(n)
+    pattern = sps.csr_array((np.ones(nnz), degree_rank[m.indices[:nnz]], m.indptr.copy()), shape=m.shape)
+    pattern.has_sorted_indices = False
+    pattern.sort_indices()
+    pattern.indices = by_degree[pattern.indices].astype(m.indices.dtype)   # back to m's numbering
+    order = breadth_first_order(pattern, start, directed=False, return_predecessors=False)
+    if order.size < n:
+        rest = reverse_cuthill_mckee(m, symmetric_mode=True)
+        order = np.concatenate([order, rest[~np.isin(rest, order)][::-1]])
+    return order[::-1].astype(np.intp)
 
 
 class BandPlan:
@@ -66,7 +108,7 @@ class BandPlan:
         """The plan for K's structure, or None when its RCM band is wider than ``band_max``."""
         if K.shape[0] == 0:
             return None
-        perm, rank, j, i, width = _rcm(K)   # CSC: the pointer is the column, the index the row
+        perm, rank, j, i, width = _rcm(K, band_max)   # CSC: the pointer is the column, the index the row
         return cls(K, perm, rank, width, i, j) if width <= band_max else None
 
     def fits(self, K: sps.csc_array, spec: str, options: dict) -> bool:
@@ -125,7 +167,7 @@ class CholeskyBandPlan:
         entry of its lower triangle is stored twice (scipy would sum the two)."""
         if m.shape[0] == 0:
             return None
-        _, _, i, j, width = _rcm(m)   # CSR: the pointer is the row, the index the column
+        _, _, i, j, width = _rcm(m, band_max)   # CSR: the pointer is the row, the index the column
         if width > band_max:
             return None
         keep = np.flatnonzero(i >= j)
