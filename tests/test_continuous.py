@@ -427,3 +427,36 @@ iterate 30
         assert 3.5 <= coarse / fine <= 4.5, dense
     for coarse, fine in zip(error, error[1:]):
         assert 3.0 <= coarse / fine <= 5.0, error
+
+
+def test_exact_degree_is_sympys_answer_and_nonlinear_relations_skip_its_derivatives(monkeypatch):
+    """Which relations get exact instances (affine in DOF quantities with constant coefficients):
+    the answers sympy's derivatives give, affine relations in disguise included (x(1 + x) - x²,
+    cos²q + sin²q + q''). A relation whose symengine derivative keeps a DOF or time is refused
+    without sympy's (which took half of luxo.stw's replay on its equations of motion)."""
+    from stw_tui.sos import instances
+
+    s = Session()
+    s.run_text("time 0 1 knots=6\nconst g = 9.81\ndof x\ndof q\n"
+               "constraint a: x'' + g = 0 on [0, 1]\n"
+               "constraint b: 2*x' - 3*q = 1 on [0, 1]\n"
+               "constraint c: x*(1 + x) - x^2 = 0.5 on [0, 1]\n"
+               "constraint d: cos(q)^2 + sin(q)^2 + q'' = 1 on [0, 1]\n"
+               "constraint e: sin(q) + q'' = 0 on [0, 1]\n"
+               "constraint f: q*q' = 0 on [0, 1]\n"
+               "constraint h: t*q = 0 on [0, 1]\n"
+               "constraint i: x'' >= -g on [0, 1]\n"
+               "constraint j: x >= 0 on [0, 1]\n"
+               "constraint k: abs(x'') <= 3 on [0, 1]\n")
+    scene = s.scene
+    want = {"a": 2, "b": 1, "c": 0, "d": 2, "e": None, "f": None, "h": None, "i": 2, "j": None, "k": None}
+    instances._exact_degree.cache_clear()
+    derivatives = []
+    diff = instances.sp.diff
+    monkeypatch.setattr(instances.sp, "diff", lambda *a: derivatives.append(a) or diff(*a))
+    for name, degree in want.items():
+        (relation,) = scene.constraints[name].relations
+        before = len(derivatives)
+        assert instances.exact_degree(scene, relation.expr, relation.kind) == degree, name
+        if name in "efh":
+            assert len(derivatives) == before, name     # the screen refused it

@@ -21,9 +21,10 @@ from __future__ import annotations
 from functools import lru_cache
 
 import numpy as np
+import symengine as se
 import sympy as sp
 
-from stw_tui.sym.compiler import free_symbols
+from stw_tui.sym.compiler import _to_symengine, free_symbols, sign_as_piecewise
 from stw_tui.sym.kinds import TermKind
 from stw_tui.sym.symbols import TIME, dof_symbols
 
@@ -50,12 +51,14 @@ def exact_degree(scene, expr: sp.Expr, kind: str) -> int | None:
 
 @lru_cache(maxsize=4096)
 def _exact_degree(expr: sp.Expr, dof_names: frozenset[str], kind: str) -> int | None:
-    used = [(order, s) for name in dof_names for order, s in enumerate(dof_symbols(name))
-            if s in expr.free_symbols]
+    free = free_symbols(expr)   # kept per expression: sympy walks the whole tree for each ask
+    used = [(order, s) for name in dof_names for order, s in enumerate(dof_symbols(name)) if s in free]
     if not used:
         return None
     symbols = {s for _, s in used}
-    for _, s in used:
+    if _coefficients_vary(expr, symbols):
+        return None
+    for _, s in used:   # the exact test, by sympy (cheap on what passes the screen: affine relations)
         coefficient = sp.diff(expr, s)
         if coefficient.free_symbols & (symbols | {TIME}):
             return None
@@ -67,6 +70,20 @@ def _exact_degree(expr: sp.Expr, dof_names: frozenset[str], kind: str) -> int | 
     if kind != TermKind.EQ and r < 2:
         return None
     return r
+
+
+def _coefficients_vary(expr: sp.Expr, symbols: set) -> bool:
+    """Whether the derivative of ``expr`` by one of the DOF ``symbols`` depends on a DOF or on
+    time, found by symengine: sympy's derivatives of equations of motion took half of luxo.stw's
+    replay (0.5 of 1.0 s), symengine's take milliseconds. A relation found varying is not affine
+    with constant coefficients (its derivative, canonicalized by symengine as sympy's is, keeps a
+    DOF or time); False (or an expression symengine cannot take) leaves the answer to the exact test."""
+    try:
+        e = sign_as_piecewise(_to_symengine(expr))
+        watched = {se.Symbol(s.name) for s in symbols | {TIME}}
+        return any(e.diff(se.Symbol(s.name)).free_symbols & watched for s in symbols)
+    except (RuntimeError, TypeError, ValueError, NotImplementedError):   # pragma: no cover - defensive
+        return False
 
 
 def interval_cuts(breakpoints: np.ndarray, a: float, b: float) -> np.ndarray:
