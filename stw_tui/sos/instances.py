@@ -21,10 +21,10 @@ from __future__ import annotations
 from functools import lru_cache
 
 import numpy as np
-import symengine as se
 import sympy as sp
 
-from stw_tui.sym.compiler import _to_symengine, free_symbols, sign_as_piecewise
+from stw_tui.sym.compiler import compile_term, free_symbols
+from stw_tui.sym.errors import StwError
 from stw_tui.sym.kinds import TermKind
 from stw_tui.sym.symbols import TIME, dof_symbols
 
@@ -46,18 +46,17 @@ def exact_degree(scene, expr: sp.Expr, kind: str) -> int | None:
     (then no finite set of instances makes it exact), and None for inequalities of degree > 1 in
     time (holding at points does not bound a polynomial of degree 2 or 3 in between).
     """
-    return _exact_degree(scene.expand(expr), frozenset(scene.dofs), kind)
+    return _exact_degree(scene.expand(expr), frozenset(scene.dofs), kind, frozenset(scene.constants))
 
 
 @lru_cache(maxsize=4096)
-def _exact_degree(expr: sp.Expr, dof_names: frozenset[str], kind: str) -> int | None:
+def _exact_degree(expr: sp.Expr, dof_names: frozenset[str], kind: str,
+                  constant_names: frozenset[str]) -> int | None:
     free = free_symbols(expr)   # kept per expression: sympy walks the whole tree for each ask
     used = [(order, s) for name in dof_names for order, s in enumerate(dof_symbols(name)) if s in free]
-    if not used:
+    if not used or _curved(expr, dof_names, constant_names):
         return None
     symbols = {s for _, s in used}
-    if _coefficients_vary(expr, symbols):
-        return None
     for _, s in used:   # the exact test, by sympy (cheap on what passes the screen: affine relations)
         coefficient = sp.diff(expr, s)
         if coefficient.free_symbols & (symbols | {TIME}):
@@ -72,17 +71,15 @@ def _exact_degree(expr: sp.Expr, dof_names: frozenset[str], kind: str) -> int | 
     return r
 
 
-def _coefficients_vary(expr: sp.Expr, symbols: set) -> bool:
-    """Whether the derivative of ``expr`` by one of the DOF ``symbols`` depends on a DOF or on
-    time, found by symengine: sympy's derivatives of equations of motion took half of luxo.stw's
-    replay (0.5 of 1.0 s), symengine's take milliseconds. A relation found varying is not affine
-    with constant coefficients (its derivative, canonicalized by symengine as sympy's is, keeps a
-    DOF or time); False (or an expression symengine cannot take) leaves the answer to the exact test."""
+def _curved(expr: sp.Expr, dof_names: frozenset[str], constant_names: frozenset[str]) -> bool:
+    """Whether ``expr`` has a second derivative in DOF quantities that is not identically zero,
+    read off its compiled term (the window problem's own, kept in memory and on disk: symengine
+    found the pairs when it was compiled). Such a relation is not affine, and sympy's derivatives
+    of equations of motion, which would say so too, took half of luxo.stw's replay (0.5 of 1.0 s).
+    False (or a term that does not compile) leaves the answer to the exact test."""
     try:
-        e = sign_as_piecewise(_to_symengine(expr))
-        watched = {se.Symbol(s.name) for s in symbols | {TIME}}
-        return any(e.diff(se.Symbol(s.name)).free_symbols & watched for s in symbols)
-    except (RuntimeError, TypeError, ValueError, NotImplementedError):   # pragma: no cover - defensive
+        return bool(compile_term(expr, dof_names, constant_names).hessian_pairs)
+    except StwError:
         return False
 
 
