@@ -43,9 +43,9 @@ from stw_scipy.banded import BandPlan
 from stw_tui.sos.compressed import same_structure, structure
 
 ORDERINGS_KEPT = 12   # structures always remembered: interior point, working sets, curvature tests ...
-# ... and older ones up to this many stored entries of K in all (about 28 bytes each: 56 MB). A
+# ... and older ones up to this many stored entries of K in all (24 bytes each kept: 48 MB). A
 # window's working sets each have a structure of their own: the arm's first solve meets 27,
-# basketball's 104 (about 6,000 entries each), and the next `iterate` of the window meets them again.
+# basketball's 104 (about 18,000 entries each), and the next `iterate` of the window meets them again.
 ORDERINGS_ENTRIES = 2_000_000
 
 
