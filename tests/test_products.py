@@ -133,3 +133,19 @@ def test_a_new_window_on_the_same_structure_uses_the_plans_made_before_and_gets_
     assert same(H, ev.lagrangian_hessian(lam_eq, lam_ge))
     session.execute("constraint extra: BX = 0 @ 0.25")   # another structure: other plans
     assert WindowProblem(session.scene)._plan_set() is not first._plan_set()
+
+
+def test_grouping_is_the_stable_argsort_for_narrow_and_wide_keys():
+    """Plans group product terms by output entry in the stable order of their keys, with each
+    group's start: the combined-integer sort and its fallback for keys too wide to share 63 bits
+    with the positions both give numpy's stable argsort exactly."""
+    from stw_tui.sos.products import _grouped
+
+    rng = np.random.default_rng(11)
+    for key in (rng.integers(0, 50, 1000), np.sort(rng.integers(0, 10**6, 5000)) // 3,
+                rng.integers(0, 2**55, 300), np.zeros(0, dtype=np.int64)):
+        key = key.astype(np.int64)
+        order, start = _grouped(key)
+        want = np.argsort(key, kind="stable")
+        assert np.array_equal(order, want)
+        assert np.array_equal(start, np.flatnonzero(np.diff(key[want], prepend=-1)))

@@ -49,8 +49,7 @@ class ProductPlan:
         row = np.repeat(np.repeat(np.arange(m), np.diff(A.indptr)), a_len)
         col = B.indices[b_term]
         # Group the terms by output entry (row, col), each group in the order they are added.
-        terms = np.argsort(row.astype(np.int64) * max(N, 1) + col, kind="stable")
-        start = np.flatnonzero(np.diff(row[terms], prepend=-1) | np.diff(col[terms], prepend=-1))
+        terms, start = _grouped(row.astype(np.int64) * max(N, 1) + col)
         first, out_row, out_col = terms[start], row[terms[start]], col[terms[start]]
         # csr_matmat stores a row's entries last-first-touched first: put the groups in that order.
         place = np.lexsort((-first, out_row))
@@ -118,6 +117,21 @@ class ProductPlan:
         return False
 
 
+def _grouped(key: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """The stable order of ``key`` (non-negative), and where each run of equal keys starts in it.
+
+    Key and position go into one integer, all distinct, so any sort is the stable one: numpy's
+    (vectorized) sort of it, then the two halves taken apart, took half the time of a stable
+    argsort and a gather of the keys in its order (basketball's Hessian and Jacobian plans, 0.22 s
+    to 0.11 s). Keys too wide to share 63 bits with the positions take the argsort."""
+    shift = int(key.size).bit_length()
+    if key.size and int(key.max()).bit_length() + shift <= 62:
+        combined = np.sort((key << shift) | np.arange(key.size))
+        return combined & ((1 << shift) - 1), np.flatnonzero(np.diff(combined >> shift, prepend=-1))
+    order = np.argsort(key, kind="stable")
+    return order, np.flatnonzero(np.diff(key[order], prepend=-1))
+
+
 def _without_zeros(data, indices, indptr, shape) -> sps.csr_array:
     """The CSR matrix with its exact zeros left out (as scipy's products leave them out)."""
     zero = data == 0
@@ -151,12 +165,12 @@ class GramPlan:
         p = J.indptr[row] + local // np.maximum(width, 1)   # J_ri
         q = J.indptr[row] + local % np.maximum(width, 1)    # J_rj
         key = J.indices[p].astype(np.int64) * max(n, 1) + J.indices[q]
-        terms = np.argsort(key, kind="stable")   # by entry (i, j); rows r ascending within one
-        start = np.flatnonzero(np.diff(key[terms], prepend=-1))
+        terms, start = _grouped(key)   # by entry (i, j); rows r ascending within one
+        entry = key[terms[start]]
         self.shape = (n, n)
-        self.indices = (key[terms][start] % max(n, 1)).astype(np.int32)
+        self.indices = (entry % max(n, 1)).astype(np.int32)
         self.indptr = np.zeros(n + 1, dtype=np.int32)
-        np.cumsum(np.bincount(key[terms][start] // max(n, 1), minlength=n), out=self.indptr[1:])
+        np.cumsum(np.bincount(entry // max(n, 1), minlength=n), out=self.indptr[1:])
         self._p, self._q = p[terms], q[terms]
         self._row_of_entry = np.repeat(np.arange(m), length)
         term_ptr = np.append(start, terms.size)
