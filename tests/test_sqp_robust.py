@@ -7,6 +7,7 @@ the objective-growth bound (``growth``) is an option.
 """
 
 import sys
+from dataclasses import replace
 
 import numpy as np
 import pytest
@@ -652,7 +653,7 @@ def test_exact_steps_refused_in_a_row_wait_for_doubling_runs_of_gauss_newton_ste
     for _ in range(5):   # refused whenever tried: the first alone waits for nothing
         refusals, wait = _newton_backoff(state, True)
         waits.append(wait)
-        state = SolverState(**{**state.__dict__, "newton_refusals": refusals, "newton_wait": wait})
+        state = replace(state, newton_refusals=refusals, newton_wait=wait)
     assert waits == [0, 1, 2, 4, min(8, NEWTON_WAIT_MAX)] and NEWTON_WAIT_MAX == 4
     # Gauss-Newton steps while waiting count the wait down and keep the refusals ...
     assert _newton_backoff(state, None) == (5, 3)

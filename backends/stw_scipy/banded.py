@@ -51,28 +51,31 @@ def _rcm(m, limit: int | None = None) -> tuple[np.ndarray, np.ndarray, np.ndarra
     node; more steps gave nothing narrower on the bundled sessions), and the narrower order kept.
     Systems narrow enough keep scipy's order exactly."""
     perm = reverse_cuthill_mckee(m, symmetric_mode=True).astype(np.intp)
-    found = _band(m, perm)
+    owner = np.repeat(np.arange(m.shape[0]), np.diff(m.indptr))   # each stored entry's outer index
+    found = _band(m, perm, owner)
     if limit is not None and found[-1] > limit:
-        other = _band(m, _rcm_from(m, int(perm[0])))
+        other = _band(m, _rcm_from(m, perm), owner)
         if other[-1] < found[-1]:
             found = other
     return found
 
 
-def _band(m, perm: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, int]:
-    """_rcm's answer for the order ``perm`` of ``m``'s rows and columns."""
+def _band(m, perm: np.ndarray, owner: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, int]:
+    """_rcm's answer for the order ``perm`` of ``m``'s rows and columns (``owner``: each stored
+    entry's outer index)."""
     n, nnz = m.shape[0], m.indptr[-1]
     rank = np.empty(n, dtype=np.intp)
     rank[perm] = np.arange(n)
-    outer, inner = rank[np.repeat(np.arange(n), np.diff(m.indptr))], rank[m.indices[:nnz]]
+    outer, inner = rank[owner], rank[m.indices[:nnz]]
     return perm, rank, outer, inner, int(np.abs(outer - inner).max(initial=0))
 
 
-def _rcm_from(m, start: int) -> np.ndarray:
-    """Reverse Cuthill-McKee of ``m``'s (symmetric) pattern from ``start``: a breadth-first order
-    that visits each node's neighbours by increasing degree (each row's entries are sorted by
-    their column's rank in degree order, in scipy's C code), reversed. Nodes the search does not
-    reach (other components) follow in scipy's order; their band is their own."""
+def _rcm_from(m, scipys: np.ndarray) -> np.ndarray:
+    """Reverse Cuthill-McKee of ``m``'s (symmetric) pattern from the node scipy's order
+    ``scipys`` ends with: a breadth-first order that visits each node's neighbours by increasing
+    degree (each row's entries are sorted by their column's rank in degree order, in scipy's C
+    code), reversed. Nodes the search does not reach (other components) follow in scipy's order;
+    their band is their own."""
     n, nnz = m.shape[0], m.indptr[-1]
     by_degree = np.argsort(np.diff(m.indptr), kind="stable")
     degree_rank = np.empty(n, dtype=m.indices.dtype)
@@ -83,10 +86,9 @@ def _rcm_from(m, start: int) -> np.ndarray:
     pattern.indices = by_degree[pattern.indices].astype(m.indices.dtype)   # back to m's numbering
     # directed: the pattern is symmetric, and the search then skips the transpose it would make
     # (4.6x faster, the same order on every bundled system)
-    order = breadth_first_order(pattern, start, directed=True, return_predecessors=False)
+    order = breadth_first_order(pattern, int(scipys[0]), directed=True, return_predecessors=False)
     if order.size < n:
-        rest = reverse_cuthill_mckee(m, symmetric_mode=True)
-        order = np.concatenate([order, rest[~np.isin(rest, order)][::-1]])
+        order = np.concatenate([order, scipys[~np.isin(scipys, order)][::-1]])
     return order[::-1].astype(np.intp)
 
 
