@@ -267,3 +267,37 @@ def test_the_size_check_refuses_one_node_over_the_limit_and_passes_at_it():
     with pytest.raises(LimitError, match="expression_size"):
         compiler._check_size(expr, size - 1, 64)
     assert limits.value_or_ceiling("expression_size") > size
+
+
+AFFINE = [(x - 0.25, True), (xd, True), (2 * x - 3 * y + TIME, True),
+          (sp.sin(TIME) * x + g * xd + sp.cos(TIME), True), (x * (1 + x) - x**2, True),
+          (x * y, False), (sp.sin(x), False), (sp.sign(x), False), (sp.Abs(x), False),
+          (sp.Max(x, 0), False), (x**2, False)]
+
+
+@pytest.mark.parametrize("expr,affine", AFFINE, ids=[str(e) for e, _ in AFFINE])
+def test_affine_terms_are_told_from_the_others(expr, affine):
+    # sign(x) has a zero gradient and no Hessian, and is not affine; x(1 + x) - x² is, once
+    # symengine has collected it. An affine term's value is its gradient's terms plus its value
+    # at zero, at any point.
+    term = compile_term(expr, {"x", "y"}, {"g"})
+    assert term.affine is affine
+    if affine:
+        rng = np.random.default_rng(1)
+        values, times, params = rng.normal(size=(20, term.k)), rng.uniform(0, 1, 20), np.array([9.81][:len(term.parameters)])
+        f, grad, _ = term.full(values, times, params)
+        f0 = term.value(np.zeros_like(values), times, params)
+        assert np.allclose(f, (grad * values).sum(1) + f0, rtol=1e-14, atol=1e-14)
+
+
+def test_the_affine_flag_is_kept_on_disk_and_shared_by_waypoints(tmp_path, monkeypatch):
+    from stw_tui.sym import compiler
+
+    monkeypatch.setenv("STW_CACHE_DIR", str(tmp_path))
+    for expr, affine in ((x - 0.75, True), (x * y, False)):
+        monkeypatch.setattr(compiler, "_CACHE", {})
+        assert compile_term(expr, {"x", "y"}, set()).affine is affine
+        monkeypatch.setattr(compiler, "_CACHE", {})            # a new run: read from disk
+        assert compile_term(expr, {"x", "y"}, set()).affine is affine
+    # an entry in the layout before the flag (another name) is neither read nor overwritten
+    assert all(compiler.TERM_ENTRY not in p.name for p in tmp_path.glob("*.pkl"))

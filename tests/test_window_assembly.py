@@ -61,3 +61,55 @@ def test_columns_keep_each_rows_stored_order_for_any_column_order():
     P.indptr = P.indptr.astype(np.int32)
     for columns in (np.arange(3, 9), rng.permutation(12)[:7], np.zeros(0, np.int64)):
         assert same(_columns(P, columns), P[:, columns].tocsr())
+
+
+AFFINE_SCENES = {**SCENES, "affine objective and bounds": (
+    "time 0 2 knots=10\ndof x lo=-1 hi=3\ndof y\nconstraint a: x - 2*y + t = 0.5 on [0.2, 1.8]\n"
+    "constraint b: x = 1, y' = 0 @ 2\nobjective o: x'' - y + sin(t)\n")}
+
+
+@pytest.mark.parametrize("text", AFFINE_SCENES.values(), ids=AFFINE_SCENES.keys())
+def test_affine_groups_evaluated_together_give_each_groups_own_numbers(text):
+    # The affine groups' values come from one product (affine_rows.py) and their Jacobian values
+    # from the first evaluation; every group computed on its own by its compiled term, and the
+    # Jacobians assembled from scratch as G Pf, must give the same numbers.
+    from stw_tui.sym.kinds import TermKind
+
+    session = Session()
+    session.run_text(text)
+    problem = WindowProblem(session.scene)
+    assert any(g.term.affine for g in problem.groups)
+    rng = np.random.default_rng(5)
+    for _ in range(3):
+        s = problem.initial() + rng.normal(size=problem.n_free)
+        ev, merit = problem.evaluate(s), problem.merit_values(s)
+        v = problem._slot_values(s)
+        objective, rows = 0.0, {TermKind.EQ: [], TermKind.GE: []}
+        G = {kind: np.zeros((problem.row_counts[kind], problem.n_slots)) for kind in TermKind}
+        for group in problem.groups:
+            f, grad, _ = group.term.full(problem._group_inputs(group, v), group.times, group.params)
+            weights = group.weights if group.kind != TermKind.OBJ else np.ones(group.n)
+            for a in range(group.term.k):
+                G[group.kind][group.row_offset + np.arange(group.n),
+                              group.slot_offset + a * group.n + np.arange(group.n)] = weights * grad[:, a]
+            if group.kind == TermKind.OBJ:
+                objective += float(group.weights @ (f * f))
+            else:
+                rows[group.kind].append(group.weights * f)
+        for values in (ev, merit):
+            assert values.objective == pytest.approx(objective, rel=1e-14, abs=1e-14)
+            for kind, c in ((TermKind.EQ, values.c_eq), (TermKind.GE, values.c_ge)):
+                assert np.allclose(c, np.concatenate(rows[kind] or [np.zeros(0)]), rtol=1e-14, atol=1e-14)
+        for kind, J in ((TermKind.EQ, ev.J_eq), (TermKind.GE, ev.J_ge)):
+            assert np.allclose(J.toarray(), G[kind] @ problem.Pf.toarray(), rtol=1e-14, atol=1e-14)
+
+
+def test_the_jacobian_of_rows_that_are_all_affine_is_made_once():
+    session = Session()
+    session.run_text(SCENES["pendulum"])     # boundary conditions: affine; the effort: not
+    problem = WindowProblem(session.scene)
+    s = problem.initial()
+    first, second = problem.evaluate(s), problem.evaluate(s + 0.1)
+    assert second.J_eq is first.J_eq
+    assert not np.array_equal(first.c_eq, second.c_eq)
+    assert not np.array_equal(first.gradient, second.gradient)

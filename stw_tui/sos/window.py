@@ -24,6 +24,7 @@ import numpy as np
 import scipy.sparse as sps
 import sympy as sp
 
+from stw_tui.sos.affine_rows import AffineRows
 from stw_tui.sos.compressed import add, csr, transpose
 from stw_tui.sos.instances import bound_extra_times, bound_times, relation_times
 from stw_tui.sos.products import GRAM_PLAN_TERMS, GramPlan, ProductPlan
@@ -427,6 +428,10 @@ class WindowProblem:
                            for kind, (r, c) in g_idx.items()}
         self._d_pattern = (np.concatenate(d_rows) if d_rows else np.zeros(0, int),
                            np.concatenate(d_cols) if d_cols else np.zeros(0, int))
+        self._affine_rows: AffineRows | None = None   # made at the first evaluation (_affine)
+        self._affine_parts: list = [None] * len(self.groups)
+        self._affine_kinds: set = set()      # kinds whose rows are all affine (their Jacobians
+        self._constant_jacobians: dict = {}  # are constant: kept, shared read-only by evaluations)
         self._product_plans: dict | None = None   # shared by equal structures (_plan_set)
         self._uses: dict | None = None   # Hessians and Gauss-Newtons before their plans (shared too)
         # every row's weight, by kind, in row order (read-only: evaluations share them)
@@ -486,14 +491,32 @@ class WindowProblem:
         v = self._slot_values(s)
         out = {EQ: np.empty(self.row_counts[EQ]), GE: np.empty(self.row_counts[GE])}
         objective = 0.0
-        for group in self.groups:
-            f = group.term.value(self._group_inputs(group, v), group.times, group.params)
+        affine = self._affine()
+        fa = affine.values(v)
+        for group, span in zip(self.groups, affine.span):
+            if span is None:
+                f = group.term.value(self._group_inputs(group, v), group.times, group.params)
+            else:
+                f = fa[span[0]:span[1]]
             if group.kind == OBJ:
                 objective += float(np.dot(group.weights, f * f))
             else:
                 out[group.kind][group.row_offset:group.row_offset + group.n] = group.weights * f
         masks = self._conditions(v)
         return MeritValues(objective, out[EQ], out[GE], masks[EQ], masks[GE])
+
+    def _affine(self) -> AffineRows:
+        """The affine groups' values as one product (affine_rows.py), made at the first
+        evaluation, with each one's Jacobian values (scaled as :meth:`evaluate` scales them)."""
+        if self._affine_rows is None:
+            affine = AffineRows(self.groups, self.n_slots)
+            self._affine_parts = [
+                None if grad is None else (grad * g.weights[:, None] if g.kind != OBJ else grad).T.ravel()
+                for g, grad in zip(self.groups, affine.gradient)]
+            self._affine_kinds = {g.kind for g in self.groups} - {
+                g.kind for g, parts in zip(self.groups, self._affine_parts) if parts is None}
+            self._affine_rows = affine
+        return self._affine_rows
 
     def _local_terms(self, v: np.ndarray):
         """Per group: the group, and its term's values, gradients and Hessian entries at its
@@ -520,15 +543,28 @@ class WindowProblem:
         values = {kind: np.empty(self.row_counts[kind]) for kind in (EQ, GE, OBJ)}
         grads = {kind: [] for kind in (EQ, GE, OBJ)}
         hess = []
-        for group, f, grad, h in self._local_terms(v):
+        affine = self._affine()
+        fa = affine.values(v)
+        for group, span, parts in zip(self.groups, affine.span, self._affine_parts):
+            if span is None:
+                f, grad, h = group.term.full(self._group_inputs(group, v), group.times, group.params)
+            else:   # its Jacobian values were made at the first evaluation
+                f, h = fa[span[0]:span[1]], None
             values[group.kind][group.row_offset:group.row_offset + group.n] = f
-            # constraint rows scaled by their weights; objective residuals as they are (x 1.0)
-            scaled = grad * group.weights[:, None] if group.kind != OBJ else grad
-            grads[group.kind].append(scaled.T.ravel())
+            if parts is None:
+                # constraint rows scaled by their weights; objective residuals as they are (x 1.0)
+                parts = (grad * group.weights[:, None] if group.kind != OBJ else grad).T.ravel()
+            grads[group.kind].append(parts)
             hess.append((group, h))
         J, full = {}, {}
         for kind in (EQ, GE, OBJ):
-            J[kind], full[kind] = self._jacobian(kind, grads[kind])
+            constant = self._constant_jacobians.get(kind)
+            if constant is None:
+                J[kind], full[kind] = self._jacobian(kind, grads[kind])
+                if kind in self._affine_kinds:   # every row affine: the same at every s
+                    self._constant_jacobians[kind] = (J[kind], full[kind])
+            else:
+                J[kind], full[kind] = constant
         w_obj = self._row_weights[OBJ]
         residual = values[OBJ]
         objective = float(np.dot(w_obj, residual * residual))

@@ -167,12 +167,16 @@ class CompiledTerm:
         variables: the DOF quantities it depends on, in a fixed order (the gradient's columns).
         parameters: the names of the constants it uses, in the order values are passed.
         hessian_pairs: (a, b) index pairs, a <= b, of structurally nonzero second derivatives.
+        affine: whether the value is ``Σ c_a(t) x_a + c_0(t)`` in its variables, found by
+            symengine (its gradient free of them, and the value less the gradient's terms too):
+            the gradient then depends on time and constants only. False where unproven.
     """
 
     expr: sp.Expr
     variables: tuple[LocalVar, ...]
     parameters: tuple[str, ...]
     hessian_pairs: tuple[tuple[int, int], ...] = field(default=())
+    affine: bool = False
     _value_fn: object = field(default=None, repr=False)
     _full_fn: object = field(default=None, repr=False)
     # The text naming the term in the disk cache: a backend keeps what it derives from the term
@@ -312,7 +316,8 @@ def compile_term(expr: sp.Expr, dof_names: frozenset[str] | set[str],
         core_key = (skeleton, variables, names)
         core = _cached(core_key) or _remember(core_key, _build(skeleton, variables, names))
         term = LiteralTerm(expr=expr, variables=variables, parameters=parameters,
-                           hessian_pairs=core.hessian_pairs, core=core, literals=np.array(literals),
+                           hessian_pairs=core.hessian_pairs, affine=core.affine, core=core,
+                           literals=np.array(literals),
                            cache_key=f"{core.cache_key}|{literals!r}")
     else:
         term = _build(expr, variables, parameters)
@@ -624,6 +629,11 @@ def _store(path: Path, key: bytes, entry) -> None:
         pass  # caching is an optimization only
 
 
+# The layout of a compiled term's disk entry, in its name: an entry of another layout (an older
+# stw's, without ``affine``) is another name, so neither version reads the other's.
+TERM_ENTRY = "|entry 2: pairs, affine, value, full"
+
+
 def _build(expr: sp.Expr, variables: tuple[LocalVar, ...], parameters: tuple[str, ...]) -> CompiledTerm:
     text, e = tree_text(expr), None
     if text is not None:   # named without converting: a hit then converts nothing
@@ -631,15 +641,15 @@ def _build(expr: sp.Expr, variables: tuple[LocalVar, ...], parameters: tuple[str
     else:
         e = _to_symengine(expr)    # once: the key's text and, on a miss, what is compiled
         key = _term_key(e, variables, parameters)
-    entry = cached_entry("", key)
+    entry = cached_entry("", key + TERM_ENTRY)
     if entry is not None:
-        pairs, value_fn, full_fn = entry
+        pairs, affine, value_fn, full_fn = entry
         return CompiledTerm(expr=expr, variables=variables, parameters=parameters,
-                            hessian_pairs=tuple(pairs), _value_fn=value_fn, _full_fn=full_fn,
-                            cache_key=key)
+                            hessian_pairs=tuple(pairs), affine=affine, _value_fn=value_fn,
+                            _full_fn=full_fn, cache_key=key)
     term = _compile(expr, variables, parameters, e)
     term.cache_key = key
-    store_entry("", key, (term.hessian_pairs, term._value_fn, term._full_fn))
+    store_entry("", key + TERM_ENTRY, (term.hessian_pairs, term.affine, term._value_fn, term._full_fn))
     return term
 
 
@@ -663,7 +673,19 @@ def _compile(expr: sp.Expr, variables: tuple[LocalVar, ...], parameters: tuple[s
     value_fn = _lambdify(args, [e])
     full_fn = _lambdify(args, [e, *grad, *hess])
     return CompiledTerm(expr=expr, variables=variables, parameters=parameters,
-                        hessian_pairs=tuple(pairs), _value_fn=value_fn, _full_fn=full_fn)
+                        hessian_pairs=tuple(pairs), affine=_affine(e, var_syms, grad),
+                        _value_fn=value_fn, _full_fn=full_fn)
+
+
+def _affine(e, var_syms: list, grad: list) -> bool:
+    """Whether ``e`` is affine in ``var_syms``: its gradient ``grad`` free of them, and ``e`` less
+    the gradient's terms free of them too, once expanded (sign(x) has a zero gradient). Only
+    what passes the first test is expanded: affine relations, a few terms each."""
+    variables = set(var_syms)
+    if any(g.free_symbols & variables for g in grad):
+        return False
+    rest = se.expand(e - se.Add(*[g * v for g, v in zip(grad, var_syms)]))
+    return not (rest.free_symbols & variables)
 
 
 def double_finite(expr: sp.Expr, values: dict[str, float] | None = None) -> bool:
