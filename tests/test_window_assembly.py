@@ -113,3 +113,39 @@ def test_the_jacobian_of_rows_that_are_all_affine_is_made_once():
     assert second.J_eq is first.J_eq
     assert not np.array_equal(first.c_eq, second.c_eq)
     assert not np.array_equal(first.gradient, second.gradient)
+
+
+@pytest.mark.parametrize("line,label,what,time", [
+    ("constraint c: x/(t - 1) = 0 @ 1", "c", "its value", 1.0),        # affine, its coefficient infinite
+    ("constraint c: sqrt(x) = 1 @ 0.5", "c", "its derivative", 0.5),   # sqrt'(0)
+    ("constraint c: x - 1 = 0 @ 0.5\nconstraint d: log(x - 1) = 0 @ 0.25", "d", "its value", 0.25),
+])
+def test_a_start_where_a_term_is_undefined_is_refused_with_its_name_and_time(line, label, what, time):
+    # The check before a solve reads the affine groups from their one product, the others from
+    # their compiled terms; either way the first undefined group, instance and part is named.
+    from stw_tui.sym.errors import StwError
+
+    session = Session()
+    session.run_text(f"time 0 1 knots=4\ndof x\n{line}\nobjective o: x''\n")
+    problem = WindowProblem(session.scene)
+    group, i, found = problem.first_undefined(problem.initial())
+    assert (group.label, found, group.times[i]) == (label, what, time)
+    before = session.scene.coefficient_vector().copy()
+    with pytest.raises(StwError, match=f"constraint {label}: {what} is not a finite real number at t={time:g}"):
+        session.execute("iterate 5")
+    assert np.array_equal(session.scene.coefficient_vector(), before)
+
+
+def test_affine_rows_leave_a_group_with_an_undefined_coefficient_to_its_compiled_term():
+    from stw_tui.sos.affine_rows import AffineRows
+
+    session = Session()
+    session.run_text("time 0 1 knots=4\ndof x\nconstraint c: x/(t - 1) = 0 @ 1\n"
+                     "constraint d: 2*x' = 1 @ 0\nobjective o: x''\n")
+    problem = WindowProblem(session.scene)
+    affine = AffineRows(problem.groups, problem.n_slots)
+    spans = {g.label: span for g, span in zip(problem.groups, affine.span)}
+    assert problem.groups[0].term.affine and spans["c"] is None and spans["d"] == (0, 1)
+    v = problem._slot_values(problem.initial() + 0.5)
+    d = next(g for g in problem.groups if g.label == "d")
+    assert affine.values(v)[0] == d.term.value(problem._group_inputs(d, v), d.times, d.params)[0]

@@ -15,8 +15,8 @@ them); a sum of several variables may differ from the compiled order in the last
 from __future__ import annotations
 
 import numpy as np
-import scipy.sparse as sps
 
+from stw_tui.sos.compressed import csr
 from stw_tui.sos.sparse_matvec import matvec
 
 
@@ -30,7 +30,7 @@ class AffineRows:
     def __init__(self, groups: list, n_slots: int):
         self.span: list[tuple[int, int] | None] = [None] * len(groups)
         self.gradient: list[np.ndarray | None] = [None] * len(groups)
-        rows, cols, data, offsets = [], [], [], []
+        cols, data, widths, offsets = [], [], [], []
         at = 0
         for i, group in enumerate(groups):
             if not group.term.affine or group.n == 0:
@@ -40,14 +40,19 @@ class AffineRows:
             if not (np.all(np.isfinite(f0)) and np.all(np.isfinite(grad))):
                 continue   # a coefficient undefined somewhere: the compiled term says where
             self.span[i], self.gradient[i] = (at, at + n), np.array(grad)
-            rows.append(at + np.tile(np.arange(n), k))              # row i for each variable a
-            cols.append(group.slot_offset + np.arange(k * n))      # its slot a*n + i
-            data.append(np.asarray(grad).T.ravel())
+            # row i: variable a's entry at its slot a*n + i, for a = 0..k-1 (columns ascending)
+            cols.append((group.slot_offset + np.arange(n)[:, None] + n * np.arange(k)).ravel())
+            data.append(np.asarray(grad, float).ravel())
+            widths.append(np.full(n, k))
             offsets.append(np.asarray(f0, float))
             at += n
-        self.count = at
-        self.L = sps.csr_array((np.concatenate(data), (np.concatenate(rows), np.concatenate(cols))),
-                               shape=(at, n_slots)) if at else None
+        self.L = None
+        if at:
+            indptr = np.zeros(at + 1, np.int64)
+            np.cumsum(np.concatenate(widths), out=indptr[1:])
+            index = np.int32 if max(n_slots, indptr[-1]) < np.iinfo(np.int32).max else np.int64
+            self.L = csr(np.concatenate(data), np.concatenate(cols).astype(index), indptr.astype(index),
+                         (at, n_slots))
         self.f0 = np.concatenate(offsets) if at else np.zeros(0)
 
     def values(self, v: np.ndarray) -> np.ndarray:

@@ -518,18 +518,19 @@ class WindowProblem:
             self._affine_rows = affine
         return self._affine_rows
 
-    def _local_terms(self, v: np.ndarray):
-        """Per group: the group, and its term's values, gradients and Hessian entries at its
-        instances (``CompiledTerm.full``) from slot values ``v``."""
-        for group in self.groups:
-            yield (group, *group.term.full(self._group_inputs(group, v), group.times, group.params))
-
     def first_undefined(self, s: np.ndarray) -> tuple[TermGroup, int, str] | None:
         """The first group and instance where a term's value or gradient is not a finite real
         number at free values ``s`` (where its `when` holds), and which of the two; None: none."""
         v = self._slot_values(s)
-        for group, f, grad, _ in self._local_terms(v):
-            bad = ~(np.isfinite(f) & np.all(np.isfinite(grad), axis=1))
+        affine = self._affine()
+        fa = affine.values(v)
+        for group, span in zip(self.groups, affine.span):
+            if span is None:
+                f, grad, _ = group.term.full(self._group_inputs(group, v), group.times, group.params)
+                bad = ~(np.isfinite(f) & np.all(np.isfinite(grad), axis=1))
+            else:   # its gradient is finite (affine_rows.py): its values alone can fail
+                f = fa[span[0]:span[1]]
+                bad = ~np.isfinite(f)
             if bad.any() and group.condition is not None:
                 bad &= group.condition.evaluate(v, group.times, self._params)
             if bad.any():
