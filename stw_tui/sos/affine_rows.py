@@ -19,18 +19,21 @@ import numpy as np
 
 from stw_tui.sos.compressed import csr
 from stw_tui.sos.sparse_matvec import matvec
+from stw_tui.sym.kinds import TermKind
 
 
 class AffineRows:
-    """The values and constant gradients of the affine groups of a window problem.
+    """The values and constant Jacobian values of the affine groups of a window problem.
 
     ``span[i]``: where group i's values lie in :meth:`values`'s result (None: the group is not
-    evaluated here); ``gradient[i]``: its gradient, (n, k) as ``CompiledTerm.full`` gives it.
+    evaluated here); ``jacobian[i]``: its Jacobian values as WindowProblem.evaluate lays them out
+    (slot by slot, constraint rows scaled by their weights); ``kinds``: the kinds (EQ, GE, OBJ)
+    whose groups are all evaluated here, so that their Jacobians are constant.
     """
 
     def __init__(self, groups: list, n_slots: int):
         self.span: list[tuple[int, int] | None] = [None] * len(groups)
-        self.gradient: list[np.ndarray | None] = [None] * len(groups)
+        self.jacobian: list[np.ndarray | None] = [None] * len(groups)
         cols, data, widths, offsets = [], [], [], []
         at = 0
         for i, group in enumerate(groups):
@@ -40,7 +43,9 @@ class AffineRows:
             f0, grad, _ = group.term.full(np.zeros((n, k)), group.times, group.params)
             if not (np.all(np.isfinite(f0)) and np.all(np.isfinite(grad))):
                 continue   # a coefficient undefined somewhere: the compiled term says where
-            self.span[i], self.gradient[i] = (at, at + n), np.array(grad)
+            self.span[i] = (at, at + n)
+            scaled = grad * group.weights[:, None] if group.kind != TermKind.OBJ else grad
+            self.jacobian[i] = np.array(scaled.T.ravel())
             # row i: variable a's entry at its slot a*n + i, for a = 0..k-1 (columns ascending)
             cols.append((group.slot_offset + np.arange(n)[:, None] + n * np.arange(k)).ravel())
             data.append(np.asarray(grad, float).ravel())
@@ -55,6 +60,7 @@ class AffineRows:
             self.L = csr(np.concatenate(data), np.concatenate(cols).astype(index), indptr.astype(index),
                          (at, n_slots))
         self.f0 = np.concatenate(offsets) if at else np.zeros(0)
+        self.kinds = {g.kind for g in groups} - {g.kind for g, span in zip(groups, self.span) if span is None}
 
     def values(self, v: np.ndarray) -> np.ndarray:
         """Every affine group's values at slot values ``v``, group after group."""

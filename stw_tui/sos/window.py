@@ -429,9 +429,7 @@ class WindowProblem:
         self._d_pattern = (np.concatenate(d_rows) if d_rows else np.zeros(0, int),
                            np.concatenate(d_cols) if d_cols else np.zeros(0, int))
         self._affine_rows: AffineRows | None = None   # made at the first evaluation (_affine)
-        self._affine_parts: list = [None] * len(self.groups)
-        self._affine_kinds: set = set()      # kinds whose rows are all affine (their Jacobians
-        self._constant_jacobians: dict = {}  # are constant: kept, shared read-only by evaluations)
+        self._constant_jacobians: dict = {}   # of kinds whose rows are all affine (shared read-only)
         self._product_plans: dict | None = None   # shared by equal structures (_plan_set)
         self._uses: dict | None = None   # Hessians and Gauss-Newtons before their plans (shared too)
         # every row's weight, by kind, in row order (read-only: evaluations share them)
@@ -491,13 +489,7 @@ class WindowProblem:
         v = self._slot_values(s)
         out = {EQ: np.empty(self.row_counts[EQ]), GE: np.empty(self.row_counts[GE])}
         objective = 0.0
-        affine = self._affine()
-        fa = affine.values(v)
-        for group, span in zip(self.groups, affine.span):
-            if span is None:
-                f = group.term.value(self._group_inputs(group, v), group.times, group.params)
-            else:
-                f = fa[span[0]:span[1]]
+        for group, f, _, _ in self._local_terms(v, full=False):
             if group.kind == OBJ:
                 objective += float(np.dot(group.weights, f * f))
             else:
@@ -506,31 +498,34 @@ class WindowProblem:
         return MeritValues(objective, out[EQ], out[GE], masks[EQ], masks[GE])
 
     def _affine(self) -> AffineRows:
-        """The affine groups' values as one product (affine_rows.py), made at the first
-        evaluation, with each one's Jacobian values (scaled as :meth:`evaluate` scales them)."""
+        """The affine groups' values as one product, and their Jacobian values (affine_rows.py),
+        made at the first evaluation."""
         if self._affine_rows is None:
-            affine = AffineRows(self.groups, self.n_slots)
-            self._affine_parts = [
-                None if grad is None else (grad * g.weights[:, None] if g.kind != OBJ else grad).T.ravel()
-                for g, grad in zip(self.groups, affine.gradient)]
-            self._affine_kinds = {g.kind for g in self.groups} - {
-                g.kind for g, parts in zip(self.groups, self._affine_parts) if parts is None}
-            self._affine_rows = affine
+            self._affine_rows = AffineRows(self.groups, self.n_slots)
         return self._affine_rows
+
+    def _local_terms(self, v: np.ndarray, full: bool = True):
+        """Per group: the group, its values at slot values ``v`` and (``full``) its gradient and
+        Hessian entries (``CompiledTerm.full``), else None. An affine group's values come from
+        their one product, its gradient and Hessian as None (constant: :meth:`_affine`)."""
+        affine = self._affine()
+        fa = affine.values(v)
+        for group, span in zip(self.groups, affine.span):
+            if span is not None:
+                yield group, fa[span[0]:span[1]], None, None
+            elif full:
+                yield (group, *group.term.full(self._group_inputs(group, v), group.times, group.params))
+            else:
+                yield group, group.term.value(self._group_inputs(group, v), group.times, group.params), None, None
 
     def first_undefined(self, s: np.ndarray) -> tuple[TermGroup, int, str] | None:
         """The first group and instance where a term's value or gradient is not a finite real
         number at free values ``s`` (where its `when` holds), and which of the two; None: none."""
         v = self._slot_values(s)
-        affine = self._affine()
-        fa = affine.values(v)
-        for group, span in zip(self.groups, affine.span):
-            if span is None:
-                f, grad, _ = group.term.full(self._group_inputs(group, v), group.times, group.params)
-                bad = ~(np.isfinite(f) & np.all(np.isfinite(grad), axis=1))
-            else:   # its gradient is finite (affine_rows.py): its values alone can fail
-                f = fa[span[0]:span[1]]
-                bad = ~np.isfinite(f)
+        for group, f, grad, _ in self._local_terms(v):
+            bad = ~np.isfinite(f)
+            if grad is not None:   # an affine group's is finite (affine_rows.py)
+                bad |= ~np.all(np.isfinite(grad), axis=1)
             if bad.any() and group.condition is not None:
                 bad &= group.condition.evaluate(v, group.times, self._params)
             if bad.any():
@@ -544,13 +539,8 @@ class WindowProblem:
         values = {kind: np.empty(self.row_counts[kind]) for kind in (EQ, GE, OBJ)}
         grads = {kind: [] for kind in (EQ, GE, OBJ)}
         hess = []
-        affine = self._affine()
-        fa = affine.values(v)
-        for group, span, parts in zip(self.groups, affine.span, self._affine_parts):
-            if span is None:
-                f, grad, h = group.term.full(self._group_inputs(group, v), group.times, group.params)
-            else:   # its Jacobian values were made at the first evaluation
-                f, h = fa[span[0]:span[1]], None
+        constant = self._affine().jacobian   # affine groups' Jacobian values, made once
+        for (group, f, grad, h), parts in zip(self._local_terms(v), constant):
             values[group.kind][group.row_offset:group.row_offset + group.n] = f
             if parts is None:
                 # constraint rows scaled by their weights; objective residuals as they are (x 1.0)
@@ -562,7 +552,7 @@ class WindowProblem:
             constant = self._constant_jacobians.get(kind)
             if constant is None:
                 J[kind], full[kind] = self._jacobian(kind, grads[kind])
-                if kind in self._affine_kinds:   # every row affine: the same at every s
+                if kind in self._affine_rows.kinds:   # every row affine: the same at every s
                     self._constant_jacobians[kind] = (J[kind], full[kind])
             else:
                 J[kind], full[kind] = constant
