@@ -567,8 +567,9 @@ def _newton_backoff(st: SolverState, exact_refused: bool | None) -> tuple[int, i
     took half the session's factorizations (516 of 1031); since more of its working sets are
     factorized banded, 16-20 of about 60 are, and the saving depends on rounding. So from the
     second refusal in a row, Gauss-Newton steps come first, 1, 2, 4 of them (up to
-    NEWTON_WAIT_MAX), before the exact one is tried again; an accepted one ends the wait. One refusal alone waits for nothing: acrobat's
-    next exact step is mostly accepted, and skipping it cost 4 iterations there."""
+    NEWTON_WAIT_MAX), before the exact one is tried again; an accepted one ends the wait. One
+    refusal alone waits for nothing: acrobat's next exact step is mostly accepted, and skipping
+    it cost 4 iterations there."""
     if exact_refused is None:   # not tried: Gauss-Newton by choice, or still waiting
         return st.newton_refusals, max(0, st.newton_wait - 1)
     if not exact_refused:
