@@ -134,3 +134,28 @@ def test_calls_too_large_for_one_workspace_are_split(monkeypatch):
     sizes = [len(p.programs) for t in host.plan.together.values() for p, _ in t.buckets]
     assert sizes and all(p.fits() for t in host.plan.together.values() for p, _ in t.buckets)
     assert len(sizes) > len(host.plan.together)     # split: more buckets than program kinds
+
+
+def test_programs_run_together_return_rows_where_an_output_is_not_a_row():
+    """Random programs run on rows together (calls.Together) give TorchScript's rows, each an
+    (n,) float64 array, on every call, including outputs that no row holds (a number, a
+    comparison's result: LevelPlan.loose, the only ones the rows' finish converts)."""
+    from stw_torch.calls import Together
+
+    programs = [p for p, _, _ in _random_programs(11, 40)][:16]
+    lengths = [23, 23, 9, 23] * 4
+    loose = 0
+    for shift in (0.0, 0.3, -0.2):
+        inputs = [_arguments(n, shift) for n in lengths[:len(programs)]]
+        times = [values[2] for values in inputs]
+        with np.errstate(all="ignore"):
+            wants = [_torchscript(p, values) for p, values in zip(programs, inputs)]
+            if shift == 0.0:
+                got, together = Together.first(programs, inputs, times)
+            else:
+                got = together.run(inputs)
+        for rows, want, n in zip(got, wants, lengths):
+            assert all(r.__class__ is np.ndarray and r.shape == (n,) and r.dtype == np.float64 for r in rows)
+            assert _same(rows, want)
+        loose = sum(len(x) for plan, _ in together.buckets for x in plan.loose)
+    assert together.buckets and loose > 0

@@ -273,8 +273,8 @@ class Together:
         rows: list = [None] * len(self.programs)
         with np.errstate(all="ignore"):   # inf and nan come out silently, as from TorchScript
             for plan, members in self.buckets:
-                for i, out in zip(members, plan.run([inputs[i] for i in members])):
-                    rows[i] = self.programs[i].finish(out, self.times[i].shape[0])
+                for i, out, loose in zip(members, plan.run([inputs[i] for i in members]), plan.loose):
+                    rows[i] = self.programs[i].finish(out, self.times[i].shape[0], loose)
         return [row if row is not None else program.host(values, t)
                 for row, program, values, t in zip(rows, self.programs, inputs, self.times)]
 

@@ -145,6 +145,10 @@ class LevelPlan:
         self.rows = len(row)
         self.output_rows = [(r, row[r], part_of[r]) for r in sorted(
             {o + k for o, program in zip(self.offsets, self.programs) for k in program.outputs} & in_rows)]
+        # each program's outputs that do not come from a row (steps', numbers): the only ones
+        # that may not be (n,) float64 arrays
+        self.loose = [tuple(i for i, k in enumerate(program.outputs) if o + k not in in_rows)
+                      for o, program in zip(self.offsets, self.programs)]
         self._kept: tuple | None = None     # (lengths, workspace) of the last call
         self._lock = threading.Lock()
 

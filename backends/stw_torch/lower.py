@@ -111,17 +111,20 @@ class Program:
             out = self.host_fn(*inputs)
         return self.finish(out, times.shape[0])
 
-    def finish(self, out: list, n: int) -> list[np.ndarray]:
+    def finish(self, out: list, n: int, loose: tuple | None = None) -> list[np.ndarray]:
         """The rows of :meth:`host` from the host function's outputs ``out`` on n instances: the
-        constant rows filled in, and every row an (n,) float64 array."""
+        constant rows filled in, and every row an (n,) float64 array. ``loose``: the positions
+        in ``out`` that may be anything else (the rest are known to be rows, host_levels'
+        LevelPlan.loose); None: any of them."""
+        for i in range(len(out)) if loose is None else loose:
+            value = out[i]
+            if value.__class__ is not np.ndarray or value.shape != (n,) or value.dtype != np.float64:
+                value = np.asarray(value, dtype=np.float64)   # a test's bools as 0/1, as .to()
+                out[i] = np.broadcast_to(value, (n,)) if value.shape != (n,) else value
         if self.constants:
             computed = iter(out)
             out = [self._filled(row, self.constants[row], n, None) if row in self.constants else next(computed)
                    for row in range(self.rows)]
-        for row, value in enumerate(out):
-            if value.__class__ is not np.ndarray or value.shape != (n,) or value.dtype != np.float64:
-                value = np.asarray(value, dtype=np.float64)   # a test's bools as 0/1, as .to()
-                out[row] = np.broadcast_to(value, (n,)) if value.shape != (n,) else value
         return out
 
     def _filled(self, row: int, value, n: int, like: torch.Tensor | None):
