@@ -226,6 +226,48 @@ def test_second_derivatives_computed_late_equal_those_computed_at_once():
     assert tp.evaluate(s).t_local["h"] is not None          # the last one's Hessian was used
 
 
+def test_the_sqp_says_which_evaluations_hessians_it_will_use(registered, monkeypatch):
+    """Before each evaluation after a step, the SQP tells the torch evaluator whether the next
+    step tries the exact Hessian (expect_hessian): each such evaluation computes second
+    derivatives exactly when its Hessian is then used, so none is computed twice or for
+    nothing. A hint is used once; without one, the last evaluation's use is the guess."""
+    from stw_tui.sos.sqp import SQPBackend
+
+    events = []     # "run" where a run of iterations starts, else (hint, evaluation)
+    real_init, real_evaluate = SQPBackend.init, TorchProblem.evaluate
+
+    def init(self, *args):
+        events.append("run")
+        return real_init(self, *args)
+
+    def evaluate(self, s):
+        hint = self._expect
+        ev = real_evaluate(self, s)
+        events.append((hint, ev))
+        return ev
+    monkeypatch.setattr(SQPBackend, "init", init)
+    monkeypatch.setattr(TorchProblem, "evaluate", evaluate)
+    session = Session()
+    session.run_text("backend torch device=cpu\n" + catalogue.problems("arm_throw")[0].text)
+    assert all(r.converged for r in session.runs)
+    # a run's last evaluation is never stepped from: its Hessian stays unused whatever the hint
+    stepped_from = [e for e, after in zip(events, events[1:]) if e != "run" and after != "run"]
+    hinted = [(hint, ev) for hint, ev in stepped_from if hint is not None]
+    assert len(hinted) >= 20 and {hint for hint, _ in hinted} == {True, False}
+    for hint, ev in hinted:
+        assert ev.hessian_used == hint
+        assert (ev.t_local["h"] is not None) == hint
+
+    problem = WindowProblem(session.scene)
+    tp = TorchProblem(problem, torch.device("cpu"), host_linear=True)
+    s = problem.initial()
+    tp.evaluate(s).gauss_newton()                       # a Hessian left unused: the guess is no
+    assert tp.evaluate(s).t_local["h"] is None
+    tp.expect_hessian(True)
+    assert tp.evaluate(s).t_local["h"] is not None     # the hint, once
+    assert tp.evaluate(s).t_local["h"] is None
+
+
 def test_extras_session_runs_like_scipy(registered):
     ref, got = Session(), Session()
     ref.run_text(EXTRAS + "iterate 40\n")

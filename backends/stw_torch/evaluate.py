@@ -386,6 +386,7 @@ class TorchProblem:
         self.n_inst = inst
         self.plan = CallPlan.build(self.groups, self.n_slots, device, autograd)
         self._last: TorchEvaluation | None = None   # the latest evaluation (its Hessian used?)
+        self._expect: bool | None = None   # whether the next evaluation's Hessian will be used
         self._build_patterns(Pf)
         # On the CPU the glue around the programs runs in numpy (calls.py: CallPlan.local_host),
         # on views of the same tensors.
@@ -397,7 +398,7 @@ class TorchProblem:
         ``problem_key``) whose control points may differ: only the fixed ones' slot values change."""
         other = copy.copy(self)
         other.problem = problem
-        other._last = None
+        other._last, other._expect = None, None
         fixed = problem.coef0.copy()
         fixed[problem.free] = 0.0
         other.v_fixed = torch.as_tensor(sps.csr_array(problem.P) @ fixed, **self._dev)
@@ -552,6 +553,19 @@ class TorchProblem:
             masks = self._masks(v)
         return MeritValues(objective, c[EQ], c[GE], masks[EQ], masks[GE])
 
+    def expect_hessian(self, used: bool) -> None:
+        """Say whether the next evaluation's Lagrangian Hessian will be used (the SQP knows, from
+        the violation at the point it is about to evaluate): its second derivatives are then
+        computed with it, or left out. Without a word, the last evaluation's use is the guess."""
+        self._expect = used
+
+    def _second(self) -> bool:
+        """Whether the evaluation about to run computes second derivatives (see expect_hessian)."""
+        expect, self._expect = self._expect, None
+        if expect is not None:
+            return expect
+        return self._last is None or self._last.hessian_used
+
     def evaluate(self, s: np.ndarray) -> TorchEvaluation:
         """Values, gradients and local second derivatives (lowered programs) at ``s``."""
         if self.host:
@@ -559,11 +573,11 @@ class TorchProblem:
         t_s = torch.as_tensor(np.asarray(s, float), **self._dev)
         with torch.no_grad():
             v = self.slot_values(t_s)
-            # Second derivatives only where the last evaluation's were used (the SQP's exact
-            # Hessian; far from feasibility it takes Gauss-Newton steps, which need none, and a
-            # program of values and gradients costs half of one with the Hessian too); when
-            # asked for anyway, hessian_values computes them then.
-            second = self._last is None or self._last.hessian_used
+            # Second derivatives only where they will be used (the SQP's exact Hessian; far from
+            # feasibility it takes Gauss-Newton steps, which need none, and a program of values
+            # and gradients costs half of one with the Hessian too); when asked for anyway,
+            # hessian_values computes them then.
+            second = self._second()
             f_all, g_slot, h_flat = self.plan.local(v, second=second)
             objective, c = self._rows(f_all.cpu().numpy())
             # ∇R = Pfᵀ u with u[slot] = 2 w f ∂f/∂slot on objective slots
@@ -586,8 +600,7 @@ class TorchProblem:
         a = self.host_arrays
         s = np.asarray(s, float)
         v = a["v_fixed"] + self.Pf @ s
-        second = self._last is None or self._last.hessian_used
-        f_all, g_slot, h_flat = self.plan.local_host(v, second=second)
+        f_all, g_slot, h_flat = self.plan.local_host(v, second=self._second())
         objective, c = self._rows(f_all)
         w_f = a["w_inst"] * f_all
         u = g_slot * np.concatenate([np.where(a["is_obj"], 2.0 * w_f, 0.0), np.zeros(1)])[a["slot_owner"]]

@@ -146,6 +146,7 @@ class _Trial:
     alpha: float
     d: np.ndarray
     ratio: float = 0.0
+    values: Any = None   # the merit values at the accepted point (MeritValues), when tested
 
 
 def _live(la: LinearAlgebra, mask: np.ndarray, rows: np.ndarray):
@@ -263,6 +264,12 @@ class SQPBackend(Backend):
         # The QP's multipliers are the estimate at this point whatever the step length (a damped
         # update would freeze them, and the Hessian with them, while steps are short).
         lam_eq, lam_ge = sub.lam_eq, sub.lam_ge
+        refusals, wait = _newton_backoff(st, exact_refused)
+        if not stalled and trial.values is not None and hasattr(inner.evaluator, "expect_hessian"):
+            # an evaluator that computes second derivatives only on demand (torch) is told
+            # whether the next step will try the exact Hessian: the violation at the new point
+            # is known from its merit test
+            inner.evaluator.expect_hessian("exact" in self._modes(problem.max_violation(trial.values), wait))
         new_ev = inner.evaluator.evaluate(s_new) if not stalled else ev
         ms["evaluate"] = _lap(clock)
 
@@ -289,7 +296,6 @@ class SQPBackend(Backend):
         # model: the growing radius lengthens the next one, and the proximal term stays light.
         well_modelled = alpha == 1.0 and (not capped or trial.ratio > RATIO_GOOD)
         prox = max(PROX_MIN, prox / 3) if well_modelled else min(PROX_MAX, prox * 10)
-        refusals, wait = _newton_backoff(st, exact_refused)
         new_state = replace(st, s=s_new, lam_eq=lam_eq, lam_ge=lam_ge, working_set=sub.working,
                             merit_weight=rho, regularization=prox, trust_radius=radius,
                             elastic_weight=rho_elastic, newton_refusals=refusals, newton_wait=wait)
@@ -306,10 +312,14 @@ class SQPBackend(Backend):
         """Which Hessians to try this step. "auto": Gauss-Newton while far from feasible (the
         multipliers, and so the constraint curvature, mean little there), exact Newton near it,
         unless exact steps were refused lately (:func:`_newton_backoff`)."""
+        return self._modes(ev.max_violation(), st.newton_wait)
+
+    def _modes(self, violation: float, newton_wait: int) -> tuple[str, ...]:
+        """:meth:`_hessian_modes` at a point of this ``violation``."""
         choice = self.config["hessian"]
         if choice != "auto":
             return (choice,)
-        if ev.max_violation() > self.config["newton_switch"] or st.newton_wait > 0:
+        if violation > self.config["newton_switch"] or newton_wait > 0:
             return ("gauss_newton",)
         return ("exact", "gauss_newton")
 
@@ -481,18 +491,20 @@ class SQPBackend(Backend):
         trial = evaluator.merit_values(ev.s + d)
         good, ratio = ok(trial, 1.0)
         if good:
-            return _Trial(1.0, d, ratio)
+            return _Trial(1.0, d, ratio, trial)
         if sub.qp.elastic is None and tau == 1.0:
             corrected = self._second_order_correction(la, ev, lin, sub, d, trial)
             if corrected is not None:
-                good, ratio = ok(evaluator.merit_values(ev.s + corrected), 1.0)
+                values = evaluator.merit_values(ev.s + corrected)
+                good, ratio = ok(values, 1.0)
                 if good:
-                    return _Trial(1.0, corrected, ratio)
+                    return _Trial(1.0, corrected, ratio, values)
         alpha = 0.5
         while backtrack and alpha >= MIN_STEP:
-            good, ratio = ok(evaluator.merit_values(ev.s + alpha * d), alpha)
+            values = evaluator.merit_values(ev.s + alpha * d)
+            good, ratio = ok(values, alpha)
             if good:
-                return _Trial(alpha, d, ratio)
+                return _Trial(alpha, d, ratio, values)
             alpha *= 0.5
         return _Trial(0.0, d)
 
