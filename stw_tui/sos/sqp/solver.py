@@ -168,7 +168,10 @@ class SQPBackend(Backend):
 
     def evaluator(self, problem, algebra: LinearAlgebra):
         """What evaluates the problem: ``evaluate(s)``, ``merit_values(s)`` and ``damping`` as
-        :class:`~stw_tui.sos.window.WindowProblem` has them (the default: the problem itself)."""
+        :class:`~stw_tui.sos.window.WindowProblem` has them (the default: the problem itself).
+        One that computes second derivatives only on demand may also have
+        ``expect_hessian(used)``: before evaluating a new point, the SQP says there whether the
+        next step will ask for that evaluation's Lagrangian Hessian (stw_torch's TorchProblem)."""
         return problem
 
     # --- init / state -----------------------------------------------------------------------
