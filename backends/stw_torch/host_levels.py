@@ -210,48 +210,67 @@ class LevelPlan:
     def run(self, values: list) -> list:
         """Each program's outputs for its ``values`` (arguments of this plan's kinds); through the
         tapes as they are while another thread runs this plan."""
-        if not self._lock.acquire(blocking=False):
+        got = self.run_reading(values, self._outputs)
+        if got is None:
             return [program.reference(v) for program, v in zip(self.programs, values)]
+        return got
+
+    def run_reading(self, values: list, read):
+        """``read(workspace, registers)`` after running on rows, while no other thread can write
+        the rows: every output of ``output_rows`` lies in its row of the workspace (its
+        program's length of it), the others in ``registers``. None where it cannot run on rows
+        (another thread runs this plan, or the rows would not fit)."""
+        if not self._lock.acquire(blocking=False):
+            return None
         try:
             lengths = tuple(-1 if at is None else v[at].shape[0] for at, v in zip(self.length_of, values))
             kept = self._kept
             if kept is None or kept[0] != lengths:
                 if not fits(self.rows, lengths):
-                    return [program.reference(v) for program, v in zip(self.programs, values)]
+                    return None
                 kept = self._kept = (lengths, self._workspace(lengths))
-            R, bound, arguments, output_rows, ends = kept[1]
-            r = self.template.copy()
-            for o, program, v in zip(self.offsets, self.programs, values):
-                r[o:o + program.n_args] = v
-            for c, a, view in arguments:
-                view[...] = values[c][a]
-            for step in bound:
-                kind = step[0]
-                if kind == 0:
-                    _, ufunc, lv, li, rv, ri, out = step
-                    x = lv if li is None else R.take(li, 0)
-                    if rv is None and ri is None:
-                        ufunc(x, out=out)
-                    else:
-                        ufunc(x, rv if ri is None else R.take(ri, 0), out=out)
-                elif kind == 1:
-                    _, ufunc, a, b, out = step
-                    if b is None:
-                        ufunc(a, out=out)
-                    else:
-                        ufunc(a, b, out=out)
-                elif kind == 2:
-                    step[1](step[2], out=step[3])
-                else:
-                    _, (f, i, j, k), reads, writes = step
-                    for reg, view in reads:
-                        r[reg] = view
-                    value = r[k] = f(r[i], r[j]) if j >= 0 else f(r, i)
-                    if writes is not None:
-                        writes[...] = value
-            if len(output_rows):            # copied out: the rows are written again next call
-                for (reg, _, _), n, value in zip(self.output_rows, ends, R.take(output_rows, 0)):
-                    r[reg] = value[:n]
-            return [[r[o + k] for k in program.outputs] for o, program in zip(self.offsets, self.programs)]
+            return read(kept[1][0], self._execute(kept[1], values))
         finally:
             self._lock.release()
+
+    def _outputs(self, R: np.ndarray, r: list) -> list:
+        """Each program's outputs, out of the rows (copied: they are written again next call)."""
+        output_rows, ends = self._kept[1][3:]
+        if len(output_rows):
+            for (reg, _, _), n, value in zip(self.output_rows, ends, R.take(output_rows, 0)):
+                r[reg] = value[:n]
+        return [[r[o + k] for k in program.outputs] for o, program in zip(self.offsets, self.programs)]
+
+    def _execute(self, workspace: tuple, values: list) -> list:
+        """Run the schedule on the workspace's rows; the registers (the values not on rows)."""
+        R, bound, arguments, _, _ = workspace
+        r = self.template.copy()
+        for o, program, v in zip(self.offsets, self.programs, values):
+            r[o:o + program.n_args] = v
+        for c, a, view in arguments:
+            view[...] = values[c][a]
+        for step in bound:
+            kind = step[0]
+            if kind == 0:
+                _, ufunc, lv, li, rv, ri, out = step
+                x = lv if li is None else R.take(li, 0)
+                if rv is None and ri is None:
+                    ufunc(x, out=out)
+                else:
+                    ufunc(x, rv if ri is None else R.take(ri, 0), out=out)
+            elif kind == 1:
+                _, ufunc, a, b, out = step
+                if b is None:
+                    ufunc(a, out=out)
+                else:
+                    ufunc(a, b, out=out)
+            elif kind == 2:
+                step[1](step[2], out=step[3])
+            else:
+                _, (f, i, j, k), reads, writes = step
+                for reg, view in reads:
+                    r[reg] = view
+                value = r[k] = f(r[i], r[j]) if j >= 0 else f(r, i)
+                if writes is not None:
+                    writes[...] = value
+        return r
