@@ -163,10 +163,12 @@ def test_programs_run_together_return_rows_where_an_output_is_not_a_row():
 
 @pytest.mark.parametrize("name", ["arm_throw", "acrobat", "particle_jet"])
 def test_outputs_read_in_place_from_the_rows_are_the_copied_ones(name):
-    """From the second evaluation on, local_host reads every program's outputs straight from the
-    rows into its arrays (calls.RowLayout): the values, the slots' gradient and the second
-    derivatives must be those of the rows copied out program by program, bit for bit, whether
-    an output lies in a row, in the registers (LevelPlan.loose) or is a number."""
+    """From the second evaluation on, local_host and values_host put the programs' arguments in
+    their rows from the slot values (calls.RowInputs) and read every output straight from the
+    rows into their arrays (calls.RowLayout): the values, the slots' gradient and the second
+    derivatives must be those of the arguments copied in and the rows copied out program by
+    program, bit for bit, whether an output lies in a row, in the registers (LevelPlan.loose)
+    or is a number."""
     window = WindowProblem(catalogue.problems(name)[0].setup().scene)
     tp = TorchProblem(window, torch.device("cpu"), host_linear=True)
     plan = tp.plan
@@ -180,6 +182,13 @@ def test_outputs_read_in_place_from_the_rows_are_the_copied_ones(name):
             want = plan.local_host(v, second)       # the rows copied out, as before
             plan.layouts = kept
             assert all(a is b is None or a.tobytes() == b.tobytes() for a, b in zip(got, want))
+            values = plan.values_host(v)           # values alone, the arguments put in place too
+            assert plan.layouts[("value", np.dtype(float))] is not None
+            kept, plan.layouts = plan.layouts, {key: None for key in plan.layouts}
+            assert values.tobytes() == plan.values_host(v).tobytes()
+            plan.layouts = kept
+        else:
+            plan.values_host(v)
     layouts = [layout for layout in plan.layouts.values() if layout is not None]
     if name == "arm_throw":    # two programs' values are not on rows: read from the registers
         assert any(loose for layout in layouts for *_, loose in layout.gathers)

@@ -159,16 +159,19 @@ class CallPlan:
         layout = self.layouts[key]
         if layout is None:
             return None
-        inputs = [[*X, c.host_times, *c.host_params] for c, X in self._host_blocks(v)]
-        out = layout.outputs(self.n_slots)
+        out = layout.outputs(kind, self.n_slots)
         with np.errstate(all="ignore"):   # inf and nan come out silently, as from TorchScript
-            for (plan, members), read in zip(together.buckets, layout.readers(out)):
-                if plan.run_reading([inputs[i] for i in members], read) is None:
+            for (plan, _), read, given in zip(together.buckets, layout.readers(out), layout.inputs):
+                if plan.run_filled(given.lengths, lambda workspace, given=given: given.fill(workspace, v),
+                                   read) is None:
                     return None   # another thread runs it: the rows' numbers are not ours
         return out
 
     def values_host(self, v: np.ndarray) -> np.ndarray:
         """:meth:`values` of numpy slot values, as numpy (CPU only)."""
+        direct = self._read_in_place("value", v)
+        if direct is not None:
+            return direct["f"]
         parts = [rows[0] for rows in self._host_rows("value", v)]
         return np.concatenate(parts)[self.host[1]] if parts else np.zeros(0)
 
@@ -242,6 +245,7 @@ class RowLayout:
     sizes: dict                 # target -> its length ("g": the slots', scattered into zeros)
     gathers: list               # per bucket: (rows, columns, [(target, places, start, stop)], loose)
     numbers: list               # (target, places, values)
+    inputs: list                # per bucket: its RowInputs
 
     @classmethod
     def of(cls, plan: CallPlan, together: "Together") -> "RowLayout | None":
@@ -250,7 +254,8 @@ class RowLayout:
         place = {"f": np.argsort(f_order, kind="stable"), "g": inputs,
                  "h": np.argsort(h_order, kind="stable")}   # concatenated entry -> its place
         bucket_of = {i: (b, j) for b, (_, members) in enumerate(together.buckets) for j, i in enumerate(members)}
-        if len(bucket_of) != len(plan.calls):
+        inputs = [RowInputs.of(plan, levels, members) for levels, members in together.buckets]
+        if len(bucket_of) != len(plan.calls) or None in inputs:
             return None
         # per bucket: the (row, column, place) of every entry in a row, by target; the loose ones
         entries = [({"f": [], "g": [], "h": []}, []) for _ in together.buckets]
@@ -289,12 +294,14 @@ class RowLayout:
             gathers.append((cat(rows), cat(columns), spans, in_registers))
         return cls({"f": start["f"], "g": start["g"], "h": start["h"]}, gathers,
                    [(t, place[t][cat([a for a, _ in parts])], cat([v for _, v in parts]))
-                    for t, parts in numbers.items() if parts])
+                    for t, parts in numbers.items() if parts], inputs)
 
-    def outputs(self, n_slots: int) -> dict:
-        """The arrays to fill: values and second derivatives, and the slots' gradient (zeros
-        where no program's gradient lands, as local_host's), the numbers already in place."""
-        out = {"f": np.empty(self.sizes["f"]), "g": np.zeros(n_slots), "h": np.empty(self.sizes["h"])}
+    def outputs(self, kind: str, n_slots: int) -> dict:
+        """The arrays to fill: values and second derivatives, and (but for values alone) the
+        slots' gradient, zeros where no program's gradient lands as local_host's; the numbers
+        already in place."""
+        out = {"f": np.empty(self.sizes["f"]), "g": np.zeros(n_slots if kind != "value" else 0),
+               "h": np.empty(self.sizes["h"])}
         for target, places, values in self.numbers:
             out[target][places] = values
         return out
@@ -317,6 +324,74 @@ class RowLayout:
                 return True
             return read
         return [reader(*gather) for gather in self.gathers]
+
+
+class RowInputs:
+    """How one bucket of programs run together (Together) gets its arguments straight from the
+    slot values: the DOF arguments' rows of the workspace written by one scatter of ``v``'s
+    entries, the times and constants by another, and the registers copied from a template that
+    already holds every argument (views of its row, the times, the constants): instead of the
+    calls' input blocks gathered, listed and copied row by row (LevelPlan.run_reading)."""
+
+    def __init__(self, plan: CallPlan, levels, members: list, lengths: tuple):
+        self.plan, self.levels, self.members, self.lengths = plan, levels, members, lengths
+        self._for = None    # the workspace the arrays below were made for
+
+    @classmethod
+    def of(cls, plan: CallPlan, levels, members: list) -> "RowInputs | None":
+        """The inputs of ``levels`` (a LevelPlan of the calls ``members``), or None when a program
+        takes other arguments than its call's blocks, times and constants."""
+        lengths = []
+        for j, i in enumerate(members):
+            call, program = plan.calls[i], levels.programs[j]
+            if program.n_args != call.k + 1 + len(call.host_params) or levels.length_of[j] is None:
+                return None
+            at = levels.length_of[j]    # the argument run_reading reads a length off
+            lengths.append(call.n if at <= call.k else np.shape(call.host_params[at - call.k - 1])[0])
+        return cls(plan, levels, members, tuple(lengths))
+
+    def _bind(self, workspace: tuple) -> None:
+        R = workspace[0]
+        width, rows = R.shape[1], self.levels.arguments_on_rows()
+        template = list(self.levels.template)
+        dest, src, fixed_dest, fixed, gathered = [], [], [], [], []
+        for j, i in enumerate(self.members):
+            call, o, n = self.plan.calls[i], self.levels.offsets[j], self.lengths[j]
+            for a in range(self.levels.programs[j].n_args):
+                at = rows.get((j, a))
+                if a < call.k:
+                    slots = self.plan.host[0][call.start + a * call.n:call.start + (a + 1) * call.n]
+                    if at is None:
+                        gathered.append((o + a, slots))
+                        continue
+                    template[o + a] = R[at, :n]
+                    dest.append(at * width + np.arange(n))
+                    src.append(slots)
+                    continue
+                value = call.host_times if a == call.k else call.host_params[a - call.k - 1]
+                template[o + a] = value
+                if at is not None:
+                    fixed_dest.append(at * width + np.arange(n))
+                    fixed.append(np.broadcast_to(np.asarray(value, np.float64), (n,)))
+        cat = lambda parts, kind=np.int64: np.concatenate(parts) if parts else np.zeros(0, kind)  # noqa: E731
+        self._template, self._gathered = template, gathered
+        self._dest, self._src = cat(dest), cat(src)
+        self._fixed_dest, self._fixed = cat(fixed_dest), cat(fixed, np.float64)
+        self._for = R
+
+    def fill(self, workspace: tuple, v: np.ndarray) -> list:
+        """What LevelPlan.run_filled asks: the arguments at slot values ``v`` in the workspace's
+        rows; the registers with them."""
+        R = workspace[0]
+        if self._for is not R:
+            self._bind(workspace)
+        flat = R.reshape(-1)             # the workspace is C-contiguous: a view
+        flat[self._dest] = v[self._src]
+        flat[self._fixed_dest] = self._fixed
+        r = self._template.copy()
+        for reg, slots in self._gathered:
+            r[reg] = v[slots]
+        return r
 
 
 @contextmanager

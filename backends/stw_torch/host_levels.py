@@ -220,18 +220,31 @@ class LevelPlan:
         the rows: every output of ``output_rows`` lies in its row of the workspace (its
         program's length of it), the others in ``registers``. None where it cannot run on rows
         (another thread runs this plan, or the rows would not fit)."""
+        lengths = tuple(-1 if at is None else v[at].shape[0] for at, v in zip(self.length_of, values))
+        return self.run_filled(lengths, lambda workspace: self._arguments(workspace, values), read)
+
+    def run_filled(self, lengths: tuple, fill, read):
+        """:meth:`run_reading` with the arguments put in place by ``fill(workspace)`` instead:
+        it writes the arguments' rows of the workspace (``workspace[0]``) and returns the
+        registers (this plan's ``template`` with every argument in it). ``lengths``: each
+        program's instance count (-1: none), as :meth:`run_reading` reads them off its values."""
         if not self._lock.acquire(blocking=False):
             return None
         try:
-            lengths = tuple(-1 if at is None else v[at].shape[0] for at, v in zip(self.length_of, values))
             kept = self._kept
             if kept is None or kept[0] != lengths:
                 if not fits(self.rows, lengths):
                     return None
                 kept = self._kept = (lengths, self._workspace(lengths))
-            return read(kept[1][0], self._execute(kept[1], values))
+            r = fill(kept[1])
+            self._execute(kept[1], r)
+            return read(kept[1][0], r)
         finally:
             self._lock.release()
+
+    def arguments_on_rows(self) -> dict:
+        """(program, argument) -> its row, for the arguments the rows read."""
+        return {(c, a): at for c, a, at in self.argument_rows}
 
     def _outputs(self, R: np.ndarray, r: list) -> list:
         """Each program's outputs, out of the rows (copied: they are written again next call)."""
@@ -241,14 +254,18 @@ class LevelPlan:
                 r[reg] = value[:n]
         return [[r[o + k] for k in program.outputs] for o, program in zip(self.offsets, self.programs)]
 
-    def _execute(self, workspace: tuple, values: list) -> list:
-        """Run the schedule on the workspace's rows; the registers (the values not on rows)."""
-        R, bound, arguments, _, _ = workspace
+    def _arguments(self, workspace: tuple, values: list) -> list:
+        """Each program's ``values`` in its argument registers and rows: the registers."""
         r = self.template.copy()
         for o, program, v in zip(self.offsets, self.programs, values):
             r[o:o + program.n_args] = v
-        for c, a, view in arguments:
+        for c, a, view in workspace[2]:
             view[...] = values[c][a]
+        return r
+
+    def _execute(self, workspace: tuple, r: list) -> None:
+        """Run the schedule on the workspace's rows and the registers ``r`` (values not on rows)."""
+        R, bound = workspace[0], workspace[1]
         for step in bound:
             kind = step[0]
             if kind == 0:
@@ -273,4 +290,3 @@ class LevelPlan:
                 value = r[k] = f(r[i], r[j]) if j >= 0 else f(r, i)
                 if writes is not None:
                     writes[...] = value
-        return r
