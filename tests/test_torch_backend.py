@@ -535,18 +535,23 @@ def test_the_cpu_glue_and_programs_in_numpy_give_the_torch_ops_numbers(problem):
 @pytest.mark.parametrize("problem", catalogue.problems("arm_throw", "acrobat"), ids=str)
 def test_gauss_newton_skips_the_second_derivatives_columns_with_the_same_numbers(problem):
     # The Gauss-Newton Hessian is the Hessian operator applied to (zeros for every second
-    # derivative, 2 w g_p g_q); its product leaves those zero columns out (Pattern.values_past).
-    # Each left-out term is coefficient x 0, so the sums must be the full product's, bit for bit.
+    # derivative, 2 w g_p g_q); from its TAIL_AFTER-th evaluation the product leaves those zero
+    # columns out (Pattern.values_past). Each left-out term is coefficient x 0, so the sums must
+    # be the full product's, bit for bit, before and after.
+    from stw_torch.evaluate import TAIL_AFTER
+
     window = WindowProblem(problem.setup().scene)
     tp = TorchProblem(window, torch.device("cpu"), host_linear=True)
-    ev = tp.evaluate(window.initial() + 0.01 * np.cos(np.arange(window.n_free)))
-    g, w = ev.t_local["g"], tp.w_inst.numpy()
-    # each product's instance found independently: the one that owns its first slot
-    products = 2.0 * w[tp.slot_owner.numpy()[tp.gn_p.numpy()]] * g[tp.gn_p.numpy()] * g[tp.gn_q.numpy()]
-    full = tp.hess.values(np.concatenate([np.zeros(tp.h_src.shape[0]), products]))
-    got = ev.gauss_newton()
-    assert got.data.tobytes() == full.tobytes() and np.abs(full).max() > 0
-    assert tp.hess.operator.host[:, :tp.h_src.shape[0]].nnz > 0   # columns were left out
+    for k in range(TAIL_AFTER + 1):
+        ev = tp.evaluate(window.initial() + 0.01 * np.cos(np.arange(window.n_free) + k))
+        g, w = ev.t_local["g"], tp.w_inst.numpy()
+        # each product's instance found independently: the one that owns its first slot
+        products = 2.0 * w[tp.slot_owner.numpy()[tp.gn_p.numpy()]] * g[tp.gn_p.numpy()] * g[tp.gn_q.numpy()]
+        full = tp.hess.values(np.concatenate([np.zeros(tp.h_src.shape[0]), products]))
+        got = ev.gauss_newton()
+        assert got.data.tobytes() == full.tobytes() and np.abs(full).max() > 0
+        assert bool(tp.hess._tails) == (k + 1 >= TAIL_AFTER)   # the columns copied out from then
+    assert tp.hess.operator.host[:, :tp.h_src.shape[0]].nnz > 0   # and there were some to leave
 
 
 def test_host_programs_give_torchs_numbers_for_every_construct_printed():
