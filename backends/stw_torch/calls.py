@@ -22,7 +22,7 @@ import numpy as np
 import torch
 
 from .host_levels import LevelPlan, fits
-from .lower import LoweredTerm, unoptimized
+from .lower import LoweredTerm, as_row, unoptimized
 
 
 @dataclass(eq=False)
@@ -242,7 +242,7 @@ class RowLayout:
     rows) with their places. Only where every call's program runs in a bucket; else :meth:`of`
     gives None and the rows are copied out as before."""
 
-    sizes: dict                 # target -> its length ("g": the slots', scattered into zeros)
+    sizes: dict                 # "f", "h" -> its length (the gradient "g" is the slots')
     gathers: list               # per bucket: (rows, columns, [(target, places, start, stop)], loose)
     numbers: list               # (target, places, values)
     inputs: list                # per bucket: its RowInputs
@@ -261,10 +261,10 @@ class RowLayout:
         entries = [({"f": [], "g": [], "h": []}, []) for _ in together.buckets]
         numbers = {"f": [], "g": [], "h": []}
         start = {"f": 0, "g": 0, "h": 0}   # each target concatenates the calls' rows call by call
+        row_of = [{reg: row for reg, row, _ in levels.output_rows} for levels, _ in together.buckets]
         for i, (call, program) in enumerate(zip(plan.calls, together.programs)):
             b, j = bucket_of[i]
             levels = together.buckets[b][0]
-            row_of = {reg: row for reg, row, _ in levels.output_rows}
             loose = set(levels.loose[j])
             computed = iter(enumerate(program.host_fn.outputs))
             in_rows, in_registers = entries[b]
@@ -279,7 +279,7 @@ class RowLayout:
                 if q in loose:
                     in_registers.append((target, place[target][at], levels.offsets[j] + k, call.n))
                     continue
-                in_rows[target].append((np.full(call.n, row_of[levels.offsets[j] + k]), np.arange(call.n), at))
+                in_rows[target].append((np.full(call.n, row_of[b][levels.offsets[j] + k]), np.arange(call.n), at))
         cat = lambda parts: np.concatenate(parts) if parts else np.zeros(0, np.int64)  # noqa: E731
         gathers = []
         for in_rows, in_registers in entries:
@@ -292,7 +292,7 @@ class RowLayout:
                     spans.append((target, place[target][where], at, at + where.size))
                 at += where.size
             gathers.append((cat(rows), cat(columns), spans, in_registers))
-        return cls({"f": start["f"], "g": start["g"], "h": start["h"]}, gathers,
+        return cls({"f": start["f"], "h": start["h"]}, gathers,
                    [(t, place[t][cat([a for a, _ in parts])], cat([v for _, v in parts]))
                     for t, parts in numbers.items() if parts], inputs)
 
@@ -320,7 +320,7 @@ class RowLayout:
                 for target, places, a, b in spans:
                     out[target][places] = values[a:b]
                 for target, places, reg, n in in_registers:
-                    out[target][places] = np.broadcast_to(np.asarray(registers[reg], dtype=np.float64), (n,))
+                    out[target][places] = as_row(registers[reg], n)
                 return True
             return read
         return [reader(*gather) for gather in self.gathers]
@@ -339,16 +339,13 @@ class RowInputs:
 
     @classmethod
     def of(cls, plan: CallPlan, levels, members: list) -> "RowInputs | None":
-        """The inputs of ``levels`` (a LevelPlan of the calls ``members``), or None when a program
-        takes other arguments than its call's blocks, times and constants."""
-        lengths = []
-        for j, i in enumerate(members):
-            call, program = plan.calls[i], levels.programs[j]
-            if program.n_args != call.k + 1 + len(call.host_params) or levels.length_of[j] is None:
-                return None
-            at = levels.length_of[j]    # the argument run_reading reads a length off
-            lengths.append(call.n if at <= call.k else np.shape(call.host_params[at - call.k - 1])[0])
-        return cls(plan, levels, members, tuple(lengths))
+        """The inputs of ``levels`` (a LevelPlan of the calls ``members``, whose lengths are
+        those of the run it was read from: the same calls), or None when a program takes other
+        arguments than its call's blocks, times and constants, or has no instance count."""
+        if any(levels.programs[j].n_args != plan.calls[i].k + 1 + len(plan.calls[i].host_params)
+               for j, i in enumerate(members)) or min(levels.lengths) < 0:
+            return None
+        return cls(plan, levels, members, tuple(levels.lengths))
 
     def _bind(self, workspace: tuple) -> None:
         R = workspace[0]

@@ -117,10 +117,7 @@ class Program:
         in ``out`` that may be anything else (the rest are known to be rows, host_levels'
         LevelPlan.loose); None: any of them."""
         for i in range(len(out)) if loose is None else loose:
-            value = out[i]
-            if value.__class__ is not np.ndarray or value.shape != (n,) or value.dtype != np.float64:
-                value = np.asarray(value, dtype=np.float64)   # a test's bools as 0/1, as .to()
-                out[i] = np.broadcast_to(value, (n,)) if value.shape != (n,) else value
+            out[i] = as_row(out[i], n)
         if self.constants:
             computed = iter(out)
             out = [self._filled(row, self.constants[row], n, None) if row in self.constants else next(computed)
@@ -141,6 +138,15 @@ class Program:
 
 
 FILLED_KEPT = 64   # constant rows a program keeps filled
+
+
+def as_row(value, n: int) -> np.ndarray:
+    """A host program's output as an (n,) float64 array: a number or a 0-d array repeated, a
+    test's bools as 0/1 (as torch's ``.to()`` makes them); an (n,) float64 array as it is."""
+    if value.__class__ is not np.ndarray or value.shape != (n,) or value.dtype != np.float64:
+        value = np.asarray(value, dtype=np.float64)
+        return np.broadcast_to(value, (n,)) if value.shape != (n,) else value
+    return value
 
 
 _FUNCTIONS = {name: f"torch.{name}" for name in (
