@@ -25,6 +25,8 @@ def test_matvec_is_scipys_product_bit_for_bit(fmt):
         assert np.array_equal(matvec(A, x), A @ x)
         y = rng.standard_normal(m)
         assert np.array_equal(matvec(A.T, y), A.T @ y)
+        M = sps.csr_matrix(A) if fmt == "csr" else sps.csc_matrix(A)   # the matrix classes too
+        assert np.array_equal(matvec(M, x), M @ x)
 
 
 @pytest.mark.parametrize("parts", [2, 3, 4])
@@ -56,6 +58,8 @@ def test_matvec_takes_the_ordinary_route_for_what_the_kernel_does_not_take():
     A = sps.csr_array(np.array([[1.0, 2.0], [0.0, 3.0]]))
     assert np.array_equal(matvec(A, np.array([1, 2])), [5.0, 6.0])            # an int vector
     assert np.array_equal(matvec(sps.coo_array(A), np.ones(2)), [3.0, 3.0])   # not CSR/CSC
+    single = sps.csr_array(np.array([[1.0, 2.0], [0.0, 3.0]], np.float32))
+    assert np.array_equal(matvec(single, np.ones(2)), single @ np.ones(2))   # float32 values
     with pytest.raises(ValueError):
         matvec(A, np.ones(3))                                                 # scipy's shape error
 

@@ -42,7 +42,8 @@ def kkt_matrix(H, A, e, layouts: list | None = None) -> sps.csc_array:
     if not m:
         return _canonical(sps.csc_array(H))
     H, A = _csr(H), _csr(A)
-    diag = -np.broadcast_to(np.asarray(e, float), (m,))
+    e = np.asarray(e, float)   # a scalar e (the QP's): np.full, np.broadcast_to costs more than K's gather
+    diag = np.full(m, -e) if e.ndim == 0 else -np.broadcast_to(e, (m,))
     keep = diag != 0
     layouts = [] if layouts is None else layouts
     layout = next((x for x in layouts if x.fits(H, A, keep)), None)

@@ -20,25 +20,33 @@ import os
 from concurrent.futures import ThreadPoolExecutor
 
 import numpy as np
+import scipy.sparse as sps
 
 try:   # the kernels scipy's own products call (private, stable since scipy 0.x; guarded anyway)
     from scipy.sparse._sparsetools import csc_matvec, csr_matvec
     _KERNELS = {"csr": csr_matvec, "csc": csc_matvec}
 except ImportError:   # pragma: no cover - a scipy that moved them: the public route
     _KERNELS = {}
+_FLOAT64 = np.dtype(np.float64)
+# the classes whose products take the kernels (scipy's sparse arrays and matrices keep ``_shape``)
+_BY_CLASS = {cls: _KERNELS[cls((1, 1)).format] for cls in (sps.csr_array, sps.csr_matrix, sps.csc_array, sps.csc_matrix)
+             if cls((1, 1)).format in _KERNELS and getattr(cls((1, 1)), "_shape", None) == (1, 1)}
 
 
 def matvec(m, x: np.ndarray) -> np.ndarray:
     """``m @ x``, bitwise, for a scipy sparse array ``m`` and a 1-D vector ``x``."""
-    kernel = _KERNELS.get(getattr(m, "format", None))
-    if (kernel is None or x.__class__ is not np.ndarray or x.ndim != 1 or x.dtype != np.float64
-            or m.dtype != np.float64 or m.ndim != 2 or x.shape[0] != m.shape[1]):
+    # By class and stored arrays, not scipy's format/dtype/shape properties: an SQP step makes
+    # a dozen products, and those Python-level properties were most of each one's checks.
+    kernel = _BY_CLASS.get(m.__class__)
+    if (kernel is None or x.__class__ is not np.ndarray or x.ndim != 1 or x.dtype != _FLOAT64
+            or m.data.dtype != _FLOAT64 or len(m._shape) != 2 or x.shape[0] != m._shape[1]):
         return m @ x
-    out = np.zeros(m.shape[0])
+    rows, cols = m._shape
+    out = np.zeros(rows)
     nnz = m.indptr[-1]
-    parts = _PARTS if m.format == "csr" and nnz >= PARALLEL_NNZ and nnz >= SPLIT_ROW_NNZ * m.shape[0] else 1
+    parts = _PARTS if kernel is _KERNELS["csr"] and nnz >= PARALLEL_NNZ and nnz >= SPLIT_ROW_NNZ * rows else 1
     if parts == 1:
-        kernel(m.shape[0], m.shape[1], m.indptr, m.indices, m.data, x, out)
+        kernel(rows, cols, m.indptr, m.indices, m.data, x, out)
         return out
     # Row ranges by entries; each range's slice of indptr indexes the whole indices and data
     # (the kernel reads entries Ap[i]..Ap[i+1] of them), so nothing is copied.

@@ -101,6 +101,7 @@ class SQPInner:
     evaluator: Any            # evaluates the window problem (the problem itself, or a lowering)
     algebra: LinearAlgebra
     shift: float = 0.0        # the last curvature shift δ an exact model needed (see _convexify)
+    damping: Any = None       # 2 x the evaluator's damping per variable, read once per solve
 
 
 @dataclass
@@ -179,7 +180,7 @@ class SQPBackend(Backend):
         la = self.algebra(problem)
         evaluator = self.evaluator(problem, la)
         return SQPInner(state=state, ev=evaluator.evaluate(state.s), settings=dict(settings),
-                        evaluator=evaluator, algebra=la)
+                        evaluator=evaluator, algebra=la, damping=2.0 * evaluator.damping)
 
     def state(self, inner: SQPInner) -> SolverState:
         return inner.state
@@ -206,7 +207,7 @@ class SQPBackend(Backend):
             [(modes[-1], prox, True)]
         trial, sub, rho, capped = _Trial(0.0, np.zeros(ev.s.size)), None, st.merit_weight, False
         models: dict[str, Any] = {}   # the model Hessian of each mode: only the proximal term changes
-        damping = 2.0 * inner.evaluator.damping
+        damping = inner.damping
         shift = inner.shift
         refused = None   # (mode, the rows that bound) of a refused hard QP with inequality rows
         exact_refused = None   # whether the exact Hessian's step was refused (None: not tried)
@@ -379,7 +380,7 @@ class SQPBackend(Backend):
         """The hard QP's step when its linearization can be met; the elastic QP's otherwise
         (``convex``: H is positive definite by construction)."""
         hard = self._qp(la, H, ev, lin, None, counts, convex)
-        if hard is not None and not hard.qp.capped and self._meets(la, lin, hard.qp.d):
+        if hard is not None and not hard.qp.capped and self._meets(la, lin, hard):
             return hard, rho_elastic
         multipliers = float(np.abs(hard.lam_eq).max(initial=0.0)) if hard is not None else 0.0
         rho_elastic = max(rho_elastic, ELASTIC_WEIGHT * max(self._elastic_base(ev),
@@ -388,13 +389,12 @@ class SQPBackend(Backend):
         return self._qp(la, H, ev, lin, rho_elastic, counts), rho_elastic
 
     @staticmethod
-    def _meets(la, lin: _Linearization, d) -> bool:
+    def _meets(la, lin: _Linearization, sub: _Subproblem) -> bool:
         """Whether a hard QP's step meets the linearized constraints. The QP's equality rows are
         regularized (KKT_EPS): on an inconsistent linearization (a bound against a constraint) it
-        can "converge" with huge multipliers instead of failing, and that step must not pass."""
-        eq = la.numpy(la.matvec(lin.Ae, d) + lin.ce) if lin.ce.shape[0] else np.zeros(0)
-        ge = la.numpy(la.matvec(lin.Ai, d) + lin.ci) if lin.ci.shape[0] else np.zeros(0)
-        residual = max(float(np.abs(eq).max(initial=0.0)), float(-ge.min(initial=0.0)))
+        can "converge" with huge multipliers instead of failing, and that step must not pass.
+        The residual is the QP's own ``lin_eq``/``lin_ge`` (c + A d, as _qp computed them)."""
+        residual = max(float(np.abs(sub.lin_eq).max(initial=0.0)), float(-sub.lin_ge.min(initial=0.0)))
         before = max(float(np.abs(la.numpy(lin.ce)).max(initial=0.0)), float(-la.numpy(lin.ci).min(initial=0.0)))
         return residual <= max(1e-6, 1e-3 * before)
 
