@@ -19,6 +19,7 @@ Everything is written over :class:`~stw_tui.sos.sqp.algebra.LinearAlgebra`.
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from dataclasses import dataclass
 
 import numpy as np
@@ -28,6 +29,9 @@ from stw_tui.sos.sqp.curvature import convex_on
 
 STEP_TO_BOUNDARY = 0.995   # fraction of the way to a bound an interior-point step may go
 KKT_EPS = 1e-10            # small negative (2,2) block: redundant (densely sampled) constraint rows get bounded multipliers
+KKT_EPS_FINE = 1e-14       # ... and the block of a KKT solve done again where KKT_EPS left its rows unmet (_finer):
+FOOTPRINT = 0.5            # by more than this fraction of their violation,
+FOOTPRINT_FLOOR = 1e-8     # and by more than this (the SQP passes its tol_violation, 1e-8 by default)
 IPM_TOL = 1e-11            # relative residuals and complementarity at which the interior-point method stops
 IPM_MAX = 100              # interior-point iteration limit (hitting it is reported, never silent)
 IPM_ACCEPTABLE = 1e-6      # when the method stalls short of IPM_TOL, its best iterate is used if it got this far
@@ -61,13 +65,15 @@ class QPResult:
 def solve_qp(la: LinearAlgebra, H: Matrix, g: Vector, Ae: Matrix, ce: Vector, Ai: Matrix, ci: Vector,
              y0: Vector | None = None, elastic: float | None = None, tol: float = IPM_TOL,
              max_ipm: int = IPM_MAX, z0: Vector | None = None, working: Vector | None = None,
-             convex: bool = False) -> QPResult:
+             convex: bool = False, floor: float = FOOTPRINT_FLOOR) -> QPResult:
     """Solve the QP (hard, or elastic with weight ρ = ``elastic``).
 
     The hard equality rows are stabilized around the previous multipliers ``y0`` (a proximal
     method of multipliers): A_e d + c_e = ε (y - y0). Redundant rows — a constraint sampled more
     densely than its spline can vary — then get bounded multipliers, and the constraints are
-    still met exactly once the multipliers settle.
+    still met exactly once the multipliers settle. A step that ε keeps from meeting most of its
+    rows (their Schur complement smaller than ε: they would settle over dozens of steps) is
+    solved again on a finer ε (:func:`_finer`).
 
     A hard QP with inequality rows is first tried by active-set passes from the ``working`` rows
     (a backend bool vector: those that bound at the last step), then solved by the
@@ -75,7 +81,8 @@ def solve_qp(la: LinearAlgebra, H: Matrix, g: Vector, Ae: Matrix, ce: Vector, Ai
     (:func:`_on_working_set`): binding rows become equality rows, stabilized around ``z0`` (the
     previous inequality multipliers, >= 0) like the others. ``convex``: H is positive definite
     by construction (a Gauss-Newton model plus a positive diagonal), and the active-set method
-    need not test it.
+    need not test it. ``floor``: how far a step may leave its rows unmet before :func:`_finer`
+    looks at it (the SQP's: its violation tolerance).
 
     Raises:
         SingularSystem: a KKT matrix could not be factorized.
@@ -85,11 +92,17 @@ def solve_qp(la: LinearAlgebra, H: Matrix, g: Vector, Ae: Matrix, ce: Vector, Ai
     if mi == 0 and elastic is None:
         system = la.kkt(H, Ae, KKT_EPS)
         x = system.solve(la.concat([-g, -ce - KKT_EPS * y0]))
-        return QPResult(x[:n], x[n:], la.zeros(0), system.iterations, 0, system.fallbacks, system=system)
+        iterations, fallbacks = system.iterations, system.fallbacks
+        fine = _finer(la, lambda: la.kkt(H, Ae, KKT_EPS_FINE), la.concat([-g, -ce]), y0,
+                      lambda v: la.max_abs(la.matvec(Ae, v[:n]) + ce), x, la.max_abs(ce), floor)
+        if fine is not None:
+            system, x = fine
+            iterations, fallbacks = iterations + system.iterations, fallbacks + system.fallbacks
+        return QPResult(x[:n], x[n:], la.zeros(0), iterations, 0, fallbacks, system=system)
     z0 = la.zeros(mi) if z0 is None else z0
     systems = la.working_set_kkt(H, Ae, Ai, KKT_EPS) if elastic is None else None
     if elastic is None and working is not None:
-        guess = _active_set(la, H, g, Ae, ce, Ai, ci, y0, z0, working, convex, systems)
+        guess = _active_set(la, H, g, Ae, ce, Ai, ci, y0, z0, working, convex, systems, floor)
         if guess is not None:
             return guess
     tried: dict[bytes, QPResult | None] = {}
@@ -97,7 +110,7 @@ def solve_qp(la: LinearAlgebra, H: Matrix, g: Vector, Ae: Matrix, ce: Vector, Ai
     def polish(binding) -> QPResult | None:   # each set of rows is solved at most once
         key = la.numpy(binding).tobytes()
         if key not in tried:
-            tried[key] = _on_working_set(la, H, g, Ae, ce, Ai, ci, y0, z0, binding, systems)
+            tried[key] = _on_working_set(la, H, g, Ae, ce, Ai, ci, y0, z0, binding, systems, floor)
         return tried[key]
 
     result, w = _interior_point(la, H, g, Ae, ce, Ai, ci, y0, elastic, tol, max_ipm,
@@ -113,7 +126,8 @@ def solve_qp(la: LinearAlgebra, H: Matrix, g: Vector, Ae: Matrix, ce: Vector, Ai
     return result
 
 
-def _on_working_set(la, H, g, Ae, ce, Ai, ci, y0, z0, binding, systems=None) -> QPResult | None:
+def _on_working_set(la, H, g, Ae, ce, Ai, ci, y0, z0, binding, systems=None,
+                    floor=FOOTPRINT_FLOOR) -> QPResult | None:
     """The QP's solution if the inequality rows ``binding`` (a backend bool vector) are the ones
     that bind: one KKT factorization with them as equality rows, every row stabilized around its
     previous multiplier; None when a binding row comes out with a negative multiplier or
@@ -130,11 +144,40 @@ def _on_working_set(la, H, g, Ae, ce, Ai, ci, y0, z0, binding, systems=None) -> 
     dependent rows' multipliers drift apart without bound, inflate the merit weight, and make
     the steps depend on rounding.
     """
-    trial = _working_set_trial(la, H, g, Ae, ce, Ai, ci, y0, z0, binding, systems)
+    trial = _working_set_trial(la, H, g, Ae, ce, Ai, ci, y0, z0, binding, systems, floor)
     return None if trial is None else trial.result
 
 
-def _active_set(la, H, g, Ae, ce, Ai, ci, y0, z0, binding, convex=False, systems=None) -> QPResult | None:
+def _finer(la: LinearAlgebra, fine: Callable[[], KKTSystem], rhs: Vector, center: Vector,
+           unmet: Callable[[Vector], float], x: Vector, violation: float,
+           floor: float = FOOTPRINT_FLOOR) -> tuple[KKTSystem, Vector] | None:
+    """A KKT solve done again on the (2,2) block KKT_EPS_FINE (the system ``fine`` makes), where
+    its solution ``x`` on KKT_EPS leaves the rows' linearization unmet (``unmet``: the largest
+    |c + A d| of a solution) by more than FOOTPRINT of the rows' ``violation`` and more than
+    ``floor``. That residual is ε (y - center), the regularization's own: along a direction
+    where the rows' Schur complement A H⁻¹ Aᵀ has an eigenvalue σ below ε, each SQP step shrinks
+    it by only ε / (σ + ε). Rows sampled more densely than the spline can vary (the instances an
+    adaptive re-solve adds) and fine knots have such directions: the bench's own synthetic
+    problem crawled at ~1.2e-5 for 30 steps and its re-solve was undone, leaving the dense check
+    failed (6e-3). Returns (system, solution), or None: ``x`` stands (it met the rows, or the
+    finer system is singular, or meets them no better than FOOTPRINT of ``x``'s residual —
+    rows that cannot be met together, where a smaller ε would only inflate the multipliers)."""
+    residual = unmet(x)
+    if residual <= max(FOOTPRINT * violation, floor):
+        return None
+    n = rhs.shape[0] - center.shape[0]
+    try:
+        system = fine()
+        finer = system.solve(rhs - la.concat([la.zeros(n), KKT_EPS_FINE * center]))
+    except SingularSystem:
+        return None
+    if not np.all(np.isfinite(la.numpy(finer))) or unmet(finer) > FOOTPRINT * residual:
+        return None
+    return system, finer
+
+
+def _active_set(la, H, g, Ae, ce, Ai, ci, y0, z0, binding, convex=False, systems=None,
+                floor=FOOTPRINT_FLOOR) -> QPResult | None:
     """The QP's solution by a primal-dual active-set method (Hintermüller, Ito & Kunisch 2003)
     from the rows ``binding``: each pass solves with the current rows as equality rows, then
     drops those whose multiplier came out negative and adds those left violated, all at once.
@@ -156,7 +199,7 @@ def _active_set(la, H, g, Ae, ce, Ai, ci, y0, z0, binding, convex=False, systems
     linear_its = fallbacks = 0
     limit = int(la.numpy(binding).sum())
     for _ in range(ACTIVE_SET_PASSES):
-        trial = _working_set_trial(la, H, g, Ae, ce, Ai, ci, y0, z0, binding, systems)
+        trial = _working_set_trial(la, H, g, Ae, ce, Ai, ci, y0, z0, binding, systems, floor)
         if trial is None:
             return None
         linear_its += trial.linear_iterations
@@ -183,7 +226,8 @@ class _Trial:
     fallbacks: int
 
 
-def _working_set_trial(la, H, g, Ae, ce, Ai, ci, y0, z0, binding, systems=None) -> _Trial | None:
+def _working_set_trial(la, H, g, Ae, ce, Ai, ci, y0, z0, binding, systems=None,
+                       floor=FOOTPRINT_FLOOR) -> _Trial | None:
     """The QP solved with the rows ``binding`` as equality rows (:func:`_on_working_set`), and
     whether that is its solution; None when the system is singular or the step not finite.
     ``systems``: the QP's working-set systems (LinearAlgebra.working_set_kkt), made once."""
@@ -201,6 +245,13 @@ def _working_set_trial(la, H, g, Ae, ce, Ai, ci, y0, z0, binding, systems=None) 
     x = system.solve(rhs - la.concat([la.zeros(n), KKT_EPS * x[n:]]))
     if not np.all(np.isfinite(la.numpy(x))):
         return None
+    fine = _finer(la, lambda: la.working_set_kkt(H, Ae, Ai, KKT_EPS_FINE)(binding), rhs, x[n:],
+                  lambda v: la.max_abs(la.concat([la.matvec(Ae, v[:n]) + ce, (la.matvec(Ai, v[:n]) + ci)[binding]])),
+                  x, la.max_abs(c), floor)
+    its, fallbacks = system.iterations, system.fallbacks
+    if fine is not None:
+        x = fine[1]
+        its, fallbacks = its + fine[0].iterations, fallbacks + fine[0].fallbacks
     d, y, z_bound = x[:n], x[n:n + me], -x[n + me:]
     z = la.zeros(ci.shape[0])
     z[binding] = z_bound
@@ -210,10 +261,9 @@ def _working_set_trial(la, H, g, Ae, ce, Ai, ci, y0, z0, binding, systems=None) 
     scale_c = 1.0 + max(la.max_abs(ce), la.max_abs(ci))
     if ((z_bound.shape[0] == 0 or float(z_bound.min()) >= -POLISH_TOL * scale_z)
             and (slack.shape[0] == 0 or float(slack.min()) >= -FEASIBLE_TOL * scale_c)):
-        return _Trial(QPResult(d, y, la.maximum(z, 0.0), system.iterations, 0, system.fallbacks),
-                      binding, system.iterations, system.fallbacks)
+        return _Trial(QPResult(d, y, la.maximum(z, 0.0), its, 0, fallbacks), binding, its, fallbacks)
     keep = (binding & (z >= -POLISH_TOL * scale_z)) | (~binding & (slack_all < -FEASIBLE_TOL * scale_c))
-    return _Trial(None, keep, system.iterations, system.fallbacks)
+    return _Trial(None, keep, its, fallbacks)
 
 
 def _unmeetable(la, y, y0, scale_c) -> bool:

@@ -54,7 +54,7 @@ import numpy as np
 from stw_tui.sos.backend import Backend, BackendOption, Capability, SolverState, StepReport
 from stw_tui.sos.sqp.algebra import LinearAlgebra, SingularSystem
 from stw_tui.sos.sqp.curvature import convexify
-from stw_tui.sos.sqp.qp import INFEASIBLE_MULTIPLIER, KKT_EPS, QPResult, solve_qp
+from stw_tui.sos.sqp.qp import FOOTPRINT_FLOOR, INFEASIBLE_MULTIPLIER, KKT_EPS, QPResult, solve_qp
 from stw_tui.sos.sqp.termination import is_converged, kkt_residual
 from stw_tui.sym.errors import StwError
 
@@ -63,6 +63,7 @@ RETRIES = 5              # a refused full step is retried with 10x, 100x, ... he
 ETA = 1e-4               # Armijo: accept a step whose merit decrease is this share of the slope's
 RATIO_POOR, RATIO_GOOD = 0.25, 0.75   # trust-radius update: shrink below, grow above (when it bound)
 RATIO_EXACT = 1e-9      # |ratio - 1| up to which the model predicted a step exactly (rounding)
+FOOTPRINT_SHARE = 1.0    # of tol_violation: how far a QP step may leave its rows unmet before qp._finer looks
 RADIUS_FLOOR, RADIUS_CEILING = 1e-6, 1e2   # the step limit stays within these multiples of its start
 MIN_STEP = 1e-8          # smallest backtracking step before declaring a stall
 ACTIVE_FRACTION = 1e-6   # an inequality whose multiplier exceeds this share of the largest binds
@@ -379,7 +380,8 @@ class SQPBackend(Backend):
                     counts: _Counts, convex: bool = False) -> tuple[_Subproblem | None, float]:
         """The hard QP's step when its linearization can be met; the elastic QP's otherwise
         (``convex``: H is positive definite by construction)."""
-        hard = self._qp(la, H, ev, lin, None, counts, convex)
+        floor = FOOTPRINT_SHARE * float(settings["tol_violation"])   # of a step's unmet rows (qp._finer)
+        hard = self._qp(la, H, ev, lin, None, counts, convex, floor)
         if hard is not None and not hard.qp.capped and self._meets(la, lin, hard):
             return hard, rho_elastic
         multipliers = float(np.abs(hard.lam_eq).max(initial=0.0)) if hard is not None else 0.0
@@ -399,7 +401,7 @@ class SQPBackend(Backend):
         return residual <= max(1e-6, 1e-3 * before)
 
     def _qp(self, la: LinearAlgebra, H, ev, lin: _Linearization, elastic: float | None,
-            counts: _Counts, convex: bool = False) -> _Subproblem | None:
+            counts: _Counts, convex: bool = False, floor: float = FOOTPRINT_FLOOR) -> _Subproblem | None:
         """Solve the QP, raising a diagonal shift while its KKT systems are singular or (elastic QP:
         no equality rows to restrict the model to) its step meets negative curvature."""
         n = ev.s.size
@@ -408,7 +410,7 @@ class SQPBackend(Backend):
             Hr = la.add(H, la.diagonal_matrix(np.full(n, reg))) if reg else H
             try:
                 qp = solve_qp(la, Hr, lin.g, lin.Ae, lin.ce, lin.Ai, lin.ci, y0=lin.y0, elastic=elastic,
-                              z0=lin.z0, working=lin.working, convex=convex)
+                              z0=lin.z0, working=lin.working, convex=convex, floor=floor)
             except SingularSystem:
                 qp = None
                 reg = max(10 * reg, 1e-8)
