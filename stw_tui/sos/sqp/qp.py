@@ -30,7 +30,7 @@ from stw_tui.sos.sqp.curvature import convex_on
 STEP_TO_BOUNDARY = 0.995   # fraction of the way to a bound an interior-point step may go
 KKT_EPS = 1e-10            # small negative (2,2) block: redundant (densely sampled) constraint rows get bounded multipliers
 KKT_EPS_FINE = 1e-14       # ... and the block of a KKT solve done again where KKT_EPS left its rows unmet (_finer):
-FOOTPRINT = 0.5            # by more than this fraction of their violation,
+FOOTPRINT = 1e-3           # by more than this share of their violation (the share the SQP accepts of a hard step),
 FOOTPRINT_FLOOR = 1e-8     # and by more than this (the SQP passes its tol_violation, 1e-8 by default)
 IPM_TOL = 1e-11            # relative residuals and complementarity at which the interior-point method stops
 IPM_MAX = 100              # interior-point iteration limit (hitting it is reported, never silent)
@@ -159,9 +159,11 @@ def _finer(la: LinearAlgebra, fine: Callable[[], KKTSystem], rhs: Vector, center
     it by only ε / (σ + ε). Rows sampled more densely than the spline can vary (the instances an
     adaptive re-solve adds) and fine knots have such directions: the bench's own synthetic
     problem crawled at ~1.2e-5 for 30 steps and its re-solve was undone, leaving the dense check
-    failed (6e-3). Returns (system, solution), or None: ``x`` stands (it met the rows, or the
-    finer system is singular, or meets them no better than FOOTPRINT of ``x``'s residual —
-    rows that cannot be met together, where a smaller ε would only inflate the multipliers)."""
+    failed (6e-3); a step left that far off its rows is refused by the SQP, which then pays
+    for an elastic QP (8 to 12 interior-point factorizations). Returns (system, solution), or
+    None: ``x`` stands (it met the rows, or the finer system is singular, or meets them less
+    than twice as well — rows that cannot be met together, where a smaller ε would only
+    inflate the multipliers)."""
     residual = unmet(x)
     if residual <= max(FOOTPRINT * violation, floor):
         return None
@@ -171,7 +173,7 @@ def _finer(la: LinearAlgebra, fine: Callable[[], KKTSystem], rhs: Vector, center
         finer = system.solve(rhs - la.concat([la.zeros(n), KKT_EPS_FINE * center]))
     except SingularSystem:
         return None
-    if not np.all(np.isfinite(la.numpy(finer))) or unmet(finer) > FOOTPRINT * residual:
+    if not np.all(np.isfinite(la.numpy(finer))) or unmet(finer) > 0.5 * residual:
         return None
     return system, finer
 
