@@ -72,14 +72,17 @@ COUPLED = [("q1", "q2", 0.1), ("q2", "q3", 0.2), ("q3", "q4", 0.3), ("q4", "q5",
 
 
 @pytest.mark.parametrize("knots, extra", [(24, ""), (24, "constraint low: q3 <= 1.6 on [0, 1]\n"),
-                                          (1000, "")], ids=["24", "24-inequality", "1000"])
+                                          (1000, ""), (2000, "")], ids=["24", "24-inequality", "1000", "2000"])
 def test_the_coupled_dof_hold_between_their_instances_after_adaptive_refinement(knots, extra):
     # Before: at 24 knots the re-solve with the 47 instances the dense check asked for stalled
     # at a violation of 1.2e-5 for 30 steps and was undone, leaving q3 - q4 at 6e-3 between
-    # the instances; at 1000 knots the first solve crawled to the iteration limit (~12% a step).
+    # the instances; at 1000 knots the first solve crawled to the iteration limit (~12% a step);
+    # at 2000 (10015 control points) the finer solve's own rounding left the rows 2.3e-6 unmet
+    # until it was refined, and that step went elastic.
     session, outcome = _coupled(knots, extra)
     assert outcome.run.status.value == "converged", outcome.message
-    assert "undid" not in outcome.message and "added" in outcome.message, outcome.message
+    assert "undid" not in outcome.message, outcome.message
+    assert knots != 24 or "added" in outcome.message, outcome.message   # the re-solve ran and was kept
     assert len(outcome.run.reports) <= 12, outcome.message     # first solve and re-solves together
     # ... and no step refused for leaving its rows unmet (each would cost an elastic QP)
     assert not any(r.elastic for r in outcome.run.reports), outcome.message
