@@ -31,7 +31,8 @@ STEP_TO_BOUNDARY = 0.995   # fraction of the way to a bound an interior-point st
 KKT_EPS = 1e-10            # small negative (2,2) block: redundant (densely sampled) constraint rows get bounded multipliers
 KKT_EPS_FINE = 1e-14       # ... and the block of a KKT solve done again where KKT_EPS left its rows unmet (_finer):
 FOOTPRINT = 1e-3           # by more than this share of their violation (the share the SQP accepts of a hard step),
-FOOTPRINT_FLOOR = 1e-8     # and by more than this (the SQP passes its tol_violation, 1e-8 by default)
+FOOTPRINT_FLOOR = 1e-8     # and by more than this (the SQP passes its tol_violation, 1e-8 by default);
+FINER_KEPT = 0.5           # kept when it leaves at most this share of the first solve's residual
 IPM_TOL = 1e-11            # relative residuals and complementarity at which the interior-point method stops
 IPM_MAX = 100              # interior-point iteration limit (hitting it is reported, never silent)
 IPM_ACCEPTABLE = 1e-6      # when the method stalls short of IPM_TOL, its best iterate is used if it got this far
@@ -162,8 +163,8 @@ def _finer(la: LinearAlgebra, fine: Callable[[], KKTSystem], rhs: Vector, center
     problem crawled at ~1.2e-5 for 30 steps and its re-solve was undone, leaving the dense check
     failed (6e-3); a step left that far off its rows is refused by the SQP, which then pays
     for an elastic QP (8 to 12 interior-point factorizations). Returns (system, solution), or
-    None: ``x`` stands (it met the rows, or the finer system is singular, or meets them less
-    than twice as well — rows that cannot be met together, where a smaller ε would only
+    None: ``x`` stands (it met the rows, or the finer system is singular, or leaves more than
+    FINER_KEPT of its residual — rows that cannot be met together, where a smaller ε would only
     inflate the multipliers).
 
     The finer system is solved with one step of iterative refinement (``times``: the product of
@@ -181,7 +182,7 @@ def _finer(la: LinearAlgebra, fine: Callable[[], KKTSystem], rhs: Vector, center
         finer = finer + system.solve(target - times(finer) + la.concat([la.zeros(n), KKT_EPS_FINE * finer[n:]]))
     except SingularSystem:
         return None
-    if not np.all(np.isfinite(la.numpy(finer))) or unmet(finer) > 0.5 * residual:
+    if not np.all(np.isfinite(la.numpy(finer))) or unmet(finer) > FINER_KEPT * residual:
         return None
     return system, finer
 
