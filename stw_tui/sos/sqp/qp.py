@@ -162,7 +162,7 @@ def _finer(la: LinearAlgebra, fine: Callable[[], KKTSystem], rhs: Vector, center
     adaptive re-solve adds) and fine knots have such directions: the bench's own synthetic
     problem crawled at ~1.2e-5 for 30 steps and its re-solve was undone, leaving the dense check
     failed (6e-3); a step left that far off its rows is refused by the SQP, which then pays
-    for an elastic QP (8 to 12 interior-point factorizations). Returns (system, solution), or
+    for an elastic QP (8 to 14 interior-point factorizations). Returns (system, solution), or
     None: ``x`` stands (it met the rows, or the finer system is singular, or leaves more than
     FINER_KEPT of its residual — rows that cannot be met together, where a smaller ε would only
     inflate the multipliers).
