@@ -45,6 +45,28 @@ def test_rows_with_a_schur_complement_below_eps_are_met_by_the_qp_step(la, monke
 
 
 @pytest.mark.parametrize("la", catalogue.linear_algebras(), ids=lambda la: type(la).__name__)
+@pytest.mark.parametrize("guess", [True, False], ids=["active-set", "interior-point"])
+def test_binding_rows_with_a_schur_complement_below_eps_are_met_too(la, guess, monkeypatch):
+    # The same H, one equality row and one inequality row that binds (g pushes d₁ below 2e-3):
+    # solved as a working set, from the last step's guess or after the interior-point method.
+    H = np.diag([1e11, 1e11, 1e11])
+    g = np.array([1.0, 2.0, 3.0])
+    Ae, ce = np.array([[1.0, 0.0, 0.0]]), np.array([1e-3])
+    Ai, ci = np.array([[0.0, 1.0, 0.0], [0.0, 0.0, 1.0]]), np.array([-2e-3, 1.0])
+    exact = _exact(H, g, np.vstack([Ae, Ai[:1]]), np.array([1e-3, -2e-3]))
+    args = (la.matrix(sps.csr_array(H)), la.vector(g), la.matrix(sps.csr_array(Ae)), la.vector(ce),
+            la.matrix(sps.csr_array(Ai)), la.vector(ci))
+    working = la.vector(np.array([1.0, 0.0])) > 0.5 if guess else None
+    qp = Q.solve_qp(la, *args, working=working)
+    d = la.numpy(qp.d)
+    assert abs(d[0] + 1e-3) <= 2e-6 and abs(d[1] - 2e-3) <= 4e-6      # both rows met to 0.2%
+    np.testing.assert_allclose(d, exact, rtol=2e-3, atol=1e-12)
+    monkeypatch.setattr(Q, "FOOTPRINT", np.inf)
+    held = la.numpy(Q.solve_qp(la, *args, working=working).d)
+    assert abs(held[0] + 1e-3) >= 0.5e-3 or abs(held[1] - 2e-3) >= 1e-3   # on ε alone: most left unmet
+
+
+@pytest.mark.parametrize("la", catalogue.linear_algebras(), ids=lambda la: type(la).__name__)
 def test_a_step_that_meets_its_rows_on_eps_is_not_solved_again(la, monkeypatch):
     # A H⁻¹ Aᵀ = 1 here: ε changes nothing that matters, and a second factorization would only cost.
     made = []
