@@ -29,8 +29,9 @@ except ImportError:   # pragma: no cover - a scipy that moved them: the public r
     _KERNELS = {}
 _FLOAT64 = np.dtype(np.float64)
 # the classes whose products take the kernels (scipy's sparse arrays and matrices keep ``_shape``)
-_BY_CLASS = {cls: _KERNELS[cls((1, 1)).format] for cls in (sps.csr_array, sps.csr_matrix, sps.csc_array, sps.csc_matrix)
-             if cls((1, 1)).format in _KERNELS and getattr(cls((1, 1)), "_shape", None) == (1, 1)}
+_PROBES = [cls((1, 1)) for cls in (sps.csr_array, sps.csr_matrix, sps.csc_array, sps.csc_matrix)]
+_BY_CLASS = {probe.__class__: _KERNELS[probe.format] for probe in _PROBES
+             if probe.format in _KERNELS and getattr(probe, "_shape", None) == (1, 1)}
 
 
 def matvec(m, x: np.ndarray) -> np.ndarray:

@@ -94,12 +94,14 @@ def solve_qp(la: LinearAlgebra, H: Matrix, g: Vector, Ae: Matrix, ce: Vector, Ai
         system = la.kkt(H, Ae, KKT_EPS)
         x = system.solve(la.concat([-g, -ce - KKT_EPS * y0]))
         iterations, fallbacks = system.iterations, system.fallbacks
-        fine = _finer(la, lambda: la.kkt(H, Ae, KKT_EPS_FINE), la.concat([-g, -ce]), y0,
-                      lambda v: la.concat([la.matvec(H, v[:n]) + la.rmatvec(Ae, v[n:]), la.matvec(Ae, v[:n])]),
-                      lambda v: la.max_abs(la.matvec(Ae, v[:n]) + ce), x, la.max_abs(ce), floor)
-        if fine is not None:
-            system, x = fine
-            iterations, fallbacks = iterations + system.iterations, fallbacks + system.fallbacks
+        residual = la.max_abs(la.matvec(Ae, x[:n]) + ce)
+        if _held_back(residual, la.max_abs(ce), floor):
+            fine = _finer(la, lambda: la.kkt(H, Ae, KKT_EPS_FINE), la.concat([-g, -ce]), y0,
+                          lambda v: la.concat([la.matvec(H, v[:n]) + la.rmatvec(Ae, v[n:]), la.matvec(Ae, v[:n])]),
+                          lambda v: la.max_abs(la.matvec(Ae, v[:n]) + ce), residual)
+            if fine is not None:
+                system, x = fine
+                iterations, fallbacks = iterations + system.iterations, fallbacks + system.fallbacks
         return QPResult(x[:n], x[n:], la.zeros(0), iterations, 0, fallbacks, system=system)
     z0 = la.zeros(mi) if z0 is None else z0
     systems = la.working_set_kkt(H, Ae, Ai, KKT_EPS) if elastic is None else None
@@ -150,20 +152,26 @@ def _on_working_set(la, H, g, Ae, ce, Ai, ci, y0, z0, binding, systems=None,
     return None if trial is None else trial.result
 
 
+def _held_back(residual: float, violation: float, floor: float) -> bool:
+    """Whether a KKT solve on KKT_EPS left its rows unmet (``residual``: the largest |c + A d|)
+    by more than FOOTPRINT of their ``violation`` (the largest |c|) and more than ``floor``:
+    then :func:`_finer` solves it again."""
+    return residual > max(FOOTPRINT * violation, floor)
+
+
 def _finer(la: LinearAlgebra, fine: Callable[[], KKTSystem], rhs: Vector, center: Vector,
-           times: Callable[[Vector], Vector], unmet: Callable[[Vector], float], x: Vector,
-           violation: float, floor: float = FOOTPRINT_FLOOR) -> tuple[KKTSystem, Vector] | None:
+           times: Callable[[Vector], Vector], unmet: Callable[[Vector], float],
+           residual: float) -> tuple[KKTSystem, Vector] | None:
     """A KKT solve done again on the (2,2) block KKT_EPS_FINE (the system ``fine`` makes), where
-    its solution ``x`` on KKT_EPS leaves the rows' linearization unmet (``unmet``: the largest
-    |c + A d| of a solution) by more than FOOTPRINT of the rows' ``violation`` and more than
-    ``floor``. That residual is ε (y - center), the regularization's own: along a direction
-    where the rows' Schur complement A H⁻¹ Aᵀ has an eigenvalue σ below ε, each SQP step shrinks
-    it by only ε / (σ + ε). Rows sampled more densely than the spline can vary (the instances an
+    its solution on KKT_EPS was held back (:func:`_held_back`; ``residual``: how far it left
+    the rows unmet, ``unmet`` measures a solution the same way). That residual is ε (y - center),
+    the regularization's own: along a direction where the rows' Schur complement A H⁻¹ Aᵀ has
+    an eigenvalue σ below ε, each SQP step shrinks it by only ε / (σ + ε). Rows sampled more densely than the spline can vary (the instances an
     adaptive re-solve adds) and fine knots have such directions: the bench's own synthetic
     problem crawled at ~1.2e-5 for 30 steps and its re-solve was undone, leaving the dense check
     failed (6e-3); a step left that far off its rows is refused by the SQP, which then pays
     for an elastic QP (8 to 14 interior-point factorizations). Returns (system, solution), or
-    None: ``x`` stands (it met the rows, or the finer system is singular, or leaves more than
+    None: the first solution stands (the finer system is singular, or leaves more than
     FINER_KEPT of its residual — rows that cannot be met together, where a smaller ε would only
     inflate the multipliers).
 
@@ -171,9 +179,6 @@ def _finer(la: LinearAlgebra, fine: Callable[[], KKTSystem], rhs: Vector, center
     [[H, Aᵀ], [A, 0]] with a solution): on a system this ill-conditioned the factorization's own
     rounding is the next floor (a 12000-row system at 2000 knots: its rows 2.3e-6 unmet either
     way, 2.8e-9 after the step)."""
-    residual = unmet(x)
-    if residual <= max(FOOTPRINT * violation, floor):
-        return None
     n = rhs.shape[0] - center.shape[0]
     try:
         system = fine()
@@ -256,22 +261,27 @@ def _working_set_trial(la, H, g, Ae, ce, Ai, ci, y0, z0, binding, systems=None,
     x = system.solve(rhs - la.concat([la.zeros(n), KKT_EPS * x[n:]]))
     if not np.all(np.isfinite(la.numpy(x))):
         return None
-    def times(v):   # [[H, Aᵀ], [A, 0]] v, A the equality rows and the binding ones
-        bound = la.zeros(ci.shape[0])
-        bound[binding] = v[n + me:]
-        return la.concat([la.matvec(H, v[:n]) + la.rmatvec(Ae, v[n:n + me]) + la.rmatvec(Ai, bound),
-                          la.matvec(Ae, v[:n]), la.matvec(Ai, v[:n])[binding]])
-    fine = _finer(la, lambda: la.working_set_kkt(H, Ae, Ai, KKT_EPS_FINE)(binding), rhs, x[n:], times,
-                  lambda v: la.max_abs(la.concat([la.matvec(Ae, v[:n]) + ce, (la.matvec(Ai, v[:n]) + ci)[binding]])),
-                  x, la.max_abs(c), floor)
     its, fallbacks = system.iterations, system.fallbacks
-    if fine is not None:
-        x = fine[1]
-        its, fallbacks = its + fine[0].iterations, fallbacks + fine[0].fallbacks
+    slack_all = la.matvec(Ai, x[:n]) + ci
+
+    def unmet(v, slacks):   # the largest |c + A d| over the equality and the binding rows
+        return la.max_abs(la.concat([la.matvec(Ae, v[:n]) + ce, slacks[binding]]))
+    residual = unmet(x, slack_all)
+    if _held_back(residual, la.max_abs(c), floor):
+        def times(v):   # [[H, Aᵀ], [A, 0]] v, A the equality rows and the binding ones
+            bound = la.zeros(ci.shape[0])
+            bound[binding] = v[n + me:]
+            return la.concat([la.matvec(H, v[:n]) + la.rmatvec(Ae, v[n:n + me]) + la.rmatvec(Ai, bound),
+                              la.matvec(Ae, v[:n]), la.matvec(Ai, v[:n])[binding]])
+        fine = _finer(la, lambda: la.working_set_kkt(H, Ae, Ai, KKT_EPS_FINE)(binding), rhs, x[n:], times,
+                      lambda v: unmet(v, la.matvec(Ai, v[:n]) + ci), residual)
+        if fine is not None:
+            x = fine[1]
+            its, fallbacks = its + fine[0].iterations, fallbacks + fine[0].fallbacks
+            slack_all = la.matvec(Ai, x[:n]) + ci
     d, y, z_bound = x[:n], x[n:n + me], -x[n + me:]
     z = la.zeros(ci.shape[0])
     z[binding] = z_bound
-    slack_all = la.matvec(Ai, d) + ci
     slack = slack_all[~binding]
     scale_z = 1.0 + la.max_abs(z_bound)
     scale_c = 1.0 + max(la.max_abs(ce), la.max_abs(ci))

@@ -63,7 +63,6 @@ RETRIES = 5              # a refused full step is retried with 10x, 100x, ... he
 ETA = 1e-4               # Armijo: accept a step whose merit decrease is this share of the slope's
 RATIO_POOR, RATIO_GOOD = 0.25, 0.75   # trust-radius update: shrink below, grow above (when it bound)
 RATIO_EXACT = 1e-9      # |ratio - 1| up to which the model predicted a step exactly (rounding)
-FOOTPRINT_SHARE = 1.0    # of tol_violation: how far a QP step may leave its rows unmet before qp._finer looks
 RADIUS_FLOOR, RADIUS_CEILING = 1e-6, 1e2   # the step limit stays within these multiples of its start
 MIN_STEP = 1e-8          # smallest backtracking step before declaring a stall
 ACTIVE_FRACTION = 1e-6   # an inequality whose multiplier exceeds this share of the largest binds
@@ -380,8 +379,8 @@ class SQPBackend(Backend):
                     counts: _Counts, convex: bool = False) -> tuple[_Subproblem | None, float]:
         """The hard QP's step when its linearization can be met; the elastic QP's otherwise
         (``convex``: H is positive definite by construction)."""
-        floor = FOOTPRINT_SHARE * float(settings["tol_violation"])   # of a step's unmet rows (qp._finer)
-        hard = self._qp(la, H, ev, lin, None, counts, convex, floor)
+        # a step may leave its rows unmet by up to tol_violation before qp._finer solves it again
+        hard = self._qp(la, H, ev, lin, None, counts, convex, float(settings["tol_violation"]))
         if hard is not None and not hard.qp.capped and self._meets(la, lin, hard):
             return hard, rho_elastic
         multipliers = float(np.abs(hard.lam_eq).max(initial=0.0)) if hard is not None else 0.0
