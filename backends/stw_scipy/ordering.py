@@ -29,6 +29,14 @@ noise) but brings 1.7 GB of MKL, and its LDLᵀ is not accurate on these near-si
 (residuals 100x SuperLU's and worse on a fifth of them). On the arm's, KLU takes 0.60x SuperLU
 (0.32x reused), where the banded LU (banded.py) already takes about 0.5x, and converting to its
 matrices costs more than the factorization. None is worth its dependency here.
+
+QDLDL (``qdldl`` 0.1.9, OSQP's LDLᵀ without pivoting for quasi-definite KKT systems, its symbolic
+factorization reused per structure) was measured on every system of the first solves (172 of the
+arm's, 573 of basketball's; factorization and two solves): 1.08x the banded LU's time on the arm's
+and 0.31-0.42x SuperLU's on basketball's, but with relative residuals of 0.2 and 0.7 (medians; up
+to 3e4 and 2.5e23) against 7e-8 and 5e-8 here. With their (2,2) block of -1e-10 and a Hessian
+convex only on the rows' null space, these systems are quasi-definite in name only: a
+factorization without pivoting is not accurate on them, and no refinement recovers that.
 """
 
 from __future__ import annotations
