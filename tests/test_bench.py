@@ -139,6 +139,52 @@ def test_slsqp_in_numpy_reaches_stws_pendulum_optimum():
     assert abs(objective - stw) <= 1e-6 * stw
 
 
+def test_pendulum_references_each_alternate_with_stws_runs_of_their_own(monkeypatch):
+    # A solve is slowed down by the one before it (SLSQP by 1.9x right after FDDP's): the SLSQP
+    # figure's runs, and the stw runs set against them, must never follow an FDDP solve.
+    import sys
+    import types
+
+    monkeypatch.setitem(sys.modules, "crocoddyl", types.ModuleType("crocoddyl"))
+    order = []
+    case = bench.prepare("pendulum", targets.PENDULUM)
+    monkeypatch.setattr(targets, "prepare", lambda name, text: case)
+    monkeypatch.setattr(targets, "slsqp_solve", lambda scene: order.append("SLSQP") or (0.004, 65.48090953))
+    monkeypatch.setattr(targets, "fddp_solve", lambda g: order.append("FDDP") or (0.05, 65.4809))
+    calls = []
+
+    def fake_measure(case, configs, repeat, between=None, setups=None):
+        calls.append(len(order))
+        for _ in range(repeat):
+            order.append(f"stw{len(calls)}")
+            between()
+        return [bench.Measurement(session="pendulum", config="scipy", free=23, instances=4, iterations=8,
+                                  converged=True, ms_per_iteration=0.5, phases={}, seconds=0.006,
+                                  objective=65.48090953, violation=0.0)]
+    monkeypatch.setattr(targets, "_measure_together", fake_measure)
+
+    figures = targets.pendulum_figures(3, anchors=True)
+    assert [f.label for f in figures] == ["pendulum: time / SLSQP", "pendulum: time / FDDP"]
+    assert figures[0].value == pytest.approx(0.006 / 0.004) and figures[0].counted
+    pairs = list(zip(order, order[1:]))
+    assert ("FDDP", "SLSQP") not in pairs and ("FDDP", "stw1") not in pairs
+    assert order.count("stw1") == order.count("stw2") == 3
+    last_slsqp_side = max(i for i, what in enumerate(order) if what in ("SLSQP", "stw1"))
+    assert last_slsqp_side < order.index("FDDP")          # no FDDP solve among SLSQP's rounds
+
+
+def test_without_crocoddyl_the_fddp_figure_says_so(monkeypatch):
+    import sys
+
+    monkeypatch.setitem(sys.modules, "crocoddyl", None)    # an import of it fails
+    case = bench.prepare("pendulum", targets.PENDULUM)
+    monkeypatch.setattr(targets, "prepare", lambda name, text: case)
+    figures = targets.pendulum_figures(3, anchors=True)
+    assert [f.label for f in figures] == ["pendulum: time / SLSQP", "pendulum: time / FDDP"]
+    assert figures[0].value is not None and figures[0].counted
+    assert figures[1].value is None and figures[1].verdict() == "crocoddyl missing"
+
+
 def test_crocoddyls_fddp_reaches_the_pendulums_optimum_within_the_anchor_accuracy():
     # a third derivation (pinocchio's dynamics, RK4 steps, FDDP): only with the anchors extra
     pytest.importorskip("crocoddyl")

@@ -30,7 +30,8 @@ the machine's drift falls on both:
   against ``scipy.optimize.minimize(method="SLSQP")`` with an analytic gradient on the identical
   B-spline and quadrature, written directly in numpy (slsqp_solve). Counted when the objectives
   agree within 1e-4 relative. ``pendulum: time / FDDP`` (``--anchors``, extra ``anchors``):
-  the same against crocoddyl's FDDP (fddp_solve), counted on the same condition.
+  the same against crocoddyl's FDDP (fddp_solve), counted on the same condition. Each reference
+  alternates with stw's runs of its own (a solve that follows FDDP's is slowed down).
 * ``window in 100 s / in 10 s``: the whole `iterate` of the same 1 s window in a 100 s and a 10 s
   animation of the same knot density.
 * ``cold start``: wall time of ``stw run`` on the arm's text up to its first `iterate`, followed
@@ -310,23 +311,26 @@ def pendulum_figures(repeat: int, anchors: bool) -> list[Figure]:
             with_fddp = True
         except ImportError:
             pass
-    slsqp_solve(scene.copy())                                  # untimed: warm caches as stw's
+    references = [("SLSQP", lambda: slsqp_solve(scene.copy()))]
     if with_fddp:
-        fddp_solve(g)                                          # untimed: crocoddyl's first use
-    slsqp_runs, fddp_runs = [], []
-
-    def between():   # one run of each reference after each of stw's (bench.measure_together)
-        slsqp_runs.append(slsqp_solve(scene.copy()))
-        if with_fddp:
-            fddp_runs.append(fddp_solve(g))
-    (stw,) = _measure_together(case, [("scipy", "solver=direct", case.n)], max(repeat, 3), between)
-    if isinstance(stw, str):
-        return [Figure("pendulum: time / SLSQP", None, "x", 1.0, stw)]
+        references.append(("FDDP", lambda: fddp_solve(g)))
+    elif anchors:
+        references.append(("FDDP", None))
     figures = []
-    for label, runs in (("SLSQP", slsqp_runs), ("FDDP", fddp_runs)):
-        if not runs:
-            if label == "FDDP" and anchors:
-                figures.append(Figure("pendulum: time / FDDP", None, "x", 1.0, "crocoddyl missing"))
+    for label, solve in references:
+        if solve is None:
+            figures.append(Figure("pendulum: time / FDDP", None, "x", 1.0, "crocoddyl missing"))
+            continue
+        solve()                                # untimed: warm caches as stw's (crocoddyl's first use)
+        runs = []
+        # Each reference alternates with stw's runs on its own: a solve is slowed down by what
+        # ran just before it (right after FDDP's 55 ms, SLSQP's next solve took 1.9x its time
+        # and stw's 1.2x), and SLSQP's runs and the stw runs they are set against must not
+        # follow FDDP's. (Against FDDP itself, stw's runs follow FDDP's: the harder side.)
+        (stw,) = _measure_together(case, [("scipy", "solver=direct", case.n)], max(repeat, 3),
+                                   lambda: runs.append(solve()))
+        if isinstance(stw, str):
+            figures.append(Figure(f"pendulum: time / {label}", None, "x", 1.0, stw))
             continue
         seconds, objective = statistics.median(r[0] for r in runs), runs[0][1]
         same = abs(objective - stw.objective) <= ANCHOR_ACCURACY * max(1.0, abs(objective))
