@@ -166,11 +166,12 @@ def _finer(la: LinearAlgebra, fine: Callable[[], KKTSystem], rhs: Vector, center
     its solution on KKT_EPS was held back (:func:`_held_back`; ``residual``: how far it left
     the rows unmet, ``unmet`` measures a solution the same way). That residual is ε (y - center),
     the regularization's own: along a direction where the rows' Schur complement A H⁻¹ Aᵀ has
-    an eigenvalue σ below ε, each SQP step shrinks it by only ε / (σ + ε). Rows sampled more densely than the spline can vary (the instances an
-    adaptive re-solve adds) and fine knots have such directions: the bench's own synthetic
-    problem crawled at ~1.2e-5 for 30 steps and its re-solve was undone, leaving the dense check
-    failed (6e-3); a step left that far off its rows is refused by the SQP, which then pays
-    for an elastic QP (8 to 14 interior-point factorizations). Returns (system, solution), or
+    an eigenvalue σ below ε, each SQP step shrinks it by only ε / (σ + ε). Rows sampled more
+    densely than the spline can vary (the instances an adaptive re-solve adds) and fine knots
+    have such directions: the bench's own synthetic problem crawled at ~1.2e-5 for 30 steps and
+    its re-solve was undone, leaving the dense check failed (6e-3); a step left that far off its
+    rows is refused by the SQP, which then pays for an elastic QP (8 to 14 interior-point
+    factorizations). Returns (system, solution), or
     None: the first solution stands (the finer system is singular, or leaves more than
     FINER_KEPT of its residual — rows that cannot be met together, where a smaller ε would only
     inflate the multipliers).
