@@ -722,8 +722,8 @@ def _acrobat_solves(knots: int = 1, solves: int = 4, prefix: str = "") -> Sessio
 def test_rows_weighed_by_their_own_multipliers_reach_acrobats_optimum_in_fewer_iterations(monkeypatch):
     """Near a solution, a step along acrobat's curved constraints raises rows' violation by
     O(|d|²) (the Maratos effect); one merit weight for all rows, 1.5x the largest multiplier
-    (1.7e3), priced rows whose multipliers are 1e-3 to 6e-2 at that, and refused the steps (14
-    of the second solve's 34 iterations). Weighed by their own multipliers, the same solve takes
+    (1.7e3), priced rows whose multipliers are 1e-3 to 6e-2 at that, and refused such steps (19
+    in the second solve's 34 iterations). Weighed by their own multipliers, the same solve takes
     20 iterations instead of 37 to a tight KKT tolerance (1e-9), and both reach one optimum."""
     tight = "set tol_kkt 1e-9\n"
     per_row = _acrobat_solves(prefix=tight)

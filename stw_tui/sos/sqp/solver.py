@@ -451,8 +451,8 @@ class SQPBackend(Backend):
         weight for all, the largest multiplier priced every row: near a solution, where a step
         along the curved constraints raises their violation by O(|d|²) (the Maratos effect), rows
         whose multipliers were 1e-3 to 6e-2 cost 1.7e3 a unit, and steps that lowered the
-        objective as modelled were refused over and over (acrobat's second solve: 14 of 34
-        iterations; with 2x knots, 38 of 60 before its iteration limit). Far from feasible
+        objective as modelled were refused over and over (acrobat's second solve refused 19 in
+        its 34 iterations; with twice the knots, 47 in 60, at its iteration limit). Far from feasible
         (violation above `newton_switch`) every row still weighs at least as much as the largest
         multiplier: weighted rows there led luxo and basketball to other optima, 12% and 4%
         worse."""
