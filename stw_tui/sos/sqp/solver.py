@@ -194,7 +194,9 @@ class SQPBackend(Backend):
         counts = _Counts()
         clock = time.perf_counter()
         lin = self._linearize(la, ev, st)
-        modes = self._hessian_modes(ev, st)
+        start_violation = ev.max_violation()
+        far = start_violation > self.config["newton_switch"]   # for the merit weights, as for the modes
+        modes = self._modes(start_violation, st.newton_wait)
         prox = st.regularization if st.regularization > 0 else self.config["prox"]
         ceiling = self._initial_radius(ev.s)
         floor = RADIUS_FLOOR * ceiling
@@ -237,7 +239,7 @@ class SQPBackend(Backend):
             if sub is None:
                 continue
             clock = time.perf_counter()
-            weights = self._merit_weights(la, ev, lin, sub, settings)
+            weights = self._merit_weights(la, ev, lin, sub, settings, far)
             rho = max(float(weights[0].max(initial=0.0)), float(weights[1].max(initial=0.0)))
             d = sub.d
             biggest = float(np.abs(d).max(initial=0.0))
@@ -310,14 +312,10 @@ class SQPBackend(Backend):
         return replace(inner, state=new_state, ev=new_ev, shift=shift), report
 
     # --- pieces of a step ---------------------------------------------------------------------
-    def _hessian_modes(self, ev, st: SolverState) -> tuple[str, ...]:
-        """Which Hessians to try this step. "auto": Gauss-Newton while far from feasible (the
-        multipliers, and so the constraint curvature, mean little there), exact Newton near it,
-        unless exact steps were refused lately (:func:`_newton_backoff`)."""
-        return self._modes(ev.max_violation(), st.newton_wait)
-
     def _modes(self, violation: float, newton_wait: int) -> tuple[str, ...]:
-        """:meth:`_hessian_modes` at a point of this ``violation``."""
+        """Which Hessians to try at a point of this ``violation``. "auto": Gauss-Newton while far
+        from feasible (the multipliers, and so the constraint curvature, mean little there),
+        exact Newton near it, unless exact steps were refused lately (:func:`_newton_backoff`)."""
         choice = self.config["hessian"]
         if choice != "auto":
             return (choice,)
@@ -442,7 +440,7 @@ class SQPBackend(Backend):
         lin_ge = la.numpy(la.matvec(lin.Ai, qp.d) + lin.ci)
         return _Subproblem(qp, la.numpy(qp.d), lam_eq, lam_ge, working, lin_eq, lin_ge, Hr)
 
-    def _merit_weights(self, la, ev, lin: _Linearization, sub: _Subproblem, settings):
+    def _merit_weights(self, la, ev, lin: _Linearization, sub: _Subproblem, settings, far: bool):
         """The ℓ1 merit's weight of each row, (equality rows, inequality rows).
 
         An elastic step is weighed by its slack cost on every row. A hard step's rows each weigh
@@ -452,15 +450,15 @@ class SQPBackend(Backend):
         along the curved constraints raises their violation by O(|d|²) (the Maratos effect), rows
         whose multipliers were 1e-3 to 6e-2 cost 1.7e3 a unit, and steps that lowered the
         objective as modelled were refused over and over (acrobat's second solve refused 19 in
-        its 34 iterations; with twice the knots, 47 in 60, at its iteration limit). Far from feasible
-        (violation above `newton_switch`) every row still weighs at least as much as the largest
-        multiplier: weighted rows there led luxo and basketball to other optima, 12% and 4%
-        worse."""
+        its 34 iterations; with twice the knots, 47 in 60, at its iteration limit). ``far`` from
+        feasible (the step's start violates a row by more than `newton_switch`), every row still
+        weighs at least as much as the largest multiplier: weighted rows there led luxo and
+        basketball to other optima, 12% and 4% worse."""
         if sub.qp.elastic is not None:
             return np.full(ev.c_eq.size, sub.qp.elastic), np.full(ev.c_ge.size, sub.qp.elastic)
         least = max(float(settings.get("merit", 1.0)), self._descent_weight(la, ev, lin, sub))
         w_eq, w_ge = MULTIPLIER_MARGIN * np.abs(sub.lam_eq), MULTIPLIER_MARGIN * np.abs(sub.lam_ge)
-        if ev.max_violation() > self.config["newton_switch"]:
+        if far:
             least = max(least, float(w_eq.max(initial=0.0)), float(w_ge.max(initial=0.0)))
         return np.maximum(w_eq, least), np.maximum(w_ge, least)
 
