@@ -84,9 +84,12 @@ def run_app(session_path: str | Path | None = None, step: bool = False,
 
         print(kept_note(Path(kept)), file=sys.stderr)
     if exit_process:
-        engines = sys.modules.get("stw_tui.session.survey_engines")
-        if engines is not None:   # a survey's Dask workers would outlive os._exit
-            engines.kill_local_workers()
+        # A survey's Dask workers are not killed here: each exits on its own once this process
+        # is gone (Dask's AsyncProcess watches the parent), about 1.5 s later, busy or not.
+        # SIGTERM'ing them first raced Dask's nanny thread, which reacts to their deaths by
+        # releasing their queues' semaphores (unlinked, but os._exit cut it off before it told
+        # the resource tracker: "leaked semaphore" and "No such file" over the shell, 1 run in
+        # about 25 under load) or by starting new workers (12 semaphores left).
         _release_semaphores()
         sys.stdout.flush()
         sys.stderr.flush()

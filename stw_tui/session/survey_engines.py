@@ -23,7 +23,6 @@ import functools
 import importlib.util
 import logging
 import os
-import signal
 import time
 from concurrent.futures import FIRST_COMPLETED, ProcessPoolExecutor, wait
 from concurrent.futures.process import BrokenProcessPool
@@ -173,7 +172,6 @@ def _failed(task: StartTask, error: BaseException) -> StartResult:
 
 # One embedded cluster per worker count, kept for the next survey and closed at exit.
 _CLUSTERS: dict[int, object] = {}
-_WORKER_PIDS: list[int] = []     # of the embedded clusters' worker processes
 
 
 def close_local_clusters() -> None:
@@ -186,18 +184,6 @@ def close_local_clusters() -> None:
         except Exception:  # closing at exit: nothing left to report to
             pass
     _CLUSTERS.clear()
-    _WORKER_PIDS.clear()
-
-
-def kill_local_workers() -> None:
-    """End the embedded clusters' worker processes at once (the TUI quits with os._exit, which
-    runs no atexit handler and would leave them behind)."""
-    for pid in _WORKER_PIDS:
-        try:
-            os.kill(pid, signal.SIGTERM)
-        except OSError:   # already gone
-            pass
-    _WORKER_PIDS.clear()
 
 
 class DaskEngine:
@@ -236,7 +222,6 @@ class DaskEngine:
                 atexit.register(close_local_clusters)
             _CLUSTERS[self.workers] = Client(cluster, set_as_default=False)
             _CLUSTERS[self.workers].run(quiet_child)   # no worker output over the TUI
-            _WORKER_PIDS.extend(_CLUSTERS[self.workers].run(os.getpid).values())
         return _CLUSTERS[self.workers]
 
     def run(self, tasks: list[StartTask], on_result: OnResult, on_note: OnNote, cancelled: Cancelled) -> None:
