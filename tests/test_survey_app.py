@@ -4,6 +4,7 @@ plays an optimum in the figure player, `a` adopts it through the `adopt K` comma
 from __future__ import annotations
 
 import asyncio
+from dataclasses import replace
 
 import numpy as np
 import test_app_support as support
@@ -11,6 +12,7 @@ import test_app_support as support
 import catalogue
 from stw_tui.app import create_app
 from stw_tui.app.gallery import GALLERY_COLUMNS, THUMBNAIL, GalleryScreen
+from stw_tui.app.messages import SurveyProgressed
 from stw_tui.app.thumbnails import curves, has_geometry
 from stw_tui.session.figure import scene_figure
 from stw_tui.session.session import Session
@@ -93,6 +95,42 @@ def test_f4_cancels_the_starts_left():
         assert survey.cancelled and 1 <= len(survey.results) < 500
         assert "cancelled" in support.log_text(app)
         assert app.session.journal.replayable()[-1].startswith("# survey 500")
+
+    async def main():
+        async with app.run_test(size=(120, 40)) as pilot:
+            await scenario(pilot)
+
+    asyncio.run(main())
+
+
+def test_the_gallery_opens_on_a_surveys_first_table_whatever_its_count():
+    """A newer table replaces one the UI has not handled yet (SurveyProgressed.can_replace): under
+    load the first table the UI saw already held two results, and the gallery, which opened on
+    a table of at most one, never opened (the tmux survey test timed out waiting for it)."""
+    session = Session()
+    session.run_text(PENDULUM)
+    session.execute("survey 3 seed=1")
+    first = session.survey
+    session.execute("survey 3 seed=2")
+    second = session.survey
+    assert first.plan is not second.plan and len(first.results) == len(second.results) == 3
+    app = create_app(session=session)
+
+    async def scenario(pilot):
+        await support.settle(pilot)
+        app.post_message(SurveyProgressed(replace(first, results=first.results[:2])))
+        await pilot.pause()
+        assert isinstance(app.screen, GalleryScreen)
+        await pilot.press("escape")
+        await pilot.pause()
+        assert not isinstance(app.screen, GalleryScreen)
+        app.post_message(SurveyProgressed(replace(first, results=list(first.results))))
+        await pilot.pause()
+        assert not isinstance(app.screen, GalleryScreen)     # closed for the rest of that survey
+        app.post_message(SurveyProgressed(replace(second, results=list(second.results))))
+        await pilot.pause()
+        assert isinstance(app.screen, GalleryScreen)         # the next survey opens it again
+        assert app.screen.table.plan is second.plan
 
     async def main():
         async with app.run_test(size=(120, 40)) as pilot:

@@ -131,6 +131,7 @@ class StwApp(App[int]):
         self._shown: "Scene | None" = None
         self._coefficients = None
         self._latest_report = None       # of the running solve, not shown yet
+        self._gallery_plan = None        # the plan of the survey whose gallery opened on its own
         self._live = ThrottledCall(self._show_latest_report, LIVE_INTERVAL, self.set_timer)
 
     def compose(self) -> ComposeResult:
@@ -331,11 +332,15 @@ class StwApp(App[int]):
 
     # --- surveys -----------------------------------------------------------------------------
     def on_survey_progressed(self, event: SurveyProgressed) -> None:
-        """Fill the gallery in as the starts come back (opened by the survey's first result)."""
+        """Fill the gallery in as the starts come back. It opens on the first table of each
+        survey that reaches the UI (once: Esc closes it for the rest of that survey), whatever
+        its count: a newer table replaces one not handled yet, and under load the first the UI
+        saw already held two results (the gallery then never opened)."""
         if isinstance(self.screen, GalleryScreen):
             self.screen.show(event.table)
-        elif len(self.screen_stack) == 1 and len(event.table.results) <= 1:
+        elif len(self.screen_stack) == 1 and event.table.plan is not self._gallery_plan:
             self.push_screen(GalleryScreen(event.table))
+        self._gallery_plan = event.table.plan   # (one object per survey: tables are shallow copies)
         self.status_line.show(state=f"survey {len(event.table.results)}/{event.table.plan.n}")
 
     def action_gallery(self) -> None:
