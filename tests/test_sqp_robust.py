@@ -754,3 +754,42 @@ def test_acrobat_with_twice_its_knots_converges_where_one_merit_weight_crawled(m
     _uniform_merit_weights(monkeypatch)
     crawled = _acrobat_solves(knots=2, solves=1)
     assert not crawled.runs[0].converged and len(crawled.runs[0].reports) == 60
+
+
+@pytest.mark.parametrize("la", catalogue.linear_algebras(), ids=lambda la: type(la).__name__)
+def test_an_elastic_step_descends_its_rows_weighted_merit(la):
+    """Rows an elastic step leaves unmet weigh its slack cost ρ in the merit, rows it meets their
+    own multipliers (below ρ), and the step still descends that merit: its directional
+    derivative Σ wᵢ(|cᵢ + aᵢd| - |cᵢ|) + gᵀd is at most -dᵀHd. Far from feasible, every row
+    weighs ρ."""
+    from types import SimpleNamespace
+
+    import scipy.sparse as sps
+    from stw_tui.sos.sqp.qp import solve_qp
+
+    rho = 10.0
+    H = np.diag([2.0, 2.0, 2.0])
+    g = np.array([0.5, -1.0, 0.25])
+    # d₀ = 1 and d₀ = 3 cannot both hold (the step meets the nearer one, the other keeps a
+    # slack); d₁ = 0.5 can (met); d₂ >= 0.2 binds against g₂ > 0 (met).
+    A_e = np.array([[1.0, 0, 0], [1.0, 0, 0], [0, 1.0, 0]])
+    c_e = np.array([-1.0, -3.0, -0.5])
+    A_i, c_i = np.array([[0, 0, 1.0]]), np.array([-0.2])
+    qp = solve_qp(la, la.matrix(sps.csr_array(H)), la.vector(g), la.matrix(sps.csr_array(A_e)),
+                  la.vector(c_e), la.matrix(sps.csr_array(A_i)), la.vector(c_i), elastic=rho)
+    d = la.numpy(qp.d)
+    lin_e, lin_i = c_e + A_e @ d, c_i + A_i @ d
+    assert abs(lin_e[1]) > 1 and abs(lin_e[0]) < 1e-8                     # d₀ = 3 left unmet ...
+    assert abs(lin_e[2]) < 1e-8 and lin_i[0] > -1e-8                      # ... the others met
+    sub = SimpleNamespace(qp=qp, lam_eq=la.numpy(qp.y), lam_ge=-la.numpy(qp.z))
+    ev = SimpleNamespace(c_eq=c_e, c_ge=c_i)
+    lin = SimpleNamespace(eq_rows=np.arange(3), ge_rows=np.arange(1))
+    backend = ScipyBackend()
+    w_eq, w_ge = backend._merit_weights(la, ev, lin, sub, {"merit": 1.0}, far=False)
+    np.testing.assert_allclose(w_eq[1], rho, rtol=1e-6)                 # the unmet row weighs ρ
+    assert 1.0 <= w_eq[2] < rho and 1.0 <= w_ge[0] < rho                  # met ones their own
+    assert np.all(w_eq >= np.abs(sub.lam_eq) - 1e-9) and np.all(w_ge >= np.abs(sub.lam_ge) - 1e-9)
+    change = w_eq @ (np.abs(lin_e) - np.abs(c_e)) + w_ge @ (np.maximum(0, -lin_i) - np.maximum(0, -c_i))
+    assert g @ d + change <= -d @ H @ d + 1e-6 * rho
+    far = backend._merit_weights(la, ev, lin, sub, {"merit": 1.0}, far=True)
+    assert all(np.all(w == rho) for w in far)
