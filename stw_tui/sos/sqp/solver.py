@@ -500,27 +500,27 @@ class SQPBackend(Backend):
         dHd = la.dot(d_alg, la.matvec(H_model, d_alg))
         viol0 = we @ np.abs(c_eq) + wg @ np.maximum(0.0, -c_ge)
 
-        def predicted(alpha: float) -> float:
-            a = alpha * tau
+        def linearized(a: float) -> float:
+            """The weighted violation of the linearization a share ``a`` of the QP's step away."""
             lin_eq = c_eq + a * (sub.lin_eq - c_eq)
             lin_ge = c_ge + a * (sub.lin_ge - c_ge)
-            viol = we @ np.abs(lin_eq) + wg @ np.maximum(0.0, -lin_ge)
-            return -(alpha * g_d + 0.5 * alpha * alpha * dHd) + (viol0 - viol)
+            return we @ np.abs(lin_eq) + wg @ np.maximum(0.0, -lin_ge)
+
+        def predicted(alpha: float) -> float:
+            return -(alpha * g_d + 0.5 * alpha * alpha * dHd) + (viol0 - linearized(alpha * tau))
 
         # Armijo on the merit's directional derivative along d (the linearization's violation
         # after the full step is what the merit expects to lose).
         # A hard QP step meets the linearization (up to the linear solver's accuracy, which must
         # not count as progress); an elastic one leaves its slacks.
-        viol_after = 0.0 if sub.qp.elastic is None else (
-            we @ np.abs(c_eq + tau * (sub.lin_eq - c_eq))
-            + wg @ np.maximum(0.0, -(c_ge + tau * (sub.lin_ge - c_ge))))
+        viol_after = 0.0 if sub.qp.elastic is None else linearized(tau)
         slope = g_d - (tau * viol0 if sub.qp.elastic is None else viol0 - viol_after)
         if not np.any(d) or abs(slope) <= 1e-15 * (1.0 + abs(phi0)):
             return _Trial(1.0, d, 1.0)
         slope = min(slope, 0.0)   # not a descent direction for this ρ: ask only for simple decrease
         factor = self.config["growth"]
-        unweighted = np.abs(c_eq).sum() + np.maximum(0.0, -c_ge).sum()
-        growth = factor * max(ev.objective, OBJECTIVE_FLOOR, unweighted) if factor > 0 else np.inf
+        growth = np.inf if factor <= 0 else \
+            factor * max(ev.objective, OBJECTIVE_FLOOR, np.abs(c_eq).sum() + np.maximum(0.0, -c_ge).sum())
 
         def ok(mv, alpha: float) -> tuple[bool, float]:
             pred = predicted(alpha)
