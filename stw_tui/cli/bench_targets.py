@@ -304,22 +304,17 @@ def pendulum_figures(repeat: int, anchors: bool) -> list[Figure]:
     """stw against SLSQP (and crocoddyl FDDP with ``anchors``) on the pendulum swing-up."""
     case = prepare("pendulum", PENDULUM)
     scene, g = case.setup.scene, float(case.setup.scene.constants["g"])
-    with_fddp = False
+    references = [("SLSQP", lambda: slsqp_solve(scene.copy()))]
     if anchors:
         try:
             import crocoddyl  # noqa: F401
-            with_fddp = True
+            references.append(("FDDP", lambda: fddp_solve(g)))
         except ImportError:
-            pass
-    references = [("SLSQP", lambda: slsqp_solve(scene.copy()))]
-    if with_fddp:
-        references.append(("FDDP", lambda: fddp_solve(g)))
-    elif anchors:
-        references.append(("FDDP", None))
+            references.append(("FDDP", None))
     figures = []
     for label, solve in references:
         if solve is None:
-            figures.append(Figure("pendulum: time / FDDP", None, "x", 1.0, "crocoddyl missing"))
+            figures.append(Figure(f"pendulum: time / {label}", None, "x", 1.0, "crocoddyl missing"))
             continue
         solve()                                # untimed: warm caches as stw's (crocoddyl's first use)
         runs = []
