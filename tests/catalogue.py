@@ -158,11 +158,12 @@ def backend_package(module: str):
 
 
 def linear_algebras() -> list:
-    """The SQP's linear algebras, to run the shared QP on each: SciPy's sparse one, and torch's
-    dense one where torch is installed."""
+    """The SQP's linear algebras, to run the shared QP on each: SciPy's sparse one, its dense
+    numpy one (small windows), and torch's dense one where torch is installed."""
+    from stw_scipy.dense import NumpyDenseAlgebra
     from stw_scipy.linear import SparseAlgebra
 
-    found = [SparseAlgebra()]
+    found = [SparseAlgebra(), NumpyDenseAlgebra()]
     try:
         import torch
         from stw_torch.linalg import DenseAlgebra

@@ -118,12 +118,14 @@ def test_an_exactly_singular_kkt_is_refused_as_superlu_refuses_it():
         SparseAlgebra().kkt(H, A, 1e-10, exact=True)
 
 
-def test_the_scipy_backend_reaches_the_same_motion_with_either_factorization(monkeypatch):
-    """A bundled session's first solve, banded (the default) and with factor=superlu: the same
-    iterations and control points within 1e-9 (the factorizations differ in rounding only)."""
+def test_the_scipy_backend_reaches_the_same_motion_with_every_factorization(monkeypatch):
+    """A bundled session's first solve with each `factor`: sparse (banded LU where it can),
+    superlu, dense, and auto (dense on this small window): the same iterations and control
+    points within 1e-9 (the factorizations differ in rounding only), each by its own kind."""
     from pathlib import Path
 
     import stw_scipy.banded as banded
+    import stw_scipy.dense as dense
 
     from stw_tui.session.bench import _fresh, split_at_first_iterate
     from stw_tui.session.session import Session
@@ -132,18 +134,29 @@ def test_the_scipy_backend_reaches_the_same_motion_with_either_factorization(mon
     pre, n = split_at_first_iterate(text)
     setup = Session()
     setup.run_text(pre)
-    runs, banded_lus = {}, []
-    made = banded.BandPlan.factorize_values
-    monkeypatch.setattr(banded.BandPlan, "factorize_values",
-                        lambda plan, data: banded_lus.append(1) or made(plan, data))
-    for factor in ("auto", "superlu"):
+    runs, made = {}, {"banded": 0, "dense": 0}
+    banded_lu, dense_lu = banded.BandPlan.factorize_values, dense.DenseKKT.__init__
+
+    def count(kind, fn):
+        def counted(*args):
+            made[kind] += 1
+            return fn(*args)
+        return counted
+    monkeypatch.setattr(banded.BandPlan, "factorize_values", count("banded", banded_lu))
+    monkeypatch.setattr(dense.DenseKKT, "__init__", count("dense", dense_lu))
+    for factor in ("sparse", "superlu", "dense", "auto"):
+        before = dict(made)
         session = _fresh(setup, f"scipy solver=direct factor={factor}")
         session.execute(f"iterate {n}")
         runs[factor] = (len(session.runs[-1].reports), session.scene.coefficient_vector().copy(),
-                        len(banded_lus))
-    assert runs["auto"][2] > 0 and runs["superlu"][2] == runs["auto"][2]   # banded only by default
-    assert runs["auto"][0] == runs["superlu"][0]
-    assert np.abs(runs["auto"][1] - runs["superlu"][1]).max() <= 1e-9
+                        {kind: made[kind] - before[kind] for kind in made})
+    assert runs["sparse"][2]["banded"] > 0 and runs["sparse"][2]["dense"] == 0
+    assert runs["superlu"][2] == {"banded": 0, "dense": 0}
+    assert runs["dense"][2]["banded"] == 0 and runs["dense"][2]["dense"] > 0
+    assert runs["auto"][2] == runs["dense"][2]   # 38 control points, 8 + 68 rows: a small window
+    for factor in ("superlu", "dense", "auto"):
+        assert runs[factor][0] == runs["sparse"][0]
+        assert np.abs(runs[factor][1] - runs["sparse"][1]).max() <= 1e-9
 
 
 def _pd_candidates(rng):
@@ -211,7 +224,7 @@ def test_the_solver_runs_blas_on_one_thread_unless_told_otherwise():
 
     probe = ("from threadpoolctl import threadpool_info\n"
              "from stw_scipy.sqp import ScipyBackend\n"
-             "ScipyBackend().algebra(None)\n"
+             "ScipyBackend(factor='sparse').algebra(None)\n"
              "print(sorted({i['num_threads'] for i in threadpool_info() if i['user_api'] == 'blas'}))\n")
     env = {k: v for k, v in __import__("os").environ.items()
            if k not in ("OPENBLAS_NUM_THREADS", "OMP_NUM_THREADS", "MKL_NUM_THREADS")}

@@ -1,8 +1,9 @@
 """The SciPy backend: the shared SQP (stw_tui.sos.sqp) on sparse linear algebra.
 
 The SQP itself — its QP, elastic mode, step limit, merit acceptance test and termination — lives
-in the core (:mod:`stw_tui.sos.sqp`); this backend supplies SciPy's sparse KKT solves (linear.py) and
-evaluates the window problem with the core's compiled numpy terms.
+in the core (:mod:`stw_tui.sos.sqp`); this backend supplies SciPy's sparse KKT solves (linear.py),
+dense LAPACK ones on small windows (dense.py), and evaluates the window problem with the core's
+compiled numpy terms.
 """
 
 from __future__ import annotations
@@ -12,7 +13,10 @@ import os
 from stw_tui.sos.backend import BackendOption
 from stw_tui.sos.sqp import SQP_OPTIONS, SQPBackend
 
+from .dense import DENSE_MAX, NumpyDenseAlgebra, window_rows
 from .linear import SOLVERS, SparseAlgebra
+
+FACTORS = ("auto", "sparse", "superlu", "dense")
 
 LINEAR_OPTIONS = (
     BackendOption("solver", str, "direct", "linear solver for the KKT system (with inequality "
@@ -20,23 +24,28 @@ LINEAR_OPTIONS = (
     BackendOption("lin_tol", float, 1e-12, "relative tolerance of the iterative solvers", minimum=0.0,
                   exclusive=True),
     BackendOption("lin_maxiter", int, 1000, "iteration limit of the iterative solvers", minimum=1),
-    BackendOption("factor", str, "auto", "direct factorizations: auto (LAPACK's banded LU where a "
-                  "KKT system is a narrow band in reverse Cuthill-McKee order, else SuperLU) or "
-                  "superlu (always)", ("auto", "superlu")),
+    BackendOption("factor", str, "auto", "direct factorizations: auto (dense LU on windows of up to "
+                  f"{DENSE_MAX} rows, else as sparse), sparse (LAPACK's banded LU where a KKT system "
+                  "is a narrow band in reverse Cuthill-McKee order, else SuperLU), superlu (always) "
+                  "or dense (always)", FACTORS),
 )
 
 
 class ScipyBackend(SQPBackend):
-    """SQP with a sparse KKT solve: direct (banded LU or SuperLU), MINRES, or CG on the
-    least-squares form."""
+    """SQP with a sparse KKT solve: direct (banded LU or SuperLU; dense LU on small windows),
+    MINRES, or CG on the least-squares form."""
 
     name = "scipy"
     options = LINEAR_OPTIONS + SQP_OPTIONS
 
-    def algebra(self, problem) -> SparseAlgebra:
+    def algebra(self, problem) -> SparseAlgebra | NumpyDenseAlgebra:
         single_threaded_blas()
+        factor = self.config["factor"]
+        if self.config["solver"] == "direct" and (
+                factor == "dense" or factor == "auto" and window_rows(problem) <= DENSE_MAX):
+            return NumpyDenseAlgebra()
         return SparseAlgebra(self.config["solver"], self.config["lin_tol"], self.config["lin_maxiter"],
-                             self.config["factor"])
+                             "superlu" if factor == "superlu" else "auto")
 
 
 _BLAS_THREAD_VARIABLES = ("OPENBLAS_NUM_THREADS", "OMP_NUM_THREADS", "MKL_NUM_THREADS")

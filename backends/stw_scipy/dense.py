@@ -1,0 +1,117 @@
+"""Dense numpy linear algebra for the shared SQP on small windows: KKT systems factorized by
+LAPACK's LU with partial pivoting (``dgetrf``), positive-definiteness tests by its Cholesky.
+
+On a window of a few hundred rows or fewer, a dense factorization costs microseconds and every
+sparse operation around it (sums, row selections, the KKT's assembly, SuperLU's setup) costs tens
+of microseconds of fixed overhead; there, the sparse path's bookkeeping is most of an iteration.
+The evaluation's sparse Jacobians and Hessians are made dense once, as they enter the SQP.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import scipy.sparse as sps
+from scipy.linalg import lapack
+
+from stw_tui.sos.sqp.algebra import KKTSystem, LinearAlgebra, SingularSystem
+
+# Windows up to this many rows (free control points + equality rows + inequality rows) run dense.
+# Measured per solve against the sparse path (banded LU or SuperLU): point_mass_2d's 111 rows
+# 9.2 -> 6.5 ms, acrobat's window solves (163, 165 rows) 10.4 -> 8.0 and 8.3 -> 6.4 ms, the
+# arm's second window (222 rows) 19.0 -> 17.3 ms; the pendulum (27 rows) 8% of its whole `iterate`.
+DENSE_MAX = 250
+
+
+def window_rows(problem) -> int:
+    """The size :data:`DENSE_MAX` is compared with: the window's free control points and its
+    equality and inequality rows."""
+    from stw_tui.sym.kinds import TermKind
+
+    counts = problem.row_counts
+    return problem.n_free + counts.get(TermKind.EQ, 0) + counts.get(TermKind.GE, 0)
+
+
+class DenseKKT(KKTSystem):
+    """An LU factorization of K = [[H, Aᵀ], [A, -diag(e)]] that solves for any right-hand side."""
+
+    def __init__(self, H: np.ndarray, A: np.ndarray, e):
+        n, m = H.shape[0], A.shape[0]
+        K = np.empty((n + m, n + m))
+        K[:n, :n] = H
+        if m:
+            K[:n, n:] = A.T
+            K[n:, :n] = A
+            K[n:, n:] = 0.0
+            K.flat[n * (n + m + 1)::n + m + 1] = -np.broadcast_to(np.asarray(e, float), (m,))
+        self.lu, self.pivots, info = lapack.dgetrf(K, overwrite_a=1)
+        if info > 0:   # U[info-1, info-1] is exactly zero
+            raise SingularSystem("KKT matrix is exactly singular")
+        self.iterations, self.fallbacks = 1, 0
+
+    def solve(self, rhs: np.ndarray) -> np.ndarray:
+        x, _info = lapack.dgetrs(self.lu, self.pivots, rhs)
+        return x
+
+
+class NumpyDenseAlgebra(LinearAlgebra):
+    """numpy vectors and dense 2-D arrays; LAPACK's LU and Cholesky."""
+
+    def vector(self, values):
+        return np.array(values, dtype=float)
+
+    def numpy(self, v):
+        return np.asarray(v, dtype=float)
+
+    def full(self, n, value):
+        return np.full(n, float(value))
+
+    def concat(self, parts):
+        return np.concatenate(parts)
+
+    def maximum(self, v, floor):
+        return np.maximum(v, floor)
+
+    def max_abs(self, v):
+        return float(np.abs(v).max(initial=0.0))
+
+    def max_step(self, v, dv, cap=1.0):
+        neg = dv < 0    # none negative: +inf, so the cap
+        return float(min(cap, float(np.minimum.reduce(-v[neg] / dv[neg], initial=np.inf))))
+
+    def matrix(self, m):
+        return m.toarray() if sps.issparse(m) else np.asarray(m, dtype=float)
+
+    def diagonal_matrix(self, v):
+        return np.diag(np.asarray(v, dtype=float))
+
+    def rows(self, m, index):
+        return m[index]
+
+    def stack_rows(self, parts):
+        return np.vstack(parts)
+
+    def matvec(self, m, x):
+        return m @ x
+
+    def rmatvec(self, m, x):
+        return m.T @ x
+
+    def add(self, a, b):
+        return a + b
+
+    def gram(self, a, w):
+        return a.T @ (np.asarray(w, dtype=float)[:, None] * a)
+
+    def max_abs_diagonal(self, m):
+        return float(np.abs(m.diagonal()).max(initial=0.0))
+
+    def max_gram_diagonal(self, a):
+        return float(np.einsum("ij,ij->j", a, a).max(initial=0.0))
+
+    def positive_definite(self, m):
+        # LAPACK may carry a NaN through instead of stopping: a NaN entry reaches a pivot.
+        factor, info = lapack.dpotrf(m, lower=1, overwrite_a=0, clean=0)
+        return info == 0 and bool(np.isfinite(factor.diagonal()).all())
+
+    def kkt(self, H, A, e, exact=False):
+        return DenseKKT(H, A, e)
