@@ -185,21 +185,23 @@ def test_limits_and_numpy_error_state_reach_the_backend_thread():
 def test_finished_backend_threads_are_joined_at_exit_and_an_abandoned_one_is_not(hanging, release):
     """A backend thread still unwinding at interpreter exit was killed inside torch's C++, which
     aborted the process ("terminate called without an active exception", status 134, 1 `stw
-    run --backend torch` in 10): idle threads are joined at exit. A hung one is left."""
+    run --backend torch` in 10): idle threads are ended and joined at exit. A hung one is left."""
     def backend_threads():
         return [t for t in threading.enumerate() if t.name.startswith("stw-backend-") and t.is_alive()]
 
+    backend_calls._join_closed()         # earlier tests' idle threads end: one of them could hang here
     before = set(backend_threads())
     session = Session()
     session.run_text("dof x = 0.5\nobjective o: x - 1\nbackend hanging")
     hanging("nowhere")
-    assert session.execute("iterate 3").run is not None
-    calls = backend_calls.BackendThread("probe", lambda: False)
-    calls.call("probe", lambda: None)
-    calls.close()
+    assert session.execute("iterate 3").run is not None     # its thread waits idle for the next run
     hanging("step")
     with pytest.raises(HungBackend):
         session.execute("iterate 5", on_report=stop_after(0.1))
+    calls = backend_calls.BackendThread("probe", lambda: False)   # not the abandoned thread
+    calls.call("probe", lambda: None)
+    calls.close()
+    assert calls._thread.is_alive()                            # idle, kept for the next run
     backend_calls._join_closed()                               # what the exit does
     assert not calls._thread.is_alive()
     assert len(set(backend_threads()) - before) == 1           # abandoned, still waiting: not joined
@@ -381,3 +383,29 @@ def test_ctrl_q_ends_the_tui_process_while_a_backend_hangs(tmp_path):
         print(f"Ctrl+Q to process exit, hung backend: {time.monotonic() - pressed:.3f} s")
     finally:
         term.tmux(*base, "kill-server")
+
+
+def test_a_run_takes_an_idle_thread_and_an_abandoned_one_is_never_reused(hanging, release):
+    """Each run of iterations takes the thread an earlier run left idle (starting one cost 3% of a
+    small `iterate`); a thread abandoned in a hung call never serves another run, even after
+    its call returns."""
+    first = backend_calls.BackendThread("probe", lambda: False)
+    first.call("probe", lambda: None)
+    first.close()
+    second = backend_calls.BackendThread("probe", lambda: False)
+    assert second._thread is first._thread and second._thread.name == "stw-backend-probe"
+    assert second.call("probe", threading.current_thread) is second._thread
+    second.close()
+    session = Session()
+    session.run_text("dof x = 0.5\nobjective o: x - 1\nbackend hanging")
+    hanging("step")
+    with pytest.raises(HungBackend):
+        session.execute("iterate 5", on_report=stop_after(0.1))
+    abandoned = [t for t in threading.enumerate() if t.name == "stw-backend-hanging" and t.is_alive()]
+    assert len(abandoned) == 1
+    release.set()                                              # its call returns, late
+    abandoned[0].join(QUICK)
+    assert not abandoned[0].is_alive()                         # it ended instead of waiting idle
+    third = backend_calls.BackendThread("probe", lambda: False)
+    assert third._thread is not abandoned[0] and third.call("probe", lambda: 7) == 7
+    third.close()
