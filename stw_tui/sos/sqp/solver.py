@@ -104,6 +104,7 @@ class SQPInner:
     algebra: LinearAlgebra
     shift: float = 0.0        # the last curvature shift δ an exact model needed (see _convexify)
     damping: Any = None       # 2 x the evaluator's damping per variable, read once per solve
+    speculate: bool = False   # the next step's first trial is evaluated whole (see SQPBackend._accept)
 
 
 @dataclass
@@ -149,7 +150,9 @@ class _Trial:
     alpha: float
     d: np.ndarray
     ratio: float = 0.0
-    values: Any = None   # the merit values at the accepted point (MeritValues), when tested
+    values: Any = None   # the merit values at the accepted point (MeritValues), when tested,
+    whole: bool = False  # ... or its whole Evaluation (speculative, see _accept)
+    first: bool = False  # the step passed its first test (no correction, no backtracking)
 
 
 def _live(la: LinearAlgebra, mask: np.ndarray, rows: np.ndarray):
@@ -215,7 +218,8 @@ class SQPBackend(Backend):
         shift = inner.shift
         refused = None   # (mode, the rows that bound) of a refused hard QP with inequality rows
         exact_refused = None   # whether the exact Hessian's step was refused (None: not tried)
-        for mode, prox, backtrack in attempts:
+        speculate = inner.speculate   # for the first trial only
+        for attempt, (mode, prox, backtrack) in enumerate(attempts):
             clock = time.perf_counter()
             if mode not in models:
                 models[mode] = la.matrix(
@@ -248,7 +252,8 @@ class SQPBackend(Backend):
             if capped:
                 d = d * (limit / biggest)
             trial = self._accept(la, inner.evaluator, ev, lin, sub, H_model, d, weights,
-                                 backtrack=backtrack)
+                                 backtrack=backtrack, speculate=speculate)
+            speculate = False
             ms["line_search"] += _lap(clock)
             if mode == "exact" and exact_refused is None:
                 exact_refused = trial.alpha == 0
@@ -274,7 +279,7 @@ class SQPBackend(Backend):
             # whether the next step will try the exact Hessian: the violation at the new point
             # is known from its merit test
             inner.evaluator.expect_hessian("exact" in self._modes(problem.max_violation(trial.values), wait))
-        new_ev = inner.evaluator.evaluate(s_new) if not stalled else ev
+        new_ev = ev if stalled else trial.values if trial.whole else inner.evaluator.evaluate(s_new)
         ms["evaluate"] = _lap(clock)
 
         kkt = kkt_residual(new_ev, lam_eq, lam_ge)
@@ -309,7 +314,11 @@ class SQPBackend(Backend):
                             message=message, fallbacks=counts.fallbacks, qp_capped=counts.capped,
                             elastic=counts.elastic, infeasible=infeasible,
                             conflicts=conflicts if infeasible else ())
-        return replace(inner, state=new_state, ev=new_ev, shift=shift), report
+        # A full step that passed its first test: the next one likely will too (acrobat 20 of 26
+        # such, basketball 35 of 48). An evaluator that takes hints (expect_hessian) is not
+        # speculated on: evaluated ahead, it could not know whether to make second derivatives.
+        speculate = trial.first and attempt == 0 and not hasattr(inner.evaluator, "expect_hessian")
+        return replace(inner, state=new_state, ev=new_ev, shift=shift, speculate=speculate), report
 
     # --- pieces of a step ---------------------------------------------------------------------
     def _modes(self, violation: float, newton_wait: int) -> tuple[str, ...]:
@@ -477,7 +486,7 @@ class SQPBackend(Backend):
         return w_eq, w_ge
 
     def _accept(self, la, evaluator, ev, lin: _Linearization, sub: _Subproblem, H_model, d, weights,
-                backtrack: bool) -> _Trial:
+                backtrack: bool, speculate: bool = False) -> _Trial:
         """Test the step ``d`` (a multiple τ of the QP's step) against the ℓ1 merit
         φ = R + Σ ρᵢ·violᵢ (``weights``: ρ of the equality rows, of the inequality rows):
         accept when φ decreases by ETA x the model's prediction and the objective does not grow
@@ -529,10 +538,12 @@ class SQPBackend(Backend):
                 return False, 0.0
             return actual >= -ETA * alpha * slope, actual / pred if pred > 0 else 1.0
 
-        trial = evaluator.merit_values(ev.s + d)
+        # ``speculate``: the trial point is evaluated whole (values and Jacobians) instead of
+        # for its merit alone; when the step passes, that is the next iterate's evaluation.
+        trial = (evaluator.evaluate if speculate else evaluator.merit_values)(ev.s + d)
         good, ratio = ok(trial, 1.0)
         if good:
-            return _Trial(1.0, d, ratio, trial)
+            return _Trial(1.0, d, ratio, trial, whole=speculate, first=True)
         if sub.qp.elastic is None and tau == 1.0:
             corrected = self._second_order_correction(la, ev, lin, sub, d, trial)
             if corrected is not None:
