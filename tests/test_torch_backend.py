@@ -227,36 +227,48 @@ def test_second_derivatives_computed_late_equal_those_computed_at_once():
 
 
 def test_the_sqp_says_which_evaluations_hessians_it_will_use(registered, monkeypatch):
-    """Before each evaluation after a step, the SQP tells the torch evaluator whether the next
-    step tries the exact Hessian (expect_hessian): each such evaluation computes second
-    derivatives exactly when its Hessian is then used, so none is computed twice or for
-    nothing. A hint is used once; without one, the last evaluation's use is the guess."""
+    """Before each evaluation after a step's merit test, the SQP tells the torch evaluator
+    whether the next step tries the exact Hessian (expect_hessian): each such evaluation that a
+    step starts from computes second derivatives exactly when its Hessian is then used. A trial
+    point evaluated ahead of its test (after a full step that passed its first test) is told
+    to expect them wherever the SQP may use the exact Hessian. A hint is used once; without
+    one, the last evaluation's use is the guess."""
     from stw_tui.sos.sqp import SQPBackend
 
-    events = []     # "run" where a run of iterations starts, else (hint, evaluation)
-    real_init, real_evaluate = SQPBackend.init, TorchProblem.evaluate
+    made, stepped = [], []   # (hint, evaluation, evaluated ahead of its test); the steps' starts
+    real_step, real_accept, real_evaluate = SQPBackend.step, SQPBackend._accept, TorchProblem.evaluate
+    ahead = [False]
 
-    def init(self, *args):
-        events.append("run")
-        return real_init(self, *args)
+    def step(self, problem, inner, k):
+        stepped.append(inner.ev)
+        return real_step(self, problem, inner, k)
+
+    def accept(self, *args, speculate=False, **kwargs):
+        ahead[0] = speculate
+        try:
+            return real_accept(self, *args, speculate=speculate, **kwargs)
+        finally:
+            ahead[0] = False
 
     def evaluate(self, s):
         hint = self._expect
         ev = real_evaluate(self, s)
-        events.append((hint, ev))
+        made.append((hint, ev, ahead[0]))
         return ev
-    monkeypatch.setattr(SQPBackend, "init", init)
+    monkeypatch.setattr(SQPBackend, "step", step)
+    monkeypatch.setattr(SQPBackend, "_accept", accept)
     monkeypatch.setattr(TorchProblem, "evaluate", evaluate)
     session = Session()
     session.run_text("backend torch device=cpu\n" + catalogue.problems("arm_throw")[0].text)
     assert all(r.converged for r in session.runs)
-    # a run's last evaluation is never stepped from: its Hessian stays unused whatever the hint
-    stepped_from = [e for e, after in zip(events, events[1:]) if e != "run" and after != "run"]
-    hinted = [(hint, ev) for hint, ev in stepped_from if hint is not None]
-    assert len(hinted) >= 20 and {hint for hint, _ in hinted} == {True, False}
-    for hint, ev in hinted:
+    starts = {id(ev) for ev in stepped}     # every evaluation is kept alive in `made`: ids are unique
+    told = [(hint, ev) for hint, ev, early in made if hint is not None and not early and id(ev) in starts]
+    assert len(told) >= 5 and {hint for hint, _ in told} == {True, False}
+    for hint, ev in told:
         assert ev.hessian_used == hint
         assert (ev.t_local["h"] is not None) == hint
+    early = [(hint, ev) for hint, ev, early in made if early]
+    assert len(early) >= 5 and all(hint is True and ev.t_local["h"] is not None for hint, ev in early)
 
     problem = WindowProblem(session.scene)
     tp = TorchProblem(problem, torch.device("cpu"), host_linear=True)

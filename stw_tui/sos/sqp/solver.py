@@ -177,7 +177,10 @@ class SQPBackend(Backend):
         :class:`~stw_tui.sos.window.WindowProblem` has them (the default: the problem itself).
         One that computes second derivatives only on demand may also have
         ``expect_hessian(used)``: before evaluating a new point, the SQP says there whether the
-        next step will ask for that evaluation's Lagrangian Hessian (stw_torch's TorchProblem)."""
+        next step will ask for that evaluation's Lagrangian Hessian (stw_torch's TorchProblem);
+        before a trial point evaluated ahead of its merit test (:meth:`_accept`'s
+        ``speculate``), whether the SQP may use an exact Hessian at all. The Hessian must still
+        come when asked for after a wrong guess."""
         return problem
 
     # --- init / state -----------------------------------------------------------------------
@@ -274,10 +277,11 @@ class SQPBackend(Backend):
         # update would freeze them, and the Hessian with them, while steps are short).
         lam_eq, lam_ge = sub.lam_eq, sub.lam_ge
         refusals, wait = _newton_backoff(st, exact_refused)
-        if not stalled and trial.values is not None and hasattr(inner.evaluator, "expect_hessian"):
+        if (not stalled and not trial.whole and trial.values is not None
+                and hasattr(inner.evaluator, "expect_hessian")):
             # an evaluator that computes second derivatives only on demand (torch) is told
             # whether the next step will try the exact Hessian: the violation at the new point
-            # is known from its merit test
+            # is known from its merit test (a whole trial evaluation was told before, in _accept)
             inner.evaluator.expect_hessian("exact" in self._modes(problem.max_violation(trial.values), wait))
         new_ev = ev if stalled else trial.values if trial.whole else inner.evaluator.evaluate(s_new)
         ms["evaluate"] = _lap(clock)
@@ -315,9 +319,8 @@ class SQPBackend(Backend):
                             elastic=counts.elastic, infeasible=infeasible,
                             conflicts=conflicts if infeasible else ())
         # A full step that passed its first test: the next one likely will too (acrobat 20 of 26
-        # such, basketball 35 of 48). An evaluator that takes hints (expect_hessian) is not
-        # speculated on: evaluated ahead, it could not know whether to make second derivatives.
-        speculate = trial.first and attempt == 0 and not hasattr(inner.evaluator, "expect_hessian")
+        # such, basketball 35 of 48).
+        speculate = trial.first and attempt == 0
         return replace(inner, state=new_state, ev=new_ev, shift=shift, speculate=speculate), report
 
     # --- pieces of a step ---------------------------------------------------------------------
@@ -540,6 +543,10 @@ class SQPBackend(Backend):
 
         # ``speculate``: the trial point is evaluated whole (values and Jacobians) instead of
         # for its merit alone; when the step passes, that is the next iterate's evaluation.
+        if speculate and hasattr(evaluator, "expect_hessian"):
+            # Ahead of its test the point's violation is unknown: expect the exact Hessian
+            # wherever the SQP may use one (a step that passes mostly lands near feasibility).
+            evaluator.expect_hessian("exact" in self._modes(0.0, 0))
         trial = (evaluator.evaluate if speculate else evaluator.merit_values)(ev.s + d)
         good, ratio = ok(trial, 1.0)
         if good:
