@@ -13,7 +13,8 @@ import numpy as np
 import scipy.sparse as sps
 from scipy.linalg import lapack
 
-from stw_tui.sos.sqp.algebra import KKTSystem, LinearAlgebra, SingularSystem
+from stw_tui.sos.sqp.algebra import KKTSystem, SingularSystem
+from stw_scipy.vectors import NumpyVectors
 
 # Windows up to this many rows (free control points + equality rows + inequality rows) run dense.
 # Measured per solve against the sparse path (banded LU or SuperLU): point_mass_2d's 111 rows
@@ -53,30 +54,8 @@ class DenseKKT(KKTSystem):
         return x
 
 
-class NumpyDenseAlgebra(LinearAlgebra):
+class NumpyDenseAlgebra(NumpyVectors):
     """numpy vectors and dense 2-D arrays; LAPACK's LU and Cholesky."""
-
-    def vector(self, values):
-        return np.array(values, dtype=float)
-
-    def numpy(self, v):
-        return np.asarray(v, dtype=float)
-
-    def full(self, n, value):
-        return np.full(n, float(value))
-
-    def concat(self, parts):
-        return np.concatenate(parts)
-
-    def maximum(self, v, floor):
-        return np.maximum(v, floor)
-
-    def max_abs(self, v):
-        return float(np.abs(v).max(initial=0.0))
-
-    def max_step(self, v, dv, cap=1.0):
-        neg = dv < 0    # none negative: +inf, so the cap
-        return float(min(cap, float(np.minimum.reduce(-v[neg] / dv[neg], initial=np.inf))))
 
     def matrix(self, m):
         return m.toarray() if sps.issparse(m) else np.asarray(m, dtype=float)

@@ -23,6 +23,7 @@ from stw_tui.sos.sqp.algebra import KKTSystem, LinearAlgebra, SingularSystem
 from stw_scipy.banded import BAND_MAX, CholeskyBandPlan
 from stw_scipy.csr_rows import select_rows, stack_rows
 from stw_scipy.ordering import Ordering, factorize
+from stw_scipy.vectors import NumpyVectors
 
 SOLVERS = ("direct", "minres", "cg")
 FALLBACK_RESIDUAL = 1e-6   # relative KKT residual above which an iterative solve is not trusted
@@ -376,7 +377,7 @@ def inherit_structures(algebra: "SparseAlgebra") -> None:
     _LATEST_STRUCTURES[algebra.band_max] = {name: getattr(algebra, name) for name in _STRUCTURE_LISTS}
 
 
-class SparseAlgebra(LinearAlgebra):
+class SparseAlgebra(NumpyVectors):
     """numpy vectors, scipy sparse (CSR) matrices, KKT systems by banded LU or SuperLU, MINRES
     or CG."""
 
@@ -394,29 +395,6 @@ class SparseAlgebra(LinearAlgebra):
         # self._orderings      SuperLU column orderings and banded plans by KKT structure (ordering.py)
         # self._cholesky_plans (structure, banded test or None: too wide) (banded.py)
         inherit_structures(self)
-
-    def vector(self, values):
-        return np.array(values, dtype=float)
-
-    def numpy(self, v):
-        return np.asarray(v, dtype=float)
-
-    def full(self, n, value):
-        return np.full(n, float(value))
-
-    def concat(self, parts):
-        return np.concatenate(parts)
-
-    def maximum(self, v, floor):
-        return np.maximum(v, floor)
-
-    def max_abs(self, v):
-        return float(np.abs(v).max(initial=0.0))
-
-    def max_step(self, v, dv, cap=1.0):
-        # The generic test in fewer numpy calls: no any() first (none negative: +inf, so the cap)
-        neg = dv < 0
-        return float(min(cap, float(np.minimum.reduce(-v[neg] / dv[neg], initial=np.inf))))
 
     def matrix(self, m):
         return m if isinstance(m, sps.csr_array) else sps.csr_array(m)
