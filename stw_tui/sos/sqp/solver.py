@@ -318,8 +318,8 @@ class SQPBackend(Backend):
                             message=message, fallbacks=counts.fallbacks, qp_capped=counts.capped,
                             elastic=counts.elastic, infeasible=infeasible,
                             conflicts=conflicts if infeasible else ())
-        # A full step that passed its first test: the next one likely will too (acrobat 20 of 26
-        # such, basketball 35 of 48).
+        # A step whose first attempt passed its first test (no retry, correction or backtracking):
+        # the next one likely will too (acrobat 20 of 26 such, basketball 35 of 48).
         speculate = trial.first and attempt == 0
         return replace(inner, state=new_state, ev=new_ev, shift=shift, speculate=speculate), report
 
