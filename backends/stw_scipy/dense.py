@@ -43,7 +43,8 @@ class DenseKKT(KKTSystem):
             K[:n, n:] = A.T
             K[n:, :n] = A
             K[n:, n:] = 0.0
-            K.flat[n * (n + m + 1)::n + m + 1] = -np.broadcast_to(np.asarray(e, float), (m,))
+            at = np.arange(n, n + m)
+            K[at, at] = -np.asarray(e, dtype=float)   # a scalar or one entry per row
         self.lu, self.pivots, info = lapack.dgetrf(K, overwrite_a=1)
         if info > 0:   # U[info-1, info-1] is exactly zero
             raise SingularSystem("KKT matrix is exactly singular")
