@@ -795,8 +795,9 @@ def test_an_elastic_step_descends_its_rows_weighted_merit(la):
     assert all(np.all(w == rho) for w in far)
 
 
-def test_a_step_after_a_full_step_evaluates_its_trial_whole_once_and_reaches_the_same_iterates(monkeypatch):
-    """After a full step that passed its first test, the next trial point is evaluated whole
+def test_a_step_after_one_that_passed_first_time_evaluates_its_trial_whole_and_reaches_the_same_iterates(
+        monkeypatch):
+    """After a step whose first attempt passed its first test, the next trial point is evaluated whole
     (values and Jacobians): when it passes too, that evaluation is the next iterate's, and the
     step costs one evaluation instead of a merit test and an evaluation. On this arm the iterates
     are bit for bit those of the solve that evaluates every accepted point again. (The merit
@@ -819,7 +820,7 @@ def test_a_step_after_a_full_step_evaluates_its_trial_whole_once_and_reaches_the
         return s.scene.coefficient_vector().copy(), [r.objective for r in reports], list(calls)
 
     ahead, objectives, made = solve()
-    # the first step tests its merit, then evaluates; later full steps evaluate their trial only
+    # the first step tests its merit, then evaluates; later steps evaluate their trial only
     steps = len(objectives)
     assert made[:3] == ["evaluate", "merit_values", "evaluate"]
     assert steps >= 4 and made.count("evaluate") + made.count("merit_values") < 2 * steps

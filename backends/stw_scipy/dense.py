@@ -14,6 +14,7 @@ import scipy.sparse as sps
 from scipy.linalg import lapack
 
 from stw_tui.sos.sqp.algebra import KKTSystem, SingularSystem
+from stw_tui.sym.kinds import TermKind
 from stw_scipy.vectors import NumpyVectors
 
 # Windows up to this many rows (free control points + equality rows + inequality rows) run dense.
@@ -26,8 +27,6 @@ DENSE_MAX = 250
 def window_rows(problem) -> int:
     """The size :data:`DENSE_MAX` is compared with: the window's free control points and its
     equality and inequality rows."""
-    from stw_tui.sym.kinds import TermKind
-
     counts = problem.row_counts
     return problem.n_free + counts.get(TermKind.EQ, 0) + counts.get(TermKind.GE, 0)
 
