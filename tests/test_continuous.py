@@ -461,3 +461,53 @@ def test_exact_degree_is_sympys_answer_and_nonlinear_relations_skip_its_derivati
         assert instances.exact_degree(scene, relation.expr, relation.kind) == degree, name
         if name in "ef":
             assert len(derivatives) == before, name     # the screen refused it
+
+
+def _samples_by_check(scene, cold: bool):
+    """Every check's (instances, grid, grid violations), with the kept relation times used or
+    (``cold``) forgotten first: what the check works out from scratch."""
+    from stw_tui.sos import continuous
+
+    if cold:
+        continuous._KEPT.clear()
+    return {name: [(s.t_inst, s.t_grid, s.v_grid) for s in samples]
+            for name, samples, _ in continuous._all_samples(scene)}
+
+
+@pytest.mark.parametrize("change", [
+    "refine y [0.5, 1]",                                   # a knot span split: a finer grid
+    "instances floor add 0.37",                            # an added instance
+    "constraint floor: y >= 0 on [0, 2] samples=5",        # its own density
+    "time 0 2 knots=16 samples=10",                        # the scene's density
+    "constraint floor: y >= 0 on [0, 1.5]",                 # its interval
+])
+def test_the_kept_relation_times_follow_every_change_of_instances_or_grid(change):
+    s = run_lines(Session(), ADAPT)
+    before = _samples_by_check(s.scene, cold=False)   # the times are kept for this structure
+    run_lines(s, change + "\n")
+    warm, cold = _samples_by_check(s.scene, cold=False), _samples_by_check(s.scene, cold=True)
+    assert warm.keys() == cold.keys() == before.keys()
+    for name in cold:
+        for (ti, tg, vg), (ci, cg, cv) in zip(warm[name], cold[name]):
+            assert np.array_equal(ti, ci) and np.array_equal(tg, cg) and np.array_equal(vg, cv)
+    # the change moved the floor's instances or its grid (or its values): kept ones would show
+    (ti, tg, vg), = before["floor"]
+    (ci, cg, cv), = cold["floor"]
+    assert not (np.array_equal(ti, ci) and np.array_equal(tg, cg) and np.array_equal(vg, cv))
+
+
+def test_a_relation_evaluated_on_part_of_shared_times_gives_its_values_at_those_times_alone():
+    from stw_tui.sos.spline import SharedTimes
+
+    s = run_lines(Session(), ADAPT + "iterate 5 adapt=0\n")
+    rng = np.random.default_rng(3)
+    times = [np.sort(rng.uniform(0, 2, n)) for n in (1, 17, 300)]
+    shared = SharedTimes(np.concatenate(times), keep=False)
+    exprs = [rel.expr for c in s.scene.constraints.values() for rel in c.relations]
+    exprs += [e for o in s.scene.objectives.values() for e in o.exprs]   # m*y'' + m*g
+    start = 0
+    for t in times:
+        for expr in exprs:
+            values = s.scene.evaluator(expr)
+            assert np.array_equal(values.at(shared, slice(start, start + t.size)), values(t))
+        start += t.size

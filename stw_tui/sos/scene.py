@@ -9,12 +9,11 @@ from __future__ import annotations
 import copy
 import threading
 from dataclasses import dataclass, field, replace
-from typing import Callable
 
 import numpy as np
 import sympy as sp
 
-from stw_tui.sos.spline import DofCurve, times_checker
+from stw_tui.sos.spline import DofCurve, SharedTimes, times_checker
 from stw_tui.sym.compiler import free_symbols
 from stw_tui.sym.errors import LimitError, StwError
 from stw_tui.sym.kinds import TermKind
@@ -39,6 +38,31 @@ DEFAULT_SETTINGS: dict[str, float] = {
 _EXPANDED: dict[tuple, sp.Basic] = {}
 _EXPANDED_LOCK = threading.Lock()
 _EXPANDED_SIZE = 2048
+
+
+class ExpressionValues:
+    """An expression's values on the scene's curves as they are now, as a function of the times
+    (:meth:`Scene.evaluator`); or at part of a :class:`~stw_tui.sos.spline.SharedTimes`, whose
+    curve values are shared with other expressions'."""
+
+    def __init__(self, term, params: np.ndarray, curves: list[tuple[DofCurve, int]]):
+        self.term, self.params, self.curves = term, params, curves
+
+    def __call__(self, times) -> np.ndarray:
+        times = np.asarray(times, float)
+        if not self.curves:
+            return self.term.value(np.zeros((times.size, 0)), times, self.params)
+        checked = times_checker(times)
+        columns = [curve.values_at(checked(curve), order) for curve, order in self.curves]   # (n, k)
+        return self.term.value(np.column_stack(columns), times, self.params)
+
+    def at(self, shared: SharedTimes, part: slice) -> np.ndarray:
+        """The values at ``shared.times[part]``: the same numbers as at those times alone."""
+        times = shared.times[part]
+        if not self.curves:
+            return self.term.value(np.zeros((times.size, 0)), times, self.params)
+        columns = [shared.values(curve, order, part) for curve, order in self.curves]
+        return self.term.value(np.column_stack(columns), times, self.params)
 
 
 @dataclass
@@ -299,7 +323,7 @@ class Scene:
         """
         return self.evaluator(expr)(times)
 
-    def evaluator(self, expr: sp.Basic) -> Callable[[np.ndarray], np.ndarray]:
+    def evaluator(self, expr: sp.Basic) -> ExpressionValues:
         """:meth:`evaluate` of one expression as a function of the times, for many calls on the
         curves as they are now: the expression is expanded and its compiled term found once (the
         dense check evaluates every relation seven times, and those lookups were a third of it).
@@ -310,17 +334,8 @@ class Scene:
         from stw_tui.sym.compiler import compile_term
 
         term = compile_term(self.expand(expr), set(self.dofs), set(self.constants))
-        params = self.constant_values(term.parameters)
-        curves = [(self.dofs[v.dof].curve, v.order) for v in term.variables]
-
-        def values(times) -> np.ndarray:
-            times = np.asarray(times, float)
-            if not curves:
-                return term.value(np.zeros((times.size, 0)), times, params)
-            checked = times_checker(times)
-            columns = [curve.values_at(checked(curve), order) for curve, order in curves]   # (n, k)
-            return term.value(np.column_stack(columns), times, params)
-        return values
+        return ExpressionValues(term, self.constant_values(term.parameters),
+                                [(self.dofs[v.dof].curve, v.order) for v in term.variables])
 
     # --- curves ------------------------------------------------------------------------------
     def coefficient_vector(self) -> np.ndarray:
