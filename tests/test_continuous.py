@@ -466,10 +466,10 @@ def test_exact_degree_is_sympys_answer_and_nonlinear_relations_skip_its_derivati
 def _samples_by_check(scene, cold: bool):
     """Every check's (instances, grid, grid violations), with the kept relation times used or
     (``cold``) forgotten first: what the check works out from scratch."""
-    from stw_tui.sos import continuous
+    from stw_tui.sos import continuous, instances
 
     if cold:
-        continuous._KEPT.clear()
+        instances._KEPT.clear()
     return {name: [(s.t_inst, s.t_grid, s.v_grid) for s in samples]
             for name, samples, _ in continuous._all_samples(scene)}
 

@@ -9,8 +9,6 @@ so ``dense_tol`` compares with the same numbers as ``tol_violation``.
 
 from __future__ import annotations
 
-import threading
-from collections import OrderedDict
 from dataclasses import dataclass
 from typing import Callable
 
@@ -18,7 +16,7 @@ import numpy as np
 import sympy as sp
 
 from stw_tui.sos.instances import (bound_extra_times, bound_times, dofs_used, exact_degree, interval_cuts,
-                        on_own_side, relation_times, repeated_knots)
+                                   kept_times, on_own_side, relation_instances, repeated_knots)
 from stw_tui.sos.spline import SharedTimes
 from stw_tui.sym.kinds import TermKind
 from stw_tui.sym.symbols import dof_symbol
@@ -224,46 +222,20 @@ def _relation_samplings(scene, constraint, kept: dict) -> list[_Sampling]:
 
 def _relation_times(scene, constraint, rel, kept: dict) -> tuple[np.ndarray, np.ndarray | None, bool]:
     """A relation's instances, its grid (None for a constraint ``@ t``) and whether its instances
-    make it exact: from ``kept`` (:func:`_kept_times`) when an earlier check of a scene of the
+    make it exact, from ``kept`` (instances.kept_times) when an earlier check of a scene of the
     same structure worked them out (a quarter of the check: acrobat 4.5 of 18 ms)."""
-    key = (rel.expr, rel.kind, constraint.name, constraint.at, constraint.interval, constraint.samples,
+    t_inst = relation_instances(scene, constraint, rel, kept)
+    if constraint.at is not None:
+        return t_inst, None, False
+    key = ("grid", rel.expr, rel.kind, constraint.name, constraint.interval, constraint.samples,
            scene.extra_instances.get(constraint.name))
     found = kept.get(key)
     if found is None:
-        t_inst = relation_times(scene, constraint, rel.expr, rel.kind)
-        t_base, exact = None, False
-        if constraint.at is None:
-            exact = constraint.samples is None and exact_degree(scene, rel.expr, rel.kind) is not None
-            t_base = dense_times(scene, [rel.expr], *constraint.interval, t_inst)
-        for times in (t_inst, t_base):
-            if times is not None:
-                times.flags.writeable = False   # shared by the checks to come
-        found = kept[key] = t_inst, t_base, exact
-    return found
-
-
-_KEPT_STRUCTURES = 4   # scene structures whose relations' times are kept (a session's few windows)
-_KEPT: OrderedDict = OrderedDict()
-_KEPT_LOCK = threading.Lock()
-
-
-def _kept_times(scene) -> dict:
-    """The relations' times worked out for scenes of this one's structure: what instances and
-    grids depend on besides each constraint's own scope and added instances (the span, the
-    sampling density, every DOF's knots, and the definitions and names that expand and classify
-    expressions). Solves change the control points only, and every `iterate` checks anew."""
-    key = (scene.t0, scene.t1, scene.sample_count,
-           tuple((name, dof.curve.knots.tobytes()) for name, dof in scene.dofs.items()),
-           frozenset(scene.lets.items()), frozenset(scene.derived.items()),
-           frozenset(scene.limits.items()), frozenset(scene.constants))
-    with _KEPT_LOCK:
-        found = _KEPT.pop(key, None)
-        if found is None:
-            found = {}
-            while len(_KEPT) >= _KEPT_STRUCTURES:
-                _KEPT.popitem(last=False)
-        _KEPT[key] = found
-    return found
+        exact = constraint.samples is None and exact_degree(scene, rel.expr, rel.kind) is not None
+        t_base = dense_times(scene, [rel.expr], *constraint.interval, t_inst)
+        t_base.flags.writeable = False   # shared by the checks to come
+        found = kept[key] = t_base, exact
+    return (t_inst, *found)
 
 
 def _bound_samplings(scene, dof) -> list[_Sampling | _Samples]:
@@ -310,7 +282,7 @@ def _summarize(name: str, samples: list[_Samples], tol: float | None) -> Constra
 def _all_samples(scene):
     """(check name, its relations' samples, its own tolerance) for every constraint and every
     bounded DOF, all their samplings evaluated together (:func:`_sample`)."""
-    kept = _kept_times(scene)
+    kept = kept_times(scene)
     checks = [(c.name, _relation_samplings(scene, c, kept), c.dense_tol) for c in scene.constraints.values()]
     checks += [(f"{dof.name}.bounds", _bound_samplings(scene, dof), None)
                for dof in scene.dofs.values() if dof.lo is not None or dof.hi is not None]

@@ -26,7 +26,7 @@ import sympy as sp
 
 from stw_tui.sos.affine_rows import AffineRows
 from stw_tui.sos.compressed import add, csr, transpose
-from stw_tui.sos.instances import bound_extra_times, bound_times, relation_times
+from stw_tui.sos.instances import bound_extra_times, bound_times, kept_times, relation_instances
 from stw_tui.sos.products import GRAM_PLAN_TERMS, GramPlan, ProductPlan
 from stw_tui.sos.scene import Scene
 from stw_tui.sos.sparse_matvec import matvec
@@ -315,10 +315,11 @@ class WindowProblem:
         def inside(times):
             return times[(times >= ia - 1e-12) & (times <= ib + 1e-12)]
 
+        kept = kept_times(scene)
         for c in scene.constraints.values():
             for r_index, rel in enumerate(c.relations):
                 label = c.name if len(c.relations) == 1 else f"{c.name}[{r_index + 1}]"
-                times = inside(relation_times(scene, c, rel.expr, rel.kind))
+                times = inside(relation_instances(scene, c, rel, kept))
                 self._add_group(label, c.name, rel.kind, rel.expr, times, c.weight, c.when)
         for name in self.window_dofs:
             dof = scene.dofs[name]
