@@ -157,10 +157,11 @@ _KEPT_LOCK = threading.Lock()
 
 
 def kept_times(scene) -> dict:
-    """A dict for the times worked out for scenes of this one's structure: what relations'
-    instances (and the continuous-time check's grids) depend on besides each constraint's own
-    scope and added instances: the span, the sampling density, every DOF's knots, and the
-    definitions and names that expand and classify expressions. The last few are kept."""
+    """The times kept for scenes of this one's structure: a dict that window builds and the
+    continuous-time check fill. Besides its constraint's scope and added instances (in each
+    entry's key), a relation's instances and grid depend on the span, the sampling density,
+    every DOF's knots, and the definitions and names that expand and classify expressions:
+    those make the structure. The last _KEPT_STRUCTURES structures are kept."""
     key = (scene.t0, scene.t1, scene.sample_count,
            tuple((name, dof.curve.knots.tobytes()) for name, dof in scene.dofs.items()),
            frozenset(scene.lets.items()), frozenset(scene.derived.items()),
