@@ -60,7 +60,7 @@ def test_forgetting_empties_every_cache_a_window_build_fills():
                "objective smooth: x''\niterate 2")
     window.WindowProblem(s.scene)
     assert scene._EXPANDED and spline._kept_basis.cache_info().currsize
-    assert compiler.free_symbols.cache_info().currsize
+    assert compiler.free_symbols.cache_info().currsize and instances._KEPT
     kept.forget()
     assert not scene._EXPANDED and spline._kept_basis.cache_info().currsize == 0
     assert window._plan_set_of.cache_info().currsize == 0
@@ -68,3 +68,4 @@ def test_forgetting_empties_every_cache_a_window_build_fills():
     assert compiler.free_symbols.cache_info().currsize == 0
     assert compiler._check_size.cache_info().currsize == 0
     assert instances._exact_degree.cache_info().currsize == 0
+    assert not instances._KEPT

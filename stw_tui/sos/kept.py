@@ -3,7 +3,8 @@
 Every `iterate` builds its window problem anew from the scene; the parts that depend only on
 what did not change are kept where they are made: subexpression expansions (scene.py), free
 symbols, passed size checks and the disk cache's checked directories (compiler.py), exact
-degrees (instances.py), B-spline basis matrices (spline.py) and product plans (window.py). Each
+degrees and the relations' instance and check-grid times (instances.py), B-spline basis
+matrices (spline.py) and product plans (window.py). Each
 is keyed by everything it depends on. (A backend keeps its own: the scipy backend's
 factorization plans pass from one `iterate`'s algebra to the next, backends/stw_scipy/linear.py.)
 :func:`forget` empties them, for a benchmark that times a build from nothing but the compiled
@@ -26,6 +27,8 @@ def forget() -> None:
     compiler.free_symbols.cache_clear()
     compiler._check_size.cache_clear()
     instances._exact_degree.cache_clear()
+    with instances._KEPT_LOCK:
+        instances._KEPT.clear()
     compiler._SAFE_ROOTS.clear()   # the disk cache's checks: made again once, as in a new process
     with compiler._CACHE_LOCK:
         compiler._CACHE.clear()
