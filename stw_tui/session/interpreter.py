@@ -669,7 +669,7 @@ def _solve_adaptive(session: SessionLike, scene: Scene, n: int, adapt: int | Non
     rounds = adapt if adapt is not None else (int(settings["adaptive_rounds"]) if settings["adaptive"] else 0)
     backend = joined_backend(scene.backend, scene.backend_options)   # a batch job's member backend
     tol = settings["dense_tol"]
-    problem = WindowProblem(scene)
+    problem = WindowProblem.of(scene)
     result = _solve(session, scene, problem, backend, n, on_report, trail)
     runs = [result]
     journal = [f"iterate {len(result.reports) if result.status is Status.STOPPED else n} adapt=0"]
@@ -689,7 +689,7 @@ def _solve_adaptive(session: SessionLike, scene: Scene, n: int, adapt: int | Non
         for name, times in new.items():
             scene.extra_instances[name] = tuple(sorted(set(scene.extra_instances.get(name, ())) | set(times.tolist())))
             lines.append(f"instances {name} add " + ", ".join(repr(float(t)) for t in times))
-        trial_problem = WindowProblem(scene)
+        trial_problem = WindowProblem.of(scene)
         trial = _solve(session, scene, trial_problem, backend, n, on_report, trail.then(journal + lines))
         if trial.status is not Status.CONVERGED:
             scene.with_coefficients(saved[0])

@@ -156,16 +156,21 @@ _KEPT: OrderedDict = OrderedDict()
 _KEPT_LOCK = threading.Lock()
 
 
+def structure_key(scene) -> tuple:
+    """What every relation's instances and check grid depend on, besides its constraint's own
+    scope and added instances: the span, the sampling density, every DOF's knots (in order), and
+    the definitions and names that expand and classify expressions."""
+    return (scene.t0, scene.t1, scene.sample_count,
+            tuple((name, dof.curve.knots.tobytes()) for name, dof in scene.dofs.items()),
+            frozenset(scene.lets.items()), frozenset(scene.derived.items()),
+            frozenset(scene.limits.items()), frozenset(scene.constants))
+
+
 def kept_times(scene) -> dict:
-    """The times kept for scenes of this one's structure: a dict that window builds and the
-    continuous-time check fill. Besides its constraint's scope and added instances (in each
-    entry's key), a relation's instances and grid depend on the span, the sampling density,
-    every DOF's knots, and the definitions and names that expand and classify expressions:
-    those make the structure. The last _KEPT_STRUCTURES structures are kept."""
-    key = (scene.t0, scene.t1, scene.sample_count,
-           tuple((name, dof.curve.knots.tobytes()) for name, dof in scene.dofs.items()),
-           frozenset(scene.lets.items()), frozenset(scene.derived.items()),
-           frozenset(scene.limits.items()), frozenset(scene.constants))
+    """The times kept for scenes of this one's structure (:func:`structure_key`; each entry's
+    key adds its constraint's scope and added instances): a dict that window builds and the
+    continuous-time check fill. The last _KEPT_STRUCTURES structures are kept."""
+    key = structure_key(scene)
     with _KEPT_LOCK:
         found = _KEPT.pop(key, None)
         if found is None:

@@ -1,10 +1,10 @@
 """Results kept in memory between `iterate`s, and a way to forget them all.
 
-Every `iterate` builds its window problem anew from the scene; the parts that depend only on
-what did not change are kept where they are made: subexpression expansions (scene.py), free
+Every `iterate` needs the window problem of the scene as it is now; the parts that depend only
+on what did not change are kept where they are made: subexpression expansions (scene.py), free
 symbols, passed size checks and the disk cache's checked directories (compiler.py), exact
 degrees and the relations' instance and check-grid times (instances.py), B-spline basis
-matrices (spline.py) and product plans (window.py). Each
+matrices (spline.py), product plans and whole window problems by structure (window.py). Each
 is keyed by everything it depends on. (A backend keeps its own: the scipy backend's
 factorization plans pass from one `iterate`'s algebra to the next, backends/stw_scipy/linear.py.)
 :func:`forget` empties them, for a benchmark that times a build from nothing but the compiled
@@ -24,6 +24,8 @@ def forget() -> None:
     spline._kept_basis.cache_clear()
     spline._kept_nonzero_basis.cache_clear()
     window._plan_set_of.cache_clear()
+    with window._BUILT_LOCK:
+        window._BUILT.clear()
     compiler.free_symbols.cache_clear()
     compiler._check_size.cache_clear()
     instances._exact_degree.cache_clear()
