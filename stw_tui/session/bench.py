@@ -137,7 +137,8 @@ def measure(name: str, setup: Session, n: int, backend: str, options: str, repea
 
 def measure_together(name: str, setup: Session, configs: list[tuple[str, str, int]], repeat: int,
                      budget: float | None = None, between: Callable[[], None] | None = None,
-                     setups: list[Session] | None = None) -> list[Measurement | StwError]:
+                     setups: list[Session] | None = None,
+                     before: Callable[[], None] | None = None) -> list[Measurement | StwError]:
     """:func:`measure` of several configurations (backend, options, N) of one scene, their runs
     interleaved: round after round, one timed run of each, then ``between()`` (another solver
     timed by the caller). The machines are shared: their speed drifts by tens of percent over
@@ -149,7 +150,8 @@ def measure_together(name: str, setup: Session, configs: list[tuple[str, str, in
     seconds (at least one run each); the rounds go on while any configuration is running. A
     configuration whose solve fails is left out of the later rounds: its entry is the error.
     ``setups``: each configuration's own scene, where they differ (the same window in animations
-    of two lengths); else every one solves ``setup``'s.
+    of two lengths); else every one solves ``setup``'s. ``before()``: called, untimed, before
+    each timed run (forget what the run must not find kept).
     """
     labels = [f"{backend} {options}".strip() for backend, options, _ in configs]
     setups = setups or [setup] * len(configs)
@@ -180,6 +182,8 @@ def measure_together(name: str, setup: Session, configs: list[tuple[str, str, in
                 continue
             try:
                 session = _fresh(setups[i], config)
+                if before is not None:
+                    before()
                 started = time.perf_counter()
                 session.execute(f"iterate {n}")
             except StwError as exc:

@@ -24,8 +24,7 @@ def forget() -> None:
     spline._kept_basis.cache_clear()
     spline._kept_nonzero_basis.cache_clear()
     window._plan_set_of.cache_clear()
-    with window._BUILT_LOCK:
-        window._BUILT.clear()
+    window.forget_builds()
     compiler.free_symbols.cache_clear()
     compiler._check_size.cache_clear()
     instances._exact_degree.cache_clear()

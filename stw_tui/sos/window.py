@@ -245,6 +245,12 @@ _BUILT: OrderedDict = OrderedDict()
 _BUILT_LOCK = threading.Lock()
 
 
+def forget_builds() -> None:
+    """Forget the window problems kept by structure: the next `iterate` builds its window."""
+    with _BUILT_LOCK:
+        _BUILT.clear()
+
+
 def _structure_key(scene: Scene, window_name: str | None) -> tuple:
     """Everything a window build reads from the scene but its control points and DOF damping:
     what instance times depend on (instances.structure_key), the window, the constraints,
