@@ -543,11 +543,25 @@ class WindowProblem:
         return v[group.slot_offset:group.slot_offset + k * n].reshape(k, n).T
 
     def _conditions(self, v: np.ndarray) -> dict[str, np.ndarray]:
+        """Where each row is live (its `when` holds) at slot values ``v``."""
+        if self._always_live is not None:   # no conditional group: every row, at every v
+            return self._always_live
         masks = {EQ: np.ones(self.row_counts[EQ], bool), GE: np.ones(self.row_counts[GE], bool)}
         for group in self.groups:
             if group.condition is not None:
                 masks[group.kind][group.row_offset:group.row_offset + group.n] = group.condition.evaluate(
                     v, group.times, self._params)
+        return masks
+
+    @cached_property
+    def _always_live(self) -> dict[str, np.ndarray] | None:
+        """The masks of a problem without conditional groups (read-only: evaluations share
+        them), else None."""
+        if any(group.condition is not None for group in self.groups):
+            return None
+        masks = {EQ: np.ones(self.row_counts[EQ], bool), GE: np.ones(self.row_counts[GE], bool)}
+        for mask in masks.values():
+            mask.flags.writeable = False
         return masks
 
     def merit_values(self, s: np.ndarray) -> MeritValues:
@@ -618,7 +632,8 @@ class WindowProblem:
             constant = self._constant_jacobians.get(kind)
             if constant is None:
                 J[kind], full[kind] = self._jacobian(kind, grads[kind])
-                if kind in self._affine_rows.kinds:   # every row affine: the same at every s
+                # every row affine, or no row at all: the same at every s
+                if kind in self._affine_rows.kinds or not self.row_counts[kind]:
                     self._constant_jacobians[kind] = (J[kind], full[kind])
             else:
                 J[kind], full[kind] = constant
