@@ -982,8 +982,8 @@ def test_a_replay_measures_the_scene_once_at_its_end_and_again_where_it_pauses(t
 
     measured = []
     real = runner_module.scene_info
-    monkeypatch.setattr(runner_module, "scene_info", lambda scene, proposal=None: measured.append(
-        sorted(scene.constraints)) or real(scene, proposal))
+    monkeypatch.setattr(runner_module, "scene_info", lambda scene, proposal=None, dense=None: measured.append(
+        sorted(scene.constraints)) or real(scene, proposal, dense))
     script = tmp_path / "s.stw"
     script.write_text("time 0 1\ndof x\nconstraint a: x = 1 @ 0\nconstraint b: x = 2 @ 1\n"
                       "objective o: x''\niterate 5\nprint x @ 0.5\n", encoding="utf-8")

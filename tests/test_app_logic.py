@@ -169,6 +169,25 @@ def test_equation_violations_cover_every_constraint_densely_whatever_the_window(
     assert crest > 0.02 and shown["low"] == pytest.approx(crest, rel=1e-6)
 
 
+def test_the_panels_take_an_iterate_s_dense_check_and_a_proposal_s_is_not_the_scene_s(monkeypatch):
+    from stw_tui.sos import continuous
+
+    s = Session()
+    s.run_text("time 0 1 knots=20\ndof x = 0.3 + 0.1*sin(40*t)\nconstraint pin: x = 0.3 @ 0.02\n"
+               "constraint low: x <= 0.35 on [0, 1] samples=5\nobjective smooth: x''\n")
+    outcome = s.execute("iterate 3 adapt=0")
+    assert outcome.dense is not None
+    fresh = equation_violations(s.scene)               # checked anew: the same numbers
+    assert {name: c.dense for name, c in outcome.dense.checks.items()} == fresh
+    monkeypatch.setattr(continuous, "check_scene", lambda scene: pytest.fail("checked again"))
+    assert scene_info(s.scene, dense=outcome.dense).violations == fresh
+    monkeypatch.undo()
+    s.execute("set preview on")
+    proposed = s.execute("iterate 3 adapt=0")
+    assert proposed.run is not None and proposed.dense is None   # of the proposal, not the scene
+    assert scene_info(s.scene, dense=proposed.dense).violations == fresh
+
+
 def test_axes_have_round_ticks_and_a_constant_gets_a_sensible_range():
     from stw_tui.app.axes import fit_title, nice_ticks, title_room, value_limits
 

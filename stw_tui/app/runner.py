@@ -186,8 +186,8 @@ class Runner:
             error = exc
         try:
             proposal = self.session.proposal      # `set preview on`: the figure player shows it
-            info = scene_info(self.session.scene, proposal.scene if proposal is not None else None) \
-                if job.measure else None
+            info = scene_info(self.session.scene, proposal.scene if proposal is not None else None,
+                              outcome.dense if outcome is not None else None) if job.measure else None
         except Exception:  # measuring is best effort
             info = SceneInfo()
         # The views read this copy (in the UI thread and in their background computations)

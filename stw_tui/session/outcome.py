@@ -6,6 +6,7 @@ from __future__ import annotations
 from dataclasses import dataclass, field
 
 from stw_tui.sos.backend import RunResult
+from stw_tui.sos.continuous import DenseReport
 
 
 @dataclass
@@ -25,3 +26,6 @@ class Outcome:
     prints: list[PrintResult] = field(default_factory=list)
     run: RunResult | None = None
     journal_text: str | None = None   # what replays this command, when that differs from the text
+    # the continuous-time check of the scene the command left, where it made one (an `iterate`'s):
+    # the panels show it instead of checking the same motion again
+    dense: DenseReport | None = None

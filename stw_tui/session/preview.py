@@ -28,6 +28,7 @@ def propose(session: SessionLike, scene: Scene, before: State, outcome: Outcome)
     warm start as they were before the solve."""
     session.proposal = State(scene, session.warm)
     session.warm = before.warm
+    outcome.dense = None   # the proposal's check, not the scene's
     outcome.message = (f"{outcome.message}\npreview: the scene is unchanged; `accept` takes the result, "
                        f"`reject` drops it\n{comparison(session)}")
     return outcome

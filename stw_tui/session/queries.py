@@ -18,6 +18,7 @@ from stw_tui.sym.kinds import TermKind
 if TYPE_CHECKING:
     from stw_tui.session.figure import Figure
     from stw_tui.session.snapshots import Measures
+    from stw_tui.sos.continuous import DenseReport
     from stw_tui.sos.scene import Scene
 
 QUANTITIES = ("value", "velocity", "acceleration")
@@ -81,15 +82,16 @@ def equation_series(scene: "Scene", name: str, n: int = 161) -> tuple[list[Serie
     return [Series(name, times.tolist(), scene.evaluate(named_symbol(name), times).tolist())], None
 
 
-def equation_violations(scene: "Scene") -> dict[str, float]:
+def equation_violations(scene: "Scene", dense: "DenseReport | None" = None) -> dict[str, float]:
     """Max violation of every constraint over its whole scope, between instances too (the
-    continuous-time check), whatever window is in use ({} when a constraint no longer compiles)."""
+    continuous-time check), whatever window is in use ({} when a constraint no longer compiles).
+    ``dense``: that check of ``scene`` already made (an `iterate`'s, Outcome.dense)."""
     if not scene.constraints or not scene.dofs:
         return {}
     try:
         from stw_tui.sos.continuous import check_scene
 
-        return {name: c.dense for name, c in check_scene(scene).checks.items()}
+        return {name: c.dense for name, c in (dense if dense is not None else check_scene(scene)).checks.items()}
     except Exception:  # a half-built scene (e.g. a constraint on a deleted name) has no check
         return {}
 
@@ -150,10 +152,12 @@ def proposal_view(scene: "Scene", proposal: "Scene") -> ProposalView:
     return ProposalView(proposal, measure(proposal), measure(scene))
 
 
-def scene_info(scene: "Scene", proposal: "Scene | None" = None) -> SceneInfo:
+def scene_info(scene: "Scene", proposal: "Scene | None" = None, dense: "DenseReport | None" = None) -> SceneInfo:
     """Everything slow the panels need, measured once per command (called in the worker); with
-    the scene a solve proposes under `set preview on`, what the figure player shows of it."""
-    info = SceneInfo(violations=equation_violations(scene), figure_bounds=figure_bounds(scene, proposal=proposal))
+    the scene a solve proposes under `set preview on`, what the figure player shows of it.
+    ``dense``: the continuous-time check of ``scene`` the command made (Outcome.dense), if any."""
+    info = SceneInfo(violations=equation_violations(scene, dense),
+                     figure_bounds=figure_bounds(scene, proposal=proposal))
     if proposal is not None:
         info.proposal = proposal_view(scene, proposal)
     try:
