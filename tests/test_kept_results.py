@@ -110,8 +110,8 @@ STRUCTURAL = {"const m = 3", "set quadrature 3", "use w", "weight thrust 4", "de
 def test_a_window_problem_taken_from_the_last_build_is_what_a_new_build_makes(command):
     from stw_tui.sos.window import WindowProblem
 
-    s = run_lines(Session(), TWO_D + "window w dofs=y [0.5, 1.5]\nuse all\nconstraint band: y >= -1 on [0, 2]\n"
-                                     "let h = x + y\niterate 2\n")
+    s = run_lines(Session(), TWO_D + "window w dofs=y [0.5, 1.5]\nuse all\n"
+                                     "constraint band: y >= -1 on [0, 2]\nlet h = x + y\niterate 2\n")
     before = _problem_data(WindowProblem.of(s.scene))    # kept for this structure
     s.execute(command)
     after = _problem_data(WindowProblem.of(s.scene))

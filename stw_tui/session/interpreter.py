@@ -655,7 +655,8 @@ def _iterate(session: SessionLike, scene: Scene, cmd, on_report) -> Outcome:
     if cmd.n < 1:
         raise StwError("iterate needs a positive number of iterations")
     solved = _solve_adaptive(session, scene, cmd.n, cmd.adapt, on_report, Trail(cmd.text))
-    return Outcome(message=solved.message(), run=solved.run, journal_text=solved.journal_text, dense=solved.dense)
+    return Outcome(message=solved.message(), run=solved.run, journal_text=solved.journal_text,
+                   dense=solved.dense)
 
 
 def _solve_adaptive(session: SessionLike, scene: Scene, n: int, adapt: int | None, on_report,

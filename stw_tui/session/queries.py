@@ -91,7 +91,8 @@ def equation_violations(scene: "Scene", dense: "DenseReport | None" = None) -> d
     try:
         from stw_tui.sos.continuous import check_scene
 
-        return {name: c.dense for name, c in (dense if dense is not None else check_scene(scene)).checks.items()}
+        report = dense if dense is not None else check_scene(scene)
+        return {name: c.dense for name, c in report.checks.items()}
     except Exception:  # a half-built scene (e.g. a constraint on a deleted name) has no check
         return {}
 
@@ -152,7 +153,8 @@ def proposal_view(scene: "Scene", proposal: "Scene") -> ProposalView:
     return ProposalView(proposal, measure(proposal), measure(scene))
 
 
-def scene_info(scene: "Scene", proposal: "Scene | None" = None, dense: "DenseReport | None" = None) -> SceneInfo:
+def scene_info(scene: "Scene", proposal: "Scene | None" = None,
+               dense: "DenseReport | None" = None) -> SceneInfo:
     """Everything slow the panels need, measured once per command (called in the worker); with
     the scene a solve proposes under `set preview on`, what the figure player shows of it.
     ``dense``: the continuous-time check of ``scene`` the command made (Outcome.dense), if any."""
