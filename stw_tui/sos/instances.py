@@ -138,8 +138,8 @@ def relation_times(scene, constraint, expr: sp.Expr, kind: str) -> np.ndarray:
 
 def relation_instances(scene, constraint, rel, kept: dict) -> np.ndarray:
     """:func:`relation_times` of one relation (read-only), from ``kept`` (:func:`kept_times`)
-    when it was worked out before for a scene of the same structure: every `iterate` builds its
-    window and checks the motion anew, and the times stay while only the control points change
+    when it was worked out before for a scene of the same structure: window builds and every
+    check of the motion ask for them, and they stay while only the control points change
     (acrobat's window build: 4.0 -> 2.2 ms)."""
     key = ("instances", rel.expr, rel.kind, constraint.name, constraint.at, constraint.interval,
            constraint.samples, scene.extra_instances.get(constraint.name))

@@ -13,7 +13,7 @@ from dataclasses import dataclass, field, replace
 import numpy as np
 import sympy as sp
 
-from stw_tui.sos.spline import DofCurve, SharedTimes, times_checker
+from stw_tui.sos.spline import DofCurve, SharedTimes
 from stw_tui.sym.compiler import free_symbols
 from stw_tui.sym.errors import LimitError, StwError
 from stw_tui.sym.kinds import TermKind
@@ -49,19 +49,14 @@ class ExpressionValues:
         self.term, self.params, self.curves = term, params, curves
 
     def __call__(self, times) -> np.ndarray:
-        times = np.asarray(times, float)
-        if not self.curves:
-            return self.term.value(np.zeros((times.size, 0)), times, self.params)
-        checked = times_checker(times)
-        columns = [curve.values_at(checked(curve), order) for curve, order in self.curves]   # (n, k)
-        return self.term.value(np.column_stack(columns), times, self.params)
+        return self.at(SharedTimes(times), slice(None))
 
     def at(self, shared: SharedTimes, part: slice) -> np.ndarray:
         """The values at ``shared.times[part]``: the same numbers as at those times alone."""
         times = shared.times[part]
         if not self.curves:
             return self.term.value(np.zeros((times.size, 0)), times, self.params)
-        columns = [shared.values(curve, order, part) for curve, order in self.curves]
+        columns = [shared.values(curve, order, part) for curve, order in self.curves]   # (n, k)
         return self.term.value(np.column_stack(columns), times, self.params)
 
 

@@ -71,13 +71,8 @@ class SharedTimes:
         knots = curve.knots.tobytes()
         found = self._bases.get((knots, order))
         if found is None:
-            times = self._checked(curve)
-            if self.keep:
-                found = _kept_nonzero_basis(knots, times.tobytes(), order)
-            else:
-                h, ell = bspline_kernel.nonzero_basis(curve.knots, times, DEGREE, order)
-                found = h, bspline_kernel.columns(ell, DEGREE)
-            self._bases[(knots, order)] = found
+            basis = _kept_nonzero_basis if self.keep else _nonzero_basis
+            found = self._bases[(knots, order)] = basis(knots, self._checked(curve).tobytes(), order)
         return found
 
 
@@ -154,17 +149,19 @@ def _kept_basis(knots: bytes, times: bytes, order: int) -> sps.csr_array:
     return M
 
 
-# Kept as _kept_basis is: the dense check evaluates curves at the same times check after check
-# (acrobat: 2557 evaluations at 644 distinct knots, times and orders), and the recursion costs
-# some 50 us, ten times the sum over its four terms on a few hundred times.
-@lru_cache(maxsize=512)
-def _kept_nonzero_basis(knots: bytes, times: bytes, order: int) -> tuple[np.ndarray, np.ndarray]:
+def _nonzero_basis(knots: bytes, times: bytes, order: int) -> tuple[np.ndarray, np.ndarray]:
     """bspline_kernel.nonzero_basis of the curves on these knots at these times (float64 bytes)
     and the control points each value multiplies (bspline_kernel.columns), read-only."""
     h, ell = bspline_kernel.nonzero_basis(np.frombuffer(knots), np.frombuffer(times), DEGREE, order)
     at = bspline_kernel.columns(ell, DEGREE)
     h.flags.writeable = at.flags.writeable = False
     return h, at
+
+
+# Kept as _kept_basis is: the dense check evaluates its grids, and the plots their curves, at
+# the same times check after check, and the recursion costs some 50 us, ten times the sum over
+# its four terms on a few hundred times.
+_kept_nonzero_basis = lru_cache(maxsize=512)(_nonzero_basis)
 
 
 @lru_cache(maxsize=16)

@@ -501,6 +501,13 @@ class WindowProblem:
         # every row's weight, by kind, in row order (read-only: evaluations share them)
         self._row_weights = {kind: np.concatenate([g.weights for g in self.groups if g.kind == kind]
                                                   or [np.zeros(0)]) for kind in (EQ, GE, OBJ)}
+        # the live masks of a problem without conditional groups, the same at every s (read-only:
+        # evaluations share them); None where a `when` decides
+        self._always_live = None
+        if all(g.condition is None for g in self.groups):
+            self._always_live = {kind: np.ones(counts[kind], bool) for kind in (EQ, GE)}
+            for mask in self._always_live.values():
+                mask.flags.writeable = False
         self.row_group = {kind: np.repeat(np.arange(len(self.groups)),
                                           [g.n if g.kind == kind else 0 for g in self.groups])
                           for kind in (EQ, GE, OBJ)}
@@ -551,17 +558,6 @@ class WindowProblem:
             if group.condition is not None:
                 masks[group.kind][group.row_offset:group.row_offset + group.n] = group.condition.evaluate(
                     v, group.times, self._params)
-        return masks
-
-    @cached_property
-    def _always_live(self) -> dict[str, np.ndarray] | None:
-        """The masks of a problem without conditional groups (read-only: evaluations share
-        them), else None."""
-        if any(group.condition is not None for group in self.groups):
-            return None
-        masks = {EQ: np.ones(self.row_counts[EQ], bool), GE: np.ones(self.row_counts[GE], bool)}
-        for mask in masks.values():
-            mask.flags.writeable = False
         return masks
 
     def merit_values(self, s: np.ndarray) -> MeritValues:
