@@ -409,3 +409,51 @@ def test_a_run_takes_an_idle_thread_and_an_abandoned_one_is_never_reused(hanging
     third = backend_calls.BackendThread("probe", lambda: False)
     assert third._thread is not abandoned[0] and third.call("probe", lambda: 7) == 7
     third.close()
+
+
+def _scipy_backend():
+    from stw_tui.sos.backend import load_backend
+    return load_backend("scipy")
+
+
+def test_the_shared_sqp_iterates_on_the_callers_thread_and_a_subclass_with_its_own_step_does_not():
+    """Backend.bounded_calls: the SQP's calls cannot hang, so run_iterations makes them on the
+    caller's thread (no hand-off); a subclass that overrides a step makes no such promise."""
+    scipy = _scipy_backend()
+
+    class OwnStep(scipy):
+        def step(self, problem, inner, iteration):
+            return super().step(problem, inner, iteration)
+
+    class SaysSo(OwnStep):
+        bounded_calls = True
+
+    assert scipy.bounded_calls and not OwnStep.bounded_calls and SaysSo.bounded_calls
+    threads = []
+    s = Session()
+    s.run_text("dof x = 0.5\nobjective o: (x - 1)^2 + x^4\nbackend scipy")
+    s.execute("iterate 5", on_report=lambda report: threads.append(threading.current_thread()))
+    assert threads and set(threads) == {threading.current_thread()}
+
+
+def test_ctrl_c_in_a_step_on_the_callers_thread_ends_the_solve_with_an_error_and_the_scene_unchanged(monkeypatch):
+    import stw_tui.sos.backend as backend
+
+    class Interrupted(_scipy_backend()):
+        name = "interrupted"
+        bounded_calls = True
+
+        def step(self, problem, inner, iteration):
+            if iteration == 2:
+                raise KeyboardInterrupt    # where Ctrl+C lands: inside the running step
+            return super().step(problem, inner, iteration)
+
+    installed = {**backend.available_backends(), "interrupted": _Entry(lambda: Interrupted)}
+    monkeypatch.setattr(backend, "available_backends", lambda: installed)
+    s = Session()
+    s.run_text("dof x = 0.5\nobjective o: (x - 1)^2 + x^4\nbackend interrupted")
+    before = s.scene
+    with pytest.raises(Exception) as info:
+        s.execute("iterate 5")
+    assert "interrupted (Ctrl+C) during iteration 2 of backend interrupted" in str(info.value)
+    assert "the scene is unchanged" in str(info.value) and s.scene is before

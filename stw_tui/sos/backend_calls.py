@@ -13,6 +13,10 @@ Each call runs in a copy of the driver's context (``contextvars``), so the scene
 (stw_tui/sym/limits.py) and numpy's error state reach the backend as if it ran on the caller's thread.
 Ctrl+C while waiting (headless `stw run`) ends the solve at once with an error: the main thread is
 the one that receives it, the backend's thread never does.
+
+A backend whose calls cannot hang (``Backend.bounded_calls``: the shared SQP, one bounded
+iteration a call) has its calls made on the caller's thread instead (:class:`Inline`), without
+the hand-offs' cost; Ctrl+C there ends the solve with the same error.
 """
 
 from __future__ import annotations
@@ -118,6 +122,30 @@ class BackendThread:
         with _POOL_LOCK:
             _CLOSED.difference_update([t for t in _CLOSED if not t.is_alive()])
             _CLOSED.add(worker.thread)
+
+
+class Inline:
+    """A :class:`BackendThread`'s calls made on the caller's own thread, for a backend whose
+    calls each return after a bounded amount of work (``Backend.bounded_calls``): a stop is
+    honoured at the loop's next iteration boundary, and there is nothing to abandon."""
+
+    def __init__(self, name: str):
+        self.name = name
+
+    def call(self, what: str | Callable[[], str], fn: Callable[..., Any], *args: Any) -> Any:
+        """``fn(*args)``; its result, or the exception it raised.
+
+        Raises:
+            SolveError: Ctrl+C while the call ran (as :meth:`BackendThread.call` says it).
+        """
+        try:
+            return fn(*args)
+        except KeyboardInterrupt:
+            raise SolveError(f"interrupted (Ctrl+C) during {_said(what)} of backend {self.name}; "
+                             "the scene is unchanged") from None
+
+    def close(self) -> None:
+        """Nothing to close: no thread was taken."""
 
 
 class _Worker:

@@ -166,6 +166,13 @@ class SQPBackend(Backend):
     options = SQP_OPTIONS
     capabilities = frozenset({Capability.INEQUALITIES, Capability.CONDITIONAL, Capability.DAMPING,
                               Capability.WEIGHTS, Capability.ELASTIC})
+    bounded_calls = True   # a step's loops (retries, QP iterations) all have limits
+
+    def __init_subclass__(cls, **kwargs):
+        super().__init_subclass__(**kwargs)
+        # A subclass with its own init or step makes no such promise unless it says so itself.
+        if "bounded_calls" not in cls.__dict__ and {"init", "step"} & cls.__dict__.keys():
+            cls.bounded_calls = False
 
     # --- what a backend supplies ------------------------------------------------------------
     def algebra(self, problem) -> LinearAlgebra:
