@@ -43,6 +43,7 @@ class TorchBackend(SQPBackend):
         *ScipyBackend.options,
     )
     capabilities = SQPBackend.capabilities | {Capability.GPU, Capability.BATCH}
+    bounded_calls = True   # its init adds a finiteness check to the SQP's: still bounded
 
     @classmethod
     def batch_solver(cls, size, options=None):
