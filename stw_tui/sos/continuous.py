@@ -162,7 +162,7 @@ def _sharpen(samplings: list[_Sampling], grids: list[np.ndarray], scores: list[n
         brackets.append((t_grid[np.maximum(peaks - 1, 0)], t_grid[np.minimum(peaks + 1, t_grid.size - 1)]))
     live = [i for i, b in enumerate(brackets) if b is not None]
     seen: dict[int, list] = {i: [] for i in live}
-    fractions = np.linspace(0.0, 1.0, 9)
+    fractions = np.linspace(0.0, 1.0, 9) if live else None
     for _ in range(rounds if live else 0):
         times = [brackets[i][0][:, None] + (brackets[i][1] - brackets[i][0])[:, None] * fractions[None, :]
                  for i in live]
@@ -209,7 +209,7 @@ def _sample(samplings: list[_Sampling]) -> list[_Samples]:
 def _relation_samplings(scene, constraint, kept: dict) -> list[_Sampling]:
     out = []
     for rel in constraint.relations:
-        def score(shared, part, values=scene.evaluator(rel.expr), kind=rel.kind):
+        def score(shared, part, values=scene.evaluator(rel.expr, kept), kind=rel.kind):
             v = _score(values.at(shared, part), kind, constraint.weight)
             if constraint.when is not None:   # a conditional constraint counts only where it applies
                 v = np.where(condition_holds(scene, constraint.when, shared.times[part]), v, -np.inf)
@@ -238,7 +238,7 @@ def _relation_times(scene, constraint, rel, kept: dict) -> tuple[np.ndarray, np.
     return (t_inst, *found)
 
 
-def _bound_samplings(scene, dof) -> list[_Sampling | _Samples]:
+def _bound_samplings(scene, dof, kept: dict) -> list[_Sampling | _Samples]:
     """A bound's instances are the control points (see instances.bound_times): their violation is
     the control points' own; the dense grid checks the curve, which they bound everywhere.
 
@@ -263,7 +263,7 @@ def _bound_samplings(scene, dof) -> list[_Sampling | _Samples]:
             t_base = dense_times(scene, [x], scene.t0, scene.t1,
                                  np.union1d(t_inst, bound_extra_times(scene, dof.name)))
 
-        def score(shared, part, values=scene.evaluator(expr)):
+        def score(shared, part, values=scene.evaluator(expr, kept)):
             return _score(values.at(shared, part), TermKind.GE, 1.0)
         out.append(_Sampling(score, t_inst, t_base, exact=True, v_inst=v_inst))
     return out
@@ -284,7 +284,7 @@ def _all_samples(scene):
     bounded DOF, all their samplings evaluated together (:func:`_sample`)."""
     kept = kept_times(scene)
     checks = [(c.name, _relation_samplings(scene, c, kept), c.dense_tol) for c in scene.constraints.values()]
-    checks += [(f"{dof.name}.bounds", _bound_samplings(scene, dof), None)
+    checks += [(f"{dof.name}.bounds", _bound_samplings(scene, dof, kept), None)
                for dof in scene.dofs.values() if dof.lo is not None or dof.hi is not None]
     pending = [p for _, parts, _ in checks for p in parts if isinstance(p, _Sampling)]
     done = iter(_sample(pending))
