@@ -126,7 +126,8 @@ class StepReport:
     infeasible: bool = False         # the constraints were found in conflict (status INFEASIBLE)
     conflicts: tuple[str, ...] = ()  # names of the constraints in conflict, when infeasible
     coefficients: np.ndarray | None = field(default=None, repr=False)  # all DOF control points after
-    # this iteration (set by the driver, so front ends can redraw curves while a solve runs)
+    # this iteration, so front ends can redraw curves while a solve runs (the driver sets them
+    # from the state when the backend did not: problem.scatter(state.s))
 
     @property
     def total_ms(self) -> float:
@@ -363,13 +364,14 @@ class _Loop:
             self.where = f"iteration {k}"
             inner, report = backend.step(problem, inner, k)
             state = backend.state(inner)
-            if not (np.all(np.isfinite(state.s)) and np.isfinite(report.objective)
+            if not (np.isfinite(state.s).all() and np.isfinite(report.objective)
                     and np.isfinite(report.max_violation)):
                 raise SolveError(f"iteration {k} produced non-finite values (diverged); "
                                  "the scene is unchanged — try damping, a smaller window or `shake`")
             if self.on_state is not None and self._callback(self.on_state, k, state) is _GIVEN_UP:
                 break
-            report = replace(report, coefficients=problem.scatter(state.s))
+            if report.coefficients is None:   # the shared SQP's steps carry them already
+                report = replace(report, coefficients=problem.scatter(state.s))
             reports.append(report)
             if report.converged:
                 status = Status.CONVERGED
