@@ -36,7 +36,7 @@ class DenseKKT(KKTSystem):
 
     def __init__(self, H: np.ndarray, A: np.ndarray, e):
         n, m = H.shape[0], A.shape[0]
-        K = np.empty((n + m, n + m))
+        K = np.empty((n + m, n + m), order="F")   # LAPACK's order: dgetrf would copy a C array
         K[:n, :n] = H
         if m:
             K[:n, n:] = A.T
@@ -55,15 +55,31 @@ class DenseKKT(KKTSystem):
 
 
 class NumpyDenseAlgebra(NumpyVectors):
-    """numpy vectors and dense 2-D arrays; LAPACK's LU and Cholesky."""
+    """numpy vectors and dense 2-D arrays; LAPACK's LU and Cholesky. One per solve."""
+
+    def __init__(self):
+        self._jacobians: dict[str, tuple] = {}   # kind -> (the evaluation's sparse one, dense)
 
     def matrix(self, m):
         return m.toarray() if sps.issparse(m) else np.asarray(m, dtype=float)
+
+    def jacobian(self, ev, kind):
+        # A kind whose rows are all affine (or absent) has one Jacobian object for every
+        # evaluation of the window (WindowProblem.evaluate): made dense once a solve, read-only.
+        sparse = ev.J_eq if kind == "eq" else ev.J_ge
+        kept = self._jacobians.get(kind)
+        if kept is None or kept[0] is not sparse:
+            dense = self.matrix(sparse)
+            dense.flags.writeable = False
+            kept = self._jacobians[kind] = (sparse, dense)
+        return kept[1]
 
     def diagonal_matrix(self, v):
         return np.diag(np.asarray(v, dtype=float))
 
     def rows(self, m, index):
+        if index.size == m.shape[0] and np.array_equal(index, np.arange(index.size)):
+            return m   # every row, in order: m[index] would copy m as it is
         return m[index]
 
     def stack_rows(self, parts):
