@@ -401,13 +401,18 @@ def test_curves_are_redrawn_from_each_iteration_while_a_solve_runs():
     async def main():
         async with app.run_test(size=SIZE, message_hook=hook) as pilot:
             await support.settle(pilot)
-            await support.submit(pilot, "iterate 30")
+            # A solve that runs until a redraw lands while it runs, then stopped: a fixed count
+            # of iterations (30 took about 10 ms) can end before the first redraw does.
+            await support.submit(pilot, "iterate 100000")
+            await support.until(pilot, lambda: any(solving and data.name == "x" for data, solving in computed),
+                                "a live redraw while solving")
+            await pilot.press("f4")
             await support.settle(pilot)
             return app.query_one("#curves-plot").data
 
     final = asyncio.run(main())
     live = [data for data, solving in computed if solving and data.name == "x"]
-    assert live, "no live redraw while solving"
+    assert "stopped" in app.session.runs[-1].status.value      # the F4, not the iteration limit
     # Each live curve is the spline of one reported iterate's control points, computed here anew.
     reported = [r.coefficients for r in app.session.runs[-1].reports]
     times = np.asarray(live[0].series.times)
