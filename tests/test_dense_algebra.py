@@ -115,3 +115,24 @@ def test_the_scipy_backend_goes_dense_on_small_windows_only():
     assert algebra(20, "solver=minres")[1] == "SparseAlgebra"
     assert algebra(20, "factor=sparse")[1] == "SparseAlgebra"
     assert algebra(DENSE_MAX, "factor=dense")[1] == "NumpyDenseAlgebra"
+
+
+def test_a_jacobian_object_is_made_dense_once_and_a_new_one_anew():
+    """The dense algebra keeps the dense copy of the last Jacobian object of each kind (the one
+    object of an all-affine kind, shared by every evaluation), read-only; a new object (a
+    nonlinear kind's next evaluation) is made dense anew, never answered by the kept copy."""
+    from types import SimpleNamespace
+
+    rng = np.random.default_rng(5)
+    first, second = (sps.csr_array(rng.standard_normal((4, 6))) for _ in range(2))
+    empty = sps.csr_array((0, 6))
+    la = NumpyDenseAlgebra()
+    one = la.jacobian(SimpleNamespace(J_eq=first, J_ge=empty), "eq")
+    again = la.jacobian(SimpleNamespace(J_eq=first, J_ge=empty), "eq")
+    assert again is one and np.array_equal(one, first.toarray()) and not one.flags.writeable
+    other = la.jacobian(SimpleNamespace(J_eq=second, J_ge=empty), "eq")
+    assert np.array_equal(other, second.toarray()) and not np.array_equal(other, one)
+    assert la.jacobian(SimpleNamespace(J_eq=second, J_ge=empty), "ge").shape == (0, 6)
+    # every row in order is the matrix itself; any other choice of rows is a copy of them
+    assert la.rows(other, np.arange(4)) is other
+    assert np.array_equal(la.rows(other, np.array([2, 0])), second.toarray()[[2, 0]])
