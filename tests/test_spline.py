@@ -53,6 +53,9 @@ def test_immutable_and_validated():
     d = c.with_coef(src)
     src[0] = 99.0  # the curve keeps its own copy
     assert d.coef[0] == 0.0
+    assert not d.coef.flags.writeable and d.knots is c.knots   # checked knots shared, not checked again
+    with pytest.raises(ValueError):
+        c.with_coef(np.zeros((c.n_coef, 1)))
 
 
 # --- bases ---------------------------------------------------------------------------------
