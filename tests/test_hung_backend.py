@@ -436,7 +436,7 @@ def test_the_shared_sqp_iterates_on_the_callers_thread_and_a_subclass_with_its_o
     assert threads and set(threads) == {threading.current_thread()}
 
 
-def test_ctrl_c_in_a_step_on_the_callers_thread_ends_the_solve_with_an_error_and_the_scene_unchanged(monkeypatch):
+def test_ctrl_c_in_a_step_on_the_callers_thread_ends_the_solve_with_an_error_scene_unchanged(monkeypatch):
     import stw_tui.sos.backend as backend
 
     class Interrupted(_scipy_backend()):
