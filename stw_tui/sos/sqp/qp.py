@@ -61,6 +61,7 @@ class QPResult:
     elastic: float | None = None   # ρ of an elastic QP, None for a hard one
     system: KKTSystem | None = None   # a hard equality-only QP's system [[H, A_eᵀ], [A_e, -ε]],
                                       # which the second-order correction solves again
+    rows_eq: Vector | None = None     # c_e + A_e d, where the QP worked it out (its residual test)
 
 
 def solve_qp(la: LinearAlgebra, H: Matrix, g: Vector, Ae: Matrix, ce: Vector, Ai: Matrix, ci: Vector,
@@ -94,7 +95,8 @@ def solve_qp(la: LinearAlgebra, H: Matrix, g: Vector, Ae: Matrix, ce: Vector, Ai
         system = la.kkt(H, Ae, KKT_EPS)
         x = system.solve(la.concat([-g, -ce - KKT_EPS * y0]))
         iterations, fallbacks = system.iterations, system.fallbacks
-        residual = la.max_abs(la.matvec(Ae, x[:n]) + ce)
+        rows = la.matvec(Ae, x[:n]) + ce
+        residual = la.max_abs(rows)
         if _held_back(residual, la.max_abs(ce), floor):
             fine = _finer(la, lambda: la.kkt(H, Ae, KKT_EPS_FINE), la.concat([-g, -ce]), y0,
                           lambda v: la.concat([la.matvec(H, v[:n]) + la.rmatvec(Ae, v[n:]), la.matvec(Ae, v[:n])]),
@@ -102,7 +104,8 @@ def solve_qp(la: LinearAlgebra, H: Matrix, g: Vector, Ae: Matrix, ce: Vector, Ai
             if fine is not None:
                 system, x = fine
                 iterations, fallbacks = iterations + system.iterations, fallbacks + system.fallbacks
-        return QPResult(x[:n], x[n:], la.zeros(0), iterations, 0, fallbacks, system=system)
+                rows = None
+        return QPResult(x[:n], x[n:], la.zeros(0), iterations, 0, fallbacks, system=system, rows_eq=rows)
     z0 = la.zeros(mi) if z0 is None else z0
     systems = la.working_set_kkt(H, Ae, Ai, KKT_EPS) if elastic is None else None
     if elastic is None and working is not None:

@@ -397,7 +397,12 @@ class SQPBackend(Backend):
         """The hard QP's step when its linearization can be met; the elastic QP's otherwise
         (``convex``: H is positive definite by construction)."""
         # a step may leave its rows unmet by up to tol_violation before qp._finer solves it again
-        hard = self._qp(la, H, ev, lin, None, counts, convex, float(settings["tol_violation"]))
+        floor = float(settings["tol_violation"])
+        if not lin.ge_rows.size:   # equality rows only: the paper's step, one KKT solve
+            newton = self._equality_qp(la, H, ev, lin, counts, floor)
+            if newton is not None:
+                return newton, rho_elastic
+        hard = self._qp(la, H, ev, lin, None, counts, convex, floor)
         if hard is not None and not hard.qp.capped and self._meets(la, lin, hard):
             return hard, rho_elastic
         multipliers = float(np.abs(hard.lam_eq).max(initial=0.0)) if hard is not None else 0.0
@@ -405,6 +410,28 @@ class SQPBackend(Backend):
                                                             min(multipliers, INFEASIBLE_MULTIPLIER)))
         counts.elastic = True
         return self._qp(la, H, ev, lin, rho_elastic, counts), rho_elastic
+
+    @staticmethod
+    def _equality_qp(la, H, ev, lin: _Linearization, counts: _Counts, floor: float) -> _Subproblem | None:
+        """The hard QP without live inequality rows, as :meth:`_qp` and :meth:`_meets` would
+        have it when its first KKT solve succeeds and meets the rows; None otherwise (singular,
+        not finite, or unmet: the general path then tries again). Without their loop and their
+        inequality bookkeeping, which cost 2% of the pendulum's `iterate`."""
+        try:
+            qp = solve_qp(la, H, lin.g, lin.Ae, lin.ce, lin.Ai, lin.ci, y0=lin.y0, floor=floor)
+        except SingularSystem:
+            return None
+        d = la.numpy(qp.d)
+        lin_eq = la.numpy(la.matvec(lin.Ae, qp.d) + lin.ce if qp.rows_eq is None else qp.rows_eq)
+        before = float(np.abs(la.numpy(lin.ce)).max(initial=0.0))
+        if not np.isfinite(d).all() or float(np.abs(lin_eq).max(initial=0.0)) > max(1e-6, 1e-3 * before):
+            return None
+        counts.linear_iterations += qp.linear_iterations
+        counts.fallbacks += qp.fallbacks
+        lam_eq = np.zeros(ev.c_eq.size)
+        lam_eq[lin.eq_rows] = la.numpy(qp.y)
+        return _Subproblem(qp, d, lam_eq, np.zeros(ev.c_ge.size), np.zeros(ev.c_ge.size, bool), lin_eq,
+                           np.zeros(0), H)
 
     @staticmethod
     def _meets(la, lin: _Linearization, sub: _Subproblem) -> bool:
