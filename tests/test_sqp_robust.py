@@ -107,6 +107,36 @@ def test_conflicting_constraints_are_named():
     assert "a and b" in last.message and last.elastic
 
 
+def test_conflicting_equality_rows_alone_leave_the_one_kkt_solve_for_elastic_mode_and_are_named():
+    """Without inequality rows a step is one KKT solve (SQPBackend._equality_qp); rows it cannot
+    meet (x = 1 and x = 0 at one instant) send the step to the general path, whose elastic QP
+    cannot lower their violation even to first order: a conflict (solver._no_progress)."""
+    session = Session()
+    session.run_text("time 0 1 knots=12\ndof x\nconstraint a: x = 1 @ 0.5\n"
+                     "constraint b: x = 0 @ 0.5\nobjective o: x''")
+    outcome = session.execute("iterate 50")
+    run = session.runs[-1]
+    assert run.status is Status.INFEASIBLE
+    assert run.reports[0].elastic and set(run.reports[-1].conflicts) == {"a", "b"}
+    # found at once (the steps wandered between the two values for all 50 iterations), and the
+    # console names the conflict instead of advising to refine the knots
+    assert len(run.reports) <= 3
+    assert "a and b conflict" in outcome.message and "refine the knots" not in outcome.message
+
+
+def test_a_row_whose_gradient_vanishes_at_the_start_is_no_conflict():
+    """x² = 1 from x = 0: the linearization 0·d = 1 cannot be met and the elastic step lowers
+    its violation not at all to first order, but the objective's step leaves x = 0 and the
+    violation falls in fact: that is no conflict (solver._no_progress), and the solve converges."""
+    session = Session()
+    session.run_text("time 0 1 knots=12\ndof x\nconstraint c: x^2 = 1 @ 0.5\nobjective o: x''\n"
+                     "objective p: x - 0.3")
+    session.execute("iterate 50")
+    run = session.runs[-1]
+    assert run.reports[0].elastic and run.status is Status.CONVERGED
+    assert abs(session.scene.dofs["x"].curve.evaluate(np.array([0.5]))[0] ** 2 - 1) < 1e-8
+
+
 def test_a_capped_interior_point_method_is_reported_and_falls_back_to_elastic():
     run = _solve(ARM, f"scipy {LIMITED}", 1).runs[-1]
     first = run.reports[0]

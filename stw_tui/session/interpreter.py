@@ -631,7 +631,8 @@ class SolveReport:
                          + ", ".join(f"{n} {k}" for n, k in self.added.items())
                          + f"), {self.resolves} re-solve(s)")
         lines[0] += self.undone
-        if self.dense.failing(self.tol):
+        # (constraints in conflict fail at their instances too: refining would not help)
+        if self.dense.failing(self.tol) and self.run.status is not Status.INFEASIBLE:
             lines.append(f"between the instances it fails dense_tol {self.tol:.0e}: "
                          f"{self.dense.describe_failures(self.tol)} — refine the knots there, or `set dense_tol`")
         last = self.run.reports[-1] if self.run.reports else None

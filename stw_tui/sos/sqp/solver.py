@@ -36,9 +36,10 @@ Robustness, in the order a step meets it:
   feasible, each row is weighed by its own multiplier (SQPBackend._merit_weights). With the option
   `growth`, it may not multiply the objective by more than that factor (once the objective is
   above max(1, ℓ1 violation)): a large merit weight must not let one step blow the motion up.
-* **Infeasibility.** When elastic steps make no more progress while rows stay violated (after the
-  elastic weight has been raised), the problem is declared infeasible, and the constraints in
-  conflict are named: those whose rows carry the multipliers of the least-violation QP.
+* **Infeasibility.** When elastic steps make no more progress while rows stay violated (no step,
+  or one that lowers their ℓ1 violation neither to first order nor in fact; after the elastic
+  weight has been raised), the problem is declared infeasible, and the constraints in conflict
+  are named: those whose rows carry the multipliers of the least-violation QP.
 
 Backends supply a :class:`~stw_tui.sos.sqp.algebra.LinearAlgebra` (where vectors live, how the KKT
 system is solved) and optionally their own evaluator of the window problem (torch's programs).
@@ -73,6 +74,7 @@ ELASTIC_RAISE, ELASTIC_MAX = 1e2, 1e6   # ... raised by this factor, up to this 
 NEWTON_WAIT_MAX = 4      # most Gauss-Newton steps taken before an exact one is tried again
 CONFLICT_FRACTION = 0.1  # a group with this share of the least-violation multipliers is in conflict
 MULTIPLIER_MARGIN = 1.5  # a row's merit weight: this x its multiplier (at least)
+STATIONARY_VIOLATION = 1e-6   # an elastic step that lowers the linearized violation by less: stationary
 
 SQP_OPTIONS = (
     BackendOption("trust", float, 0.5, "initial step limit: largest change of any control point "
@@ -301,7 +303,8 @@ class SQPBackend(Backend):
         stalled = stalled and not converged
         infeasible, message = False, ""
         no_direction = float(np.abs(sub.d).max(initial=0.0)) <= 1e-8 * (1.0 + float(np.abs(ev.s).max(initial=0.0)))
-        if counts.elastic and violation > settings["tol_violation"] and no_direction:
+        if counts.elastic and violation > settings["tol_violation"] and (
+                no_direction or _no_progress(ev, new_ev, lin, sub)):
             if rho_elastic < ELASTIC_MAX * self._elastic_base(ev):
                 rho_elastic *= ELASTIC_RAISE      # weigh the violation more, and try again
                 stalled = False
@@ -657,6 +660,22 @@ class SQPBackend(Backend):
                 totals[source] = totals.get(source, 0.0) + float(w) + (1.0 if v > 1e-6 else 0.0)
         top = max(totals.values(), default=0.0)
         return tuple(name for name, total in totals.items() if top > 0 and total >= CONFLICT_FRACTION * top)
+
+
+def _no_progress(ev, new_ev, lin: _Linearization, sub: _Subproblem) -> bool:
+    """Whether an elastic step lowered the ℓ1 violation neither to first order (its rows'
+    linearized violation is the current one, to STATIONARY_VIOLATION: a stationary point of the
+    violation) nor in fact (at the point it reached). That tells as much as no step at all, and
+    the step need not be small: where rows contradict each other (x = 1 and x = 0 at one
+    instant) every point between them violates them as much, and the steps wandered there for
+    the whole iteration budget. (Where a row's gradient merely vanishes, x² = 1 at x = 0, a
+    step the objective makes leaves that point and lowers the violation in fact.)"""
+    def l1(values) -> float:
+        return float(np.abs(values.c_eq[values.active_eq]).sum()
+                     + np.maximum(0.0, -values.c_ge[values.active_ge]).sum())
+    now = l1(ev)
+    linearized = np.abs(sub.lin_eq).sum() + np.maximum(0.0, -sub.lin_ge).sum()
+    return bool(min(linearized, l1(new_ev)) >= (1.0 - STATIONARY_VIOLATION) * now)
 
 
 def _conflict_message(conflicts: tuple[str, ...], violation: float) -> str:
