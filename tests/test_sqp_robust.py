@@ -137,6 +137,17 @@ def test_a_row_whose_gradient_vanishes_at_the_start_is_no_conflict():
     assert abs(session.scene.dofs["x"].curve.evaluate(np.array([0.5]))[0] ** 2 - 1) < 1e-8
 
 
+def test_one_constraint_that_cannot_be_met_from_here_is_not_called_a_conflict():
+    """x² = 1 from x = 0 with nothing to move x: no step lowers the violation. One constraint
+    alone is named as not met from here, with what may move the curves, not as a conflict."""
+    session = Session()
+    session.run_text("time 0 1 knots=12\ndof x\nconstraint c: x^2 = 1 @ 0.5\nobjective o: x''")
+    outcome = session.execute("iterate 50")
+    assert session.runs[-1].status is Status.INFEASIBLE
+    assert "constraint c cannot be met from here" in outcome.message and "shake" in outcome.message
+    assert "constraints c conflict" not in outcome.message
+
+
 def test_a_capped_interior_point_method_is_reported_and_falls_back_to_elastic():
     run = _solve(ARM, f"scipy {LIMITED}", 1).runs[-1]
     first = run.reports[0]

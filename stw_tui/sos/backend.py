@@ -70,7 +70,7 @@ class Status(enum.Enum):
     MAX_ITERATIONS = "iteration limit reached"
     STOPPED = "stopped by the user"
     STALLED = "no further progress (line search failed)"
-    INFEASIBLE = "the constraints conflict: no motion meets them all"
+    INFEASIBLE = "the constraints cannot be met (no step lowers their violation)"
     FAILED = "failed"
 
 

@@ -681,7 +681,13 @@ def _no_progress(ev, new_ev, lin: _Linearization, sub: _Subproblem) -> bool:
 def _conflict_message(conflicts: tuple[str, ...], violation: float) -> str:
     if not conflicts:
         return f"the constraints cannot all be met here (violation {violation:.3g} left)"
-    names = ", ".join(conflicts[:-1]) + (" and " if len(conflicts) > 1 else "") + conflicts[-1]
+    if len(conflicts) == 1:
+        # one constraint alone: its violation is stationary here, which need not hold elsewhere
+        # (x^2 = 1 from x = 0, where its gradient vanishes)
+        return (f"constraint {conflicts[0]} cannot be met from here: no step lowers its violation "
+                f"(least violation {violation:.3g} left) — `shake` or a keyframe may move the curves "
+                "where it can be")
+    names = ", ".join(conflicts[:-1]) + " and " + conflicts[-1]
     return (f"constraints {names} conflict: no motion meets them all "
             f"(least violation {violation:.3g} left)")
 
