@@ -612,35 +612,44 @@ class WindowProblem:
     def evaluate(self, s: np.ndarray) -> Evaluation:
         """Values, gradients and (lazily) Hessians at free values ``s``."""
         v = self._slot_values(s)
-        values = {kind: np.empty(self.row_counts[kind]) for kind in (EQ, GE, OBJ)}
-        grads = {kind: [] for kind in (EQ, GE, OBJ)}
+        counts, kept = self.row_counts, self._constant_jacobians
+        values = {EQ: np.empty(counts[EQ]), GE: np.empty(counts[GE]), OBJ: np.empty(counts[OBJ])}
+        grads = {EQ: [], GE: [], OBJ: []}   # (of kinds whose Jacobian is not kept)
         hess = []
-        constant = self._affine().jacobian   # affine groups' Jacobian values, made once
-        for (group, f, grad, h), parts in zip(self._local_terms(v), constant):
-            values[group.kind][group.row_offset:group.row_offset + group.n] = f
-            if parts is None:
+        affine = self._affine()
+        fa = affine.values(v)
+        # _local_terms' loop written out: this is every SQP step's evaluation (a small window's
+        # steps spent 2% in the generator, the dicts and the unused parts of kept Jacobians)
+        for group, span, parts in zip(self.groups, affine.span, affine.jacobian):
+            rows = slice(group.row_offset, group.row_offset + group.n)
+            if span is not None:   # affine: values from the one product, Jacobian values constant
+                values[group.kind][rows], h = fa[span[0]:span[1]], None
+            else:
+                values[group.kind][rows], grad, h = group.term.full(
+                    self._group_inputs(group, v), group.times, group.params)
                 # constraint rows scaled by their weights; objective residuals as they are (x 1.0)
                 parts = (grad * group.weights[:, None] if group.kind != OBJ else grad).T.ravel()
-            grads[group.kind].append(parts)
+            if group.kind not in kept:
+                grads[group.kind].append(parts)
             hess.append((group, h))
         J, full = {}, {}
         for kind in (EQ, GE, OBJ):
-            constant = self._constant_jacobians.get(kind)
+            constant = kept.get(kind)
             if constant is None:
                 J[kind], full[kind] = self._jacobian(kind, grads[kind])
                 # every row affine, or no row at all: the same at every s
-                if kind in self._affine_rows.kinds or not self.row_counts[kind]:
-                    self._constant_jacobians[kind] = (J[kind], full[kind])
+                if kind in affine.kinds or not counts[kind]:
+                    kept[kind] = (J[kind], full[kind])
             else:
                 J[kind], full[kind] = constant
         w_obj = self._row_weights[OBJ]
         residual = values[OBJ]
         objective = float(np.dot(w_obj, residual * residual))
         gradient = matvec(transpose(J[OBJ]), 2.0 * w_obj * residual) if residual.size else np.zeros(self.n_free)
-        c = {kind: self._row_weights[kind] * values[kind] for kind in (EQ, GE)}
+        weights = self._row_weights
         masks = self._conditions(v)
         return Evaluation(s=s.copy(), objective=objective, gradient=np.asarray(gradient),
-                          c_eq=c[EQ], J_eq=J[EQ], c_ge=c[GE], J_ge=J[GE],
+                          c_eq=weights[EQ] * values[EQ], J_eq=J[EQ], c_ge=weights[GE] * values[GE], J_ge=J[GE],
                           active_eq=masks[EQ], active_ge=masks[GE], _problem=self,
                           _hess_data={"groups": hess, "w_obj": w_obj, "J_obj_full": full[OBJ]}, _residual=residual, _J_obj=J[OBJ])
 
