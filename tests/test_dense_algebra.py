@@ -136,3 +136,10 @@ def test_a_jacobian_object_is_made_dense_once_and_a_new_one_anew():
     # every row in order is the matrix itself; any other choice of rows is a copy of them
     assert la.rows(other, np.arange(4)) is other
     assert np.array_equal(la.rows(other, np.array([2, 0])), second.toarray()[[2, 0]])
+    # the widest column of a kept (read-only) matrix is kept too; a writable one is worked out anew
+    widest = (second.toarray() ** 2).sum(axis=0).max()
+    assert la.max_gram_diagonal(other) == pytest.approx(widest, rel=1e-14)
+    writable = second.toarray()
+    assert la.max_gram_diagonal(writable) == pytest.approx(widest, rel=1e-14)
+    writable *= 2.0
+    assert la.max_gram_diagonal(writable) == pytest.approx(4.0 * widest, rel=1e-14)

@@ -58,7 +58,9 @@ class NumpyDenseAlgebra(NumpyVectors):
     """numpy vectors and dense 2-D arrays; LAPACK's LU and Cholesky. One per solve."""
 
     def __init__(self):
-        self._jacobians: dict[str, tuple] = {}   # kind -> (the evaluation's sparse one, dense)
+        # kind -> (the evaluation's sparse Jacobian, dense); "gram" -> (a read-only matrix, its
+        # max_gram_diagonal)
+        self._kept: dict[str, tuple] = {}
 
     def matrix(self, m):
         return m.toarray() if sps.issparse(m) else np.asarray(m, dtype=float)
@@ -67,11 +69,11 @@ class NumpyDenseAlgebra(NumpyVectors):
         # A kind whose rows are all affine (or absent) has one Jacobian object for every
         # evaluation of the window (WindowProblem.evaluate): made dense once a solve, read-only.
         sparse = ev.J_eq if kind == "eq" else ev.J_ge
-        kept = self._jacobians.get(kind)
+        kept = self._kept.get(kind)
         if kept is None or kept[0] is not sparse:
             dense = self.matrix(sparse)
             dense.flags.writeable = False
-            kept = self._jacobians[kind] = (sparse, dense)
+            kept = self._kept[kind] = (sparse, dense)
         return kept[1]
 
     def diagonal_matrix(self, v):
@@ -101,7 +103,14 @@ class NumpyDenseAlgebra(NumpyVectors):
         return float(np.abs(m.diagonal()).max(initial=0.0))
 
     def max_gram_diagonal(self, a):
-        return float(np.einsum("ij,ij->j", a, a).max(initial=0.0))
+        # the curvature test asks it of the same kept (read-only) Jacobian at every step
+        kept = self._kept.get("gram")
+        if kept is not None and kept[0] is a:
+            return kept[1]
+        widest = float(np.einsum("ij,ij->j", a, a).max(initial=0.0))
+        if not a.flags.writeable:
+            self._kept["gram"] = (a, widest)
+        return widest
 
     def positive_definite(self, m):
         # LAPACK may carry a NaN through instead of stopping: a NaN entry reaches a pivot.

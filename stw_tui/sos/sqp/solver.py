@@ -351,10 +351,11 @@ class SQPBackend(Backend):
     def _convexify(la: LinearAlgebra, H, ev, lin: _Linearization, st: SolverState, last: float):
         """:func:`~.curvature.convexify` on the null space of the equality rows and of the
         binding inequality rows: those of the last working set, and those violated now."""
-        binding = st.working_set[lin.ge_rows] | (ev.c_ge[lin.ge_rows] <= 0.0)
         rows = [lin.Ae] if lin.eq_rows.size else []
-        if binding.any():
-            rows.append(la.rows(lin.Ai, np.flatnonzero(binding)))
+        if lin.ge_rows.size:
+            binding = st.working_set[lin.ge_rows] | (ev.c_ge[lin.ge_rows] <= 0.0)
+            if binding.any():
+                rows.append(la.rows(lin.Ai, np.flatnonzero(binding)))
         A = None if not rows else la.stack_rows(rows) if len(rows) > 1 else rows[0]
         return convexify(la, H, A, last)
 
