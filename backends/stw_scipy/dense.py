@@ -36,14 +36,15 @@ class DenseKKT(KKTSystem):
 
     def __init__(self, H: np.ndarray, A: np.ndarray, e):
         n, m = H.shape[0], A.shape[0]
-        K = np.empty((n + m, n + m), order="F")   # LAPACK's order: dgetrf would copy a C array
+        size = n + m
+        K = np.zeros((size, size), order="F")   # LAPACK's order: dgetrf would copy a C array
         K[:n, :n] = H
         if m:
             K[:n, n:] = A.T
             K[n:, :n] = A
-            K[n:, n:] = 0.0
-            at = np.arange(n, n + m)
-            K[at, at] = -np.asarray(e, dtype=float)   # a scalar or one entry per row
+            # the (2,2) diagonal through a strided view of the storage (entry (i, i) is i(size+1)),
+            # not a fancy index: a scalar or one entry per row
+            K.ravel(order="F")[n * (size + 1)::size + 1] = -np.asarray(e, dtype=float)
         self.lu, self.pivots, info = lapack.dgetrf(K, overwrite_a=1)
         if info > 0:   # U[info-1, info-1] is exactly zero
             raise SingularSystem("KKT matrix is exactly singular")
