@@ -107,6 +107,7 @@ class SQPInner:
     shift: float = 0.0        # the last curvature shift δ an exact model needed (see _convexify)
     damping: Any = None       # 2 x the evaluator's damping per variable, read once per solve
     speculate: bool = False   # the next step's first trial is evaluated whole (see SQPBackend._accept)
+    violation: float | None = None   # ev's max violation, where the last step worked it out
 
 
 @dataclass
@@ -209,7 +210,7 @@ class SQPBackend(Backend):
         counts = _Counts()
         clock = time.perf_counter()
         lin = self._linearize(la, ev, st)
-        start_violation = ev.max_violation()
+        start_violation = ev.max_violation() if inner.violation is None else inner.violation
         far = start_violation > self.config["newton_switch"]   # for the merit weights, as for the modes
         modes = self._modes(start_violation, st.newton_wait)
         prox = st.regularization if st.regularization > 0 else self.config["prox"]
@@ -333,7 +334,7 @@ class SQPBackend(Backend):
         # the next one likely will too (acrobat 20 of 26 such, basketball 35 of 48).
         speculate = trial.first and attempt == 0
         return SQPInner(state=new_state, ev=new_ev, settings=settings, evaluator=inner.evaluator, algebra=la,
-                        shift=shift, damping=inner.damping, speculate=speculate), report
+                        shift=shift, damping=inner.damping, speculate=speculate, violation=violation), report
 
     # --- pieces of a step ---------------------------------------------------------------------
     def _modes(self, violation: float, newton_wait: int) -> tuple[str, ...]:
