@@ -391,10 +391,16 @@ class SQPBackend(Backend):
 
     def _linearize(self, la: LinearAlgebra, ev, st: SolverState) -> _Linearization:
         eq_rows, ge_rows = np.flatnonzero(ev.active_eq), np.flatnonzero(ev.active_ge)
+        # every row of a kind live (no `when`, or all hold): its arrays as they are, not picked
+        every_eq, every_ge = eq_rows.size == ev.c_eq.size, ge_rows.size == ev.c_ge.size
+        J_eq, J_ge = la.jacobian(ev, "eq"), la.jacobian(ev, "ge")
         return _Linearization(eq_rows, ge_rows, la.vector(ev.gradient),
-                              la.rows(la.jacobian(ev, "eq"), eq_rows), la.vector(ev.c_eq[eq_rows]),
-                              la.rows(la.jacobian(ev, "ge"), ge_rows), la.vector(ev.c_ge[ge_rows]),
-                              la.vector(st.lam_eq[eq_rows]), la.vector(-st.lam_ge[ge_rows]),
+                              J_eq if every_eq else la.rows(J_eq, eq_rows),
+                              la.vector(ev.c_eq if every_eq else ev.c_eq[eq_rows]),
+                              J_ge if every_ge else la.rows(J_ge, ge_rows),
+                              la.vector(ev.c_ge if every_ge else ev.c_ge[ge_rows]),
+                              la.vector(st.lam_eq if every_eq else st.lam_eq[eq_rows]),
+                              la.vector(-(st.lam_ge if every_ge else st.lam_ge[ge_rows])),
                               _live(la, st.working_set, ge_rows))
 
     def _subproblem(self, la, H, ev, lin: _Linearization, rho_elastic: float, settings,
