@@ -422,27 +422,23 @@ class SQPBackend(Backend):
         counts.elastic = True
         return self._qp(la, H, ev, lin, rho_elastic, counts), rho_elastic
 
-    @staticmethod
-    def _equality_qp(la, H, ev, lin: _Linearization, counts: _Counts, floor: float) -> _Subproblem | None:
+    def _equality_qp(self, la, H, ev, lin: _Linearization, counts: _Counts, floor: float) -> _Subproblem | None:
         """The hard QP without live inequality rows, as :meth:`_qp` and :meth:`_meets` would
         have it when its first KKT solve succeeds and meets the rows; None otherwise (singular,
-        not finite, or unmet: the general path then tries again). Without their loop and their
-        inequality bookkeeping, which cost 2% of the pendulum's `iterate`."""
+        not finite, or unmet: the general path then tries again). Without their regularization
+        loop, which cost 2% of the pendulum's `iterate`."""
         try:
             qp = solve_qp(la, H, lin.g, lin.Ae, lin.ce, lin.Ai, lin.ci, y0=lin.y0, floor=floor)
         except SingularSystem:
             return None
-        d = la.numpy(qp.d)
-        lin_eq = la.numpy(la.matvec(lin.Ae, qp.d) + lin.ce if qp.rows_eq is None else qp.rows_eq)
-        before = float(np.abs(la.numpy(lin.ce)).max(initial=0.0))
-        if not np.isfinite(d).all() or float(np.abs(lin_eq).max(initial=0.0)) > max(1e-6, 1e-3 * before):
+        if not np.isfinite(la.numpy(qp.d)).all():
+            return None
+        sub = self._solved(la, ev, lin, qp, H)
+        if not self._meets(la, lin, sub):
             return None
         counts.linear_iterations += qp.linear_iterations
         counts.fallbacks += qp.fallbacks
-        lam_eq = np.zeros(ev.c_eq.size)
-        lam_eq[lin.eq_rows] = la.numpy(qp.y)
-        return _Subproblem(qp, d, lam_eq, np.zeros(ev.c_ge.size), np.zeros(ev.c_ge.size, bool), lin_eq,
-                           np.zeros(0), H)
+        return sub
 
     @staticmethod
     def _meets(la, lin: _Linearization, sub: _Subproblem) -> bool:
@@ -485,19 +481,24 @@ class SQPBackend(Backend):
             if curvature >= -1e-12 * la.dot(qp.d, qp.d) or la.max_abs(qp.d) == 0.0:
                 break
             reg = max(10 * reg, 1e-6 * max(1.0, la.max_abs_diagonal(H)))
-        if qp is None:
-            return None
+        return None if qp is None else self._solved(la, ev, lin, qp, Hr)
+
+    @staticmethod
+    def _solved(la, ev, lin: _Linearization, qp: QPResult, H) -> _Subproblem:
+        """A solved QP (with model ``H``) as the SQP reads it: multipliers and working set over
+        every row, and the linearized rows after the step (the QP's own c + A d where it made it)."""
         lam_eq = np.zeros(ev.c_eq.size)
         lam_eq[lin.eq_rows] = la.numpy(qp.y)
         lam_ge = np.zeros(ev.c_ge.size)
-        z = la.numpy(qp.z)
-        lam_ge[lin.ge_rows] = -z          # L = R + Σλc: a binding h >= 0 has λ <= 0
         working = np.zeros(ev.c_ge.size, bool)
-        if z.size:
+        lin_ge = np.zeros(0)
+        if lin.ge_rows.size:
+            z = la.numpy(qp.z)
+            lam_ge[lin.ge_rows] = -z          # L = R + Σλc: a binding h >= 0 has λ <= 0
             working[lin.ge_rows[z > ACTIVE_FRACTION * max(1.0, float(z.max()))]] = True
-        lin_eq = la.numpy(la.matvec(lin.Ae, qp.d) + lin.ce)
-        lin_ge = la.numpy(la.matvec(lin.Ai, qp.d) + lin.ci)
-        return _Subproblem(qp, la.numpy(qp.d), lam_eq, lam_ge, working, lin_eq, lin_ge, Hr)
+            lin_ge = la.numpy(la.matvec(lin.Ai, qp.d) + lin.ci)
+        lin_eq = la.numpy(la.matvec(lin.Ae, qp.d) + lin.ce if qp.rows_eq is None else qp.rows_eq)
+        return _Subproblem(qp, la.numpy(qp.d), lam_eq, lam_ge, working, lin_eq, lin_ge, H)
 
     def _merit_weights(self, la, ev, lin: _Linearization, sub: _Subproblem, settings, far: bool):
         """The ℓ1 merit's weight of each row, (equality rows, inequality rows).
@@ -579,7 +580,7 @@ class SQPBackend(Backend):
         slope = min(slope, 0.0)   # not a descent direction for this ρ: ask only for simple decrease
         factor = self.config["growth"]
         growth = np.inf if factor <= 0 else \
-            factor * max(ev.objective, OBJECTIVE_FLOOR, np.abs(c_eq).sum() + np.maximum(0.0, -c_ge).sum())
+            factor * max(ev.objective, OBJECTIVE_FLOOR, _l1(c_eq, c_ge))
 
         def ok(mv, alpha: float) -> tuple[bool, float]:
             pred = predicted(alpha)
@@ -623,7 +624,7 @@ class SQPBackend(Backend):
         The multipliers bound it when the model is convex along d; where it is convex only on
         the null space of the binding rows (_convexify), a step that restores feasibility can
         climb the objective, and the merit must weigh the violation it removes enough for that."""
-        viol = np.abs(ev.c_eq[lin.eq_rows]).sum() + np.maximum(0.0, -ev.c_ge[lin.ge_rows]).sum()
+        viol = _l1(ev.c_eq[lin.eq_rows], ev.c_ge[lin.ge_rows])
         if viol <= 0.0:
             return 0.0
         d = la.vector(sub.d)
@@ -670,6 +671,11 @@ class SQPBackend(Backend):
         return tuple(name for name, total in totals.items() if top > 0 and total >= CONFLICT_FRACTION * top)
 
 
+def _l1(c_eq: np.ndarray, c_ge: np.ndarray) -> float:
+    """The ℓ1 violation of equality values ``c_eq`` and inequality values ``c_ge`` (>= 0 holds)."""
+    return float(np.abs(c_eq).sum() + np.maximum(0.0, -c_ge).sum())
+
+
 def _no_progress(ev, new_ev, lin: _Linearization, sub: _Subproblem) -> bool:
     """Whether an elastic step lowered the ℓ1 violation neither to first order (its rows'
     linearized violation is the current one, to STATIONARY_VIOLATION: a stationary point of the
@@ -678,12 +684,9 @@ def _no_progress(ev, new_ev, lin: _Linearization, sub: _Subproblem) -> bool:
     instant) every point between them violates them as much, and the steps wandered there for
     the whole iteration budget. (Where a row's gradient merely vanishes, x² = 1 at x = 0, a
     step the objective makes leaves that point and lowers the violation in fact.)"""
-    def l1(values) -> float:
-        return float(np.abs(values.c_eq[values.active_eq]).sum()
-                     + np.maximum(0.0, -values.c_ge[values.active_ge]).sum())
-    now = l1(ev)
-    linearized = np.abs(sub.lin_eq).sum() + np.maximum(0.0, -sub.lin_ge).sum()
-    return bool(min(linearized, l1(new_ev)) >= (1.0 - STATIONARY_VIOLATION) * now)
+    now = _l1(ev.c_eq[lin.eq_rows], ev.c_ge[lin.ge_rows])
+    reached = _l1(new_ev.c_eq[new_ev.active_eq], new_ev.c_ge[new_ev.active_ge])
+    return min(_l1(sub.lin_eq, sub.lin_ge), reached) >= (1.0 - STATIONARY_VIOLATION) * now
 
 
 def _conflict_message(conflicts: tuple[str, ...], violation: float) -> str:
