@@ -80,8 +80,7 @@ class BackendThread:
             ok, value = self._wait(reply, what)
             self._answered = True
         except KeyboardInterrupt:   # wherever in the wait it lands
-            raise SolveError(f"interrupted (Ctrl+C) during {_said(what)} of backend {self.name}; "
-                             "the scene is unchanged") from None
+            raise _interrupted(self.name, what) from None
         if ok:
             return value
         raise value
@@ -141,8 +140,7 @@ class Inline:
         try:
             return fn(*args)
         except KeyboardInterrupt:
-            raise SolveError(f"interrupted (Ctrl+C) during {_said(what)} of backend {self.name}; "
-                             "the scene is unchanged") from None
+            raise _interrupted(self.name, what) from None
 
     def close(self) -> None:
         """Nothing to close: no thread was taken."""
@@ -174,6 +172,11 @@ class _Worker:
 
 def _said(what: str | Callable[[], str]) -> str:
     return what() if callable(what) else what
+
+
+def _interrupted(name: str, what: str | Callable[[], str]) -> SolveError:
+    """The error of a solve ended by Ctrl+C, on a backend thread or on the caller's."""
+    return SolveError(f"interrupted (Ctrl+C) during {_said(what)} of backend {name}; the scene is unchanged")
 
 
 IDLE_KEPT = 2   # idle threads kept for the next runs (two solves may run at once: a survey's, the console's)
