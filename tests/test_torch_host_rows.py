@@ -118,6 +118,33 @@ def test_repeated_evaluations_on_the_host_give_the_device_paths_numbers(problem)
         assert max(len(p.programs) for t in together for p, _ in t.buckets) >= 5
 
 
+def test_a_constant_jacobian_is_handed_on_not_made_again():
+    """A kind whose rows are all affine has one Jacobian for the whole solve on the host: the
+    first evaluation's values (read-only) and one scipy matrix, which the next evaluations hand
+    on, with the numbers a fresh product of their own gradients gives; a kind with a nonlinear
+    row (the arm's release) gets new values at every evaluation."""
+    window = WindowProblem(catalogue.problems("particle_jet")[0].setup().scene)
+    tp = TorchProblem(window, torch.device("cpu"), host_linear=True)
+    assert "eq" in tp.constant_kinds
+    points = [window.initial() + 0.1 * np.sin(np.arange(window.n_free) + k) for k in range(3)]
+    evaluations = [tp.evaluate(s) for s in points]
+    first = evaluations[0]
+    for ev in evaluations[1:]:
+        assert ev.J_eq is first.J_eq and ev.t_J["eq"] is first.t_J["eq"]
+        fresh = tp.jac["eq"].values(ev.t_local["g"] * tp.host_arrays["w_slot"])
+        assert np.array_equal(ev.J_eq.data, fresh)
+    assert not first.t_J["eq"].flags.writeable
+    again = tp.with_problem(window).evaluate(points[0])   # a new solve keeps its own
+    assert again.J_eq is not first.J_eq and np.array_equal(again.J_eq.data, first.J_eq.data)
+
+    arm = WindowProblem(catalogue.problems("arm_throw")[0].setup().scene)
+    tp = TorchProblem(arm, torch.device("cpu"), host_linear=True)
+    assert "eq" not in tp.constant_kinds
+    s = arm.initial()
+    one, two = tp.evaluate(s), tp.evaluate(s + 0.05)
+    assert one.J_eq is not two.J_eq and not np.array_equal(one.J_eq.data, two.J_eq.data)
+
+
 def test_calls_too_large_for_one_workspace_are_split(monkeypatch):
     """With room for only a few rows, the calls of a window are planned in smaller buckets (or
     left to run one by one) and give the same numbers."""

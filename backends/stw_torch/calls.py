@@ -246,6 +246,8 @@ class RowLayout:
     gathers: list               # per bucket: (rows, columns, [(target, places, start, stop)], loose)
     numbers: list               # (target, places, values)
     inputs: list                # per bucket: its RowInputs
+    # (bucket, the workspace's width) -> each entry's index in the flattened workspace
+    flat: dict = field(default_factory=dict, repr=False)
 
     @classmethod
     def of(cls, plan: CallPlan, together: "Together") -> "RowLayout | None":
@@ -309,21 +311,29 @@ class RowLayout:
     def readers(self, out: dict):
         """Per bucket, the ``read`` of LevelPlan.run_filled: its entries gathered from the rows,
         and its outputs in no row taken from the registers."""
-        def reader(rows, columns, spans, in_registers):
-            flat = {}   # the workspace's width -> each entry's index in it, flattened
-
+        def reader(bucket, rows, columns, spans, in_registers):
             def read(R, registers):
-                width = R.shape[1]
-                if width not in flat:
-                    flat[width] = rows * width + columns
-                values = R.take(flat[width])
+                flat = self.flat.get((bucket, R.shape[1]))
+                if flat is None:   # worked out once per width, not at every evaluation
+                    flat = self.flat[(bucket, R.shape[1])] = rows * R.shape[1] + columns
+                values = R.take(flat)
                 for target, places, a, b in spans:
                     out[target][places] = values[a:b]
                 for target, places, reg, n in in_registers:
-                    out[target][places] = as_row(registers[reg], n)
+                    value = registers[reg]
+                    # a float64 number (0-d) is put in place as it is: as_row's broadcast view of
+                    # it costs more (np.broadcast_to's checks) than the assignment, same numbers
+                    out[target][places] = value if _is_float64(value, n) else as_row(value, n)
                 return True
             return read
-        return [reader(*gather) for gather in self.gathers]
+        return [reader(bucket, *gather) for bucket, gather in enumerate(self.gathers)]
+
+
+def _is_float64(value, n: int) -> bool:
+    """Whether ``value`` is a float64 number or (n,) array: one that as_row leaves as it is or
+    only repeats."""
+    return value.__class__ is float or (value.__class__ is np.ndarray and value.dtype == np.float64
+                                        and value.shape in ((), (n,)))
 
 
 class RowInputs:

@@ -325,7 +325,7 @@ class TorchEvaluation:
 
     def _jacobian(self, kind: str) -> sps.csr_array:
         if kind not in self._scipy_J:
-            self._scipy_J[kind] = self.tp.jac[kind].scipy(self.t_J[kind])
+            self._scipy_J[kind] = self.tp.jacobian_matrix(kind, self.t_J[kind])
         return self._scipy_J[kind]
 
     def dense_jacobian(self, kind: str) -> torch.Tensor:
@@ -393,6 +393,12 @@ class TorchProblem:
             self.groups.append(lowered)
             inst += g.n
         self.n_inst = inst
+        # Kinds whose rows are all affine (or absent): their Jacobian is the same at every s, so
+        # an evaluation on the CPU hands on the solve's first one, values and matrix, as the core
+        # window problem does (and the dense algebra makes it dense once a solve, not every step)
+        self.constant_kinds = tuple(kind for kind in (EQ, GE)
+                                    if all(g.term.affine for g in problem.groups if g.kind == kind))
+        self._kept_J: dict = {}   # kind -> [values, scipy matrix or None] of this solve
         self.plan = CallPlan.build(self.groups, self.n_slots, device, autograd)
         self._last: TorchEvaluation | None = None   # the latest evaluation (its Hessian used?)
         self._expect: bool | None = None   # whether the next evaluation's Hessian will be used
@@ -408,6 +414,7 @@ class TorchProblem:
         other = copy.copy(self)
         other.problem = problem
         other._last, other._expect = None, None
+        other._kept_J = {}
         fixed = problem.coef0.copy()
         fixed[problem.free] = 0.0
         other.v_fixed = torch.as_tensor(sps.csr_array(problem.P) @ fixed, **self._dev)
@@ -497,6 +504,9 @@ class TorchProblem:
         self.host_rows = {kind: rows.cpu().numpy() for kind, rows in self.row_inst.items()}
         self.host_weights = {kind: w.cpu().numpy() for kind, w in self.row_weight.items()}
         self.conditional = any(g.condition is not None for g in self.groups)
+        self._always_live = {kind: np.ones(self.row_counts[kind], bool) for kind in (EQ, GE)}
+        for mask in self._always_live.values():
+            mask.flags.writeable = False   # shared by every evaluation
 
     # --- evaluation --------------------------------------------------------------------------
     def slot_values(self, s: torch.Tensor) -> torch.Tensor:
@@ -530,8 +540,8 @@ class TorchProblem:
     def _masks(self, v) -> dict[str, np.ndarray]:
         """The ``when`` masks at slot values ``v``: by the host programs for a numpy array on the
         CPU, by the torch terms for a tensor."""
-        if not self.conditional:
-            return {kind: np.ones(self.row_counts[kind], bool) for kind in (EQ, GE)}
+        if not self.conditional:   # every row live at every s: one read-only pair (as the core's)
+            return self._always_live
         if self.host and isinstance(v, np.ndarray):     # the leaves' host programs on the CPU
             def host_leaf(g, term, offset, params):
                 block = v[offset:offset + term.k * g.n].reshape(term.k, g.n)
@@ -617,10 +627,32 @@ class TorchProblem:
         masks = self._masks(v)
         ev = TorchEvaluation(
             tp=self, s=s.copy(), objective=objective, gradient=self.PfT @ u, c_eq=c[EQ], c_ge=c[GE],
-            active_eq=masks[EQ], active_ge=masks[GE], t_J={kind: self.jac[kind].values(gw) for kind in (EQ, GE)},
+            active_eq=masks[EQ], active_ge=masks[GE], t_J={kind: self._jacobian_values(kind, gw) for kind in (EQ, GE)},
             t_local={"f": f_all, "g": g_slot, "h": h_flat, "v": v})
         self._last = ev
         return ev
+
+    def _jacobian_values(self, kind: str, gw: np.ndarray) -> np.ndarray:
+        """The ``kind`` Jacobian's values from the slots' weighted gradients ``gw`` (CPU); a
+        constant kind's are the solve's first, kept read-only."""
+        kept = self._kept_J.get(kind)
+        if kept is not None:
+            return kept[0]
+        values = self.jac[kind].values(gw)
+        if kind in self.constant_kinds and self.host_linear:   # (torch's algebra wants tensors of them)
+            values.flags.writeable = False
+            self._kept_J[kind] = [values, None]
+        return values
+
+    def jacobian_matrix(self, kind: str, values) -> sps.csr_array:
+        """The ``kind`` Jacobian with these values as a scipy CSR array: for a constant kind's
+        kept values, one matrix for the whole solve."""
+        kept = self._kept_J.get(kind)
+        if kept is None or kept[0] is not values:
+            return self.jac[kind].scipy(values)
+        if kept[1] is None:
+            kept[1] = self.jac[kind].scipy(values)
+        return kept[1]
 
     def _hessian_values_host(self, ev: TorchEvaluation, lam_eq, lam_ge) -> np.ndarray:
         """:meth:`hessian_values` on the CPU, in numpy (the same operations in the same order)."""
@@ -668,7 +700,8 @@ def check_finite(ev: TorchEvaluation, problem) -> None:
     """Raise with the name of the first term group whose values are not finite."""
     if np.isfinite(ev.objective) and np.all(np.isfinite(ev.gradient)) \
             and np.all(np.isfinite(ev.c_eq)) and np.all(np.isfinite(ev.c_ge)) \
-            and all(bool(torch.isfinite(torch.as_tensor(values)).all()) for values in ev.t_J.values()):
+            and all(bool(np.isfinite(values).all()) if isinstance(values, np.ndarray)
+                    else bool(torch.isfinite(values).all()) for values in ev.t_J.values()):
         return
     f = ev.t_local["f"]
     f = f if isinstance(f, np.ndarray) else f.cpu().numpy()
