@@ -627,7 +627,8 @@ class TorchProblem:
         masks = self._masks(v)
         ev = TorchEvaluation(
             tp=self, s=s.copy(), objective=objective, gradient=self.PfT @ u, c_eq=c[EQ], c_ge=c[GE],
-            active_eq=masks[EQ], active_ge=masks[GE], t_J={kind: self._jacobian_values(kind, gw) for kind in (EQ, GE)},
+            active_eq=masks[EQ], active_ge=masks[GE],
+            t_J={kind: self._jacobian_values(kind, gw) for kind in (EQ, GE)},
             t_local={"f": f_all, "g": g_slot, "h": h_flat, "v": v})
         self._last = ev
         return ev
