@@ -403,7 +403,8 @@ def test_pattern_operators_are_the_arrays_scipy_builds_from_pairs():
         assert np.array_equal(got.data, want.data) and got.has_canonical_format
 
 
-def test_iterates_of_one_window_share_its_lowering_and_its_numbers(registered, monkeypatch):
+def _counted_lowerings(monkeypatch) -> list:
+    """A list that gets an entry for every window problem lowered from now on, none kept yet."""
     import stw_torch.backend as backend
     import stw_torch.evaluate as evaluate
 
@@ -411,6 +412,13 @@ def test_iterates_of_one_window_share_its_lowering_and_its_numbers(registered, m
     build = evaluate.TorchProblem.__init__
     monkeypatch.setattr(evaluate.TorchProblem, "__init__", lambda self, *a, **k: built.append(1) or build(self, *a, **k))
     monkeypatch.setattr(backend, "_LOWERINGS", None)          # none kept from other tests
+    return built
+
+
+def test_iterates_of_one_window_share_its_lowering_and_its_numbers(registered, monkeypatch):
+    import stw_torch.backend as backend
+
+    built = _counted_lowerings(monkeypatch)
     # adapt=0: an adaptive round would add instances, a new structure
     text = catalogue.problems("point_mass_2d")[0].text.replace("iterate", "iterate 2 adapt=0 #")
     again = Session()
@@ -426,6 +434,41 @@ def test_iterates_of_one_window_share_its_lowering_and_its_numbers(registered, m
     again.execute("constraint extra: x = 0.5 @ 0.5")         # a new structure: lowered anew
     again.execute("iterate 1 adapt=0")
     assert len(built) == 4
+
+
+def test_an_adaptive_iterate_again_finds_every_rounds_lowering(registered, monkeypatch):
+    """The rounds of an adaptive `iterate` are structures of their own (point_mass_2d: 4); the
+    next `iterate` from the same curves finds all of them kept, and lowers none again, while
+    the lowerings kept hold no more pattern entries than KEPT_ENTRIES (the last one whatever
+    its size)."""
+    import stw_torch.backend as backend
+    import stw_torch.lowerings as lowerings
+
+    built = _counted_lowerings(monkeypatch)
+    problem = catalogue.problems("point_mass_2d")[0]
+    setup = problem.setup()
+    command = next(line for line in problem.text.splitlines() if line.startswith("iterate")).split("#")[0]
+
+    def solve():
+        session = Session()
+        session.scene = setup.scene.copy()
+        session.execute("backend torch device=cpu")
+        session.execute(command)
+        return session
+
+    first = solve()
+    rounds = len(built)
+    assert rounds >= 3 and len(backend._LOWERINGS._by_key) == rounds
+    again = solve()
+    assert len(built) == rounds                               # every round's lowering found
+    assert np.array_equal(again.scene.coefficient_vector(), first.scene.coefficient_vector())
+
+    sizes = [t.entries() for t in backend._LOWERINGS._by_key.values()]
+    monkeypatch.setattr(lowerings, "KEPT_ENTRIES", sizes[-1] + sizes[-2] // 2)
+    backend._LOWERINGS.clear()
+    solve()
+    kept = [t.entries() for t in backend._LOWERINGS._by_key.values()]
+    assert len(kept) == 1 and len(built) == 2 * rounds        # over the budget: the last one only
 
 
 @pytest.mark.parametrize("space_max", [0, 10**6], ids=["argsort", "counting"])

@@ -237,6 +237,10 @@ class Pattern:
         coef_pad, src_pad = _padded(start, counts, coef, src, n_src)
         return cls(shape, as_t(crow), as_t(c), as_t(coef_pad), as_t(src_pad), n_src, crow, c)
 
+    def entries(self) -> int:
+        """The contributions it stores (its operator's on the CPU, the padded arrays' on a device)."""
+        return int(self.operator.host.nnz) if self.operator is not None else int(self.coef_pad.numel())
+
     def values(self, source: torch.Tensor) -> torch.Tensor:
         """The matrix's stored values (CSR order) for one vector of source values."""
         if self.operator is not None:
@@ -421,6 +425,10 @@ class TorchProblem:
         if other.host:
             other.host_arrays = {**self.host_arrays, "v_fixed": other.v_fixed.numpy()}
         return other
+
+    def entries(self) -> int:
+        """The stored entries of its Jacobian and Hessian patterns: most of what it holds."""
+        return sum(pattern.entries() for pattern in (self.hess, *self.jac.values()))
 
     # --- fixed patterns ----------------------------------------------------------------------
     def _build_patterns(self, Pf: sps.csr_array) -> None:

@@ -17,8 +17,15 @@ from .batch_evaluate import problem_key
 from .evaluate import TorchProblem
 
 
+# What the kept lowerings may hold together, in stored entries of their Jacobian and Hessian
+# patterns (values and indices: about 12 bytes each): basketball's is 4.7 million, the other
+# bundled sessions' 0.001-0.8 million. The one just used is kept whatever its size.
+KEPT_ENTRIES = 16_000_000
+
+
 class Lowerings:
-    """The last ``kept`` lowerings, by structure (least recently used dropped first)."""
+    """The last ``kept`` lowerings, by structure (least recently used dropped first), as long as
+    their patterns hold KEPT_ENTRIES entries at most together."""
 
     def __init__(self, kept: int):
         self.kept = kept
@@ -38,6 +45,8 @@ class Lowerings:
                     self._by_key.pop(next(iter(self._by_key)))
                 template = TorchProblem(problem, device, host_linear, autograd)
             self._by_key[(key, autograd)] = template   # the most recently used last
+            while len(self._by_key) > 1 and sum(t.entries() for t in self._by_key.values()) > KEPT_ENTRIES:
+                self._by_key.pop(next(iter(self._by_key)))
         return template.with_problem(problem), key
 
     def clear(self) -> None:
