@@ -20,11 +20,7 @@ from stw_tui.sos.sqp import SQPBackend, SQPInner
 from stw_tui.sym.errors import StwError
 
 
-# The last few window problems solved, lowered (lowerings.py): the next `iterate` of the same
-# window finds its own there (basketball: 2 s of lowering and patterns once, not at every solve),
-# and so do the rounds of an adaptive `iterate`, each a structure of its own (point_mass_2d's 4:
-# with 2 kept, every `iterate` lowered them again, 17.8 against 10.6 ms)
-LOWERINGS_KEPT = 8
+# The last few window problems solved, lowered (lowerings.py)
 _LOWERINGS = None   # made at the first solve: the module is loaded without torch
 
 
@@ -73,7 +69,7 @@ class TorchBackend(SQPBackend):
 
         global _LOWERINGS
         if _LOWERINGS is None:
-            _LOWERINGS = Lowerings(LOWERINGS_KEPT)
+            _LOWERINGS = Lowerings()
         return _LOWERINGS.get(problem, self.device, host_linear=self.linear == "scipy",
                               autograd=self.config["derivatives"] == "autograd")[0]
 

@@ -44,8 +44,6 @@ from .linalg import DenseAlgebra, kkt_matrix
 from .lowerings import Lowerings
 
 
-LOWERINGS_KEPT = 8   # lowerings a batch keeps (adaptive re-solves make new structures)
-
 
 class Cancelled(StwError):
     """The batch was cancelled: the start's solve ends here."""
@@ -105,7 +103,7 @@ class TorchBatch(BatchSolver):
         self._running: set[int] = set()
         self._finished: list[tuple[int, Any]] = []
         self._cancelled = False
-        self._lowerings = Lowerings(LOWERINGS_KEPT)     # shared by the starts of a structure
+        self._lowerings = Lowerings()     # shared by the starts of a structure
 
     def describe(self) -> str:
         """Where the batch runs."""

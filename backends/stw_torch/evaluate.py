@@ -402,7 +402,7 @@ class TorchProblem:
         # window problem does (and the dense algebra makes it dense once a solve, not every step)
         self.constant_kinds = tuple(kind for kind in (EQ, GE)
                                     if all(g.term.affine for g in problem.groups if g.kind == kind))
-        self._kept_J: dict = {}   # kind -> [values, scipy matrix or None] of this solve
+        self._kept_J: dict = {}   # kind -> (values, scipy matrix) of this solve
         self.plan = CallPlan.build(self.groups, self.n_slots, device, autograd)
         self._last: TorchEvaluation | None = None   # the latest evaluation (its Hessian used?)
         self._expect: bool | None = None   # whether the next evaluation's Hessian will be used
@@ -512,9 +512,6 @@ class TorchProblem:
         self.host_rows = {kind: rows.cpu().numpy() for kind, rows in self.row_inst.items()}
         self.host_weights = {kind: w.cpu().numpy() for kind, w in self.row_weight.items()}
         self.conditional = any(g.condition is not None for g in self.groups)
-        self._always_live = {kind: np.ones(self.row_counts[kind], bool) for kind in (EQ, GE)}
-        for mask in self._always_live.values():
-            mask.flags.writeable = False   # shared by every evaluation
 
     # --- evaluation --------------------------------------------------------------------------
     def slot_values(self, s: torch.Tensor) -> torch.Tensor:
@@ -548,8 +545,8 @@ class TorchProblem:
     def _masks(self, v) -> dict[str, np.ndarray]:
         """The ``when`` masks at slot values ``v``: by the host programs for a numpy array on the
         CPU, by the torch terms for a tensor."""
-        if not self.conditional:   # every row live at every s: one read-only pair (as the core's)
-            return self._always_live
+        if not self.conditional:   # every row live at every s: the window problem's read-only pair
+            return self.problem.always_live
         if self.host and isinstance(v, np.ndarray):     # the leaves' host programs on the CPU
             def host_leaf(g, term, offset, params):
                 block = v[offset:offset + term.k * g.n].reshape(term.k, g.n)
@@ -650,18 +647,14 @@ class TorchProblem:
         values = self.jac[kind].values(gw)
         if kind in self.constant_kinds and self.host_linear:   # (torch's algebra wants tensors of them)
             values.flags.writeable = False
-            self._kept_J[kind] = [values, None]
+            self._kept_J[kind] = (values, self.jac[kind].scipy(values))
         return values
 
     def jacobian_matrix(self, kind: str, values) -> sps.csr_array:
         """The ``kind`` Jacobian with these values as a scipy CSR array: for a constant kind's
         kept values, one matrix for the whole solve."""
         kept = self._kept_J.get(kind)
-        if kept is None or kept[0] is not values:
-            return self.jac[kind].scipy(values)
-        if kept[1] is None:
-            kept[1] = self.jac[kind].scipy(values)
-        return kept[1]
+        return kept[1] if kept is not None and kept[0] is values else self.jac[kind].scipy(values)
 
     def _hessian_values_host(self, ev: TorchEvaluation, lam_eq, lam_ge) -> np.ndarray:
         """:meth:`hessian_values` on the CPU, in numpy (the same operations in the same order)."""

@@ -17,6 +17,11 @@ from .batch_evaluate import problem_key
 from .evaluate import TorchProblem
 
 
+# The lowerings kept: a user's `iterate`s of one window in a row find theirs (basketball: 2 s of
+# lowering and patterns once, not at every solve), and so do the rounds of an adaptive `iterate`,
+# each a structure of its own (point_mass_2d's 4: with 2 kept, every `iterate` lowered them
+# again, 17.8 against 10.6 ms), and the starts of a survey.
+KEPT = 8
 # What the kept lowerings may hold together, in stored entries of their Jacobian and Hessian
 # patterns (values and indices: about 12 bytes each): basketball's is 4.7 million, the other
 # bundled sessions' 0.001-0.8 million. The one just used is kept whatever its size.
@@ -27,7 +32,7 @@ class Lowerings:
     """The last ``kept`` lowerings, by structure (least recently used dropped first), as long as
     their patterns hold KEPT_ENTRIES entries at most together."""
 
-    def __init__(self, kept: int):
+    def __init__(self, kept: int = KEPT):
         self.kept = kept
         self._by_key: dict[tuple, TorchProblem] = {}
         self._lock = threading.Lock()   # held while one is built: starts of a survey wait for it

@@ -503,10 +503,10 @@ class WindowProblem:
                                                   or [np.zeros(0)]) for kind in (EQ, GE, OBJ)}
         # the live masks of a problem without conditional groups, the same at every s (read-only:
         # evaluations share them); None where a `when` decides
-        self._always_live = None
+        self.always_live = None
         if all(g.condition is None for g in self.groups):
-            self._always_live = {kind: np.ones(counts[kind], bool) for kind in (EQ, GE)}
-            for mask in self._always_live.values():
+            self.always_live = {kind: np.ones(counts[kind], bool) for kind in (EQ, GE)}
+            for mask in self.always_live.values():
                 mask.flags.writeable = False
         self.row_group = {kind: np.repeat(np.arange(len(self.groups)),
                                           [g.n if g.kind == kind else 0 for g in self.groups])
@@ -551,8 +551,8 @@ class WindowProblem:
 
     def _conditions(self, v: np.ndarray) -> dict[str, np.ndarray]:
         """Where each row is live (its `when` holds) at slot values ``v``."""
-        if self._always_live is not None:   # no conditional group: every row, at every v
-            return self._always_live
+        if self.always_live is not None:   # no conditional group: every row, at every v
+            return self.always_live
         masks = {EQ: np.ones(self.row_counts[EQ], bool), GE: np.ones(self.row_counts[GE], bool)}
         for group in self.groups:
             if group.condition is not None:
