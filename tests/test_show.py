@@ -13,8 +13,9 @@ from stw_tui.session.show import common_subexpressions
 from stw_tui.sym.errors import SourceError, StwError
 
 ARM = catalogue.problem("analytic_arm3").text + """dof BX, BY = 0.5*t lo=-2
-hold B at arm.tip on [0, 0.55]
-ballistic B on [0.55, 1.5]
+dof CX, CY
+hold C at arm.tip on [0, 0.55] mass=0.5
+ballistic C on [0.55, 1.5]
 let lift = BY'' + g
 constraint up: lift >= 0 on [0, 1] weight=3
 objective effort: tau_WRIST
@@ -31,16 +32,22 @@ def show(session, line):
 
 
 def test_show_a_verb_prints_its_line_and_the_constraints_it_expanded_into(arm):
-    text = show(arm, "show B_held").splitlines()
-    assert text[0] == "hold B at arm.tip on [0, 0.55]"
-    members = arm.scene.verbs["B_held"][1]
-    assert members == ("B_held", "B_released")
-    assert text[2:] == ["  " + arm.scene.objectives["B_held"].text, "  " + arm.scene.constraints["B_released"].text]
-    assert show(arm, "show B_flight").splitlines()[2] == "  constraint B_flight: BX'' = 0, BY'' + g = 0 on [0.55, 1.5]"
+    text = show(arm, "show C_held").splitlines()
+    assert text[0] == "hold C at arm.tip on [0, 0.55] mass=0.5"
+    assert text[1:3] == ["  CX is arm.tip.x on [0, 0.55]", "  CY is arm.tip.y on [0, 0.55]"]
+    assert text[3] == "  its mass loads tau_SHOULDER, tau_ELBOW, tau_WRIST there"
+    members = arm.scene.verbs["C_held"][1]
+    assert members == ("C_released",)
+    assert text[5:] == ["  " + arm.scene.constraints["C_released"].text]
+    assert show(arm, "show C_flight").splitlines()[2] == "  constraint C_flight: CX'' = 0, CY'' + g = 0 on [0.55, 1.5]"
     # A part of a verb says which verb made it; one written by hand does not.
-    assert show(arm, "show B_released").splitlines()[-1] == \
-        "  made by the verb `hold B at arm.tip on [0, 0.55]` (`delete B_held` removes the group)"
+    assert show(arm, "show C_released").splitlines()[-1] == \
+        "  made by the verb `hold C at arm.tip on [0, 0.55] mass=0.5` (`delete C_held` removes the group)"
     assert "made by" not in show(arm, "show up") and "made by" not in show(arm, "show effort")
+    # The held DOF says where it is the hand's point; its flight reads its own curve alone.
+    assert show(arm, "show CX").splitlines()[-1] == \
+        "  is arm.tip.x on [0, 0.55] (`hold C at arm.tip on [0, 0.55] mass=0.5`): its curve is read outside that only"
+    assert "Piecewise" not in show(arm, "show C_flight") and "SHOULDER" not in show(arm, "show C_flight")
 
 
 def test_show_a_constraint_gives_scope_weight_instances_and_the_compiled_relation(arm):
@@ -51,7 +58,7 @@ def test_show_a_constraint_gives_scope_weight_instances_and_the_compiled_relatio
     assert "  lift >= 0" in text
     assert "BY'' + g  >= 0" in text            # as compiled: the subexpression substituted
     # B_released holds at an instant: one instance per relation.
-    assert show(arm, "show B_released").splitlines()[0] == "constraint B_released @ 0.55, weight 1, 4 instance(s)"
+    assert show(arm, "show C_released").splitlines()[0] == "constraint C_released @ 0.55, weight 1, 4 instance(s)"
 
 
 def test_show_an_objective_and_a_derived_force_print_their_expanded_form(arm):
@@ -134,9 +141,11 @@ def test_show_diff_is_the_partial_derivative_of_the_expanded_expression(arm):
     m2, a2, m3, a3 = 1.5, 0.30, 0.5, 0.15
     wrist = arm.scene.dofs["WRIST"].curve.evaluate(np.array([0.4]))[0]
     expected = (m2 * a2**2 / 3 + m3 * a3**2 / 3 + m3 * a2**2 + m3 * a2 * a3 * np.cos(wrist))
+    # and the held 0.5 kg at the tip (t = 0.4 is inside its hold): m |tip - elbow|^2
+    expected += 0.5 * (a2**2 + a3**2 + 2 * a2 * a3 * np.cos(wrist))
     value = float(text.splitlines()[-1].split("= ")[1])
     assert value == pytest.approx(expected, rel=1e-9)
-    assert "0.0225*cos(WRIST)" in text           # m3 a2 a3, simplified
+    assert "(t < 0.55) & (t >= 0)" in text       # the held mass counts while it is held
     with pytest.raises(SourceError, match="one variable"):
         arm.execute("show diff(tau_ELBOW, 2*ELBOW)")
     with pytest.raises(StwError, match="not a subexpression"):

@@ -128,6 +128,9 @@ class EquationsPanel(ScenePanel):
             yield VERB_KEY + group, self._heading(scene, info, group, members)
             for i, member in enumerate(members):
                 yield member, self._cells(scene, info, member, ("└ " if i == len(members) - 1 else "├ ") + member)
+        for group, (_, members) in scene.verbs.items():   # a verb that made no row (a hold over the span)
+            if not members:
+                yield VERB_KEY + group, self._heading(scene, info, group, [])
         for name, expr in scene.lets.items():
             yield name, (name, "let", "", "", "", str(expr))
 
@@ -150,6 +153,7 @@ class EquationsPanel(ScenePanel):
         spans = [(c.at, c.at) if c.at is not None else c.interval
                  for c in (scene.constraints[m] for m in members if m in scene.constraints)]
         spans += [scene.objectives[m].interval for m in members if m in scene.objectives]
+        spans += [(p.a, p.b) for p in scene.attachments.get(group, ())]    # a hold's time in the hand
         if not spans or None in spans:
             scope = "span"
         else:

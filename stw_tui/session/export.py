@@ -72,9 +72,9 @@ def motion_table(scene: Scene, times: np.ndarray, what=()) -> dict[str, np.ndarr
     """Column name -> values at ``times``: t, each DOF and its two derivatives, each position, and
     each subexpression in ``what``."""
     columns = {"t": np.asarray(times, float)}
-    for name, dof in scene.dofs.items():
+    for name in scene.dofs:
         for order, suffix in enumerate(("", "'", "''")):
-            columns[name + suffix] = dof.curve.evaluate(times, order)
+            columns[name + suffix] = scene.dof_values(name, times, order)
     for name in [*position_names(scene), *(n for n in check_what(scene, what) if n not in columns)]:
         columns[name] = np.broadcast_to(scene.evaluate(named_symbol(name), times), times.shape)
     return columns

@@ -524,6 +524,7 @@ def _delete(scene: Scene, cmd) -> str:
         raise StwError(f"'{name}' is used by {', '.join(users)}; delete or change those first")
     if name in scene.verbs:
         _, members = scene.verbs.pop(name)
+        scene.attachments.pop(name, None)
         for member in members:
             scene.constraints.pop(member, None)
             scene.objectives.pop(member, None)
@@ -718,9 +719,11 @@ def _verb(scene: Scene, cmd) -> str:
     from stw_tui.session import verbs
 
     a, b = _interval(scene, cmd.interval, "interval")
+    parts, note = (), ""
     if isinstance(cmd, lang.HoldCmd):
-        weight = _weight_value(scene, cmd.weight, True) if cmd.weight is not None else None
-        group, lines = verbs.hold_lines(scene, cmd.point, cmd.at, a, b, weight)
+        group, lines, parts = verbs.hold_lines(scene, cmd.point, cmd.at, a, b, _option(scene, cmd.mass, "mass"))
+        if cmd.weight is not None:    # sessions written when a tracking objective carried it
+            note = " (weight= is not used: the object is the holding point while held)"
     elif isinstance(cmd, lang.ContactCmd):
         group, lines = verbs.contact_lines(scene, cmd.point, _option(scene, cmd.height, "ground height") or 0.0,
                                            a, b, _option(scene, cmd.friction, "friction coefficient"),
@@ -735,7 +738,12 @@ def _verb(scene: Scene, cmd) -> str:
         _HANDLERS[type(command)](scene, command)
         members.append(command.name)
     scene.verbs[group] = (cmd.text, tuple(members))
-    return f"{lang.classify_line(cmd.text).verb} {group}: " + "; ".join(lines)
+    if parts:
+        scene.attachments[group] = parts
+        lines = [f"{p.target} is {p.expr} on [{p.a:g}, {p.b:g}]" for p in parts if not p.adds] + lines
+        if any(p.adds for p in parts):
+            lines.append(f"its mass loads {', '.join(p.target for p in parts if p.adds)}")
+    return f"{lang.classify_line(cmd.text).verb} {group}: " + "; ".join(lines) + note
 
 
 def _limit(scene: Scene, cmd) -> str:

@@ -47,7 +47,7 @@ class SceneInfo:
 def dof_series(scene: "Scene", name: str, order: int, n: int = 161) -> Series:
     """Value (order 0), velocity (1) or acceleration (2) of a DOF over the span."""
     times = np.linspace(scene.t0, scene.t1, n)
-    values = scene.dofs[name].curve.evaluate(times, order)
+    values = scene.dof_values(name, times, order)
     return Series(f"{name}{chr(39) * order}", times.tolist(), values.tolist())
 
 

@@ -293,10 +293,11 @@ class Session:
 
     # --- queries -----------------------------------------------------------------------------
     def sample(self, n: int = 21) -> dict[str, dict[str, list[float]]]:
-        """Values, velocities and accelerations of every DOF at n uniform times over the span."""
+        """Values, velocities and accelerations of every DOF at n uniform times over the span (a
+        held object's: the holding point's while it is held)."""
         times = np.linspace(self.scene.t0, self.scene.t1, n)
         return {name: {"t": times.tolist(),
-                       "value": dof.curve.evaluate(times, 0).tolist(),
-                       "velocity": dof.curve.evaluate(times, 1).tolist(),
-                       "acceleration": dof.curve.evaluate(times, 2).tolist()}
-                for name, dof in self.scene.dofs.items()}
+                       "value": self.scene.dof_values(name, times, 0).tolist(),
+                       "velocity": self.scene.dof_values(name, times, 1).tolist(),
+                       "acceleration": self.scene.dof_values(name, times, 2).tolist()}
+                for name in self.scene.dofs}

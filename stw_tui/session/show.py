@@ -57,10 +57,11 @@ def _relation_text(expr: sp.Basic, kind: TermKind) -> str:
     return f"{sp.sstr(expr)} {'=' if kind is TermKind.EQ else '>='} 0"
 
 
-def _forms(scene: Scene, written: sp.Basic, suffix: str = "") -> list[str]:
+def _forms(scene: Scene, written: sp.Basic, suffix: str = "", scope=None) -> list[str]:
     """The forms of an expression below its written one: as compiled (every subexpression
-    substituted), when that differs, and simplified, when that is quick and differs."""
-    expanded = scene.expand(written)
+    substituted; read on ``scope``, see Scene.expand), when that differs, and simplified, when
+    that is quick and differs."""
+    expanded = scene.expand(written, scope)
     lines = []
     if expanded != written:
         lines += ["  as compiled:", render(expanded, "    ") + suffix]
@@ -79,7 +80,8 @@ def _show_constraint(scene: Scene, name: str) -> list[str]:
     lines = [head]
     for rel in c.relations:
         lines.append(f"  {_relation_text(rel.expr, rel.kind)}")
-        lines += _forms(scene, rel.expr, "  = 0" if rel.kind is TermKind.EQ else "  >= 0")
+        lines += _forms(scene, rel.expr, "  = 0" if rel.kind is TermKind.EQ else "  >= 0",
+                        (c.at, c.at) if c.at is not None else c.interval)
     return lines
 
 
@@ -90,7 +92,7 @@ def _show_objective(scene: Scene, name: str) -> list[str]:
              f"square of {'each term' if len(o.exprs) > 1 else 'its term'}"]
     for expr in o.exprs:
         lines.append(f"  {sp.sstr(expr)}")
-        lines += _forms(scene, expr)
+        lines += _forms(scene, expr, scope=o.interval)
     return lines
 
 
@@ -108,6 +110,9 @@ def _show_dof(scene: Scene, name: str) -> list[str]:
              "  control points: " + ", ".join(f"{c:.6g}" for c in curve.coef)]
     if dof.keys:
         lines.append("  keys: " + ", ".join(f"{v:g} @ {t:g}" for t, v in dof.keys))
+    for group, parts in scene.attachments.items():
+        lines += [f"  is {p.expr} on [{p.a:g}, {p.b:g}] (`{scene.verbs[group][0]}`): its curve is read "
+                  f"outside that only" for p in parts if p.target == name]
     return lines
 
 
@@ -127,7 +132,12 @@ def _linkage_dofs(spec) -> list[str]:
 
 def _show_verb(scene: Scene, name: str) -> list[str]:
     line, members = scene.verbs[name]
-    lines = [line, f"  expands into {len(members)} named constraint(s) and objective(s):"]
+    parts = scene.attachments.get(name, ())
+    lines = [line] + [f"  {p.target} is {p.expr} on [{p.a:g}, {p.b:g}]" for p in parts if not p.adds]
+    loads = [p.target for p in parts if p.adds]
+    if loads:
+        lines.append(f"  its mass loads {', '.join(loads)} there")
+    lines.append(f"  expands into {len(members)} named constraint(s) and objective(s):")
     for member in members:
         item = scene.constraints.get(member) or scene.objectives.get(member)
         if item is not None:

@@ -270,7 +270,7 @@ def _measure(session, result: StartResult) -> None:
 def motion_of(scene) -> np.ndarray:
     """Every DOF's values at ``SAMPLES`` times over the span, to tell optima apart."""
     times = np.linspace(scene.t0, scene.t1, SAMPLES)
-    return np.array([dof.curve.evaluate(times) for dof in scene.dofs.values()])
+    return np.array([scene.dof_values(name, times) for name in scene.dofs])
 
 
 def preview_scene(scene, result: StartResult):

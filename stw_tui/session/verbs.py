@@ -3,11 +3,12 @@ objectives (which the journal does not keep: it keeps the verb, and replays it).
 each as a group (``scene.verbs``: name -> its line and what it made): `delete NAME` removes it
 whole, and no part of it is deleted or redefined alone (:func:`owned_by_verb`).
 
-- ``hold P at arm.tip on [A, B]``: the object P (DOF PX, PY[, PZ]) is carried by a linkage point.
-  It has the point's position and velocity exactly at A (picked up; unless A is the start) and
-  at B (let go), and a tracking objective carries it in between. A constraint "P = point on
-  [A, B]" could not hold between its samples (the point is trigonometry of the joint curves, P a
-  cubic spline), and a ball tied only at samples leaves the hand with the wrong velocity.
+- ``hold P at arm.tip on [A, B] [mass=M]``: the object P (DOF PX, PY[, PZ]) is the linkage point
+  while held: every expression reads PX as arm.tip.x there (stw_tui.sos.attachments), so it is in
+  the hand at every time, not at samples. Its own curve meets the point's position and velocity
+  exactly at A (caught; unless A is the start) and at B (let go). Its mass loads the linkage's
+  generalized forces while held. (A constraint "P = point on [A, B]" could not hold between its
+  samples: the point is trigonometry of the joint curves, P a cubic spline.)
 - ``ballistic P on [A, B]``: free flight under g along -y: PX'' = 0, PY'' + g = 0 (PZ'' = 0),
   linear in the DOF, so it holds exactly everywhere on [A, B].
 - ``contact acro.FOOT on ground [y=H] on [A, B] [friction=MU] [x=X0]``: the point stays on the
@@ -24,8 +25,6 @@ whole, and no part of it is deleted or redefined alone (:func:`owned_by_verb`).
 from __future__ import annotations
 
 from stw_tui.sym.errors import StwError
-
-HOLD_WEIGHT = 1e4
 
 
 def verb_of(scene, name: str) -> str | None:
@@ -87,20 +86,64 @@ def _tol(dense_tol: float | None) -> str:
     return f" dense_tol={float(dense_tol)!r}" if dense_tol is not None else ""
 
 
-def hold_lines(scene, point: str, at: str, a: float, b: float, weight: float | None) -> tuple[str, list[str]]:
-    """(group name, command lines) of ``hold``."""
+def hold_lines(scene, point: str, at: str, a: float, b: float,
+               mass: float | None = None) -> tuple[str, list[str], tuple[Attachment, ...]]:
+    """(group name, command lines, attachments) of ``hold``: while held the object is the point
+    (each of its DOF attached to the point's coordinate), caught and let go with the point's
+    position and velocity, and its mass (if any) loads the holder's generalized forces."""
+    from stw_tui.sos.attachments import Attachment, all_attachments
+    from stw_tui.sym.symbols import dof_symbol, named_symbol
+
     axes = point_axes(scene, point)
     coords = linkage_point(scene, at, axes)
+    dofs = {dof for _, dof in axes}
+    if any(dof_symbol(d, k) in scene.expand(named_symbol(c)).free_symbols for c in coords for d in dofs
+           for k in range(3)):
+        raise StwError(f"{at} moves with {point} itself: an object cannot hold itself")
+    for part in all_attachments(scene):
+        if part.target in dofs and part.a < b and a < part.b:
+            raise StwError(f"{point} is already held on [{part.a:g}, {part.b:g}], which overlaps [{a:g}, {b:g}]")
+    if mass is not None and not mass >= 0:
+        raise StwError(f"the held mass {mass:g} must be at least 0")
     group = fresh_name(scene, f"{point}_held")
+    closed = {"closed_a": a <= scene.t0, "closed_b": b >= scene.t1}
+    parts = [Attachment(dof, named_symbol(c), a, b, **closed) for (_, dof), c in zip(axes, coords)]
+    if mass:
+        parts += [Attachment(f"tau_{u}", load, a, b, adds=True, **closed)
+                  for u, load in _point_mass_loads(scene, at, coords, mass)]
     match = lambda: ", ".join([f"{dof} = {c}" for (_, dof), c in zip(axes, coords)]
                               + [f"{dof}' = {c}'" for (_, dof), c in zip(axes, coords)])
-    lines = [f"objective {group}: " + ", ".join(f"{c} - {dof}" for (_, dof), c in zip(axes, coords))
-             + f" on [{_t(a)}, {_t(b)}] weight={weight if weight is not None else HOLD_WEIGHT!r}"]
+    lines = []
     if a > scene.t0:
         lines.append(f"constraint {fresh_name(scene, f'{point}_caught')}: {match()} @ {_t(a)}")
     if b < scene.t1:
         lines.append(f"constraint {fresh_name(scene, f'{point}_released')}: {match()} @ {_t(b)}")
-    return group, lines
+    return group, lines, tuple(parts)
+
+
+def _point_mass_loads(scene, at: str, coords: list[str], mass: float) -> list[tuple]:
+    """[(u, Q_u)]: the generalized force a point mass at ``at`` asks of each coordinate u of its
+    linkage (base variables, then joints), by virtual work: Q_u = m (dp/du) . (p'' - gravity).
+    The partials are taken of the linkage's own point expressions, in its own coordinates (with
+    ``com=`` the base variables are subexpressions, and dp/dX must hold the joints, not the
+    centre of mass, fixed)."""
+    import sympy as sp
+
+    from stw_tui.sym.linkage import dof_names
+    from stw_tui.sym.symbols import dof_symbol, named_symbol
+
+    spec = scene.linkages[at.split(".")[0]]
+    g = named_symbol("g")
+    loads = []
+    for u in dof_names(spec):
+        q = dof_symbol(u)
+        total = sp.S.Zero
+        for c in coords:
+            axis = "xyz".index(c.rsplit(".", 1)[1])
+            gravity = spec.gravity_sign * g if spec.gravity_axis == axis else 0
+            total += sp.diff(scene.derived[c], q) * (named_symbol(c + "''") - gravity)
+        loads.append((u, sp.Float(mass) * total))
+    return loads
 
 
 def ballistic_lines(scene, point: str, a: float, b: float) -> tuple[str, list[str]]:

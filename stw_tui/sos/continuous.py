@@ -231,7 +231,8 @@ def _relation_times(scene, constraint, rel, kept: dict) -> tuple[np.ndarray, np.
            scene.extra_instances.get(constraint.name))
     found = kept.get(key)
     if found is None:
-        exact = constraint.samples is None and exact_degree(scene, rel.expr, rel.kind) is not None
+        exact = constraint.samples is None and \
+            exact_degree(scene, rel.expr, rel.kind, constraint.interval) is not None
         t_base = dense_times(scene, [rel.expr], *constraint.interval, t_inst)
         t_base.flags.writeable = False   # shared by the checks to come
         found = kept[key] = t_base, exact

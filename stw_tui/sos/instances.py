@@ -41,14 +41,15 @@ def uniform_times(scene, a: float, b: float, samples: int | None = None) -> np.n
     return np.linspace(a, b, n + 1)
 
 
-def exact_degree(scene, expr: sp.Expr, kind: str) -> int | None:
+def exact_degree(scene, expr: sp.Expr, kind: str, scope: tuple[float, float] | None = None) -> int | None:
     """The highest DOF derivative ``r`` of a relation that instances can make hold exactly.
 
     Returns None when the relation is not affine in DOF quantities with constant coefficients
     (then no finite set of instances makes it exact), and None for inequalities of degree > 1 in
-    time (holding at points does not bound a polynomial of degree 2 or 3 in between).
+    time (holding at points does not bound a polynomial of degree 2 or 3 in between). ``scope``:
+    the times the relation holds at (a held object's own curve is read outside its hold only).
     """
-    return _exact_degree(scene.expand(expr), frozenset(scene.dofs), kind, frozenset(scene.constants))
+    return _exact_degree(scene.expand(expr, scope), frozenset(scene.dofs), kind, frozenset(scene.constants))
 
 
 @lru_cache(maxsize=4096)
@@ -125,9 +126,9 @@ def relation_times(scene, constraint, expr: sp.Expr, kind: str) -> np.ndarray:
     if constraint.at is not None:
         return np.array([constraint.at])
     a, b = constraint.interval
-    knots = [scene.dofs[name].curve.knots for name in dofs_used(scene, [expr])]
+    knots = [scene.dofs[name].curve.knots for name in dofs_used(scene, [expr], (a, b))]
     repeated = repeated_knots(knots)
-    r = exact_degree(scene, expr, kind) if constraint.samples is None else None
+    r = exact_degree(scene, expr, kind, (a, b)) if constraint.samples is None else None
     if r is not None:
         times = exact_times(np.unique(np.concatenate(knots)), a, b, r, repeated)
     else:
@@ -163,7 +164,7 @@ def structure_key(scene) -> tuple:
     return (scene.t0, scene.t1, scene.sample_count,
             tuple((name, dof.curve.knots.tobytes()) for name, dof in scene.dofs.items()),
             frozenset(scene.lets.items()), frozenset(scene.derived.items()),
-            frozenset(scene.limits.items()), frozenset(scene.constants))
+            frozenset(scene.limits.items()), frozenset(scene.constants), tuple(scene.attachments.items()))
 
 
 def kept_times(scene) -> dict:
@@ -181,9 +182,10 @@ def kept_times(scene) -> dict:
     return found
 
 
-def dofs_used(scene, exprs) -> list[str]:
-    """The DOF whose value, velocity or acceleration the expressions use (subexpressions expanded)."""
-    symbols = set().union(*(free_symbols(scene.expand(e)) for e in exprs))
+def dofs_used(scene, exprs, scope: tuple[float, float] | None = None) -> list[str]:
+    """The DOF whose value, velocity or acceleration the expressions use (subexpressions expanded;
+    read on ``scope``, when given, as Scene.expand reads it)."""
+    symbols = set().union(*(free_symbols(scene.expand(e, scope)) for e in exprs))
     return [name for name in scene.dofs if set(dof_symbols(name)) & symbols]
 
 

@@ -13,6 +13,7 @@ from dataclasses import dataclass, field, replace
 import numpy as np
 import sympy as sp
 
+from stw_tui.sos.attachments import added_terms, attached_dofs, replace_attached, restrict
 from stw_tui.sos.spline import DofCurve, SharedTimes
 from stw_tui.sym.compiler import free_symbols
 from stw_tui.sym.errors import LimitError, StwError
@@ -149,6 +150,8 @@ class Scene:
     limits: dict[str, int] = field(default_factory=dict)
     # Where `survey` sends its starts: a Dask scheduler (tcp://HOST:PORT), or "" for this machine.
     scheduler: str = ""
+    # What a verb attached (`hold`: the object is the hand's point, its mass a load), by verb group.
+    attachments: dict[str, tuple] = field(default_factory=dict)
 
     def copy(self) -> "Scene":
         """A copy that commands may change freely. Sympy expressions, curves and linkage specs
@@ -164,6 +167,7 @@ class Scene:
         new.backend_options, new.settings = dict(self.backend_options), dict(self.settings)
         new.extra_instances = dict(self.extra_instances)
         new.verbs = dict(self.verbs)
+        new.attachments = dict(self.attachments)
         new.limits = dict(self.limits)
         return new
 
@@ -189,22 +193,29 @@ class Scene:
         return self.windows[self.active_window]
 
     # --- expressions -------------------------------------------------------------------------
-    def expand(self, expr: sp.Basic) -> sp.Basic:
+    def expand(self, expr: sp.Basic, scope: tuple[float, float] | None = None) -> sp.Basic:
         """Substitute subexpressions (lets and derived quantities) until only DOF, t and constants
-        remain. ``f'`` and ``f''`` of a subexpression ``f`` become its time derivatives.
+        remain. ``f'`` and ``f''`` of a subexpression ``f`` become its time derivatives. A DOF
+        attached over part of the animation (a held object) reads as what it is attached to
+        there, and a load adds to its generalized forces there (stw_tui.sos.attachments): as a
+        Piecewise in time, folded to one side wherever ``scope`` (the times the expression is
+        read at: an instant ``(T, T)`` or an interval) decides it.
 
         The same expression under the same definitions expands to the same result, so results
         are kept (:data:`_EXPANDED`): a window build asks for each relation's expansion three
         times, and every `iterate` builds its window anew (a linkage's were 0.3-0.6 s of each).
         """
         key = (expr, frozenset(self.derived.items()), frozenset(self.lets.items()),
-               tuple(self.dofs), frozenset(self.limits.items()))
+               tuple(self.dofs), frozenset(self.limits.items()), tuple(self.attachments.items()), scope)
         with _EXPANDED_LOCK:
             found = _EXPANDED.pop(key, None)
             if found is not None:
                 _EXPANDED[key] = found              # now the most recently used
                 return found
-        result = self._expand(expr)
+        if scope is not None:
+            result = restrict(self.expand(expr), *scope)
+        else:
+            result = replace_attached(self, self._expand(expr))
         with _EXPANDED_LOCK:
             _EXPANDED[key] = result
             while len(_EXPANDED) > _EXPANDED_SIZE:
@@ -212,7 +223,7 @@ class Scene:
         return result
 
     def _expand(self, expr: sp.Basic) -> sp.Basic:
-        definitions = {named_symbol(n): e for n, e in {**self.derived, **self.lets}.items()}
+        definitions = added_terms(self, {named_symbol(n): e for n, e in {**self.derived, **self.lets}.items()})
         self._check_size(expr, definitions)
         for _ in range(100):
             symbols = free_symbols(expr)   # kept: compile_term asks it of the result again
@@ -224,7 +235,7 @@ class Scene:
             replacements = {s: definitions[s] for s in inside}
             for s in primed:
                 base = s.name.rstrip("'")
-                replacements[s] = self.time_derivative(self.expand(named_symbol(base)), base,
+                replacements[s] = self.time_derivative(self._expand(named_symbol(base)), base,
                                                        len(s.name) - len(base))
             expr = expr.xreplace(replacements)
         raise StwError("subexpressions refer to each other in a circle")
@@ -337,6 +348,14 @@ class Scene:
                 kept[("term", expr)] = term
         return ExpressionValues(term, self.constant_values(term.parameters),
                                 [(self.dofs[v.dof].curve, v.order) for v in term.variables])
+
+    def dof_values(self, name: str, times, order: int = 0) -> np.ndarray:
+        """DOF ``name`` (its ``order``-th time derivative) at ``times`` as the motion has it: its
+        curve, except where it is attached (a held object is the hand's point there)."""
+        if name in attached_dofs(self):
+            from stw_tui.sym.symbols import dof_symbol
+            return self.evaluate(dof_symbol(name, order), np.asarray(times, float))
+        return self.dofs[name].curve.evaluate(times, order)
 
     # --- curves ------------------------------------------------------------------------------
     def coefficient_vector(self) -> np.ndarray:

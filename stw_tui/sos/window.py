@@ -368,8 +368,9 @@ class WindowProblem:
             self.dof_of_free[pos:pos + idx.size] = name
             pos += idx.size
 
-    def _compile(self, expr: sp.Basic) -> CompiledTerm:
-        return compile_term(self.scene.expand(expr), set(self.scene.dofs), set(self.scene.constants))
+    def _compile(self, expr: sp.Basic, scope: tuple[float, float] | None = None) -> CompiledTerm:
+        """``expr`` compiled as read on ``scope`` (an attached DOF: see Scene.expand)."""
+        return compile_term(self.scene.expand(expr, scope), set(self.scene.dofs), set(self.scene.constants))
 
     def _params(self, term: CompiledTerm) -> np.ndarray:
         return self.scene.constant_values(term.parameters)
@@ -385,7 +386,9 @@ class WindowProblem:
             for r_index, rel in enumerate(c.relations):
                 label = c.name if len(c.relations) == 1 else f"{c.name}[{r_index + 1}]"
                 times = inside(relation_instances(scene, c, rel, kept))
-                self._add_group(label, c.name, rel.kind, rel.expr, times, c.weight, c.when)
+                scope = (c.at, c.at) if c.at is not None else c.interval
+                self._add_group(label, c.name, rel.kind, rel.expr, times, c.weight, c.when,
+                                term=self._compile(rel.expr, scope))
         for name in self.window_dofs:
             dof = scene.dofs[name]
             if dof.lo is None and dof.hi is None:
@@ -408,7 +411,7 @@ class WindowProblem:
             if b <= a:
                 continue
             for e_index, expr in enumerate(o.exprs):
-                term = self._compile(expr)
+                term = self._compile(expr, (a, b))
                 if not term.dofs & self.free_dofs:
                     continue  # constant over this window
                 breaks = np.unique(np.concatenate([scene.dofs[d].curve.breakpoints for d in term.dofs]))

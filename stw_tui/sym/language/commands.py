@@ -209,13 +209,14 @@ class IterateCmd:
 
 @dataclass(frozen=True)
 class HoldCmd:
-    """`hold P at POINT on [A, B] [weight=W]`: an object carried by a linkage point."""
+    """`hold P at POINT on [A, B] [mass=M]`: an object carried by a linkage point."""
 
     point: str                      # the held object: DOF PX, PY (, PZ) for point P
     at: str                         # a linkage point, e.g. arm.tip (arm.tip.x, arm.tip.y, …)
     interval: Interval
-    weight: sp.Expr | None
+    weight: sp.Expr | None          # accepted and unused (it weighed a tracking objective once)
     text: str = ""
+    mass: sp.Expr | None = None     # loads the holder's generalized forces while held
 
 
 @dataclass(frozen=True)
@@ -663,7 +664,7 @@ class CommandParser(ExpressionParser):
         return IterateCmd(n, self.text, opts.get("adapt"))
 
     def p_hold(self):
-        """`hold P at POINT on [A, B] [weight=W]`."""
+        """`hold P at POINT on [A, B] [mass=M]`."""
         point = self.new_name("the held object (P for DOF PX, PY)")
         if not self.token.is_word("at"):
             raise self.unexpected("'at POINT' (a linkage point such as arm.tip)")
@@ -673,8 +674,8 @@ class CommandParser(ExpressionParser):
             raise self.unexpected("'on [A, B]'")
         self.advance()
         interval = self.interval()
-        opts = self.options({"weight": "expr"})
-        return HoldCmd(point, at, interval, opts.get("weight"), self.text)
+        opts = self.options({"mass": "expr", "weight": "expr"})
+        return HoldCmd(point, at, interval, opts.get("weight"), self.text, opts.get("mass"))
 
     def p_ballistic(self):
         """`ballistic P on [A, B]`."""

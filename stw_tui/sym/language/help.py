@@ -54,12 +54,15 @@ COMMAND_HELP: dict[str, CommandHelp] = {
                           "Define a spacetime window (a subset of DOF over a time interval) and use it: "
                           "iterations change only its control points.",
                           "window release dofs=BX,BY [0.4, 0.8]"),
-    "hold": CommandHelp("hold P at POINT on [A, B] [weight=W]",
-                        "The object P (DOF PX, PY[, PZ]) is carried by a linkage point (arm.tip): it has "
-                        "the point's position and velocity exactly at A (unless A is the start) and at B "
-                        "(unless B is the end), and an objective P_held (weight W, default 1e4) carries it "
-                        "in between. `delete P_held` removes all of it.",
-                        "hold B at arm.tip on [0, 0.55]"),
+    "hold": CommandHelp("hold P at POINT on [A, B] [mass=M]",
+                        "The object P (DOF PX, PY[, PZ]) is the linkage point (arm.tip) while held: "
+                        "every expression reads PX as arm.tip.x (and PX' as arm.tip.x', ...) on [A, B], "
+                        "so it is in the hand at every time. Its own curve, used outside the hold, meets "
+                        "the point's position and velocity at A (P_caught, unless A is the start) and at B "
+                        "(P_released, unless B is the end). mass=M (kg) adds the held mass at the point to "
+                        "the linkage's generalized forces (tau_J) while held. `delete P_held` removes all "
+                        "of it.",
+                        "hold B at arm.tip on [0, 0.55] mass=0.2"),
     "ballistic": CommandHelp("ballistic P on [A, B]",
                              "Free flight of the object P under g (along -y): constraint P_flight, "
                              "PX'' = 0, PY'' + g = 0 (PZ'' = 0), exact between the samples. "
