@@ -1,6 +1,7 @@
 """A linkage base with a body of its own (``base_mass=``, ``base_inertia=``), against derivations
 written apart from stw's compiler: the cart-pole's textbook equations of motion, a turning base's
-Lagrangian by hand, and Newton's second law on the centre of mass of base and links.
+Lagrangian by hand, and Newton's second law on the centre of mass of base and links; then the
+bundled cart-pole swing-up, its passive pivot checked at 1 ms by the textbook formula.
 
 Tolerances: 1e-9 absolute on O(1..100) forces at seeded random states (the expressions are
 evaluated in double precision, so only rounding separates them).
@@ -14,6 +15,7 @@ import numpy as np
 import pytest
 import sympy as sp
 
+from conftest import SESSIONS
 from stw_tui.session.session import Session
 from stw_tui.sym.errors import SourceError
 from stw_tui.sym.linkage import derive, dof_names, parse_linkage
@@ -158,6 +160,26 @@ dof CY = 0.5 + 2*t - 4.9*t^2
     np.testing.assert_allclose(at("tau_X"), 2.7 * acc["CX"], atol=1e-9)
     np.testing.assert_allclose(at("tau_Y"), 2.7 * (acc["CY"] + 9.81), atol=1e-9)
     assert dof_symbol("X") not in sc.derived["X"].free_symbols     # the 1e-16 leftover is dropped
+
+
+def test_cartpole_session_swings_up_with_a_passive_pivot():
+    """The bundled swing-up converges; at 1 ms samples of its DOF the textbook pivot torque stays
+    within the passive constraint's stated dense_tol, and the pole goes from hanging to upright."""
+    s = Session()
+    s.run_file(SESSIONS / "cartpole.stw")
+    assert s.runs and s.runs[-1].converged
+    tol = s.scene.constraints["passive"].dense_tol
+    assert tol <= 0.01 * 0.3 * 9.81 * 0.5          # at most 1% of the pole's weight times length
+    samples = s.sample(2001)                         # t = 0, 0.001, ..., 2
+    x_dd = np.array(samples["X"]["acceleration"])
+    th, th_d, th_dd = (np.array(samples["POLE"][k]) for k in ("value", "velocity", "acceleration"))
+    torque = [cart_pole_in_stw_angles(*state, 1.0, 0.3, 0.25, 0.3 * 0.25 / 12, 9.81)[1]
+              for state in zip(x_dd, th, th_d, th_dd)]
+    assert np.abs(torque).max() <= tol
+    assert (th[0], th[-1]) == pytest.approx((-math.pi / 2, math.pi / 2), abs=1e-9)
+    assert np.abs(th_d[[0, -1]]).max() <= 1e-9
+    x = np.array(samples["X"]["value"])
+    assert np.abs(x[[0, -1]]).max() <= 1e-9 and x.max() > 0.3   # it has to run to swing the pole
 
 
 @pytest.mark.parametrize("header, column, message", [
