@@ -55,6 +55,13 @@ def test_base_gravity_keys_and_angles():
     assert parse("linkage s", "A revolute a = 0.5").joints[0].a == 0.5
 
 
+def test_base_body_options():
+    spec = parse("linkage cart base=tx:X,ty:Y,rz:R base_inertia=0.25 base_mass=3", "A revolute a=1")
+    assert (spec.base_mass, spec.base_inertia, spec.total_mass) == (3.0, 0.25, 4.0)
+    bare = parse("linkage cart base=tx:X", "A revolute a=1")
+    assert (bare.base_mass, bare.base_inertia, bare.base_body) == (0.0, 0.0, False)
+
+
 def test_spec_is_hashable():
     a = parse("linkage s", "A revolute a=1")
     assert hash(a) == hash(parse("linkage s", "A revolute a=1"))

@@ -106,14 +106,17 @@ def apply_linkage(session: SessionLike, scene: Scene, block) -> Outcome:
 def _base_from_com(spec, derived: dict) -> dict:
     """With ``com=CX,CY``: each base variable as a subexpression, the centroidal DOF minus where
     the centre of mass sits relative to the base (which depends on the joints only); and each base
-    force as what it is, the total outside force along its axis, M·(C'' - gravity). That equals
-    the Newton–Euler expression with the base substituted, which only cancels to it numerically
-    and grows with every link (a three-link lamp's tau_Y: 68k nodes); this one is linear."""
+    force as what it is, the total outside force along its axis, M·(C'' - gravity), the base's
+    own mass in M (``NAME.com`` places it too). That equals the Newton–Euler expression with the
+    base substituted, which only cancels to it numerically and grows with every link (a
+    three-link lamp's tau_Y: 68k nodes); this one is linear."""
     out = {}
-    total = sum(sp.nsimplify(j.mass) for j in spec.joints)
+    total = sum(sp.nsimplify(m) for m in [j.mass for j in spec.joints] + [spec.base_mass] if m)
     for axis, com in zip(spec.base, spec.com):
         base = dof_symbol(axis.dof)
+        # the weights m_i/M sum to 1 only up to rounding: drop the base's 1e-16 leftover
         offset = sp.expand(derived[f"{spec.name}.com.{'xyz'[axis.index]}"] - base)
+        offset = offset.xreplace({base: 0})
         out[axis.dof] = dof_symbol(com) - offset
         gravity = spec.gravity_sign * named_symbol("g") if spec.gravity_axis == axis.index else 0
         out[f"tau_{axis.dof}"] = total * (dof_symbol(com, 2) - gravity)

@@ -19,7 +19,7 @@ whole, and no part of it is deleted or redefined alone (:func:`owned_by_verb`).
   linear in the DOF (M (CY'' + g)) and hold exactly between the samples.
 - ``flight acro on [A, B]``: nothing outside acts on the creature: the generalized forces of its
   base DOF vanish, and so do the torques of the joints that hang the first massive link on the
-  (massless) base, which has nothing to push against in the air.
+  base, which has nothing to push against in the air (unless it has an inertia, base_inertia=).
 """
 
 from __future__ import annotations
@@ -205,7 +205,9 @@ def flight_lines(scene, name: str, a: float, b: float, dense_tol: float | None =
     """(group name, command lines) of ``flight``: the unactuated DOF's forces vanish on [A, B]."""
     spec = _free_linkage(scene, name, "flight")
     free = [axis.dof for axis in spec.base]
-    for joint in spec.joints:       # joints up to the first massive link hang on the massless base
+    # joints up to the first massive link hang on a base that can take no torque (a bare frame, or
+    # a point mass); a base with an inertia of its own (base_inertia=) takes the first joint's
+    for joint in spec.joints if not spec.base_inertia else ():
         free.append(joint.name)
         if joint.mass > 0:
             break

@@ -83,7 +83,7 @@ COMMAND_HELP: dict[str, CommandHelp] = {
     "flight": CommandHelp("flight LINKAGE on [A, B] [dense_tol=D]",
                           "Nothing outside acts on the creature: the forces of its base DOF and the "
                           "torques of the joints up to its first massive link (which hang on the "
-                          "massless base) are 0 (LINKAGE_flight). With `com=CX,CY` the base part is "
+                          "base: a base with base_inertia= takes them) are 0 (LINKAGE_flight). With `com=CX,CY` the base part is "
                           "linear (CX'' = 0, CY'' + g = 0) and holds everywhere; the torques are "
                           "nonlinear, and dense_tol=D states how large they may grow between the "
                           "instances. "
@@ -150,14 +150,24 @@ COMMAND_HELP: dict[str, CommandHelp] = {
                          "instances, densely over its whole scope, and where it is worst.",
                          "print x'' @ 0.5"),
     "help": CommandHelp("help [COMMAND]", "List the commands, or document one.", "help constraint"),
-    "linkage": CommandHelp("linkage NAME [base=fixed|AXIS:DOF,…] [com=CX,CY] [gravity=-y] … end",
+    "linkage": CommandHelp("linkage NAME [base=fixed|AXIS:DOF,…] [com=CX,CY] [gravity=-y] "
+                           "[base_mass=M] [base_inertia=I] … end",
                            "A block: one row per joint (`JOINT revolute|prismatic a= alpha= d= theta= "
                            "mass= com=x:y:z inertia=Ixx:Iyy:Izz`), closed by `end`. Joint variables "
                            "become DOF; positions (NAME.JOINT.x, NAME.tip.y, NAME.com.z) and generalized "
-                           "forces tau_DOF become subexpressions. With a base of translations, "
-                           "`com=CX,CY` makes the DOF the centre of mass and the base a subexpression "
-                           "(free flight is then CX'' = 0, CY'' + g = 0, exact between the samples).",
-                           "linkage arm base=fixed\n  SHOULDER revolute a=0.35 mass=2\nend"),
+                           "forces tau_DOF become subexpressions. Planar conventions: y is up (gravity=-y, "
+                           "of magnitude the constant g), a revolute joint's angle is measured "
+                           "counterclockwise, the first from +x, each next one from the link before "
+                           "(0 = straight on). A link is by default a uniform rod of length a (mass 1): "
+                           "its mass mid-link, inertia m a^2/12 about its middle. The base axes "
+                           "(tx, ty, tz, rx, ry, rz) apply in the order given; `base_mass=M` puts a mass "
+                           "at the base frame origin after them (it counts in NAME.com and in the base "
+                           "forces: a cart), `base_inertia=I` a moment of inertia about the base's one "
+                           "rotation (tau_R gains I*R''). With a base of translations, "
+                           "`com=CX,CY` makes the DOF the centre of mass (base_mass included) and the base "
+                           "a subexpression (free flight is then CX'' = 0, CY'' + g = 0, exact between "
+                           "the samples).",
+                           "linkage cp base=tx:X base_mass=1\n  POLE revolute a=0.5 mass=0.2\nend"),
 }
 
 OPERATORS = "+ - * / ^ (or **), unary -, parentheses; x' and x'' are a DOF's velocity and acceleration; t is time"

@@ -36,7 +36,7 @@ def derive(spec: LinkageSpec) -> dict[str, sp.Expr]:
 
     ``<linkage>.<JOINT>.x|y|z``: where joint i sits (the origin of DH frame i-1; the base frame for
     the first joint). ``<linkage>.tip.x|y|z``: origin of the last DH frame. ``<linkage>.com.x|y|z``:
-    centre of mass of the whole linkage. ``tau_<DOF>``: generalized force of each DOF, base DOF
+    centre of mass of the whole linkage (its ``base_mass`` included). ``tau_<DOF>``: generalized force of each DOF, base DOF
     included (recursive Newton–Euler, see :mod:`.dynamics`).
     """
     ch = chain(spec)

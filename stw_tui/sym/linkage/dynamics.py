@@ -23,10 +23,11 @@ Why Newton–Euler rather than Lagrange (or sympy.physics.mechanics):
   consumer's CSE; we never call expand/simplify/trigsimp.
 
 The chain is the one of :mod:`.kinematics`: elementary rotations/translations about local axes, base
-axes first, links attached to their DH frames. Gravity enters by the usual trick of giving the world
-frame an upward acceleration ``-g_vec``. The correctness checks (closed-form double pendulum, an
+axes first, links attached to their DH frames, the base's own mass and inertia (``base_mass=``,
+``base_inertia=``) at the frame after the base axes. Gravity enters by the usual trick of giving the
+world frame an upward acceleration ``-g_vec``. The correctness checks (closed-form double pendulum, an
 independent Lagrangian, energy balance in 3-D with base DOF and a prismatic joint) are in
-tests/test_linkage.py.
+tests/test_linkage.py; a cart-pole with a massive cart in tests/test_base_mass.py.
 """
 
 from __future__ import annotations
@@ -36,7 +37,7 @@ import sympy as sp
 from stw_tui.sym.linkage.kinematics import (SYMENGINE, Chain, Lib, Vec, add, chain, cross, gravity_vector,
                          link_inertia_sym, matvec, num, scale, step_transform, step_value, tmatvec,
                          to_sympy, unit, zero_vec)
-from stw_tui.sym.linkage.spec import LinkageSpec, link_com
+from stw_tui.sym.linkage.spec import LinkageSpec, base_rotation_axis, link_com
 
 
 def generalized_forces(spec: LinkageSpec, ch: Chain | None = None) -> dict[str, sp.Expr]:
@@ -56,11 +57,14 @@ def generalized_forces_raw(spec: LinkageSpec, ch: Chain | None = None, lib: Lib 
     steps = ch.steps
     n = len(steps)
 
-    # bodies attached to frames
+    # bodies attached to frames; the base's own (base_mass=, base_inertia=) at the base frame,
+    # which no link shares (every joint takes at least its own step past it)
     bodies: dict[int, tuple[sp.Expr, Vec, tuple]] = {}
     for joint, k in zip(spec.joints, ch.link_frames):
         bodies[k] = (num(joint.mass, lib), tuple(num(c, lib) for c in link_com(joint)),
                      link_inertia_sym(joint, lib))
+    if spec.base_body:
+        bodies[len(spec.base)] = (num(spec.base_mass, lib), ZERO, _base_inertia(spec, lib))
 
     # outward pass: angular velocity w, angular acceleration dw, linear acceleration a of the frame
     # origin (gravity included), each in its own frame's coordinates
@@ -113,3 +117,13 @@ def generalized_forces_raw(spec: LinkageSpec, ch: Chain | None = None, lib: Lib 
 
     order = [b.dof for b in spec.base] + [j.name for j in spec.joints]
     return {f"tau_{name}": taus[name] for name in order}
+
+
+def _base_inertia(spec: LinkageSpec, lib: Lib) -> tuple:
+    """The base's inertia tensor in the base frame: ``base_inertia`` about its one rotation axis.
+
+    Nothing about the other two axes: the base only ever turns about that one, so they never act.
+    """
+    axis = base_rotation_axis(spec) if spec.base_inertia else None
+    return tuple(tuple(num(spec.base_inertia, lib) if r == c == axis else lib.zero for c in range(3))
+                 for r in range(3))

@@ -297,17 +297,19 @@ def link_inertia_sym(joint, lib: Lib = SYMPY) -> Mat:
 
 
 def positions(spec: LinkageSpec, lib: Lib = SYMPY) -> dict:
-    """``NAME.JOINT.x|y|z`` (where each joint sits), ``NAME.tip.x|y|z`` and ``NAME.com.x|y|z``,
-    as expressions of ``lib`` (see :func:`to_sympy`)."""
+    """``NAME.JOINT.x|y|z`` (where each joint sits), ``NAME.tip.x|y|z`` and ``NAME.com.x|y|z`` (of
+    the links and the base's own mass), as expressions of ``lib`` (see :func:`to_sympy`)."""
     ch = chain(spec)
     frames = world_frames(spec, ch, lib)
     out: dict = {}
     for joint, k in zip(spec.joints, ch.joint_frames):
         _put(out, f"{spec.name}.{joint.name}", frames[k][1])
     _put(out, f"{spec.name}.tip", frames[-1][1])
-    total = sum(j.mass for j in spec.joints)
+    total = spec.total_mass
     coms = link_com_world(spec, frames, ch, lib)
     weighted = add(*(scale(num(j.mass / total, lib), c) for j, c in zip(spec.joints, coms)))
+    if spec.base_mass:   # a point at the base frame origin
+        weighted = add(weighted, scale(num(spec.base_mass / total, lib), frames[len(spec.base)][1]))
     _put(out, f"{spec.name}.com", weighted)
     return out
 

@@ -17,6 +17,10 @@ Header options
     The DOF ``CX, CY`` are where the linkage's centre of mass is, and the base DOF (``X, Y``) become
     subexpressions that follow from it and the joints. Free flight is then linear in the DOF
     (``CX'' = 0``, ``CY'' + g = 0``), so it can hold exactly between the samples.
+    ``base_mass=M`` (default 0, only with a base that translates): the base's own mass, a point at
+    the base frame origin (after all base axes); it counts in ``NAME.com`` and in the base forces.
+    ``base_inertia=I`` (default 0, only with exactly one rotation ``rx|ry|rz`` in the base): the
+    base's moment of inertia about that axis, so ``tau_R`` gains ``I R''``.
 
 Rows: ``JOINT revolute|prismatic key=value ...``
     ``a alpha d theta`` standard Denavit–Hartenberg offsets (default 0). The joint variable (a DOF named
@@ -43,7 +47,7 @@ BASE_AXES = ("tx", "ty", "tz", "rx", "ry", "rz")
 ROW_KEYS = ("a", "alpha", "d", "theta", "mass", "com", "inertia")
 POSITIONAL_KEYS = ("a", "alpha", "d", "theta", "mass")
 ANGLE_KEYS = ("alpha", "theta")
-HEADER_KEYS = ("base", "gravity", "com")
+HEADER_KEYS = ("base", "gravity", "com", "base_mass", "base_inertia")
 RESERVED_NAMES = ("tip", "com", "base", "end", "g", "t")
 
 _IDENT = re.compile(r"[A-Za-z_][A-Za-z0-9_]*\Z")
@@ -93,7 +97,7 @@ class BaseAxis:
 
 @dataclass(frozen=True)
 class LinkageSpec:
-    """A parsed `linkage` block: its joints, base axes, gravity and centroidal DOF."""
+    """A parsed `linkage` block: its joints, base axes, gravity, centroidal DOF and base body."""
 
     name: str
     joints: tuple[JointSpec, ...]
@@ -102,6 +106,28 @@ class LinkageSpec:
     gravity_sign: int = -1
     line: int | None = None
     com: tuple[str, ...] = ()  # centroidal DOF, one per base axis (``com=CX,CY``), or none
+    base_mass: float = 0.0  # a point mass at the base frame origin
+    base_inertia: float = 0.0  # about the base's one rotation axis
+
+    @property
+    def total_mass(self) -> float:
+        """The links' masses and the base's."""
+        return sum(j.mass for j in self.joints) + self.base_mass
+
+    @property
+    def base_body(self) -> bool:
+        """Whether the base has a mass or an inertia of its own (without, it is a bare frame)."""
+        return self.base_mass > 0.0 or self.base_inertia > 0.0
+
+
+def base_rotation_axis(spec: LinkageSpec) -> int:
+    """The axis (0, 1, 2) of the base's one rotation, about which ``base_inertia`` turns it.
+
+    With a single rotation the frame after all base axes keeps that axis (translations do not
+    turn it), so the inertia sits on the same local axis of the base frame.
+    """
+    (axis,) = [b.index for b in spec.base if b.kind == "revolute"]
+    return axis
 
 
 def dof_names(spec: LinkageSpec) -> list[str]:
@@ -239,7 +265,8 @@ def _language_words() -> set[str]:
 
 def parse_linkage(header: str, rows: list[tuple[int, str]], *, header_line: int | None = None
                   ) -> LinkageSpec:
-    """Parse a ``linkage NAME [base=...] [gravity=...]`` header and its rows (``end`` excluded).
+    """Parse a ``linkage NAME [base=...] [gravity=...] [com=...] [base_mass=...] [base_inertia=...]``
+    header and its rows (``end`` excluded).
 
     ``rows`` are (line number, text) pairs. Raises :class:`SourceError` with the line and the
     1-based column of the offending token.
@@ -257,13 +284,15 @@ def parse_linkage(header: str, rows: list[tuple[int, str]], *, header_line: int 
 
     base: tuple[BaseAxis, ...] = ()
     com_tok: _Tok | None = None
+    body_toks: dict[str, _Tok] = {}
     gravity_axis, gravity_sign = 1, -1
     seen_keys: set[str] = set()
     for tok in toks[2:]:
         if tok.key is None:
-            raise _err(f"unexpected {tok.value!r}", hl, tok.col, hs, "base=..., gravity=... or com=...")
+            raise _err(f"unexpected {tok.value!r}", hl, tok.col, hs,
+                       "base=..., gravity=..., com=..., base_mass=... or base_inertia=...")
         if tok.key not in HEADER_KEYS:
-            raise _err(f"unknown linkage option {tok.key!r}", hl, tok.col, hs, "base, gravity or com")
+            raise _err(f"unknown linkage option {tok.key!r}", hl, tok.col, hs, ", ".join(HEADER_KEYS))
         if tok.key in seen_keys:
             raise _err(f"option {tok.key!r} given twice", hl, tok.col, hs)
         seen_keys.add(tok.key)
@@ -271,10 +300,13 @@ def parse_linkage(header: str, rows: list[tuple[int, str]], *, header_line: int 
             base = _parse_base(tok, hl, hs)
         elif tok.key == "com":
             com_tok = tok
+        elif tok.key in ("base_mass", "base_inertia"):
+            body_toks[tok.key] = tok
         else:
             gravity_axis, gravity_sign = _parse_gravity(tok, hl, hs)
 
     com = _parse_com(com_tok, base, hl, hs) if com_tok is not None else ()
+    base_mass, base_inertia = _parse_base_body(body_toks, base, hl, hs)
     used = {n: None for n in [b.dof for b in base] + list(com)}
     joints: list[JointSpec] = []
     for line, text in rows:
@@ -290,11 +322,43 @@ def parse_linkage(header: str, rows: list[tuple[int, str]], *, header_line: int 
     if not joints:
         raise _err(f"linkage {name!r} has no joints", hl, toks[1].col, hs,
                    "rows 'JOINT revolute|prismatic a=... mass=...' before 'end'")
-    if sum(j.mass for j in joints) <= 0.0:
+    if sum(j.mass for j in joints) + base_mass <= 0.0:
         raise _err(f"linkage {name!r} has no mass", hl, toks[1].col, hs,
-                   "at least one link with mass > 0")
+                   "at least one link with mass > 0, or base_mass > 0")
     return LinkageSpec(name=name, joints=tuple(joints), base=base, gravity_axis=gravity_axis,
-                       gravity_sign=gravity_sign, line=hl, com=com)
+                       gravity_sign=gravity_sign, line=hl, com=com, base_mass=base_mass,
+                       base_inertia=base_inertia)
+
+
+def _parse_base_body(toks: dict[str, _Tok], base: tuple[BaseAxis, ...], line, source
+                     ) -> tuple[float, float]:
+    """``base_mass=M``, ``base_inertia=I``: (M, I), each 0 when not given.
+
+    A mass on a base that only turns about its own origin would never move, and an inertia needs
+    one rotation to turn about (with two or more its axis would be a guess): both are refused
+    (a zero, which does nothing, is not).
+    """
+    values = []
+    for key, needs in (("base_mass", "base_mass >= 0"), ("base_inertia", "base_inertia >= 0")):
+        tok = toks.get(key)
+        if tok is None:
+            values.append(0.0)
+            continue
+        if not tok.value:
+            raise _err(f"{key}= needs a value", line, tok.vcol, source, "a number")
+        value = _number(tok.value, angle=False, line=line, col=tok.vcol, source=source)
+        if value < 0:
+            raise _err(f"{key} cannot be negative", line, tok.vcol, source, needs)
+        values.append(value)
+    if values[0] > 0 and not any(b.kind == "prismatic" for b in base):
+        raise _err("base_mass needs a base that translates", line, toks["base_mass"].col, source,
+                   "base=tx:X,... base_mass=M")
+    rotations = [b.axis for b in base if b.kind == "revolute"]
+    if values[1] > 0 and len(rotations) != 1:
+        why = "a base that turns" if not rotations else f"one base rotation, not {len(rotations)}"
+        raise _err(f"base_inertia needs {why}", line, toks["base_inertia"].col, source,
+                   "base=...,rz:R base_inertia=I (exactly one of rx, ry, rz)")
+    return values[0], values[1]
 
 
 def _parse_com(tok: _Tok, base: tuple[BaseAxis, ...], line, source) -> tuple[str, ...]:
