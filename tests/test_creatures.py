@@ -236,7 +236,7 @@ def test_basketball_player_catches_its_own_throw_and_scores():
     assert s.runs[-1].converged and s.runs[-1].reports[-1].max_violation <= 1e-8
     _assert_holds_continuously(s)
     px, pz, turn, catch_y, bx = (_print(s, e) for e in ("PX", "PZ", "TURN", "player.tip.y", "BX"))
-    assert np.hypot(px, pz) > 0.5 and abs(turn) > 0.1   # it moved and turned to catch
+    assert np.hypot(px, pz) > 0.3 and abs(turn) > 0.1   # it moved and turned to catch (a 30 kg trunk)
     assert abs(catch_y) < 0.5                            # caught near shoulder height
     assert bx == pytest.approx(2.0, abs=1e-9)
     scene = s.scene
@@ -248,17 +248,19 @@ def test_basketball_player_catches_its_own_throw_and_scores():
                        _curves(scene, ("PX", "PZ", "TURN"), 1.7))[2] == pytest.approx(out, abs=1e-12)
     # Throw: from the hand at 0.55 through the goal point at t = 1 ...
     p, v = hand(0.55)
-    assert np.linalg.norm(_fly(p, v, 0.45) - np.array([0.8, 1.2, 0.5])) < 1e-4
+    assert np.linalg.norm(_fly(p, v, 0.45) - np.array([0.8, 1.2, 0.5])) < 1e-6
     # ... into the hand at the catch (t = 1.5), with the hand's velocity (a soft catch) ...
     q, w = hand(1.5)
-    assert np.linalg.norm(_fly(p, v, 0.95) - q) < 1e-4
-    assert np.linalg.norm(v + np.array([0, -G * 0.95, 0]) - w) < 1e-3
+    assert np.linalg.norm(_fly(p, v, 0.95) - q) < 1e-6
+    assert np.linalg.norm(v + np.array([0, -G * 0.95, 0]) - w) < 1e-6
     # ... and from the hand at 1.95 into the basket at t = 3.
     p2, v2 = hand(1.95)
-    assert np.linalg.norm(_fly(p2, v2, 1.05) - np.array([2.0, 1.0, 1.0])) < 1e-4
-    # Carried near the hand between catch and second throw (an objective: a few cm at most).
-    gap = "abs(player.tip.x - BX) + abs(player.tip.y - BY) + abs(player.tip.z - BZ)"
-    assert _print(s, gap, 1)["max"] < 0.1
+    assert np.linalg.norm(_fly(p2, v2, 1.05) - np.array([2.0, 1.0, 1.0])) < 1e-6
+    # Held, the ball is the hand at every 1 ms (the hand by kinematics written here).
+    for a, b in ((0, 0.55), (1.5, 1.95)):
+        for t in np.arange(a + 1e-3, b, 1e-3):     # (the hand's velocity is a central difference)
+            ball = [scene.dof_values(n, [t])[0] for n in ("BX", "BY", "BZ")]
+            assert np.linalg.norm(np.array(ball) - hand(t)[0]) < 1e-10, t
     _assert_human_arm(s, end=3.0)                      # within the arm's ranges everywhere ...
     turn = scene.dofs["TURN"].curve.evaluate(np.linspace(0, 3, 30_001))
     assert turn.min() >= -1.6 - 1e-9 and turn.max() <= 1.6 + 1e-9   # ... and the base's

@@ -702,16 +702,54 @@ def test_exact_steps_refused_in_a_row_wait_for_doubling_runs_of_gauss_newton_ste
     assert _newton_backoff(state, False) == (0, 0)
 
 
+# basketball.stw as it was before `hold` attached the ball to the hand: the ball a DOF of its own,
+# tracked by an objective while held (the lines the verb made then), on a massless base. It
+# refuses runs of exact-Hessian steps, which the test below is about.
+_MATCH = ("BX = player.tip.x, BY = player.tip.y, BZ = player.tip.z, "
+          "BX' = player.tip.x', BY' = player.tip.y', BZ' = player.tip.z'")
+BASKETBALL_TRACKED = f"""time 0 3 knots=48 samples=48
+const g = 9.81
+linkage player base=tx:PX,tz:PZ,ry:TURN
+  SHOULDER revolute a=0.35 mass=2.0
+  ELBOW    revolute a=0.30 mass=1.5
+  WRIST    revolute a=0.15 mass=0.5
+end
+dof BX, BY, BZ
+limit SHOULDER -2.6 3.2
+limit ELBOW 0 2.5
+limit WRIST -1.2 1.2
+limit TURN -1.6 1.6
+dof SHOULDER = -pi/2
+dof PX = 0.8*min(max((t - 0.7)/0.8, 0), 1)
+dof BX = 0.8*min(max((t - 0.5)/1.0, 0), 1)
+dof BY = -0.8 + 2*sin(pi*min(max((t - 0.5)/1.0, 0), 1))
+constraint start:  SHOULDER = -pi/2, ELBOW = 0, WRIST = 0, SHOULDER' = 0, ELBOW' = 0, WRIST' = 0 @ 0
+constraint still0: PX = 0, PZ = 0, TURN = 0, PX' = 0, PZ' = 0, TURN' = 0 @ 0
+objective B_held: player.tip.x - BX, player.tip.y - BY, player.tip.z - BZ on [0, 0.55] weight=1e4
+constraint B_released: {_MATCH} @ 0.55
+constraint B_flight: BX'' = 0, BY'' + g = 0, BZ'' = 0 on [0.55, 1.5]
+constraint goal:   BX = 0.8, BY = 1.2, BZ = 0.5 @ 1
+objective B_held2: player.tip.x - BX, player.tip.y - BY, player.tip.z - BZ on [1.5, 1.95] weight=1e5
+constraint B_caught: {_MATCH} @ 1.5
+constraint B_released2: {_MATCH} @ 1.95
+constraint B_flight2: BX'' = 0, BY'' + g = 0, BZ'' = 0 on [1.95, 3.0]
+constraint basket: BX = 2, BY = 1, BZ = 1 @ 3
+constraint still3: PX' = 0, PZ' = 0, TURN' = 0 @ 3
+objective effort:  tau_SHOULDER, tau_ELBOW, tau_WRIST, tau_PX, tau_PZ, tau_TURN
+iterate 400
+"""
+
+
 def test_backing_off_refused_exact_steps_reaches_the_same_basketball_motion_with_fewer_refusals(monkeypatch):
-    """basketball.stw refuses some of its exact-Hessian steps, in runs: the backoff takes
+    """BASKETBALL_TRACKED refuses some of its exact-Hessian steps, in runs: the backoff takes
     Gauss-Newton steps there instead of solving each refused QP first, so fewer exact steps are
     refused, and the solve ends at the same optimum. (How many linear iterations that saves turns
     on rounding: 942 to 501 when the backoff was made, 477 to 506 (a loss) on this machine's
     pinned kernels once more of basketball's working sets were factorized banded.)"""
     from stw_tui.sos.sqp import solver
 
-    text = (SESSIONS / "basketball.stw").read_text()
     runs, refused, default = {}, {}, solver.NEWTON_WAIT_MAX
+    text = BASKETBALL_TRACKED
     backoff_of = solver._newton_backoff
     for wait_max in (default, 0):   # 0: the exact step is tried at every step
         monkeypatch.setattr(solver, "NEWTON_WAIT_MAX", wait_max)
