@@ -9,6 +9,10 @@ There is no async test plugin here, so each TUI test runs its scenario with ``as
 from __future__ import annotations
 
 import asyncio
+import os
+import subprocess
+import sys
+import textwrap
 
 from textual.widgets import Label, Static
 
@@ -159,3 +163,64 @@ def test_the_console_echoes_hostile_text_escaped(tmp_path):
         assert app.session.scene.constants["a"] == 1.0    # the comment did not change the command
 
     run(scenario, app)
+
+
+def _stw(*args, env=None, cwd=None) -> subprocess.CompletedProcess:
+    return subprocess.run([sys.executable, "-m", "stw_tui.cli.main", *args], capture_output=True,
+                          text=True, encoding="utf-8", env=env, cwd=cwd, timeout=300)
+
+
+def test_stw_run_prints_hostile_lines_and_paths_escaped(tmp_path):
+    folder = tmp_path / "dir\u202eevil\u009b"
+    folder.mkdir()
+    session = folder / "s\u2066.stw"
+    session.write_text(f"const a = 1 # {HOSTILE}\nprint a\nsave out\u202e\u2067.stw\n"
+                       f"dof x\nconstraint c{ESC}]2;T{ESC}\\: x = 1 @ 0\n", encoding="utf-8")
+    out = _stw("run", str(session), cwd=tmp_path)
+    assert out.returncode == 2, out
+    printed = out.stdout + out.stderr
+    assert "saved 2 command line(s) to out\\u202e\\u2067.stw" in out.stdout
+    assert "dir\\u202eevil\\x9b/s\\u2066.stw: line 5" in out.stderr
+    assert "constraint c\\x1b]2;T\\x1b\\: x = 1 @ 0" in out.stderr
+    assert not raw_in(printed), raw_in(printed)
+
+
+HOSTILE_PLUGIN = textwrap.dedent('''
+    """A backend whose messages carry escape sequences."""
+    from stw_tui.sos.backend import Backend
+
+    MESSAGE = "bad \\x1b]52;c;aGVsbG8=\\x1b\\\\ \\x9b31m \\u202eevil"
+
+    class Hostile(Backend):
+        """Raises at its first step \\x1b]2;TITLE\\x1b\\\\."""
+        name = "hostile"
+
+        def init(self, problem, state, settings):
+            return state
+
+        def step(self, problem, state, iteration):
+            raise RuntimeError(MESSAGE)
+
+        def state(self, inner):
+            return inner
+''')
+
+
+def test_a_plugins_text_is_printed_escaped(tmp_path):
+    (tmp_path / "stw_hostile.py").write_text(HOSTILE_PLUGIN)
+    (tmp_path / "stw_gone.py").write_text("raise ImportError('missing \\x1b]2;TITLE\\x1b\\\\ \\u202e')\n")
+    info = tmp_path / "stw_hostile-0.1.dist-info"
+    info.mkdir()
+    (info / "METADATA").write_text("Metadata-Version: 2.1\nName: stw-hostile\nVersion: 0.1\n")
+    (info / "entry_points.txt").write_text("[stw_tui.backends]\nhostile = stw_hostile:Hostile\n"
+                                           "gone = stw_gone:Nothing\n")
+    env = dict(os.environ, PYTHONPATH=str(tmp_path) + os.pathsep + os.environ.get("PYTHONPATH", ""))
+    session = tmp_path / "s.stw"
+    session.write_text("dof x\nobjective o: x - 1\nbackend hostile\niterate 2\n")
+    solved = _stw("run", str(session), env=env)
+    listed = _stw("backends", env=env)
+    assert "bad \\x1b]52;c;aGVsbG8=\\x1b\\ \\x9b31m \\u202eevil" in solved.stderr, solved
+    assert "missing \\x1b]2;TITLE\\x1b\\ \\u202e" in listed.stdout, listed
+    assert "Raises at its first step \\x1b]2;TITLE\\x1b\\." in listed.stdout, listed
+    for printed in (solved.stdout, solved.stderr, listed.stdout, listed.stderr):
+        assert not raw_in(printed), raw_in(printed)
