@@ -35,6 +35,7 @@ from stw_tui.app.runner import Runner, Script
 from stw_tui.app.status import StatusLine
 from stw_tui.session.queries import SceneInfo
 from stw_tui.session.throttle import ThrottledCall
+from stw_tui.sym.errors import printable
 
 if TYPE_CHECKING:
     from textual.app import SystemCommand
@@ -200,7 +201,8 @@ class StwApp(App[int]):
             self.settings_path.parent.mkdir(parents=True, exist_ok=True)
             self.settings_path.write_text(json.dumps({"theme": theme.name}) + "\n", encoding="utf-8")
         except OSError as exc:   # remembering is a convenience: say so, go on
-            self.notify(f"cannot remember the theme in {self.settings_path}: {exc}", severity="warning")
+            message = printable(f"cannot remember the theme in {self.settings_path}: {exc}")
+            self.notify(message, severity="warning", markup=False)
 
     def on_unmount(self) -> None:
         """The app is shutting down (Ctrl+Q, or the end of a test's run): its solver process ends

@@ -14,7 +14,7 @@ from textual.widgets import Input, Label, RichLog
 
 from stw_tui.app.completion import History, complete
 from stw_tui.app.messages import CommandRequested, Origin
-from stw_tui.sym.errors import SourceError
+from stw_tui.sym.errors import SourceError, printable
 
 if TYPE_CHECKING:
     from stw_tui.sos.scene import Scene
@@ -107,7 +107,8 @@ class Console(Vertical):
         """Show the continuation prompt inside a `linkage` block, the normal one otherwise."""
         self.query_one("#prompt", Label).update(CONTINUATION if continuation else PROMPT)
 
-    # --- writing (Text objects, never markup: user text contains [brackets]) -----------------
+    # --- writing (Text objects, never markup: user text contains [brackets]; and made
+    # printable: a session line, a path or a plugin's message may hold escape sequences) -----
     def write_command(self, line: str, number: int | None = None, origin: Origin = Origin.CONSOLE,
                       continuation: bool = False) -> None:
         """Echo a command line, prefixed by its file line number or where it came from."""
@@ -117,22 +118,22 @@ class Console(Vertical):
             prefix = CONTINUATION
         else:
             prefix = PROMPT if origin == Origin.CONSOLE else f"{origin}> "
-        self.log_widget.write(Text.assemble((prefix, "dim"), (line, "bold")))
+        self.log_widget.write(Text.assemble((prefix, "dim"), (printable(line), "bold")))
 
     def write_result(self, text: str) -> None:
         """Write what a command printed (plain text, never markup)."""
         if text:
-            self.log_widget.write(Text(text))
+            self.log_widget.write(Text(printable(text, newlines=True)))
 
     def write_note(self, text: str) -> None:
         """Write a note of the app's own, dimmed."""
-        self.log_widget.write(Text(text, style="dim italic"))
+        self.log_widget.write(Text(printable(text, newlines=True), style="dim italic"))
 
     def write_error(self, error: BaseException) -> None:
         """An error in red, with the offending line and a caret under the column when known."""
         message = str(error) if str(error) else type(error).__name__
         if not isinstance(error, Exception) or type(error).__module__.split(".")[0] != "stw_tui":
             message = f"internal error {type(error).__name__}: {message}"
-        self.log_widget.write(Text(message, style="bold red"))
+        self.log_widget.write(Text(printable(message, newlines=True), style="bold red"))
         if isinstance(error, SourceError) and error.caret():
             self.log_widget.write(Text(error.caret(), style="red"))

@@ -1,13 +1,17 @@
 """Dialogs: a one-line edit (panels ask for a value, then turn it into a command line) and the
-backend comparison table."""
+backend comparison table. Their text is shown literally: never read as markup (titles and hints
+hold command synopses with [brackets]), control characters escaped."""
 
 from __future__ import annotations
 
+from rich.text import Text
 from textual.app import ComposeResult
 from textual.binding import Binding
 from textual.containers import Vertical
 from textual.screen import ModalScreen
 from textual.widgets import DataTable, Input, Label
+
+from stw_tui.sym.errors import printable
 
 
 class EditDialog(ModalScreen[str | None]):
@@ -27,11 +31,12 @@ class EditDialog(ModalScreen[str | None]):
 
     def compose(self) -> ComposeResult:
         with Vertical(id="dialog"):
-            yield Label(self._title, id="dialog-title")
+            yield Label(printable(self._title), id="dialog-title", markup=False)
             field = Input(self._value, id="dialog-input")
             field.cursor_blink = self._blink
             yield field
-            yield Label(self._hint or "Enter applies · Esc cancels", id="dialog-hint")
+            hint = self._hint or "Enter applies · Esc cancels"
+            yield Label(printable(hint), id="dialog-hint", markup=False)
 
     def on_input_submitted(self, event: Input.Submitted) -> None:
         event.stop()
@@ -74,7 +79,8 @@ class CompareScreen(ModalScreen[None]):
             timing = (f"{r['median_ms_per_iteration']:.2f}", f"{r['seconds_to_converge']:.3f}")
             if not self.show_timing:
                 timing = ("-", "-")
-            table.add_row(str(r["backend"]), str(r["iterations"]), "yes" if r["converged"] else "no",
+            backend = Text(printable(str(r["backend"])))   # a str cell is markup; a spec may hold [
+            table.add_row(backend, str(r["iterations"]), "yes" if r["converged"] else "no",
                           *timing, f"{r['objective']:.6g}", f"{r['max_violation']:.2e}",
                           f"{r['max_motion_difference']:.2e}", key=str(r["backend"]))
         table.focus()

@@ -19,6 +19,7 @@ from textual.screen import ModalScreen
 from textual.widgets import DataTable, Label, ProgressBar
 
 from stw_tui.app.thumbnails import curves, has_geometry, strip
+from stw_tui.sym.errors import printable
 
 GALLERY_COLUMNS = ("rank", "objective", "dense viol", "count", "frames", "descriptors")
 THUMBNAIL = (5, 2)      # characters per frame (width, height) of the thumbnail strip
@@ -53,10 +54,10 @@ class GalleryScreen(ModalScreen[None]):
 
     def compose(self) -> ComposeResult:
         with Vertical(id="gallery"):
-            yield Label("Survey", id="gallery-title")
+            yield Label("Survey", id="gallery-title", markup=False)
             yield ProgressBar(id="gallery-progress", show_eta=False)
             yield DataTable(id="gallery-table", cursor_type="row", zebra_stripes=True)
-            yield Label("", id="gallery-notes")
+            yield Label("", id="gallery-notes", markup=False)   # a start's error text: literal
             yield Label("Enter plays · a adopts · F4 cancels the starts left · Esc closes", id="gallery-hint")
 
     def on_mount(self) -> None:
@@ -74,7 +75,7 @@ class GalleryScreen(ModalScreen[None]):
         optima = survey.optima
         bar = self.query_one(ProgressBar)
         bar.update(total=survey.plan.n, progress=len(survey.results))
-        self.query_one("#gallery-title", Label).update(survey.summary())
+        self.query_one("#gallery-title", Label).update(printable(survey.summary()))
         grid = self.query_one(DataTable)
         row = grid.cursor_row
         grid.clear()
@@ -87,7 +88,8 @@ class GalleryScreen(ModalScreen[None]):
             grid.move_cursor(row=min(row, grid.row_count - 1))
         others = [f"start {r.index}: {r.status}" + (f" ({r.error[:60]})" if r.error else "")
                   for r in (survey.unconverged + survey.failed)[:3]]
-        self.query_one("#gallery-notes", Label).update("\n".join(others + survey.notes[-2:]))
+        notes = "\n".join(others + survey.notes[-2:])
+        self.query_one("#gallery-notes", Label).update(printable(notes, newlines=True))
 
     @property
     def selected(self) -> int | None:

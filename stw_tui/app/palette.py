@@ -14,9 +14,11 @@ from typing import TYPE_CHECKING, Iterator
 
 from textual.app import SystemCommand
 from textual.command import DiscoveryHit, Hit, Hits, Provider
+from textual.content import Content
 
 from stw_tui.app.messages import ItemChosen
 from stw_tui.session.queries import equation_names
+from stw_tui.sym.errors import printable
 
 if TYPE_CHECKING:
     from textual.app import App
@@ -93,8 +95,7 @@ class SceneCommands(Provider):
         entries = [(title, help, partial(app.post_message, ItemChosen(kind, name)))
                    for title, help, kind, name in scene_entries(getattr(app, "scene", None))]
         for command, info in COMMAND_HELP.items():
-            # Help is markup to the palette: synopses hold [brackets].
-            entries.append((f"Command {command}", info.synopsis.replace("[", "\\["), partial(self._start, command)))
+            entries.append((f"Command {command}", info.synopsis, partial(self._start, command)))
         for path in session_files():
             entries.append((f"Open session {path}", "`open` it at the prompt: Enter runs its lines here",
                             partial(self._start, f"open {path}")))
@@ -111,7 +112,7 @@ class SceneCommands(Provider):
         """What the palette lists before anything is typed: the plots to show."""
         for title, help, callback in self._entries():
             if title.startswith("Plot "):
-                yield DiscoveryHit(title, callback, help=help)
+                yield DiscoveryHit(Content(title), callback, text=title, help=_literal(help))
 
     async def search(self, query: str) -> Hits:
         """The entries whose title matches what is typed, scored for the palette to rank."""
@@ -119,4 +120,23 @@ class SceneCommands(Provider):
         for title, help, callback in self._entries():
             score = matcher.match(title)
             if score > 0:
-                yield Hit(score, matcher.highlight(title), callback, text=title, help=help)
+                yield Hit(score, _highlight(matcher, title), callback, text=title, help=_literal(help))
+
+
+def _literal(text: str) -> Content:
+    """``text`` as the palette shows it: never read as markup (synopses and file names hold
+    [brackets]), control characters escaped. The palette reads a str help as markup; a Content
+    it shows as it is."""
+    return Content(printable(text))
+
+
+def _highlight(matcher, title: str) -> Content:
+    """``title`` literally, the characters the query matched highlighted (Matcher.highlight
+    would read the title as markup: a session file may be named `a[b].stw`)."""
+    title = printable(title)
+    content = Content(title)
+    _score, offsets = matcher.fuzzy_search.match(matcher.query, title)
+    for offset in offsets:
+        if not title[offset].isspace():
+            content = content.stylize(matcher.match_style, offset, offset + 1)
+    return content

@@ -146,7 +146,7 @@ class SettingsPanel(ScenePanel):
         """Edit the setting under the cursor through a dialog, unless it is read-only."""
         row = self._settings_by_key[key]
         if row.build is None:
-            self.app.notify(f"{row.label} is read-only here", severity="warning")
+            self.app.notify(f"{row.label} is read-only here", severity="warning", markup=False)
             return
         value = row.value if row.value != "—" else ""
         self.ask(f"{row.label}{' — ' + row.help if row.help else ''}", value, row.build)

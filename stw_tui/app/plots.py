@@ -30,6 +30,7 @@ from stw_tui.app.messages import ItemChosen, PlotBuilt, PlotDataComputed
 from stw_tui.app.plot_data import dof_plot_data, expression_plot_data, figure_data, live_scene
 from stw_tui.session.queries import QUANTITIES, SceneInfo, equation_names
 from stw_tui.session.throttle import ThrottledCall
+from stw_tui.sym.errors import printable
 
 if TYPE_CHECKING:
     import numpy as np
@@ -132,7 +133,7 @@ class ScenePlot(PlotextPlot, can_focus=True):
             self.draw(plt)
         except Exception as exc:  # a plot must never take the app down; say what went wrong
             plt.clear_figure()
-            plt.title(f"cannot draw: {exc}")
+            plt.title(printable(f"cannot draw: {exc}"))
         plt.plotsize(width, height)
         plt._set_size(width, height)   # as PlotextPlot.render does (textual-plotext issue 5)
         plt.theme(theme)
@@ -172,7 +173,7 @@ class ScenePlot(PlotextPlot, can_focus=True):
         try:
             text = Text.from_ansi(self._figure(key).build())
         except Exception as exc:   # never take the app down
-            text = Text(f"cannot draw: {exc}")
+            text = Text(printable(f"cannot draw: {exc}"))
         self._built = (key, text)
         return text
 

@@ -13,7 +13,7 @@ import time
 from pathlib import Path
 from typing import TYPE_CHECKING
 
-from stw_tui.sym.errors import SourceError, StwError
+from stw_tui.sym.errors import SourceError, StwError, printable
 
 if TYPE_CHECKING:   # numpy and the solver stack load only for the commands that solve
     from stw_tui.sos.backend import StepReport
@@ -25,6 +25,12 @@ USAGE = """
   stw [SESSION.stw] [--step] [--journal FILE]  open the TUI (and replay SESSION)
   stw --resume [JOURNAL] [--resolve]           reopen an autosaved session
   stw COMMAND ...                              headless (the commands below)"""
+
+
+def _say(text: object, err: bool = False) -> None:
+    """Print ``text`` terminal-safe (:func:`~stw_tui.sym.errors.printable`, line breaks kept): paths,
+    messages and a plugin's text may hold escape sequences, C1 controls or bidi overrides."""
+    print(printable(str(text), newlines=True), file=sys.stderr if err else sys.stdout)
 
 
 def _table_header() -> str:
@@ -73,7 +79,7 @@ def _run(args: argparse.Namespace) -> int:
         from stw_tui.session.session import Session
 
     if _journal_is_the_session(args.journal, args.session):
-        print(JOURNAL_ON_ITSELF.format(args.journal), file=sys.stderr)
+        _say(JOURNAL_ON_ITSELF.format(args.journal), err=True)
         return 2
     session = Session(journal_path=args.journal)
     if args.journal is not None:   # as the TUI's: `stw --resume JOURNAL` then restores, not re-solves
@@ -89,21 +95,21 @@ def _run(args: argparse.Namespace) -> int:
             print(_table_header())
             for report in outcome.run.reports:
                 print(format_report(report))
-        print(f"[{number}] {outcome.message}")
+        _say(f"[{number}] {outcome.message}")
 
     if args.backend:
         try:
             session.execute(f"backend {args.backend}")
         except StwError as exc:   # e.g. a backend that is not installed: say so, run nothing
-            print(f"stw run: --backend {args.backend}: {exc}", file=sys.stderr)
+            _say(f"stw run: --backend {args.backend}: {exc}", err=True)
             return 2
     try:
         session.run_file(args.session, on_line=on_line)
     except SourceError as exc:
-        print(exc.report(str(args.session)), file=sys.stderr)
+        _say(exc.report(str(args.session)), err=True)
         return 2
     except StwError as exc:
-        print(f"{args.session}: {exc}", file=sys.stderr)
+        _say(f"{args.session}: {exc}", err=True)
         return 1
     seconds = time.perf_counter() - started
     if args.json:
@@ -143,13 +149,13 @@ def _backends(args: argparse.Namespace) -> int:
         try:
             cls = load_backend(name)
         except StwError as exc:
-            print(f"{name:<10} unavailable: {exc}")
+            _say(f"{name:<10} unavailable: {exc}")
             continue
         dist = ep.dist.version if ep.dist is not None else "?"
-        print(f"{name:<10} {dist:<8} {cls.__doc__.strip().splitlines()[0] if cls.__doc__ else ''}")
+        _say(f"{name:<10} {dist:<8} {cls.__doc__.strip().splitlines()[0] if cls.__doc__ else ''}")
         for opt in cls.options:
             choices = f" ({'|'.join(map(str, opt.choices))})" if opt.choices else ""
-            print(f"    {opt.name}={opt.default}{choices}  {opt.help}")
+            _say(f"    {opt.name}={opt.default}{choices}  {opt.help}")
     return 0
 
 
@@ -159,7 +165,7 @@ def _compare(args: argparse.Namespace) -> int:
     try:
         return run_compare(args)
     except StwError as exc:
-        print(f"stw compare: {exc}", file=sys.stderr)
+        _say(f"stw compare: {exc}", err=True)
         return 1
 
 
@@ -180,12 +186,12 @@ def _export(args: argparse.Namespace) -> int:
         what = tuple(n for n in (args.what or "").split(",") if n)
         target = write_text(args.output, export_text(session, args.format, args.fps, what))
     except SourceError as exc:
-        print(exc.report(str(args.session)), file=sys.stderr)
+        _say(exc.report(str(args.session)), err=True)
         return 2
     except StwError as exc:
-        print(f"stw export: {exc}", file=sys.stderr)
+        _say(f"stw export: {exc}", err=True)
         return 1
-    print(f"wrote {target}")
+    _say(f"wrote {target}")
     return 0
 
 
@@ -299,13 +305,13 @@ def _launch_tui(argv: list[str]) -> int:
     try:
         from stw_tui.app import run_app
     except ImportError as exc:  # the TUI is optional for the headless core
-        print(f"stw: the TUI is unavailable ({exc}); use `stw run SESSION`", file=sys.stderr)
+        _say(f"stw: the TUI is unavailable ({exc}); use `stw run SESSION`", err=True)
         return 1
     if args.session is not None and not args.session.is_file():
-        print(f"stw: no session file {args.session}", file=sys.stderr)
+        _say(f"stw: no session file {args.session}", err=True)
         return 2
     if _journal_is_the_session(args.journal, args.session):
-        print(JOURNAL_ON_ITSELF.format(args.journal), file=sys.stderr)
+        _say(JOURNAL_ON_ITSELF.format(args.journal), err=True)
         return 2
     if args.resume is not None:
         return _resume_tui(args, run_app)
@@ -319,7 +325,7 @@ def _autosave_journal(session: Path | None) -> Path | None:
     try:
         return new_journal_path(session)
     except OSError as exc:
-        print(f"stw: not autosaving: cannot use {state_dir()} ({exc})", file=sys.stderr)
+        _say(f"stw: not autosaving: cannot use {state_dir()} ({exc})", err=True)
         return None
 
 
@@ -330,19 +336,19 @@ def _resume_tui(args: argparse.Namespace, run_app) -> int:
     from stw_tui.session.resume import resume
 
     if args.session is not None or args.journal is not None:
-        print("stw: --resume reopens a journal; give no session file or --journal with it", file=sys.stderr)
+        _say("stw: --resume reopens a journal; give no session file or --journal with it", err=True)
         return 2
     path = Path(args.resume) if args.resume else latest_journal()
     if path is None:
-        print(f"stw: no autosaved session in {state_dir()} to resume", file=sys.stderr)
+        _say(f"stw: no autosaved session in {state_dir()} to resume", err=True)
         return 2
     try:
         session, restored, solved = resume(path, resolve=args.resolve,
-                                           on_note=lambda note: print(f"stw: {note}", file=sys.stderr))
+                                           on_note=lambda note: _say(f"stw: {note}", err=True))
     except (SourceError, StwError) as exc:
-        print(f"stw: cannot resume {path}: {exc}", file=sys.stderr)
+        _say(f"stw: cannot resume {path}: {exc}", err=True)
         return 1
-    print(f"stw: resumed {path}: {restored} solve(s) from checkpoints, {solved} solved again", file=sys.stderr)
+    _say(f"stw: resumed {path}: {restored} solve(s) from checkpoints, {solved} solved again", err=True)
     return run_app(None, session=session)
 
 

@@ -9,7 +9,7 @@ from __future__ import annotations
 import json
 import sys
 
-from stw_tui.sym.errors import SourceError, StwError
+from stw_tui.sym.errors import SourceError, StwError, printable
 
 
 def _progress_line(table) -> str:
@@ -33,24 +33,24 @@ def run_survey_command(args) -> int:
 
         def on_report(table) -> None:
             for note in table.notes[shown["notes"]:]:
-                print(f"\r{note}", file=sys.stderr)
+                print(f"\r{printable(note, newlines=True)}", file=sys.stderr)
             shown["notes"] = len(table.notes)
             print(_progress_line(table), end="", file=sys.stderr, flush=True)
 
         outcome = session.execute(line, on_report=on_report)
         print(file=sys.stderr)
     except SourceError as exc:
-        print("\n" + exc.report("stw survey"), file=sys.stderr)
+        print("\n" + printable(exc.report("stw survey"), newlines=True), file=sys.stderr)
         return 2
     except StwError as exc:
-        print(f"\nstw survey: {exc}", file=sys.stderr)
+        print(f"\nstw survey: {printable(str(exc), newlines=True)}", file=sys.stderr)
         return 1
     finally:
         _close_clusters()
     if args.json:
         print(json.dumps({"session": str(args.session), **session.survey.as_dict()}))
     else:
-        print(outcome.message)
+        print(printable(outcome.message, newlines=True))
     return 0
 
 

@@ -23,7 +23,7 @@ from stw_tui.session.survey_engines import (BatchEngine, DaskEngine, PoolEngine,
                                             run_survey)
 from stw_tui.sos.batch import batch_backend
 from stw_tui.session.survey_session import plan_of
-from stw_tui.sym.errors import StwError
+from stw_tui.sym.errors import StwError, printable
 
 
 def _rows(table) -> list:
@@ -61,7 +61,7 @@ def main(argv: list[str] | None = None) -> int:
         session.run_file(args.session)
         command = parse_command(" ".join(["survey", args.n, *args.options]), SceneScope(session.scene))
     except StwError as exc:
-        print(f"survey_bench: {exc}")
+        print(printable(f"survey_bench: {exc}", newlines=True))
         return 1
     plan = plan_of(session.scene, command)
     wanted = set(args.engines.split(","))
@@ -70,7 +70,7 @@ def main(argv: list[str] | None = None) -> int:
         engines.append(DaskEngine(args.workers))
     if "batch" in wanted and _batch_installed():
         engines.append(BatchEngine())
-    print(f"{args.session}: survey {args.n} {' '.join(args.options)}")
+    print(printable(f"{args.session}: survey {args.n} {' '.join(args.options)}"))
     print(f"{'engine':<62} {'run':>3} {'s':>7} {'starts/s':>9} {'ratio':>6} {'optima':>6}  same table as serial")
     serial, first = {}, None
     for engine in engines:

@@ -44,7 +44,7 @@ import scipy
 from stw_tui.session.session import Session
 from stw_tui.sos.backend import available_backends, load_backend
 from stw_tui.sos.window import WindowProblem
-from stw_tui.sym.errors import StwError
+from stw_tui.sym.errors import StwError, printable
 from stw_tui.sym.kinds import TermKind
 from stw_tui.sym.language import classify_line
 
@@ -326,7 +326,7 @@ def bench_case(case: Case, configs: list[tuple[str, str]], repeat: int,
             m = measure(case.name, case.setup, case.n, backend, options, repeat, RUN_BUDGET_S)
         except StwError as exc:
             print(f"{case.name:<22} {(backend + ' ' + options).strip():<20} failed: "
-                  f"{str(exc).splitlines()[0]}", file=out, flush=True)
+                  f"{printable(str(exc).splitlines()[0])}", file=out, flush=True)
             continue
         if (backend, options) == REFERENCE:
             ref = m.seconds
@@ -386,7 +386,7 @@ def run_bench(args) -> int:
             try:
                 load_backend(backend)
             except StwError as exc:
-                failed[backend] = str(exc).splitlines()[0]
+                failed[backend] = printable(str(exc).splitlines()[0])
                 print(f"backend {backend} skipped: {failed[backend]}")
         if backend not in failed:
             configs.append((backend, options))
@@ -407,7 +407,7 @@ def run_bench(args) -> int:
         try:
             sources.append((Path(p).stem, Path(p).read_text(encoding="utf-8")))
         except (OSError, UnicodeDecodeError) as exc:
-            print(f"{Path(p).stem:<22} cannot read {p}: {exc}")
+            print(printable(f"{Path(p).stem:<22} cannot read {p}: {exc}"))
     small_name, large_name = (f"synthetic-{d}x{k}" for d, k in (SMALL, LARGE))
     if synthetic:   # the window variant is named after its window: synthetic-5x264@focus
         sources += [(small_name, synthetic_session(*SMALL)), (large_name, synthetic_session(*LARGE)),

@@ -9,7 +9,7 @@ import numpy as np
 
 from stw_tui.session.bench import measure, split_at_first_iterate
 from stw_tui.session.session import Session
-from stw_tui.sym.errors import StwError
+from stw_tui.sym.errors import StwError, printable
 
 
 SAME_MOTION = 1e-5   # largest DOF difference for two converged motions to be the same optimum
@@ -78,7 +78,7 @@ def run_compare(args) -> int:
     def row(r):   # each backend's row as soon as it has finished: long solves show progress
         note = "" if not shown and r["verdict"] == "same optimum" else f"  {r['verdict']}"
         shown.append(r)
-        print(f"{r['backend']:<{width}} {r['iterations']:>4} {str(r['converged']):>5} "
+        print(f"{printable(str(r['backend'])):<{width}} {r['iterations']:>4} {str(r['converged']):>5} "
               f"{r['median_ms_per_iteration']:>8.2f} {r['seconds_to_converge']:>8.3f} {r['objective']:>13.8g} "
               f"{r['max_violation']:>9.1e} {r['max_motion_difference']:>9.1e}"
               + note, flush=True)

@@ -5,11 +5,20 @@ from __future__ import annotations
 import unicodedata
 
 
-def printable(text: str) -> str:
+def printable(text: str, *, newlines: bool = False) -> str:
     """``text`` safe to show on a terminal: control and other invisible characters (escape
-    sequences, carriage returns, tabs, lone surrogates) are written as escapes like \\x1b."""
+    sequences, carriage returns, tabs, C1 controls such as U+009B, bidi overrides such as
+    U+202E, lone surrogates) are written as escapes like \\x1b. Every echo of a command line,
+    path, message or plugin text, in the TUI and headless, goes through here.
+
+    Args:
+        text: what is to be shown.
+        newlines: keep line breaks (``\\n``) as they are, for text of several lines.
+    """
     if text.isprintable():
         return text
+    if newlines:
+        return "\n".join(printable(line) for line in text.split("\n"))
     return "".join(c if c.isprintable() or (c == " ") else _escape(c) for c in text)
 
 
