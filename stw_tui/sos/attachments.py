@@ -99,8 +99,13 @@ def _held(scene, expr: sp.Expr, order: int) -> sp.Expr:
 
 
 def restrict(expr: sp.Basic, lo: float, hi: float) -> sp.Basic:
-    """``expr`` read on the times [lo, hi] only: each Piecewise in time whose choice is the same
-    at every time there becomes that choice."""
+    """``expr`` read on the times from ``lo`` to ``hi`` only: each Piecewise in time whose choice
+    is the same at every time there becomes that choice.
+
+    An interval is read on its inside (lo, hi): a relation over an interval is about what
+    happens there, and its instances at the ends are limits from inside (a contact's push over
+    its stance [A, B] is the stance's force at A and B too, not the flight's beside it). An
+    instant (lo == hi) is read at that time: a release at B reads the object's own curve."""
     if not expr.has(sp.Piecewise):
         return expr
 
@@ -148,12 +153,12 @@ def _decide(cond, lo: float, hi: float) -> bool | None:
     if lhs != TIME or not rhs.is_number:
         return None
     c = float(rhs)
-    if op == ">":
-        return True if lo > c else False if hi <= c else None
-    if op == ">=":
-        return True if lo >= c else False if hi < c else None
-    if op == "<":
-        return True if hi < c else False if lo >= c else None
-    if op == "<=":
-        return True if hi <= c else False if lo > c else None
+    if lo == hi:     # an instant: the condition at that time
+        holds = {">": lo > c, ">=": lo >= c, "<": lo < c, "<=": lo <= c}.get(op)
+        return holds
+    # an interval: the condition on (lo, hi)
+    if op in (">", ">="):
+        return True if lo >= c else False if hi <= c else None
+    if op in ("<", "<="):
+        return True if hi <= c else False if lo >= c else None
     return None

@@ -329,23 +329,25 @@ class Scene:
         """
         return self.evaluator(expr)(times)
 
-    def evaluator(self, expr: sp.Basic, kept: dict | None = None) -> ExpressionValues:
+    def evaluator(self, expr: sp.Basic, kept: dict | None = None,
+                  scope: tuple[float, float] | None = None) -> ExpressionValues:
         """:meth:`evaluate` of one expression as a function of the times, for many calls on the
         curves as they are now: the expression is expanded and its compiled term found once (the
         dense check evaluates every relation seven times, and those lookups were a third of it).
         ``kept``: instances.kept_times of this scene, where the term is kept for the checks to
         come (it depends on the scene's structure only; finding it was half the pendulum's check).
+        ``scope``: the times it is read at, as Scene.expand reads them (a constraint's own).
 
         Raises:
             StwError: the expression names something the scene no longer defines.
         """
         from stw_tui.sym.compiler import compile_term
 
-        term = None if kept is None else kept.get(("term", expr))
+        term = None if kept is None else kept.get(("term", expr, scope))
         if term is None:
-            term = compile_term(self.expand(expr), set(self.dofs), set(self.constants))
+            term = compile_term(self.expand(expr, scope), set(self.dofs), set(self.constants))
             if kept is not None:
-                kept[("term", expr)] = term
+                kept[("term", expr, scope)] = term
         return ExpressionValues(term, self.constant_values(term.parameters),
                                 [(self.dofs[v.dof].curve, v.order) for v in term.variables])
 
