@@ -511,3 +511,16 @@ def test_a_relation_evaluated_on_part_of_shared_times_gives_its_values_at_those_
             values = s.scene.evaluator(expr)
             assert np.array_equal(values.at(shared, slice(start, start + t.size)), values(t))
         start += t.size
+
+
+def test_a_failure_names_the_constraints_own_dense_tol():
+    # A constraint with dense_tol=0.001 that fails between its instances is reported with its own
+    # tolerance, not only the scene's (1e-6), which it is not held to.
+    s = run_lines(Session(), """time 0 1 knots=4 samples=4
+dof x
+constraint c: x - sin(9*t) = 0 on [0, 1] dense_tol=0.001
+objective e: x''
+set adaptive off
+""")
+    message = s.execute("iterate 20").message
+    assert "c 3.2e-01 at t=0.8875 (its dense_tol 0.001)" in message, message

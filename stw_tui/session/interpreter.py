@@ -637,7 +637,7 @@ class SolveReport:
         lines[0] += self.undone
         # (constraints in conflict fail at their instances too: refining would not help)
         if self.dense.failing(self.tol) and self.run.status is not Status.INFEASIBLE:
-            lines.append(f"between the instances it fails dense_tol {self.tol:.0e}: "
+            lines.append(f"between the instances it fails dense_tol {self.tol:.0e} (or its own): "
                          f"{self.dense.describe_failures(self.tol)} — refine the knots there, or `set dense_tol`")
         last = self.run.reports[-1] if self.run.reports else None
         if self.run.status is Status.INFEASIBLE and last is not None and last.message:

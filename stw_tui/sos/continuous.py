@@ -71,7 +71,8 @@ class DenseReport:
     def describe_failures(self, tol: float, limit: int = 3) -> str:
         """'in_hand 3.1e-04 at t=0.52, …' for the worst failures (empty when all hold)."""
         bad = self.failing(tol)
-        text = ", ".join(f"{c.name} {c.dense:.1e} at t={c.worst_t:.4g}" for c in bad[:limit])
+        text = ", ".join(f"{c.name} {c.dense:.1e} at t={c.worst_t:.4g}"
+                         + (f" (its dense_tol {c.tol:.3g})" if c.tol is not None else "") for c in bad[:limit])
         return text + (f" and {len(bad) - limit} more" if len(bad) > limit else "")
 
 
