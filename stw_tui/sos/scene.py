@@ -22,7 +22,7 @@ from stw_tui.sym.symbols import named_symbol
 
 DEFAULT_SETTINGS: dict[str, float] = {
     "tol_violation": 1e-8,   # max |constraint| accepted as satisfied
-    "tol_kkt": 1e-6,         # max |gradient of the Lagrangian|, relative to max(1, |grad R|)
+    "tol_kkt": 1e-6,         # relative distance from a KKT point: sqrt(Newton decrement / max(1, |R|))
     "tol_step": 1e-10,       # relative step length counted as "no progress"
     "quadrature": 4,         # Gauss-Legendre points per knot span for objective integrals
     "merit": 1.0,            # least weight of constraint violation in the line-search merit

@@ -296,7 +296,7 @@ class SQPBackend(Backend):
         new_ev = ev if stalled else trial.values if trial.whole else inner.evaluator.evaluate(s_new)
         ms["evaluate"] = _lap(clock)
 
-        kkt = kkt_residual(new_ev, lam_eq, lam_ge)
+        kkt = kkt_residual(new_ev, lam_eq, lam_ge, self._newton(la, ev, lin, sub))
         violation = new_ev.max_violation()
         step_norm = alpha * float(np.abs(d).max(initial=0.0))
         tiny_step = step_norm <= settings["tol_step"] * (1.0 + float(np.abs(s_new).max(initial=0.0)))
@@ -630,6 +630,33 @@ class SQPBackend(Backend):
         d = la.vector(sub.d)
         rise = float(ev.gradient @ sub.d) + 0.5 * max(la.dot(d, la.matvec(sub.H, d)), 0.0)
         return max(rise, 0.0) / (0.5 * viol)
+
+    @staticmethod
+    def _newton(la, ev, lin: _Linearization, sub: _Subproblem):
+        """The Newton step of the KKT residual test (termination.kkt_residual) at the point this
+        step reached, solved with this step's own model: the system its QP factorized where
+        there is one (equality rows only: one more back-substitution), else [[H, Aᵀ], [A, -ε]]
+        over the rows that bound (one more factorization, as the second-order correction's).
+        Deuflhard's simplified Newton correction: the derivative of the last step, the residual
+        of the new point. None (no test this step) when that system is singular."""
+        n = ev.s.size
+        ge_rows = np.flatnonzero(sub.working)
+        if ge_rows.size == 0 and sub.qp.system is not None:
+            system, m = sub.qp.system, lin.eq_rows.size
+        else:
+            A = la.stack_rows([lin.Ae, la.rows(la.jacobian(ev, "ge"), ge_rows)])
+            m = lin.eq_rows.size + ge_rows.size
+            try:
+                system = la.kkt(sub.H, A, KKT_EPS)
+            except SingularSystem:
+                return lambda r: None
+
+        def solve(r: np.ndarray):
+            try:
+                return la.numpy(system.solve(la.concat([la.vector(-r), la.zeros(m)])))[:n]
+            except SingularSystem:
+                return None
+        return solve
 
     @staticmethod
     def _second_order_correction(la, ev, lin: _Linearization, sub: _Subproblem, d, trial):
