@@ -688,8 +688,9 @@ def _solve_adaptive(session: SessionLike, scene: Scene, n: int, adapt: int | Non
     stopped = result.status is Status.STOPPED
     report = None   # the dense check of the scene as it is now (None: not made yet)
     while result.status is Status.CONVERGED and report is None:
-        report, wanted, failing = survey_failures(scene, tol)
-        if len(runs) > rounds:
+        last = len(runs) > rounds   # no round left: the check alone (where it fails, to say so)
+        report, wanted, failing = survey_failures(scene, tol if rounds else None)
+        if last:
             adapted.rounds_out = bool(report.failing(tol) and (wanted or failing) and rounds > 0)
             break
         plan = refinement.plan_round(scene, failing, wanted, problem.free_dofs, problem.interval,

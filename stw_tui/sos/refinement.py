@@ -5,8 +5,8 @@ A relation imposed at instances about as dense as the knots of the DOF it reads 
 them because the curves lack the freedom to follow it there (a cubic B-spline ball tied to the
 tip of a linkage, whose path is no cubic): more instances only over-determine those curves, and
 the re-solve cannot meet them. Inserting knots (Boehm; the curve is unchanged, so the re-solve
-starts where the last one ended) gives them that freedom, and instances at the new knots impose
-the relation where it was failing. This module decides, from the check's failing times, which
+starts where the last one ended) gives them that freedom, and instances on the knots of the
+refined spans impose the relation where it was failing. This module decides, from the check's failing times, which
 knot spans of which DOF to halve and which instances to add; the session applies them as the
 `refine` and `instances` lines a journal replays.
 
@@ -15,12 +15,12 @@ Instances alone stay where they are enough:
 - an inequality (a floor, a joint range): it binds at a few points and over-determines nothing,
   and a finer curve only dips further between its instances (point_mass_2d's floor: 3 instances
   hold it to 5e-9; refining instead left 1e-5 after 4 rounds);
-
 - a relation whose instances are sparser than the knots of the DOF it reads (`samples=` below
   the knot count): the curves can follow already; what is missing is a place to impose it;
-- a relation whose instances make it exact (linear with constant coefficients, instances on the
-  knots), a constraint ``@ t``, and DOF bounds (on the control points): refining cannot help
-  them, and the check finds no failure between their instances to refine for;
+- a relation linear in the DOF with constant coefficients (``q1 - q2 = 0``, ``BY'' + g = 0``):
+  instances on the knots make it exact, so instances are enough even where `samples=` placed
+  them otherwise (the bench's coupled DOF: refined, its re-solve hit the iteration limit and
+  was undone at 1.3e-3; with instances, it holds to 1e-6); a constraint ``@ t``; DOF bounds;
 - failing times outside the window's interval: new control points there would not be free;
 - a DOF over the control-point budget (``adaptive_points``) or the knot limit.
 """
@@ -130,8 +130,10 @@ def _runs_for(scene, name: str, times: np.ndarray, free_dofs, interval, planned)
     if constraint is None or constraint.at is not None or not times.size:
         return {}
     a, b = constraint.interval
-    exprs = [rel.expr for rel in constraint.relations if rel.kind == TermKind.EQ
-             and (constraint.samples is not None or exact_degree(scene, rel.expr, rel.kind, (a, b)) is None)]
+    # (a relation linear in the DOF with constant coefficients is met exactly by instances on
+    # the knots, even where `samples=` places them otherwise: instances are enough for it)
+    exprs = [rel.expr for rel in constraint.relations
+             if rel.kind == TermKind.EQ and exact_degree(scene, rel.expr, rel.kind, (a, b)) is None]
     wa, wb = interval
     times = times[(times >= max(a, wa)) & (times <= min(b, wb))]
     if not exprs or not times.size:
