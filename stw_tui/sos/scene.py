@@ -30,6 +30,7 @@ DEFAULT_SETTINGS: dict[str, float] = {
     "dense_tol": 1e-6,       # max violation between instances (the continuous-time check)
     "adaptive": 1.0,         # 1: add instances where the continuous-time check fails, and re-solve
     "adaptive_rounds": 4,    # at most this many re-solves per `iterate`
+    "adaptive_points": 2000,  # adaptive refinement inserts knots while the scene has at most this many control points
     "preview": 0.0,          # 1: a solve's result is a proposal to `accept` or `reject` (preview.py)
 }
 

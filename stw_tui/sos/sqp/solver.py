@@ -312,7 +312,7 @@ class SQPBackend(Backend):
             else:
                 infeasible = True
                 conflicts = self._conflicts(problem, la, ev, lin)
-                message = _conflict_message(conflicts, violation)
+                message = _conflict_message(conflicts, violation, problem)
         radius = self._update_radius(radius, trial, d, floor, ceiling)
         # Full steps: trust the model more; cut or capped steps: less — a heavier proximal term
         # shortens the next QP step itself (Levenberg-Marquardt), which scaling a step does not.
@@ -716,7 +716,10 @@ def _no_progress(ev, new_ev, lin: _Linearization, sub: _Subproblem) -> bool:
     return min(_l1(sub.lin_eq, sub.lin_ge), reached) >= (1.0 - STATIONARY_VIOLATION) * now
 
 
-def _conflict_message(conflicts: tuple[str, ...], violation: float) -> str:
+def _conflict_message(conflicts: tuple[str, ...], violation: float, problem=None) -> str:
+    over = _over_determined(conflicts, problem)
+    if over:
+        return over
     if not conflicts:
         return f"the constraints cannot all be met here (violation {violation:.3g} left)"
     if len(conflicts) == 1:
@@ -728,6 +731,25 @@ def _conflict_message(conflicts: tuple[str, ...], violation: float) -> str:
     names = ", ".join(conflicts[:-1]) + " and " + conflicts[-1]
     return (f"constraints {names} conflict: no motion meets them all "
             f"(least violation {violation:.3g} left)")
+
+
+def _over_determined(conflicts: tuple[str, ...], problem) -> str:
+    """The plain reason when the rows outnumber the unknowns: the window's equality instances
+    against its free control points, or those of the constraints in conflict against the free
+    control points they move (empty when neither is over-determined)."""
+    counter = getattr(problem, "equality_freedom", None)
+    if counter is None:
+        return ""
+    asks = [(None, "the window has")]
+    if conflicts:
+        asks.append((conflicts, f"{', '.join(conflicts)} impose{'s' if len(conflicts) == 1 else ''}"))
+    for sources, who in asks:
+        rows, free = counter(sources)
+        if rows > free:
+            return (f"{who} {rows} equality instances on only {free} free control points: more "
+                    "equations than the curves have freedom to meet — `refine` the DOF they read "
+                    "(more knots), or give the constraints fewer samples")
+    return ""
 
 
 def _newton_backoff(st: SolverState, exact_refused: bool | None) -> tuple[int, int]:
