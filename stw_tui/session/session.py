@@ -104,6 +104,7 @@ class Session:
         self.survey = None          # the last survey's table, for `adopt` (survey_session.py)
         self.checkpoints = None     # autosave.Checkpoints: solves are checkpointed beside the journal
         self.proposal: State | None = None   # a solve's result under `set preview on` (preview.py)
+        self.trusted_schedulers: set[str] = set()   # clusters named on the command line (survey_session.py)
 
     # --- commands ----------------------------------------------------------------------------
     @property

@@ -123,7 +123,9 @@ COMMAND_HELP: dict[str, CommandHelp] = {
                        "violation allowed between instances), adaptive on|off (add instances where "
                        "the continuous-time check fails, and re-solve), adaptive_rounds. "
                        "`set limit NAME N` changes a limit (`help limits` lists them); "
-                       "`set scheduler tcp://HOST:PORT` sends surveys to a Dask cluster (`set scheduler batch`: "
+                       "`set scheduler tcp://HOST:PORT` sends surveys to a Dask cluster, when typed here "
+                       "(a session file or journal may name only a cluster you name: STW_SCHEDULER or "
+                       "`stw survey --scheduler`; tls:// uses Dask's TLS config) (`set scheduler batch`: "
                        "solves their starts as one batch on the torch backend).",
                        "set dense_tol 1e-7"),
     "iterate": CommandHelp("iterate [N] [adapt=R]",
@@ -269,7 +271,7 @@ COMMAND_HELP.update({
                           "optima they reach, best first, with how many starts reached each; starts that fail "
                           "or do not converge are counted apart. The same seed gives the same survey. Starts "
                           "run on Dask (K worker processes, default one per core), or on a local process pool "
-                          "without it; `set scheduler tcp://HOST:PORT` sends them to an existing Dask cluster "
+                          "without it; `set scheduler tcp://HOST:PORT` (typed) sends them to an existing Dask cluster "
                           "(`set scheduler local`: back to this machine; `pool`: a process pool even with Dask; "
                           "`serial`: one start after another in this process; `batch`: all starts as one batch on the "
                           "torch backend, vectorized over starts, on a GPU when torch sees one, K starts at "
