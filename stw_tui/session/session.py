@@ -179,7 +179,11 @@ class Session:
         return Outcome(message=f"opened {path}: {count} line(s) applied")
 
     def _check_length(self, text: str, line: int | None) -> None:
-        """Refuse an over-long line before anything reads it (a 1 MB line must fail at once)."""
+        """Refuse an over-long line before anything reads it (a 1 MB line must fail at once). A
+        comment line is exempt: the journal's `# failed:` lines quote a refused line and its error,
+        and a resume must read them back."""
+        if text.lstrip().startswith("#"):
+            return
         with limits.active(self.scene.limits):
             longest = limits.value("line_length")
             if len(text) > longest:
