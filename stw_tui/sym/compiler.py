@@ -73,8 +73,10 @@ def sign_as_piecewise(e):
 
 
 def _sign_piecewise(u):
-    """sign(u) as a symengine Piecewise, which symengine can differentiate."""
-    return se.Piecewise((1, u > 0), (-1, u < 0), (0, True))
+    """sign(u) as a symengine Piecewise, which symengine can differentiate. Where u is not a real
+    number (NaN: log of a negative) no comparison holds, and the last branch passes the NaN on
+    (a final 0 made sign(log(-0.1)) read 0)."""
+    return se.Piecewise((1, u > 0), (-1, u < 0), (0, se.Eq(u, 0)), (u, True))
 
 
 def _canonical(expr: sp.Basic, memo: dict) -> sp.Basic:
@@ -632,6 +634,9 @@ def _store(path: Path, key: bytes, entry) -> None:
 # The layout of a compiled term's disk entry, in its name: an entry of another layout (an older
 # stw's, without ``affine``) is another name, so neither version reads the other's.
 TERM_ENTRY = "|entry 2: pairs, affine, value, full"
+# How abs, sign, min and max are lowered (_convert): a key read off the sympy tree does not see
+# it, so a change there must be a change of name (sign once made NaN a 0 in stored code).
+LOWERING = "|lowering 2: sign passes NaN on"
 
 
 def _build(expr: sp.Expr, variables: tuple[LocalVar, ...], parameters: tuple[str, ...]) -> CompiledTerm:
@@ -641,7 +646,7 @@ def _build(expr: sp.Expr, variables: tuple[LocalVar, ...], parameters: tuple[str
     else:
         e = _to_symengine(expr)    # once: the key's text and, on a miss, what is compiled
         key = _term_key(e, variables, parameters)
-    entry = cached_entry("", key + TERM_ENTRY)
+    entry = cached_entry("", key + TERM_ENTRY + LOWERING)
     if entry is not None:
         pairs, affine, value_fn, full_fn = entry
         return CompiledTerm(expr=expr, variables=variables, parameters=parameters,
@@ -649,7 +654,7 @@ def _build(expr: sp.Expr, variables: tuple[LocalVar, ...], parameters: tuple[str
                             _full_fn=full_fn, cache_key=key)
     term = _compile(expr, variables, parameters, e)
     term.cache_key = key
-    store_entry("", key + TERM_ENTRY, (term.hessian_pairs, term.affine, term._value_fn, term._full_fn))
+    store_entry("", key + TERM_ENTRY + LOWERING, (term.hessian_pairs, term.affine, term._value_fn, term._full_fn))
     return term
 
 
