@@ -137,7 +137,32 @@ def _run(args: argparse.Namespace) -> int:
     seconds = time.perf_counter() - started
     if args.json:
         print(json.dumps(summary(session, args.samples, seconds)))
-    return 0
+    code, why = run_verdict(session)
+    if code:
+        _say(f"stw run: {args.session}: {why}", err=True)
+    return code
+
+
+# `stw run`'s exit codes (README): a script can tell a motion it may use from one it may not
+EXIT_FAILED, EXIT_BAD_INPUT, EXIT_INFEASIBLE, EXIT_NOT_CONVERGED, EXIT_DENSE_FAILED = 1, 2, 3, 4, 5
+
+
+def run_verdict(session) -> tuple[int, str]:
+    """(exit code, why) of a replayed session: 0 only when every solve converged and the motion
+    holds its constraints between the samples (the continuous-time check)."""
+    from stw_tui.sos.backend import Status
+    from stw_tui.sos.continuous import check_scene
+
+    runs = session.runs
+    for code, bad in ((EXIT_INFEASIBLE, [r for r in runs if r.status is Status.INFEASIBLE]),
+                      (EXIT_NOT_CONVERGED, [r for r in runs if not r.converged])):
+        if bad:
+            return code, f"{len(bad)} of {len(runs)} solve(s) ended: {bad[0].status.value}"
+    tol = session.scene.settings["dense_tol"]
+    check = check_scene(session.scene)
+    if check.failing(tol):
+        return EXIT_DENSE_FAILED, f"the motion fails between the samples: {check.describe_failures(tol)}"
+    return 0, ""
 
 
 def summary(session, samples: int, seconds: float) -> dict:

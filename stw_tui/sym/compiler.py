@@ -493,7 +493,8 @@ def _private(path: Path, *, directory: bool) -> bool:
 def _cache_root() -> tuple[Path, bytes] | None:
     """The disk cache directory and the user's key, or None when caching is off or unsafe.
 
-    ``STW_CACHE_DIR`` overrides the place (``off`` disables it). The cache is used only when the
+    The place is ``$XDG_CACHE_HOME/stw/terms`` (``~/.cache/stw/terms`` without it);
+    ``STW_CACHE_DIR`` overrides it (``off`` disables it). The cache is used only when the
     directory is owned by the user and not writable by group or others (a new one is created
     0700), and its entries are authenticated with HMAC-SHA256 under a per-user key kept in
     ``.key`` inside it (mode 0600, created on first use). An unsafe directory is reported once.
@@ -502,7 +503,7 @@ def _cache_root() -> tuple[Path, bytes] | None:
     size and time): while those stay the same, its checks and the key's read are not repeated
     (they were 0.03 ms a term, 4% of the arm's cached compile); any change checks it afresh.
     """
-    root = os.environ.get("STW_CACHE_DIR") or os.path.join(os.path.expanduser("~"), ".cache", "stw", "terms")
+    root = os.environ.get("STW_CACHE_DIR") or os.path.join(_user_cache(), "stw", "terms")
     if root == "off" or not hasattr(os, "getuid"):
         return None
     known = _SAFE_ROOTS.get(root)
@@ -513,6 +514,13 @@ def _cache_root() -> tuple[Path, bytes] | None:
     if found is not None and fingerprint is not None:   # gone since the check: not remembered
         _SAFE_ROOTS[root] = (fingerprint, found)
     return found
+
+
+def _user_cache() -> str:
+    """XDG_CACHE_HOME when it is set to an absolute path (the XDG spec ignores a relative one),
+    else ~/.cache."""
+    xdg = os.environ.get("XDG_CACHE_HOME", "")
+    return xdg if os.path.isabs(xdg) else os.path.join(os.path.expanduser("~"), ".cache")
 
 
 _SAFE_ROOTS: dict[str, tuple[tuple, tuple[Path, bytes]]] = {}   # root: (fingerprint, found)
