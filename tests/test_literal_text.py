@@ -176,7 +176,7 @@ def test_stw_run_prints_hostile_lines_and_paths_escaped(tmp_path):
     session = folder / "s\u2066.stw"
     session.write_text(f"const a = 1 # {HOSTILE}\nprint a\nsave out\u202e\u2067.stw\n"
                        f"dof x\nconstraint c{ESC}]2;T{ESC}\\: x = 1 @ 0\n", encoding="utf-8")
-    out = _stw("run", str(session), cwd=tmp_path)
+    out = _stw("run", str(session), cwd=folder)   # a session file writes only inside its folder
     assert out.returncode == 2, out
     printed = out.stdout + out.stderr
     assert "saved 2 command line(s) to out\\u202e\\u2067.stw" in out.stdout

@@ -88,7 +88,8 @@ def test_same_seed_same_survey_and_another_seed_other_starts(pendulum, serial_ta
 
 def test_a_task_is_session_text_not_a_scene(tmp_path):
     session = Session()
-    session.run_text(PENDULUM + f"print th @ 1\nexport csv {tmp_path / 'x.csv'}\n")
+    session.run_text(PENDULUM + "print th @ 1\n")
+    session.execute(f"export csv {tmp_path / 'x.csv'}")   # typed: a replayed line writes only in its folder
     task = plan_tasks(session, SurveyPlan(1, seed=3))[0]
     assert isinstance(task.base_text, str) and "print" not in task.base_text and "export" not in task.base_text
     assert task.lines[0].startswith("shake amplitude=0.5 seed=") and task.lines[-1] == "iterate 100"

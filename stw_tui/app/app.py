@@ -232,6 +232,7 @@ class StwApp(App[int]):
             self.repl.write_error(StwError(f"cannot read session {path}: {exc}"))
             return
         self.script = Script(path, text, stepping=self.stepping)
+        self.runner.replay_folder = path.parent
         how = "stepping: F6 runs the next line, F7 the rest" if self.stepping else "replaying"
         self.repl.write_note(f"opened {path} ({how})")
         self.refresh_bindings()

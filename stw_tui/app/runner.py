@@ -86,6 +86,7 @@ class Runner:
         self.app = app
         self.session = session
         self.journal = journal   # the file a session made here journals to (None: not journalled)
+        self.replay_folder: Path | None = None   # the opened session file's folder: its lines write only there
         # Solves run in a child process: the UI thread then never waits for the solver's
         # interpreter lock (stw_tui/session/child_process.py).
         self.solver = SolverProcess() if solver_process else None
@@ -207,6 +208,7 @@ class Runner:
                 if error is not None:
                     raise error
                 return outcome
+        self.session.replay_folder = self.replay_folder
         return self.session.execute(job.line, line=job.number, on_report=on_report)
 
     def _run_task(self, job: Job) -> None:

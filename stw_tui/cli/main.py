@@ -51,6 +51,25 @@ def _journal_is_the_session(journal: Path | None, session: Path | None) -> bool:
     return os.path.samefile(journal, session)
 
 
+def _journal_refused(journal: Path | None, overwrite: bool) -> str | None:
+    """Why `--journal FILE` may not be used (None: it may): a journal is appended to, so an existing
+    file would be clobbered (a stranger's) or mixed with another session (a journal); with
+    ``overwrite`` an existing journal is removed here, its checkpoints with it."""
+    if journal is None or not os.path.lexists(journal):
+        return None
+    if journal.is_symlink() or not journal.is_file():
+        return f"stw: --journal {journal} is not a regular file (a link, a folder or a device); journal to a new file"
+    if not overwrite:
+        return (f"stw: --journal {journal} exists; journal to a new file, add --overwrite to replace it, "
+                f"or `stw --resume {journal}` to go on with it")
+    from stw_tui.session.autosave import checkpoint_path
+    from stw_tui.session.midsolve import midsolve_path
+
+    for stale in (journal, checkpoint_path(journal), midsolve_path(journal)):
+        stale.unlink(missing_ok=True)
+    return None
+
+
 JOURNAL_ON_ITSELF = ("stw: --journal {0} is the session being replayed: the replay would append itself "
                      "to it; journal to another file")
 
@@ -80,6 +99,10 @@ def _run(args: argparse.Namespace) -> int:
 
     if _journal_is_the_session(args.journal, args.session):
         _say(JOURNAL_ON_ITSELF.format(args.journal), err=True)
+        return 2
+    refused = _journal_refused(args.journal, args.overwrite)
+    if refused:
+        _say(refused, err=True)
         return 2
     session = Session(journal_path=args.journal)
     if args.journal is not None:   # as the TUI's: `stw --resume JOURNAL` then restores, not re-solves
@@ -114,7 +137,32 @@ def _run(args: argparse.Namespace) -> int:
     seconds = time.perf_counter() - started
     if args.json:
         print(json.dumps(summary(session, args.samples, seconds)))
-    return 0
+    code, why = run_verdict(session)
+    if code:
+        _say(f"stw run: {args.session}: {why}", err=True)
+    return code
+
+
+# `stw run`'s exit codes (README): a script can tell a motion it may use from one it may not
+EXIT_FAILED, EXIT_BAD_INPUT, EXIT_INFEASIBLE, EXIT_NOT_CONVERGED, EXIT_DENSE_FAILED = 1, 2, 3, 4, 5
+
+
+def run_verdict(session) -> tuple[int, str]:
+    """(exit code, why) of a replayed session: 0 only when every solve converged and the motion
+    holds its constraints between the samples (the continuous-time check)."""
+    from stw_tui.sos.backend import Status
+    from stw_tui.sos.continuous import check_scene
+
+    runs = session.runs
+    for code, bad in ((EXIT_INFEASIBLE, [r for r in runs if r.status is Status.INFEASIBLE]),
+                      (EXIT_NOT_CONVERGED, [r for r in runs if not r.converged])):
+        if bad:
+            return code, f"{len(bad)} of {len(runs)} solve(s) ended: {bad[0].status.value}"
+    tol = session.scene.settings["dense_tol"]
+    check = check_scene(session.scene)
+    if check.failing(tol):
+        return EXIT_DENSE_FAILED, f"the motion fails between the samples: {check.describe_failures(tol)}"
+    return 0, ""
 
 
 def summary(session, samples: int, seconds: float) -> dict:
@@ -184,7 +232,7 @@ def _export(args: argparse.Namespace) -> int:
     try:
         session.run_file(args.session)
         what = tuple(n for n in (args.what or "").split(",") if n)
-        target = write_text(args.output, export_text(session, args.format, args.fps, what))
+        target = write_text(args.output, export_text(session, args.format, args.fps, what), args.overwrite)
     except SourceError as exc:
         _say(exc.report(str(args.session)), err=True)
         return 2
@@ -214,8 +262,9 @@ def build_parser() -> argparse.ArgumentParser:
     run.add_argument("--backend", help="backend to use (overridden by `backend` lines in the session)")
     run.add_argument("--json", action="store_true", help="print one JSON object instead of the table")
     run.add_argument("--samples", type=int, default=21, help="DOF samples in the JSON output")
-    run.add_argument("--journal", type=Path, help="append the journal of this run to a file "
+    run.add_argument("--journal", type=Path, help="write the journal of this run to a new file "
                      "(solves checkpointed beside it, for `stw --resume`)")
+    run.add_argument("--overwrite", action="store_true", help="replace an existing --journal file")
     run.set_defaults(func=_run)
     bench = sub.add_parser("bench", help="time the solvers against their speed targets (--detail: per solver)")
     bench.add_argument("--sessions", nargs="*", type=Path, help="session files (default: sessions/*.stw)")
@@ -236,7 +285,8 @@ def build_parser() -> argparse.ArgumentParser:
     export.add_argument("session", type=Path)
     export.add_argument("--format", choices=("csv", "json", "bvh"), default="csv",
                         help="file format (default csv)")
-    export.add_argument("-o", "--output", type=Path, required=True, help="the file to write")
+    export.add_argument("-o", "--output", type=Path, required=True, help="the file to write (a new one)")
+    export.add_argument("--overwrite", action="store_true", help="replace an existing output file")
     export.add_argument("--fps", type=int, default=30, help="frames per second (default 30)")
     export.add_argument("--what", help="subexpressions to add as columns, e.g. tau_ELBOW,arm.tip.x' "
                         "(bvh: the linkage to export)")
@@ -295,8 +345,9 @@ def _launch_tui(argv: list[str]) -> int:
     parser = argparse.ArgumentParser(prog="stw", description="Open the Spacetime Windows TUI.")
     parser.add_argument("session", nargs="?", type=Path, help="a .stw session to open and replay")
     parser.add_argument("--step", action="store_true", help="step through the session line by line")
-    parser.add_argument("--journal", type=Path, help="append the journal of this session to a file "
+    parser.add_argument("--journal", type=Path, help="write the journal of this session to a new file "
                         "(default: a new one in the state directory, see `journal` in the console)")
+    parser.add_argument("--overwrite", action="store_true", help="replace an existing --journal file")
     parser.add_argument("--resume", nargs="?", const="", metavar="JOURNAL",
                         help="reopen the last autosaved journal (or JOURNAL) and restore its checkpointed state")
     parser.add_argument("--resolve", action="store_true", help="with --resume: solve everything again")
@@ -315,6 +366,10 @@ def _launch_tui(argv: list[str]) -> int:
         return 2
     if args.resume is not None:
         return _resume_tui(args, run_app)
+    refused = _journal_refused(args.journal, args.overwrite)
+    if refused:
+        _say(refused, err=True)
+        return 2
     return run_app(args.session, step=args.step, journal=args.journal or _autosave_journal(args.session))
 
 

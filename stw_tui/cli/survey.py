@@ -25,6 +25,8 @@ def run_survey_command(args) -> int:
 
     session = Session()
     line = " ".join(["survey", args.n, *args.options])
+    if args.scheduler:
+        session.trusted_schedulers.add(args.scheduler)   # the session file may name it too
     try:
         session.run_file(args.session)
         if args.scheduler:

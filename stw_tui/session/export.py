@@ -106,22 +106,49 @@ def json_document(scene: Scene, fps: int, session_text: str, what=()) -> dict:
     }
 
 
-def write_text(path: str | Path, text: str) -> Path:
-    """Write a whole file at once (:func:`~stw_tui.session.atomic_file.replace_text`: never half a file).
+def write_text(path: str | Path, text: str, overwrite: bool = False, folder: Path | None = None) -> Path:
+    """Write a whole file at once (:func:`~stw_tui.session.atomic_file.replace_text`: never half a
+    file), only a new one unless ``overwrite``, and never through a link.
 
+    Args:
+        folder: where a replayed session file may write (its own folder): a path outside it is
+            refused. None: anywhere (a command the user typed).
     Raises:
-        StwError: the file cannot be written.
+        StwError: the file exists (without ``overwrite``), is not a regular file, lies outside
+            ``folder``, or cannot be written.
     """
     target = Path(path).expanduser()
+    if folder is not None and not _inside(target, folder):
+        raise StwError(f"a session file may write only inside its own folder {folder}, not {path}; "
+                       "type the command at the console to write there")
     try:
         if target.is_dir():
             raise IsADirectoryError(f"{target} is a folder")
-        replace_text(target, text)
+        replace_text(target, text, overwrite=overwrite)
+    except FileExistsError as exc:
+        why = exc.strerror if target.is_symlink() or not target.is_file() else \
+            "it exists (add `overwrite` to replace it)"
+        raise StwError(f"cannot write {path}: {why}") from exc
     except FileNotFoundError as exc:
         raise StwError(f"cannot write {path}: there is no folder {target.parent}") from exc
     except OSError as exc:   # strerror alone: the temporary file's name would only puzzle
         raise StwError(f"cannot write {path}: {exc.strerror or exc}") from exc
     return target
+
+
+def _inside(target: Path, folder: Path) -> bool:
+    """Whether ``target``'s folder, links resolved, is ``folder`` or below it."""
+    try:
+        return target.parent.resolve().is_relative_to(folder.resolve())
+    except (OSError, RuntimeError):   # a loop of links
+        return False
+
+
+def _folder(session: SessionLike, cmd) -> Path | None:
+    """Where the command may write: anywhere when typed, else the replayed file's folder."""
+    if cmd.line is None:
+        return None
+    return getattr(session, "replay_folder", None) or Path.cwd()
 
 
 def export_text(session: SessionLike, fmt: str, fps: int, what=()) -> str:
@@ -143,19 +170,19 @@ def export_text(session: SessionLike, fmt: str, fps: int, what=()) -> str:
 
 
 def export(session: SessionLike, scene: Scene, cmd) -> Outcome:
-    """`export FORMAT FILE [fps=N] [what=NAME,…]`: not a step, and journalled as a comment."""
+    """`export FORMAT FILE [fps=N] [what=NAME,…] [overwrite]`: not a step, and journalled as a comment."""
 
     text = export_text(session, cmd.format, cmd.fps, cmd.what)
-    target = write_text(cmd.path, text)
+    target = write_text(cmd.path, text, cmd.overwrite, _folder(session, cmd))
     frames = text.count("\n") - 1 if cmd.format == "csv" else len(frame_times(session.scene, cmd.fps))
     return Outcome(message=f"exported {frames} frames at {cmd.fps} fps to {target}",
                    journal_text=f"# {cmd.text or 'export'}")
 
 
 def save(session: SessionLike, scene: Scene, cmd) -> Outcome:
-    """`save FILE`: the session so far, replayable; not a step, and journalled as a comment."""
+    """`save FILE [overwrite]`: the session so far, replayable; not a step, and journalled as a comment."""
 
     text = session.journal.text()
-    target = write_text(cmd.path, text)
+    target = write_text(cmd.path, text, cmd.overwrite, _folder(session, cmd))
     lines = sum(1 for line in text.splitlines() if line.strip() and not line.lstrip().startswith("#"))
     return Outcome(message=f"saved {lines} command line(s) to {target}", journal_text=f"# {cmd.text or 'save'}")

@@ -23,3 +23,4 @@ class SessionLike(Protocol):
     runs: list            # RunResult of each solve, in order
     checkpoints: Any      # autosave.Checkpoints of an autosaved session, else None
     survey: Any           # the last survey's table (survey.SurveyTable), for `adopt`
+    trusted_schedulers: set   # cluster addresses the user named outside the session file

@@ -8,7 +8,9 @@ exactly as it was. Replaying the journal's successful lines rebuilds the same sc
 
 from __future__ import annotations
 
+import errno
 import os
+import stat
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Callable
@@ -62,7 +64,11 @@ class Journal:
         if self.path is None:
             return
         try:
-            with self.path.open("a", encoding="utf-8") as out:
+            # never through a link, and only into a regular file (not a device or a fifo)
+            fd = os.open(self.path, os.O_WRONLY | os.O_APPEND | os.O_CREAT | os.O_NOFOLLOW | os.O_NONBLOCK, 0o666)
+            with open(fd, "a", encoding="utf-8") as out:
+                if not stat.S_ISREG(os.fstat(fd).st_mode):
+                    raise OSError(errno.EINVAL, "not a regular file")
                 out.write(self._render(entry) + "\n")
                 out.flush()
                 os.fsync(out.fileno())
@@ -104,6 +110,8 @@ class Session:
         self.survey = None          # the last survey's table, for `adopt` (survey_session.py)
         self.checkpoints = None     # autosave.Checkpoints: solves are checkpointed beside the journal
         self.proposal: State | None = None   # a solve's result under `set preview on` (preview.py)
+        self.trusted_schedulers: set[str] = set()   # clusters named on the command line (survey_session.py)
+        self.replay_folder: Path | None = None   # the replayed file's folder: its lines write only there (export.py)
 
     # --- commands ----------------------------------------------------------------------------
     @property
@@ -141,6 +149,7 @@ class Session:
         """`open FILE`: run the file's lines as if typed, each journalled (and undoable) on its
         own; the `open` line itself is not journalled, so a replay never reads the file again.
         Stops at the first failing line, keeping the lines before it."""
+        from stw_tui.sym.language import COMMAND_NAMES
         from stw_tui.sym.language.session_commands import parse_file_command
 
         path = Path(parse_file_command(text, line).path).expanduser()
@@ -150,7 +159,12 @@ class Session:
             raise StwError(f"cannot open {path}: {exc}") from exc
         if self._block is not None:
             raise StwError("finish the open `linkage` block first")
+        first = next((s for s in content.splitlines() if not classify_line(s).is_blank), "")
+        if first and classify_line(first).verb not in COMMAND_NAMES:
+            # its lines are not quoted back: the file may be anything (a key, a password)
+            raise StwError(f"{path} is not an stw session: its first line is not an stw command")
         count = 0
+        folder, self.replay_folder = self.replay_folder, path.parent
         try:
             for number, source in enumerate(content.splitlines(), start=1):
                 self.execute(source, line=number, on_report=on_report)
@@ -160,10 +174,16 @@ class Session:
                 raise SourceError("`linkage` block is not closed", line=None, expected="a line `end`")
         except StwError as exc:
             raise StwError(f"{path}: {exc} ({count} line(s) before it were applied)") from exc
+        finally:
+            self.replay_folder = folder
         return Outcome(message=f"opened {path}: {count} line(s) applied")
 
     def _check_length(self, text: str, line: int | None) -> None:
-        """Refuse an over-long line before anything reads it (a 1 MB line must fail at once)."""
+        """Refuse an over-long line before anything reads it (a 1 MB line must fail at once). A
+        comment line is exempt: the journal's `# failed:` lines quote a refused line and its error,
+        and a resume must read them back."""
+        if text.lstrip().startswith("#"):
+            return
         with limits.active(self.scene.limits):
             longest = limits.value("line_length")
             if len(text) > longest:
@@ -289,6 +309,7 @@ class Session:
             text = Path(path).read_text(encoding="utf-8")
         except (OSError, UnicodeDecodeError) as exc:
             raise StwError(f"cannot read session {path}: {exc}") from exc
+        self.replay_folder = Path(path).expanduser().parent
         self.run_text(text, **kwargs)
 
     # --- queries -----------------------------------------------------------------------------

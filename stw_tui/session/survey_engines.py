@@ -23,6 +23,8 @@ import functools
 import importlib.util
 import logging
 import os
+import socket
+import struct
 import time
 from concurrent.futures import FIRST_COMPLETED, ProcessPoolExecutor, wait
 from concurrent.futures.process import BrokenProcessPool
@@ -33,6 +35,8 @@ from stw_tui.session.survey import (StartResult, StartTask, SurveyPlan, SurveyTa
                                    solve_start)
 from stw_tui.sym.errors import StwError
 
+HANDSHAKE_BYTES = 1 << 16   # a Dask scheduler's greeting is ~60 bytes; more is not one
+HANDSHAKE_S = 10.0          # how long a scheduler may take to connect and greet
 MAX_ATTEMPTS = 2      # a start whose worker dies this many times is counted as lost
 POLL_S = 0.2          # how often a waiting engine looks at cancellation and the workers
 
@@ -207,8 +211,10 @@ class DaskEngine:
         except ImportError:
             raise StwError("Dask is not installed: pip install 'stw-tui[survey]'") from None
         if self.address:
+            security = tls_security(self.address)
+            check_scheduler(self.address, security)
             try:
-                return Client(self.address, timeout="10s", set_as_default=False)
+                return Client(self.address, timeout="10s", set_as_default=False, security=security)
             except (OSError, TimeoutError, ValueError) as exc:
                 raise StwError(f"cannot reach the Dask scheduler at {self.address}: {exc}") from exc
         if self.workers not in _CLUSTERS:
@@ -244,7 +250,9 @@ class DaskEngine:
                 for future in batch:
                     task = index[future.key]
                     if future.status == "finished":
-                        on_result(future.result())
+                        result = future.result()
+                        on_result(result if isinstance(result, StartResult) else
+                                  _lost(task, f"the cluster returned a {type(result).__name__}, not a start's result"))
                     elif future.status in ("error", "cancelled"):
                         why = future.exception() if future.status == "error" else "cancelled"
                         on_result(_lost(task, f"Dask gave up on it: {why!r}"))
@@ -264,6 +272,71 @@ class DaskEngine:
         for address in sorted(known - now):
             on_note(f"Dask worker {address} was lost; its starts go to the remaining workers")
         return now
+
+
+def tls_security(address: str):
+    """Dask's ``Security`` for a tls:// address, from Dask's configuration (None for tcp://).
+
+    Raises:
+        StwError: the configuration names no CA file or client certificate (Dask would fail
+            inside its connect with a TypeError).
+    """
+    if not address.startswith("tls://"):
+        return None
+    from distributed.security import Security
+
+    security = Security()
+    if not (security.tls_ca_file and security.tls_client_cert):
+        raise StwError(f"{address} is a TLS address: set Dask's TLS files first (distributed.comm.tls "
+                       "in Dask's config, or DASK_DISTRIBUTED__COMM__TLS__CA_FILE and "
+                       "DASK_DISTRIBUTED__COMM__TLS__CLIENT__CERT, ...__CLIENT__KEY)")
+    return security
+
+
+def check_scheduler(address: str, security=None) -> None:
+    """Read the greeting a Dask scheduler sends on connect, bounded in size and time and without
+    unpickling anything, so that a service that is not one fails here with a clear error instead
+    of inside Dask's reader (which allocates whatever length the peer announces).
+
+    Raises:
+        StwError: nothing listens there, it does not answer in time, or its answer is not Dask's.
+    """
+    import msgpack
+    from distributed.comm.addressing import parse_host_port
+    from distributed.protocol.utils import unpack_frames
+
+    host, port = parse_host_port(address.split("://", 1)[1])
+    not_dask = f"{address} is not a Dask scheduler"
+    try:
+        with socket.create_connection((host, port), timeout=HANDSHAKE_S) as raw:
+            raw.settimeout(HANDSHAKE_S)
+            conn = raw
+            if security is not None:
+                context = security.get_connection_args("client")["ssl_context"]
+                conn = context.wrap_socket(raw, server_hostname=host if context.check_hostname else None)
+            (size,) = struct.unpack("Q", _read_exactly(conn, 8))
+            if not 8 <= size <= HANDSHAKE_BYTES:
+                raise StwError(f"{not_dask}: it announced a first message of {size} bytes")
+            frames = unpack_frames(memoryview(_read_exactly(conn, size)), partial=True)[0]
+            greeting = msgpack.loads(bytes(frames[0])) if frames else None
+    except StwError:
+        raise
+    except (OSError, EOFError) as exc:   # refused, timed out, closed, TLS failed
+        raise StwError(f"cannot reach the Dask scheduler at {address}: {exc}") from exc
+    except Exception as exc:  # whatever a stranger's bytes make of the frame and msgpack parsers
+        raise StwError(f"{not_dask}: its greeting does not read as Dask's ({type(exc).__name__})") from exc
+    if not (isinstance(greeting, dict) and "python" in greeting):
+        raise StwError(f"{not_dask}: its greeting does not read as Dask's")
+
+
+def _read_exactly(conn, n: int) -> bytes:
+    data = b""
+    while len(data) < n:
+        chunk = conn.recv(n - len(data))
+        if not chunk:
+            raise EOFError(f"the connection closed after {len(data)} of {n} bytes")
+        data += chunk
+    return data
 
 
 def choose_engine(workers: int | None = None, scheduler: str | None = None, backend: str | None = None,

@@ -9,6 +9,8 @@ back like any solve.
 
 from __future__ import annotations
 
+import os
+
 import numpy as np
 
 from stw_tui.session.outcome import Outcome
@@ -107,10 +109,28 @@ def _batch_note(backend: str) -> str:
     return f"surveys solve their starts as one batch on the {cls.name} backend{where}, in this process"
 
 
+def trusted_schedulers(session: SessionLike) -> set[str]:
+    """The cluster addresses the user named outside any session file: `stw survey --scheduler`
+    (the session's ``trusted_schedulers``) and the environment's STW_SCHEDULER (comma-separated)."""
+    named = os.environ.get("STW_SCHEDULER", "").replace(",", " ").split()
+    return set(named) | set(getattr(session, "trusted_schedulers", ()))
+
+
 def set_scheduler(session: SessionLike, scene, cmd) -> Outcome:
-    """`set scheduler ADDRESS`: where later surveys send their starts."""
+    """`set scheduler ADDRESS`: where later surveys send their starts.
+
+    Raises:
+        StwError: a cluster's address read from a session file or a journal (``cmd.line`` set)
+            that the user has not named: whatever runs that cluster runs code in this process
+            (results come back pickled), so only the user may choose it.
+    """
     from stw_tui.session.survey_engines import dask_available
 
+    if cmd.remote and cmd.line is not None and cmd.address not in trusted_schedulers(session):
+        raise StwError(f"a session file may not send surveys to the cluster at {cmd.address}: a cluster "
+                       "runs code in stw, so it is used only when you name it; type the line at the "
+                       f"console, or name it with `stw survey --scheduler {cmd.address}` or "
+                       f"STW_SCHEDULER={cmd.address}")
     scene.scheduler = cmd.address
     if cmd.address == "batch":
         return Outcome(message=_batch_note(scene.backend))

@@ -73,8 +73,10 @@ def sign_as_piecewise(e):
 
 
 def _sign_piecewise(u):
-    """sign(u) as a symengine Piecewise, which symengine can differentiate."""
-    return se.Piecewise((1, u > 0), (-1, u < 0), (0, True))
+    """sign(u) as a symengine Piecewise, which symengine can differentiate. Where u is not a real
+    number (NaN: log of a negative) no comparison holds, and the last branch passes the NaN on
+    (a final 0 made sign(log(-0.1)) read 0)."""
+    return se.Piecewise((1, u > 0), (-1, u < 0), (0, se.Eq(u, 0)), (u, True))
 
 
 def _canonical(expr: sp.Basic, memo: dict) -> sp.Basic:
@@ -491,7 +493,8 @@ def _private(path: Path, *, directory: bool) -> bool:
 def _cache_root() -> tuple[Path, bytes] | None:
     """The disk cache directory and the user's key, or None when caching is off or unsafe.
 
-    ``STW_CACHE_DIR`` overrides the place (``off`` disables it). The cache is used only when the
+    The place is ``$XDG_CACHE_HOME/stw/terms`` (``~/.cache/stw/terms`` without it);
+    ``STW_CACHE_DIR`` overrides it (``off`` disables it). The cache is used only when the
     directory is owned by the user and not writable by group or others (a new one is created
     0700), and its entries are authenticated with HMAC-SHA256 under a per-user key kept in
     ``.key`` inside it (mode 0600, created on first use). An unsafe directory is reported once.
@@ -500,7 +503,7 @@ def _cache_root() -> tuple[Path, bytes] | None:
     size and time): while those stay the same, its checks and the key's read are not repeated
     (they were 0.03 ms a term, 4% of the arm's cached compile); any change checks it afresh.
     """
-    root = os.environ.get("STW_CACHE_DIR") or os.path.join(os.path.expanduser("~"), ".cache", "stw", "terms")
+    root = os.environ.get("STW_CACHE_DIR") or os.path.join(_user_cache(), "stw", "terms")
     if root == "off" or not hasattr(os, "getuid"):
         return None
     known = _SAFE_ROOTS.get(root)
@@ -511,6 +514,13 @@ def _cache_root() -> tuple[Path, bytes] | None:
     if found is not None and fingerprint is not None:   # gone since the check: not remembered
         _SAFE_ROOTS[root] = (fingerprint, found)
     return found
+
+
+def _user_cache() -> str:
+    """XDG_CACHE_HOME when it is set to an absolute path (the XDG spec ignores a relative one),
+    else ~/.cache."""
+    xdg = os.environ.get("XDG_CACHE_HOME", "")
+    return xdg if os.path.isabs(xdg) else os.path.join(os.path.expanduser("~"), ".cache")
 
 
 _SAFE_ROOTS: dict[str, tuple[tuple, tuple[Path, bytes]]] = {}   # root: (fingerprint, found)
@@ -632,6 +642,9 @@ def _store(path: Path, key: bytes, entry) -> None:
 # The layout of a compiled term's disk entry, in its name: an entry of another layout (an older
 # stw's, without ``affine``) is another name, so neither version reads the other's.
 TERM_ENTRY = "|entry 2: pairs, affine, value, full"
+# How abs, sign, min and max are lowered (_convert): a key read off the sympy tree does not see
+# it, so a change there must be a change of name (sign once made NaN a 0 in stored code).
+LOWERING = "|lowering 2: sign passes NaN on"
 
 
 def _build(expr: sp.Expr, variables: tuple[LocalVar, ...], parameters: tuple[str, ...]) -> CompiledTerm:
@@ -641,7 +654,7 @@ def _build(expr: sp.Expr, variables: tuple[LocalVar, ...], parameters: tuple[str
     else:
         e = _to_symengine(expr)    # once: the key's text and, on a miss, what is compiled
         key = _term_key(e, variables, parameters)
-    entry = cached_entry("", key + TERM_ENTRY)
+    entry = cached_entry("", key + TERM_ENTRY + LOWERING)
     if entry is not None:
         pairs, affine, value_fn, full_fn = entry
         return CompiledTerm(expr=expr, variables=variables, parameters=parameters,
@@ -649,7 +662,7 @@ def _build(expr: sp.Expr, variables: tuple[LocalVar, ...], parameters: tuple[str
                             _full_fn=full_fn, cache_key=key)
     term = _compile(expr, variables, parameters, e)
     term.cache_key = key
-    store_entry("", key + TERM_ENTRY, (term.hessian_pairs, term.affine, term._value_fn, term._full_fn))
+    store_entry("", key + TERM_ENTRY + LOWERING, (term.hessian_pairs, term.affine, term._value_fn, term._full_fn))
     return term
 
 

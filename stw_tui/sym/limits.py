@@ -23,22 +23,25 @@ from stw_tui.sym.errors import LimitError, StwError
 
 @dataclass(frozen=True)
 class Limit:
-    """One limit: its default, the ceiling ``set limit`` may raise it to, and what it bounds."""
+    """One limit: its default, the ceiling ``set limit`` may raise it to, what it bounds, and the
+    floor it may not be lowered below (so that no value locks the session: `set limit` and `undo`
+    must still parse)."""
 
     name: str
     default: int
     ceiling: int
     bounds: str
+    floor: int = 1
 
 
 LIMITS: dict[str, Limit] = {limit.name: limit for limit in (
-    Limit("line_length", 10_000, 1_000_000, "characters in one command line (checked before parsing)"),
-    Limit("nesting", 60, 100, "nesting levels of parentheses, calls, signs and powers in an expression"),
-    Limit("digits", 300, 4_000, "digits of an integer literal"),
-    Limit("number_bits", 8_192, 14_000, "bits of an exact number computed while parsing"),
-    Limit("exponent", 1_000_000, 2**31 - 1, "magnitude of a numeric exponent (x^N, 10^N, 1.5^N)"),
+    Limit("line_length", 10_000, 1_000_000, "characters in one command line (checked before parsing)", 200),
+    Limit("nesting", 60, 100, "nesting levels of parentheses, calls, signs and powers in an expression", 10),
+    Limit("digits", 300, 4_000, "digits of an integer literal", 20),
+    Limit("number_bits", 8_192, 14_000, "bits of an exact number computed while parsing", 128),
+    Limit("exponent", 1_000_000, 2**31 - 1, "magnitude of a numeric exponent (x^N, 10^N, 1.5^N)", 10),
     Limit("expression_size", 30_000, 2_000_000,
-          "nodes of an expression once its subexpressions are substituted"),
+          "nodes of an expression once its subexpressions are substituted", 100),
     Limit("knots", 1_000, 20_000, "knot spans of one DOF (time/dof knots=, and after refine)"),
     Limit("samples", 5_000, 1_000_000, "constraint instances per animation span (samples=, set samples)"),
     Limit("dofs", 100, 2_000, "DOF in a scene (linkage joints included)"),
@@ -98,13 +101,14 @@ def validated(name: str, requested: int) -> int:
     """A new value for limit ``name`` (for ``set limit``), checked against its ceiling.
 
     Raises:
-        StwError: unknown limit, or a value below 1 or over the ceiling.
+        StwError: unknown limit, or a value below its floor or over its ceiling.
     """
     if name not in LIMITS:
         raise StwError(f"unknown limit '{name}' (limits: {', '.join(LIMITS)})")
     limit = LIMITS[name]
-    if not 1 <= requested <= limit.ceiling:
-        raise StwError(f"limit {name} must be between 1 and its ceiling {limit.ceiling}, not {requested}")
+    if not limit.floor <= requested <= limit.ceiling:
+        raise StwError(f"limit {name} must be between its floor {limit.floor} and its ceiling {limit.ceiling}, "
+                       f"not {requested}")
     return requested
 
 
@@ -112,8 +116,9 @@ def help_text(overrides: Mapping[str, int] | None = None) -> str:
     """A table of the limits: name, value in force, ceiling, and what each bounds."""
     values = dict(_ACTIVE.get() or {}) if overrides is None else dict(overrides)
     width = max(len(n) for n in LIMITS)
-    lines = ["Limits (set limit NAME VALUE changes one, up to its ceiling):"]
+    lines = ["Limits (set limit NAME VALUE changes one, from its floor up to its ceiling):"]
     for limit in LIMITS.values():
         now = int(values.get(limit.name, limit.default))
-        lines.append(f"  {limit.name:<{width}}  {now:>9}  (ceiling {limit.ceiling:>10})  {limit.bounds}")
+        lines.append(f"  {limit.name:<{width}}  {now:>9}  (floor {limit.floor:>3}, ceiling {limit.ceiling:>10})"
+                     f"  {limit.bounds}")
     return "\n".join(lines)

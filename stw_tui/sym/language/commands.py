@@ -643,17 +643,18 @@ class CommandParser(ExpressionParser):
         return SetCmd(option, sign + self.advance().text, self.text)
 
     def _set_limit(self):
-        """`set limit NAME VALUE`: a limit of stw_tui.sym.limits, within its ceiling."""
+        """`set limit NAME VALUE`: a limit of stw_tui.sym.limits, within its floor and ceiling."""
         name = self.name("a limit name (`help limits` lists them)")
         if name.text not in limits.LIMITS:
             close = difflib.get_close_matches(name.text, list(limits.LIMITS), n=2)
             hint = f" (did you mean {' or '.join(repr(c) for c in close)}?)" if close else ""
             raise self.error(f"unknown limit '{name.text}'{hint}", name,
                              expected="a limit name; `help limits` lists them")
-        ceiling = limits.LIMITS[name.text].ceiling
-        value = self.integer(f"a whole number for limit {name.text}", ceiling)
-        if value < 1:
-            raise self.error(f"limit {name.text} must be at least 1", self.tokens[self.pos - 1])
+        limit = limits.LIMITS[name.text]
+        value = self.integer(f"a whole number for limit {name.text}", limit.ceiling)
+        if value < limit.floor:   # lower, and no line could raise it again (`set limit` itself)
+            raise self.error(f"limit {name.text} must be at least {limit.floor}", self.tokens[self.pos - 1],
+                             expected=f"{limit.floor} to {limit.ceiling}")
         return SetCmd("limit", f"{name.text} {value}", self.text)
 
     def p_iterate(self):

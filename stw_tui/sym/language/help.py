@@ -19,6 +19,10 @@ class CommandHelp:
     example: str
 
 
+# what `save` and `export` write, and where
+_WRITES = ("An existing FILE is replaced only with `overwrite`, and never a link or anything but a "
+           "regular file; a session file's line writes only inside the file's own folder. ")
+
 COMMAND_HELP: dict[str, CommandHelp] = {
     "time": CommandHelp("time START END [knots=N] [samples=K]",
                         "Set the animation span, the default knot spans of new DOF, and K, the constraint "
@@ -125,7 +129,9 @@ COMMAND_HELP: dict[str, CommandHelp] = {
                        "adaptive_rounds (re-solves per `iterate`), adaptive_points (the scene's "
                        "control points that refinement may reach; default 2000). "
                        "`set limit NAME N` changes a limit (`help limits` lists them); "
-                       "`set scheduler tcp://HOST:PORT` sends surveys to a Dask cluster (`set scheduler batch`: "
+                       "`set scheduler tcp://HOST:PORT` sends surveys to a Dask cluster, when typed here "
+                       "(a session file or journal may name only a cluster you name: STW_SCHEDULER or "
+                       "`stw survey --scheduler`; tls:// uses Dask's TLS config) (`set scheduler batch`: "
                        "solves their starts as one batch on the torch backend).",
                        "set dense_tol 1e-7"),
     "iterate": CommandHelp("iterate [N] [adapt=R]",
@@ -224,14 +230,14 @@ COMMAND_HELP.update({
                         "largest difference of the curve over the animation), other definitions that "
                         "changed, and the objective and violation before and after.",
                         "diff before_release"),
-    "export": CommandHelp("export csv|json|bvh FILE [fps=N] [what=NAME,…]",
+    "export": CommandHelp("export csv|json|bvh FILE [fps=N] [what=NAME,…] [overwrite]",
                           "Write the motion sampled at N frames per second (default 30): per frame the "
                           "time, every DOF with its first and second derivatives, and every linkage "
                           "joint, tip and centre of mass position, and each subexpression NAME (a let, "
                           "tau_JOINT, arm.tip.x'); json adds the control points, knots "
                           "and the session text; bvh writes a linkage's skeleton (from its DH rows) "
                           "and per frame its base translation and joint angles in degrees, for "
-                          "Blender (what=LINKAGE chooses one). Quote a path with spaces. The scene does "
+                          "Blender (what=LINKAGE chooses one). Quote a path with spaces. " + _WRITES + "The scene does "
                           "not change.",
                           "export csv throw.csv fps=60"),
     "show": CommandHelp("show NAME | show EXPR [@ T] | show diff(EXPR, VAR) [@ T]",
@@ -260,11 +266,12 @@ COMMAND_HELP.update({
                           "stays as it was.", "reject"),
     "open": CommandHelp("open FILE",
                         "Run a session file's lines as if typed: each is journalled and undoable on its "
-                        "own (a replay never reads FILE again). Stops at the first line that fails.",
+                        "own (a replay never reads FILE again). Stops at the first line that fails; a "
+                        "file whose first line is not a command is refused unread.",
                         "open throw.stw"),
-    "save": CommandHelp("save FILE",
+    "save": CommandHelp("save FILE [overwrite]",
                         "Write the session so far as a replayable .stw file (the journal's lines that "
-                        "succeeded). The scene does not change.", "save throw.stw"),
+                        "succeeded). " + _WRITES + "The scene does not change.", "save throw.stw"),
     "survey": CommandHelp("survey N [seed=S] [from=shake|sketch|random] [amplitude=A] [window=W] [workers=K] "
                           "[iterate=M]",
                           "Solve N starts made from the scene (shaken curves, the default; jittered keyframes; "
@@ -273,7 +280,7 @@ COMMAND_HELP.update({
                           "optima they reach, best first, with how many starts reached each; starts that fail "
                           "or do not converge are counted apart. The same seed gives the same survey. Starts "
                           "run on Dask (K worker processes, default one per core), or on a local process pool "
-                          "without it; `set scheduler tcp://HOST:PORT` sends them to an existing Dask cluster "
+                          "without it; `set scheduler tcp://HOST:PORT` (typed) sends them to an existing Dask cluster "
                           "(`set scheduler local`: back to this machine; `pool`: a process pool even with Dask; "
                           "`serial`: one start after another in this process; `batch`: all starts as one batch on the "
                           "torch backend, vectorized over starts, on a GPU when torch sees one, K starts at "

@@ -72,21 +72,25 @@ class DiffCmd:
 
 @dataclass(frozen=True)
 class ExportCmd:
-    """`export csv|json|bvh FILE [fps=N] [what=NAME,…]`: write the sampled motion to a file."""
+    """`export csv|json|bvh FILE [fps=N] [what=NAME,…] [overwrite]`: write the sampled motion to a file."""
 
     format: str          # one of EXPORT_FORMATS
     path: str
     fps: int = 30
     text: str = ""
     what: tuple[str, ...] = ()   # subexpressions to add as columns (tau_ELBOW, arm.tip.x')
+    overwrite: bool = False      # replace FILE if it exists (else refused)
+    line: int | None = None      # its line in a session file being replayed; None when typed
 
 
 @dataclass(frozen=True)
 class SaveCmd:
-    """`save FILE`: write the session so far as a replayable .stw file."""
+    """`save FILE [overwrite]`: write the session so far as a replayable .stw file."""
 
     path: str
     text: str = ""
+    overwrite: bool = False      # replace FILE if it exists (else refused)
+    line: int | None = None      # its line in a session file being replayed; None when typed
 
 
 @dataclass(frozen=True)
@@ -297,13 +301,18 @@ def parse_file_command(text: str, line: int | None = None):
     command_text = text.strip()
     (word, _, _), rest = words[0], words[1:]
     end = len(text.rstrip()) + 1
+    overwrite = word in ("save", "export") and len(rest) > 1 and rest[-1][0] == "overwrite" and not rest[-1][2]
+    if overwrite:
+        rest = rest[:-1]
     if word in ("save", "open"):
         if not rest:
             raise _error(f"{word} needs a file", text, line, end, expected="a file path")
         if len(rest) > 1:
             raise _error(f"unexpected '{rest[1][0]}' after the file", text, line, rest[1][1],
-                         expected="end of line (quote a path with spaces)")
-        return (SaveCmd if word == "save" else OpenCmd)(_path(rest[0][0], rest[0][1], text, line), command_text)
+                         expected="overwrite or end of line (quote a path with spaces)" if word == "save"
+                         else "end of line (quote a path with spaces)")
+        path = _path(rest[0][0], rest[0][1], text, line)
+        return SaveCmd(path, command_text, overwrite, line) if word == "save" else OpenCmd(path, command_text)
     if not rest or rest[0][0] not in EXPORT_FORMATS:
         at = rest[0][1] if rest else end
         got = f"unknown export format '{rest[0][0]}'" if rest else "export needs a format"
@@ -316,7 +325,7 @@ def parse_file_command(text: str, line: int | None = None):
         key, _, value = option.partition("=")
         if quoted or key not in ("fps", "what"):
             raise _error(f"unexpected '{option}'", text, line, option_column,
-                         expected="fps=N or what=NAME,… (quote a path with spaces)")
+                         expected="fps=N, what=NAME,… or overwrite (quote a path with spaces)")
         if key == "what":
             what = tuple(value.split(","))
             if not all(_NAME.fullmatch(n) for n in what):
@@ -327,4 +336,4 @@ def parse_file_command(text: str, line: int | None = None):
             raise _error(f"fps must be a whole number from 1 to {MAX_FPS}, not '{value}'", text, line,
                          option_column + 4, expected="frames per second")
         fps = int(value)
-    return ExportCmd(fmt, _path(path, path_column, text, line), fps, command_text, what)
+    return ExportCmd(fmt, _path(path, path_column, text, line), fps, command_text, what, overwrite, line)

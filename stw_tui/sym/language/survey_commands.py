@@ -50,6 +50,12 @@ class SchedulerCmd:
 
     address: str           # a Dask scheduler; "pool", "serial", "batch"; or "" (local: Dask's LocalCluster, else a pool)
     text: str = ""
+    line: int | None = None   # its line in a session file or journal being replayed; None when typed
+
+    @property
+    def remote(self) -> bool:
+        """Whether the address is a cluster's (one that runs code in this process), not this machine."""
+        return self.address not in ("", *LOCAL_SCHEDULERS)
 
 
 def p_survey(p) -> SurveyCmd:
@@ -129,12 +135,12 @@ def parse_scheduler_command(text: str, line: int | None = None) -> SchedulerCmd 
                           source=text, expected=expected)
     address = words[0]
     if address in LOCAL_SCHEDULERS:
-        return SchedulerCmd("" if address == "local" else address, text.strip())
+        return SchedulerCmd("" if address == "local" else address, text.strip(), line)
     found = _ADDRESS.fullmatch(address)
     if found is None or not 0 < int(found.group(3)) < 65536:
         raise SourceError(f"'{address[:60]}' is not a scheduler address", line=line, column=column,
                           source=text, expected=expected)
-    return SchedulerCmd(address, text.strip())
+    return SchedulerCmd(address, text.strip(), line)
 
 
 SURVEY_PARSERS = {"survey": p_survey, "adopt": p_adopt}
