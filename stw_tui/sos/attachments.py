@@ -18,6 +18,7 @@ exact everywhere) and a relation inside the hold reads the hand alone.
 from __future__ import annotations
 
 from dataclasses import dataclass
+from functools import lru_cache
 
 import sympy as sp
 
@@ -70,8 +71,15 @@ def added_terms(scene, definitions: dict) -> dict:
     for part in all_attachments(scene):
         if part.adds:
             symbol = named_symbol(part.target)
-            out[symbol] = out[symbol] + sp.Piecewise((part.expr, part.condition), (0, True))
+            out[symbol] = out[symbol] + _load(part)
     return out
+
+
+@lru_cache(maxsize=256)
+def _load(part: Attachment) -> sp.Piecewise:
+    """A load as a Piecewise in time: made once (sympy's Piecewise checks its conditions as it
+    is built, half of an arm's expansions when it was made at each)."""
+    return sp.Piecewise((part.expr, part.condition), (0, True))
 
 
 def replace_attached(scene, expr: sp.Basic) -> sp.Basic:
