@@ -109,7 +109,7 @@ let h = arm.tip.y
 
 PIN = """time 0 1 knots=20
 dof x = 0.3
-constraint pin: x = 0.3 @ 0.22
+constraint pin: x = 0.3 @ 0.3
 constraint lift: x = 1 @ 0.5
 objective smooth: x''
 window mid [0.4, 0.6]
@@ -118,13 +118,14 @@ iterate 20
 
 
 def test_a_window_cannot_break_a_constraint_just_outside_it():
-    # The window frees control points whose support reaches 3 spans (0.15) past it, down to
-    # 0.25: with instances only one span past it, x(0.22) used to move to 0.121.
+    # The window [0.4, 0.6] frees control points whose support reaches 3 spans (0.15) past it,
+    # down to 0.25: the pin at 0.3, outside the window but inside that reach, must hold (with
+    # instances only inside the window, x(0.3) moves).
     s = run_lines(Session(), PIN)
     assert s.runs[-1].converged
     x = s.scene.dofs["x"].curve
     assert x.evaluate([0.5])[0] == pytest.approx(1, abs=1e-8)
-    assert x.evaluate([0.22])[0] == pytest.approx(0.3, abs=1e-8)
+    assert x.evaluate([0.3])[0] == pytest.approx(0.3, abs=1e-8)
 
 
 def _held(report, tol):
@@ -511,3 +512,16 @@ def test_a_relation_evaluated_on_part_of_shared_times_gives_its_values_at_those_
             values = s.scene.evaluator(expr)
             assert np.array_equal(values.at(shared, slice(start, start + t.size)), values(t))
         start += t.size
+
+
+def test_a_failure_names_the_constraints_own_dense_tol():
+    # A constraint with dense_tol=0.001 that fails between its instances is reported with its own
+    # tolerance, not only the scene's (1e-6), which it is not held to.
+    s = run_lines(Session(), """time 0 1 knots=4 samples=4
+dof x
+constraint c: x - sin(9*t) = 0 on [0, 1] dense_tol=0.001
+objective e: x''
+set adaptive off
+""")
+    message = s.execute("iterate 20").message
+    assert "c 3.2e-01 at t=0.8875 (its dense_tol 0.001)" in message, message

@@ -268,7 +268,7 @@ def test_a_failed_solve_leaves_the_warm_start_as_it_was(monkeypatch):
 
     def broken(*args, **kwargs):
         raise StwError("the dense check broke")
-    monkeypatch.setattr(interpreter, "survey", broken)
+    monkeypatch.setattr(interpreter, "survey_failures", broken)
     with pytest.raises(StwError, match="dense check broke"):
         s.execute("iterate 5")
     assert state(s.scene) == before and warm_bytes(s) == warm

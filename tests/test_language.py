@@ -9,6 +9,7 @@ import inspect
 import pytest
 import sympy as sp
 
+from stw_tui.session.session import Session
 from stw_tui.sym.errors import SourceError, StwError
 from stw_tui.sym.language import (COMMAND_HELP, COMMAND_NAMES, DictScope, NameKind, parse_command,
                               parse_condition, parse_expression)
@@ -191,6 +192,14 @@ def test_unknown_name_with_suggestion():
     assert "unknown name 'gg'" in err.message
     assert "did you mean 'g'" in err.message
     assert err.expected == "a DOF, constant, subexpression or function"
+
+
+def test_an_unknown_name_in_the_wrong_case_suggests_the_right_one():
+    s = Session()
+    s.run_text("time 0 1\nconst g = 9.81\nlinkage arm base=fixed\n  SHOULDER revolute a=0.35\nend\n")
+    with pytest.raises(SourceError) as err:
+        s.execute("objective e: tau_shoulder")
+    assert "unknown name 'tau_shoulder' (did you mean 'tau_SHOULDER'" in err.value.message
 
 
 def test_unknown_name_never_becomes_a_symbol():

@@ -64,7 +64,11 @@ def test_arm_throw_with_joint_ranges_reaches_the_same_motion_as_scipy(registered
     # (Not by the same iterates: the final solve's first QP is nearly singular, and its step
     # differs with rounding; the scipy backend takes 8 or 10 iterations to the same optimum with
     # SuperLU or the banded LU.)
-    text = (SESSIONS / "arm_throw.stw").read_text()
+    # Each solve stops within tol_kkt of its KKT point (the residuals' relative distance, 1e-6 by
+    # default): the motions of the first solve then differ by about that, and the window solve,
+    # which holds them fixed outside the window, inherits it (objectives 2.9e-8 apart). The 1e-9
+    # asked here needs the first solve converged further.
+    text = "set tol_kkt 1e-9\n" + (SESSIONS / "arm_throw.stw").read_text()
     ref, got = Session(), Session()
     ref.run_text(text)
     got.run_text("backend torch device=cpu\n" + text)

@@ -14,6 +14,7 @@ import numpy as np
 from stw_tui.session.history import State
 from stw_tui.session.protocol import SessionLike
 from stw_tui.sos.scene import Window
+from stw_tui.sos.spline import DofCurve
 from stw_tui.sym.errors import StwError
 
 VERSION = 1
@@ -60,6 +61,8 @@ def scene_record(scene, warm, offset: int) -> dict:
     return {
         "version": VERSION, "offset": offset,
         "coef": {name: dof.curve.coef.tolist() for name, dof in scene.dofs.items()},
+        # the knots too: adaptive refinement inserts them during a solve
+        "knots": {name: dof.curve.knots.tolist() for name, dof in scene.dofs.items()},
         "extra_instances": {k: list(v) for k, v in scene.extra_instances.items()},
         "windows": {k: [list(w.dofs) if w.dofs else None, list(w.interval) if w.interval else None]
                     for k, w in scene.windows.items()},
@@ -76,10 +79,19 @@ def restored_scene(session: SessionLike, record: dict):
     """
     scene = session.scene.copy()
     coef = record["coef"]
-    if list(coef) != list(scene.dofs) or any(len(coef[n]) != d.curve.n_coef for n, d in scene.dofs.items()):
+    knots = record.get("knots")   # (absent from checkpoints written before refinement inserted knots)
+    if list(coef) != list(scene.dofs) or (knots is not None and list(knots) != list(coef)):
         raise StwError("the checkpoint does not fit the replayed scene")
     for name, dof in scene.dofs.items():
-        dof.curve = dof.curve.with_coef(np.array(coef[name], dtype=float))
+        try:
+            if knots is not None:
+                dof.curve = DofCurve(np.array(knots[name], dtype=float), np.array(coef[name], dtype=float))
+            elif len(coef[name]) == dof.curve.n_coef:
+                dof.curve = dof.curve.with_coef(np.array(coef[name], dtype=float))
+            else:
+                raise ValueError
+        except (ValueError, TypeError):
+            raise StwError("the checkpoint does not fit the replayed scene") from None
     scene.extra_instances = {k: tuple(float(t) for t in v) for k, v in record["extra_instances"].items()}
     scene.windows = {k: Window(k, tuple(d) if d else None, tuple(i) if i else None)
                      for k, (d, i) in record["windows"].items()}

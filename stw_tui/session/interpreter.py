@@ -19,7 +19,8 @@ from stw_tui.session.verbs import owned_by_verb
 from stw_tui.sos.backend import (RunResult, SolverState, Status, WarmStart, create_backend, load_backend,
                                  run_iterations)
 from stw_tui.sos.batch import joined_backend
-from stw_tui.sos.continuous import DenseReport, check_scene, survey
+from stw_tui.sos import refinement
+from stw_tui.sos.continuous import DenseReport, check_scene, survey_failures
 from stw_tui.sos.scene import DEFAULT_SETTINGS, Constraint, Dof, Objective, Relation, Scene, Window
 from stw_tui.sos.spline import DofCurve
 from stw_tui.sos.window import WindowProblem
@@ -501,8 +502,8 @@ def _set(scene: Scene, cmd) -> str:
             raise StwError(f"{cmd.option} is on or off, not '{cmd.value}'")
         scene.settings[cmd.option] = words[cmd.value.lower()]
         return f"{cmd.option} {'on' if scene.settings[cmd.option] else 'off'}"
-    if cmd.option == "adaptive_rounds" and not cmd.value.isdigit():
-        raise StwError(f"adaptive_rounds must be a whole number, not '{cmd.value}'")
+    if cmd.option in ("adaptive_rounds", "adaptive_points") and not cmd.value.isdigit():
+        raise StwError(f"{cmd.option} must be a whole number, not '{cmd.value}'")
     if cmd.option not in DEFAULT_SETTINGS:
         raise StwError(f"unknown setting '{cmd.option}' (settings: samples, {', '.join(DEFAULT_SETTINGS)})")
     try:
@@ -615,30 +616,30 @@ def _instances(scene: Scene, cmd) -> str:
 @dataclass
 class SolveReport:
     """What one `iterate` did, as data: the merged run, the last window problem, and the dense
-    check of the motion it left, with the instances it added."""
+    check of the motion it left, with what the adaptive rounds refined and added."""
 
     run: RunResult
     problem: WindowProblem
     backend: str
     dense: DenseReport
     tol: float                       # the scene's dense_tol
-    added: dict[str, int]            # instances added per constraint by adaptive re-solves
+    adapted: refinement.RefinementLog   # the curves refined and instances added by adaptive re-solves
     resolves: int
-    undone: str                      # "; undid a re-solve …" (empty when none was undone)
     journal_text: str | None         # what replays it, when it was stopped
 
     def dense_lines(self) -> list[str]:
-        """The lines after the solve's own: the dense check, what was added, what to try."""
+        """The lines after the solve's own: the dense check, what was refined and added, what to try."""
         lines = [f"dense violation {self.dense.dense_violation:.2e} over the whole animation"]
-        if self.added:
-            lines[0] += (f"; added {sum(self.added.values())} instance(s) where it failed ("
-                         + ", ".join(f"{n} {k}" for n, k in self.added.items())
-                         + f"), {self.resolves} re-solve(s)")
-        lines[0] += self.undone
+        done = self.adapted.describe()
+        if done:
+            lines[0] += done + f", {self.resolves} re-solve(s)"
+        lines[0] += self.adapted.undone
         # (constraints in conflict fail at their instances too: refining would not help)
         if self.dense.failing(self.tol) and self.run.status is not Status.INFEASIBLE:
-            lines.append(f"between the instances it fails dense_tol {self.tol:.0e}: "
-                         f"{self.dense.describe_failures(self.tol)} — refine the knots there, or `set dense_tol`")
+            stop = self.adapted.stop_note()
+            hint = f" — {stop}" if stop else " — refine the knots there, or `set dense_tol`"
+            lines.append(f"between the instances it fails dense_tol {self.tol:.0e} (or its own): "
+                         f"{self.dense.describe_failures(self.tol)}{hint}")
         last = self.run.reports[-1] if self.run.reports else None
         if self.run.status is Status.INFEASIBLE and last is not None and last.message:
             lines.append(last.message)    # names the constraints in conflict
@@ -666,11 +667,14 @@ def _iterate(session: SessionLike, scene: Scene, cmd, on_report) -> Outcome:
 
 def _solve_adaptive(session: SessionLike, scene: Scene, n: int, adapt: int | None, on_report,
                     trail: Trail) -> SolveReport:
-    """Solve, check every constraint densely over the whole animation, and (adaptive) add
-    instances where the check fails and solve again, at most ``rounds`` times. A re-solve that
-    does not converge (too many instances for the curves' freedom, or a stop) is undone: adaptive
-    refinement never leaves a motion worse than the plain solve. ``trail``: the lines that replay
-    what the command kept before this call (for the running solve's checkpoints)."""
+    """Solve, check every constraint densely over the whole animation, and (adaptive) where the
+    check fails, refine the curves there and add instances (stw_tui/sos/refinement.py decides
+    which), and solve again from where the last solve ended, at most ``rounds`` times and within
+    the control-point budget ``adaptive_points``. A re-solve that does not converge (a stop, or
+    constraints it cannot meet) is undone: adaptive refinement never leaves a motion worse than
+    the plain solve. Its changes are applied as the `refine` and `instances` lines that replay
+    them. ``trail``: the lines that replay what the command kept before this call (for the
+    running solve's checkpoints)."""
     settings = scene.settings
     rounds = adapt if adapt is not None else (int(settings["adaptive_rounds"]) if settings["adaptive"] else 0)
     backend = joined_backend(scene.backend, scene.backend_options)   # a batch job's member backend
@@ -679,40 +683,43 @@ def _solve_adaptive(session: SessionLike, scene: Scene, n: int, adapt: int | Non
     result = _solve(session, scene, problem, backend, n, on_report, trail)
     runs = [result]
     journal = [f"iterate {len(result.reports) if result.status is Status.STOPPED else n} adapt=0"]
-    added: dict[str, int] = {}
-    undone = ""
+    adapted = refinement.RefinementLog(sum(d.curve.n_coef for d in scene.dofs.values()),
+                                       int(settings["adaptive_points"]))
     stopped = result.status is Status.STOPPED
     report = None   # the dense check of the scene as it is now (None: not made yet)
-    while result.status is Status.CONVERGED and len(runs) <= rounds:
-        report, wanted = survey(scene, tol)
-        lo, hi = problem.reach   # instances the window cannot move would change nothing
-        new = {name: times[(times >= lo) & (times <= hi)] for name, times in wanted.items()}
-        new = {name: times for name, times in new.items() if times.size}
-        if not new:
+    while result.status is Status.CONVERGED and report is None:
+        last = len(runs) > rounds   # no round left: the check alone (where it fails, to say so)
+        report, wanted, failing = survey_failures(scene, tol if rounds else None)
+        if last:
+            adapted.rounds_out = bool(report.failing(tol) and (wanted or failing) and rounds > 0)
             break
-        saved = (scene.coefficient_vector().copy(), dict(scene.extra_instances), session.warm)
-        lines = []
-        for name, times in new.items():
-            scene.extra_instances[name] = tuple(sorted(set(scene.extra_instances.get(name, ())) | set(times.tolist())))
-            lines.append(f"instances {name} add " + ", ".join(repr(float(t)) for t in times))
+        plan = refinement.plan_round(scene, failing, wanted, problem.free_dofs, problem.interval,
+                                     problem.reach, adapted.budget)
+        adapted.over_budget |= set(plan.over_budget)
+        if not plan:
+            break
+        saved = ({name: dof.curve for name, dof in scene.dofs.items()}, dict(scene.extra_instances), session.warm)
+        lines = plan.lines()
+        for line in lines:   # as the journal replays them
+            command = lang.parse_command(line, SceneScope(scene))
+            _HANDLERS[type(command)](scene, command)
         trial_problem = WindowProblem.of(scene)
         trial = _solve(session, scene, trial_problem, backend, n, on_report, trail.then(journal + lines))
         if trial.status is not Status.CONVERGED:
-            scene.with_coefficients(saved[0])
+            for name, curve in saved[0].items():
+                scene.dofs[name].curve = curve
             scene.extra_instances, session.warm = saved[1], saved[2]
             stopped |= trial.status is Status.STOPPED
-            count = sum(t.size for t in new.values())
-            undone = (f"; undid a re-solve with {count} more instance(s) ({', '.join(new)}): "
-                      f"{trial.status.value} after {len(trial.reports)} iteration(s)")
+            adapted.undo(plan, trial.status.value, len(trial.reports))
             break
         problem, result, report = trial_problem, trial, None
         runs.append(trial)
         journal += lines + [f"iterate {n} adapt=0"]
-        for name, times in new.items():
-            added[name] = added.get(name, 0) + times.size
+        adapted.keep(plan)
     report = report or check_scene(scene)   # an undone round restored the surveyed scene
+    adapted.points = sum(d.curve.n_coef for d in scene.dofs.values())
     # A stopped solve is journalled as what it kept, so a replay reaches the same scene.
-    return SolveReport(_merged(runs), problem, backend.name, report, tol, added, len(runs) - 1, undone,
+    return SolveReport(_merged(runs), problem, backend.name, report, tol, adapted, len(runs) - 1,
                        "\n".join(journal) if stopped else None)
 
 

@@ -71,7 +71,8 @@ class DenseReport:
     def describe_failures(self, tol: float, limit: int = 3) -> str:
         """'in_hand 3.1e-04 at t=0.52, …' for the worst failures (empty when all hold)."""
         bad = self.failing(tol)
-        text = ", ".join(f"{c.name} {c.dense:.1e} at t={c.worst_t:.4g}" for c in bad[:limit])
+        text = ", ".join(f"{c.name} {c.dense:.1e} at t={c.worst_t:.4g}"
+                         + (f" (its dense_tol {c.tol:.3g})" if c.tol is not None else "") for c in bad[:limit])
         return text + (f" and {len(bad) - limit} more" if len(bad) > limit else "")
 
 
@@ -307,14 +308,40 @@ def check_scene(scene) -> DenseReport:
 def survey(scene, tol: float | None) -> tuple[DenseReport, dict[str, np.ndarray]]:
     """The dense check and, from the same samples, where new instances would help (see
     :func:`_refinement`; nothing when ``tol`` is None)."""
-    checks, wanted = {}, {}
+    report, wanted, _ = survey_failures(scene, tol)
+    return report, wanted
+
+
+def survey_failures(scene, tol: float | None) -> tuple[DenseReport, dict[str, np.ndarray], dict[str, np.ndarray]]:
+    """:func:`survey`, and where each check fails: the local maxima of its dense violation above
+    its tolerance, as (time, violation) rows, on relations whose instances are not placed exactly
+    (where adaptive refinement inserts knots; see stw_tui/sos/refinement.py)."""
+    checks, wanted, failing = {}, {}, {}
     for name, samples, own_tol in _all_samples(scene):
         checks[name] = _summarize(name, samples, own_tol)
         if tol is not None:
-            found = _refinement(scene, samples, own_tol if own_tol is not None else tol)
+            limit = own_tol if own_tol is not None else tol
+            found = _refinement(scene, samples, limit)
             if found.size:
                 wanted[name] = found
-    return DenseReport(checks), wanted
+            peaks = _failing_peaks(scene, samples, limit)
+            if peaks.shape[0]:
+                failing[name] = peaks
+    return DenseReport(checks), wanted, failing
+
+
+def _failing_peaks(scene, samples: list[_Samples], limit: float) -> np.ndarray:
+    """The local maxima of one check's dense violation above ``limit``, as (time, violation)
+    rows in time order, instances included; none on an instant or on exactly placed instances."""
+    found = []
+    for s in samples:
+        v = s.v_grid
+        if v.size < 3 or s.t_inst.size < 2 or s.exact:
+            continue
+        peak = (v > limit) & (v >= np.r_[-np.inf, v[:-1]]) & (v >= np.r_[v[1:], -np.inf])
+        found.append(np.column_stack([s.t_grid[peak], v[peak]]))
+    found = np.concatenate(found) if found else np.zeros((0, 2))
+    return found[np.argsort(found[:, 0], kind="stable")]
 
 
 def _snap(scene, t: float) -> float:

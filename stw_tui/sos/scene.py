@@ -22,7 +22,7 @@ from stw_tui.sym.symbols import named_symbol
 
 DEFAULT_SETTINGS: dict[str, float] = {
     "tol_violation": 1e-8,   # max |constraint| accepted as satisfied
-    "tol_kkt": 1e-6,         # max |gradient of the Lagrangian|, relative to max(1, |grad R|)
+    "tol_kkt": 1e-6,         # relative distance from a KKT point: sqrt(Newton decrement / max(1, |R|))
     "tol_step": 1e-10,       # relative step length counted as "no progress"
     "quadrature": 4,         # Gauss-Legendre points per knot span for objective integrals
     "merit": 1.0,            # least weight of constraint violation in the line-search merit
@@ -30,6 +30,7 @@ DEFAULT_SETTINGS: dict[str, float] = {
     "dense_tol": 1e-6,       # max violation between instances (the continuous-time check)
     "adaptive": 1.0,         # 1: add instances where the continuous-time check fails, and re-solve
     "adaptive_rounds": 4,    # at most this many re-solves per `iterate`
+    "adaptive_points": 2000,  # adaptive refinement inserts knots while the scene has at most this many control points
     "preview": 0.0,          # 1: a solve's result is a proposal to `accept` or `reject` (preview.py)
 }
 

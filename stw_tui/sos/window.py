@@ -771,6 +771,20 @@ class WindowProblem:
             out[group.source] = max(out.get(group.source, 0.0), float(v.max(initial=0.0)))
         return out
 
+    def equality_freedom(self, sources=None) -> tuple[int, int]:
+        """(equality instances, free control points they move): of the constraints named in
+        ``sources`` (None: the whole window). More instances than control points over-determine
+        the curves: refining them (more knots) gives the freedom back."""
+        rows, columns = 0, []
+        for group in self.groups:
+            if group.kind != EQ or (sources is not None and group.source not in sources):
+                continue
+            rows += group.n
+            block = self.Pf[group.slot_offset:group.slot_offset + group.term.k * group.n]
+            columns.append(np.asarray(block.indices))
+        moved = np.unique(np.concatenate(columns)).size if columns else 0
+        return rows, (self.n_free if sources is None else moved)
+
     def summary(self) -> str:
         """One line saying the window's size: free control points, instances, quadrature points."""
         return (f"window '{self.window.name}': {self.n_free} free control points, "

@@ -24,7 +24,14 @@ from stw_tui.sos.sqp.algebra import LinearAlgebra, Matrix
 # Newton's steps into a linear crawl (60 steps, KKT 8e-4, against 13 steps to convergence).
 # Rounding limits how far it can go: 1e8 still sees curvature above ~1e-8 of H's scale.
 CURVATURE_PENALTY = 1e8
-SHIFT_FIRST, SHIFT_MAX = 1e-10, 1e-1   # first and largest shift δI tried; each try is 10x the last ...
+# The first shift tried is near the rounding floor of a Cholesky test on H's scale (a shift below
+# ~n·ε_mach·max H_ii is not seen): the curvature that needs a shift can be that small. On a curve
+# of span width h the smooth motions, the ones the objective's low-order terms (g·sin th, λ·∇²c)
+# make indefinite, have curvature ~h of the mass matrix, against max H_ii ~ 1/h³ of an objective
+# on second derivatives: 1e-11 of it at 1280 spans, 5e-14 at 5120. A first shift of 1e-10·max H_ii
+# was then 10 to 2000 times the least one, and the step along those motions a crawl (the
+# pendulum swing-up: 20 iterations at 1280 spans, the iteration limit at 5120; now 11 and 6).
+SHIFT_FIRST, SHIFT_MAX = 1e-14, 1e-1   # first and largest shift δI tried; each try is 10x the last ...
 SHIFT_BISECTIONS = 3      # ... then geometric bisections bring it within a factor 10^(1/8) of the least
 
 

@@ -296,7 +296,7 @@ class SQPBackend(Backend):
         new_ev = ev if stalled else trial.values if trial.whole else inner.evaluator.evaluate(s_new)
         ms["evaluate"] = _lap(clock)
 
-        kkt = kkt_residual(new_ev, lam_eq, lam_ge)
+        kkt = kkt_residual(new_ev, lam_eq, lam_ge, self._newton(la, ev, lin, sub))
         violation = new_ev.max_violation()
         step_norm = alpha * float(np.abs(d).max(initial=0.0))
         tiny_step = step_norm <= settings["tol_step"] * (1.0 + float(np.abs(s_new).max(initial=0.0)))
@@ -312,7 +312,7 @@ class SQPBackend(Backend):
             else:
                 infeasible = True
                 conflicts = self._conflicts(problem, la, ev, lin)
-                message = _conflict_message(conflicts, violation)
+                message = _conflict_message(conflicts, violation, problem)
         radius = self._update_radius(radius, trial, d, floor, ceiling)
         # Full steps: trust the model more; cut or capped steps: less — a heavier proximal term
         # shortens the next QP step itself (Levenberg-Marquardt), which scaling a step does not.
@@ -632,6 +632,33 @@ class SQPBackend(Backend):
         return max(rise, 0.0) / (0.5 * viol)
 
     @staticmethod
+    def _newton(la, ev, lin: _Linearization, sub: _Subproblem):
+        """The Newton step of the KKT residual test (termination.kkt_residual) at the point this
+        step reached, solved with this step's own model: the system its QP factorized where
+        there is one (equality rows only: one more back-substitution), else [[H, Aᵀ], [A, -ε]]
+        over the rows that bound (one more factorization, as the second-order correction's).
+        Deuflhard's simplified Newton correction: the derivative of the last step, the residual
+        of the new point. None (no test this step) when that system is singular."""
+        n = ev.s.size
+        ge_rows = np.flatnonzero(sub.working)
+        if ge_rows.size == 0 and sub.qp.system is not None:
+            system, m = sub.qp.system, lin.eq_rows.size
+        else:
+            A = la.stack_rows([lin.Ae, la.rows(la.jacobian(ev, "ge"), ge_rows)])
+            m = lin.eq_rows.size + ge_rows.size
+            try:
+                system = la.kkt(sub.H, A, KKT_EPS)
+            except SingularSystem:
+                return lambda r: None
+
+        def solve(r: np.ndarray):
+            try:
+                return la.numpy(system.solve(la.concat([la.vector(-r), la.zeros(m)])))[:n]
+            except SingularSystem:
+                return None
+        return solve
+
+    @staticmethod
     def _second_order_correction(la, ev, lin: _Linearization, sub: _Subproblem, d, trial):
         """The minimum-change step that fixes the binding rows' values at the trial point."""
         ge_rows = np.flatnonzero(sub.working)
@@ -689,7 +716,10 @@ def _no_progress(ev, new_ev, lin: _Linearization, sub: _Subproblem) -> bool:
     return min(_l1(sub.lin_eq, sub.lin_ge), reached) >= (1.0 - STATIONARY_VIOLATION) * now
 
 
-def _conflict_message(conflicts: tuple[str, ...], violation: float) -> str:
+def _conflict_message(conflicts: tuple[str, ...], violation: float, problem=None) -> str:
+    over = _over_determined(conflicts, problem)
+    if over:
+        return over
     if not conflicts:
         return f"the constraints cannot all be met here (violation {violation:.3g} left)"
     if len(conflicts) == 1:
@@ -701,6 +731,25 @@ def _conflict_message(conflicts: tuple[str, ...], violation: float) -> str:
     names = ", ".join(conflicts[:-1]) + " and " + conflicts[-1]
     return (f"constraints {names} conflict: no motion meets them all "
             f"(least violation {violation:.3g} left)")
+
+
+def _over_determined(conflicts: tuple[str, ...], problem) -> str:
+    """The plain reason when the rows outnumber the unknowns: the window's equality instances
+    against its free control points, or those of the constraints in conflict against the free
+    control points they move (empty when neither is over-determined)."""
+    counter = getattr(problem, "equality_freedom", None)
+    if counter is None:
+        return ""
+    asks = [(None, "the window has")]
+    if conflicts:
+        asks.append((conflicts, f"{', '.join(conflicts)} impose{'s' if len(conflicts) == 1 else ''}"))
+    for sources, who in asks:
+        rows, free = counter(sources)
+        if rows > free:
+            return (f"{who} {rows} equality instances on only {free} free control points: more "
+                    "equations than the curves have freedom to meet — `refine` the DOF they read "
+                    "(more knots), or give the constraints fewer samples")
+    return ""
 
 
 def _newton_backoff(st: SolverState, exact_refused: bool | None) -> tuple[int, int]:

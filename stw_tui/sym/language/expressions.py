@@ -341,7 +341,10 @@ class ExpressionParser:
     def _unknown(self, token: Token) -> SourceError:
         names = [n for n in getattr(self.scope, "names", lambda: [])() if self.scope.kind_of(n) in self.allowed]
         candidates = names + list(FUNCTIONS) + ["pi"] + (["t"] if self.time_allowed else [])
-        close = difflib.get_close_matches(token.text, candidates, n=3)
+        # compared without case too: joints are named in capitals (tau_shoulder is tau_SHOULDER)
+        lowered = {c.lower(): c for c in candidates}
+        close = list(dict.fromkeys(difflib.get_close_matches(token.text, candidates, n=3) + [
+            lowered[c] for c in difflib.get_close_matches(token.text.lower(), list(lowered), n=3)]))[:3]
         hint = f" (did you mean {', '.join(repr(c) for c in close)}?)" if close else ""
         what = "a DOF, constant, subexpression or function" if self.allowed == frozenset(NameKind) \
             else self._allowed_text() + " or a function"

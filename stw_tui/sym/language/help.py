@@ -121,8 +121,10 @@ COMMAND_HELP: dict[str, CommandHelp] = {
     "set": CommandHelp("set OPTION VALUE",
                        "Settings: tol_violation, tol_kkt, tol_step, quadrature (points per span), merit "
                        "(least violation weight), frame (player time), samples, dense_tol (largest "
-                       "violation allowed between instances), adaptive on|off (add instances where "
-                       "the continuous-time check fails, and re-solve), adaptive_rounds. "
+                       "violation allowed between instances), adaptive on|off (where the continuous-time "
+                       "check fails, refine the curves there and add instances, and re-solve), "
+                       "adaptive_rounds (re-solves per `iterate`), adaptive_points (the scene's "
+                       "control points that refinement may reach; default 2000). "
                        "`set limit NAME N` changes a limit (`help limits` lists them); "
                        "`set scheduler tcp://HOST:PORT` sends surveys to a Dask cluster (`set scheduler batch`: "
                        "solves their starts as one batch on the torch backend).",
@@ -130,8 +132,10 @@ COMMAND_HELP: dict[str, CommandHelp] = {
     "iterate": CommandHelp("iterate [N] [adapt=R]",
                            "Run up to N SQP iterations on the current window (stops early on convergence). "
                            "Then every constraint is checked densely over the whole animation; with "
-                           "`set adaptive on` (the default) instances are added where it fails and the "
-                           "window re-solved, at most R times (default: adaptive_rounds).",
+                           "`set adaptive on` (the default) the curves are refined (knots inserted in the DOF "
+                           "the failing constraint reads) and instances added where it fails, and the "
+                           "window re-solved from where it ended, at most R times (default: "
+                           "adaptive_rounds) and up to adaptive_points control points.",
                            "iterate 20"),
     "instances": CommandHelp("instances NAME add T[, T…] | instances NAME clear",
                              "Add constraint instances at times T (NAME is a constraint, or DOF.bounds "
