@@ -39,10 +39,11 @@ def test_completion_of_commands_names_settings_and_backends(jet):
 def test_completion_offers_verb_groups_once():
     s = Session()
     s.run_text("time 0 1 knots=8\nconst g = 9.81\nlinkage hop base=tx:X,ty:Y\n  LEG revolute a=1 mass=1\n"
-               "end\ncontact hop.tip on ground on [0, 0.5]\nflight hop on [0.5, 1]\n")
-    # tip_contact's parts have other names; hop_flight is both a group and its one part.
-    assert candidates("delete tip_", s.scene)[1] == ["tip_contact", "tip_planted", "tip_push"]
-    assert candidates("delete hop_", s.scene)[1] == ["hop_flight"]
+               "end\ncontact hop.LEG on ground on [0, 0.5] x=0\nflight hop on [0.5, 1]\n")
+    # LEG_contact's parts have other names; hop_flight is both a group and one of its parts.
+    assert candidates("delete LEG_", s.scene)[1] == ["LEG_contact", "LEG_friction", "LEG_liftoff", "LEG_pressure",
+                                                     "LEG_push"]
+    assert candidates("delete hop_", s.scene)[1] == ["hop_flight", "hop_spin"]
 
 
 @pytest.fixture

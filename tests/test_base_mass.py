@@ -229,7 +229,8 @@ def test_flight_leaves_the_first_joint_to_push_on_a_base_with_inertia():
         s = Session()
         s.run_text(f"time 0 1 knots=8\nconst g = 9.81\n{TORSO.format(body=body).strip()}\n"
                    "flight torso on [0.2, 0.6]\n")
-        return [sp.sstr(r.expr) for r in s.scene.constraints["torso_flight"].relations]
+        c = s.scene.constraints
+        return [sp.sstr(r.expr) for n in ("torso_flight", "torso_spin") if n in c for r in c[n].relations]
 
     assert flight_of("base_mass=4.5") == ["tau_X", "tau_Y", "tau_R", "tau_HIP"]
     assert flight_of("base_mass=4.5 base_inertia=0.35") == ["tau_X", "tau_Y", "tau_R"]

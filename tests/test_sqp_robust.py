@@ -8,6 +8,7 @@ the objective-growth bound (``growth``) is an option.
 
 import sys
 from dataclasses import replace
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -786,10 +787,12 @@ def _uniform_merit_weights(monkeypatch):
 
 
 def _acrobat_solves(knots: int = 1, solves: int = 4, prefix: str = "") -> Session:
-    """acrobat.stw (with ``knots`` x its knots and samples) up to its ``solves``-th iterate."""
+    """acrobat.stw as these tests measured it (tests/data/acrobat_by_constraints.stw: its foot
+    planted by constraints at instances), with ``knots`` x its knots and samples, up to its
+    ``solves``-th iterate."""
     import re
 
-    text = (SESSIONS / "acrobat.stw").read_text()
+    text = (Path(__file__).parent / "data" / "acrobat_by_constraints.stw").read_text()
     text = re.sub(r"(knots|samples)=(\d+)", lambda m: f"{m.group(1)}={int(m.group(2)) * knots}", text)
     lines = text.splitlines()
     iterates = [i for i, line in enumerate(lines) if line.startswith("iterate")]

@@ -162,13 +162,14 @@ def test_a_part_of_a_verb_is_neither_deleted_nor_redefined_alone(line, message):
 
 
 def test_a_verb_group_name_that_is_no_part_is_not_taken_by_anything_else():
-    s = run_lines(Session(), ACRO + "contact acro.FOOT on ground on [0, 0.5]\n")
+    s = run_lines(Session(), ACRO + "contact acro.FOOT on ground on [0, 0.5] x=0\n")
     assert "FOOT_contact" in s.scene.verbs and "FOOT_contact" not in s.scene.constraints
     for line in ("constraint FOOT_contact: CX = 0 @ 0", "let FOOT_contact = CX", "window FOOT_contact dofs=CX"):
         with pytest.raises(StwError, match="'FOOT_contact' names the verb `contact acro.FOOT on ground"):
             s.execute(line)
-    assert s.execute("delete FOOT_contact").message == "deleted FOOT_contact (FOOT_planted, FOOT_push)"
-    assert not s.scene.verbs and not s.scene.constraints
+    assert s.execute("delete FOOT_contact").message == ("deleted FOOT_contact (FOOT_liftoff, FOOT_push, "
+                                                         "FOOT_friction, FOOT_pressure)")
+    assert not s.scene.verbs and not s.scene.constraints and not s.scene.attachments
 
 
 @pytest.mark.parametrize("line, message", [
@@ -251,45 +252,45 @@ end
 
 
 def test_contact_and_flight_expand_into_named_constraints_grouped_under_the_verb():
-    s = run_lines(Session(), ACRO + "contact acro.FOOT on ground y=0.1 on [0, 0.5] friction=0.8 x=0\n"
-                  "flight acro on [0.5, 1]\ncontact acro.FOOT on ground on [1, 1.5]\n")
+    s = run_lines(Session(), ACRO + "contact acro.FOOT on ground y=0.1 on [0.5, 1] friction=0.8 x=0 "
+                  "support=[-0.1, 0.2]\nflight acro on [0, 0.5]\nflight acro on [1, 1.5] dense_tol=0.5\n")
     c = s.scene.constraints
-    assert s.scene.verbs["FOOT_contact"][1] == ("FOOT_planted", "FOOT_push", "FOOT_friction")
-    assert [r.kind for r in c["FOOT_planted"].relations] == ["eq", "eq"]
+    assert s.scene.verbs["FOOT_contact"][1] == ("FOOT_touchdown", "FOOT_liftoff", "FOOT_push", "FOOT_friction",
+                                                "FOOT_pressure")
+    # The foot is planted by construction: over the stance the centre of mass hangs from (0, 0.1).
+    parts = s.scene.attachments["FOOT_contact"]
+    assert [(p.target, p.a, p.b, p.closed_a, p.closed_b) for p in parts] == [("CX", 0.5, 1.0, False, False),
+                                                                             ("CY", 0.5, 1.0, False, False)]
+    # The flights' own curves meet it at rest at the touchdown and the lift-off.
+    for name, t in (("FOOT_touchdown", 0.5), ("FOOT_liftoff", 1.0)):
+        assert c[name].text.endswith(f"acro.FOOT.x = 0.0, acro.FOOT.y = 0.1, acro.FOOT.x' = 0, acro.FOOT.y' = 0 @ {t}")
     assert [r.kind for r in c["FOOT_push"].relations] == ["ge"]
-    assert len(c["FOOT_friction"].relations) == 2            # both sides of the cone
-    # The foot (the FOOT joint's origin) stays at height 0.1 and x = 0 on the interval.
-    assert "acro.FOOT.y = 0.1, acro.FOOT.x = 0.0 on [0.0, 0.5]" in c["FOOT_planted"].text
-    assert c["FOOT_planted"].interval == (0.0, 0.5)
-    # In the air: the base forces and the torque hanging the first (massive) link on the base.
-    assert s.scene.verbs["acro_flight"][1] == ("acro_flight",)
-    assert len(c["acro_flight"].relations) == 3
-    # Without x=, the second contact keeps the foot still wherever it lands; no friction cone.
-    assert s.scene.verbs["FOOT_contact2"][1] == ("FOOT_planted2", "FOOT_push2")
-    assert "acro.FOOT.x' = 0" in c["FOOT_planted2"].text
+    assert len(c["FOOT_friction"].relations) == 2 and len(c["FOOT_pressure"].relations) == 2
+    # The nonlinear relations hold to 1% of the body's weight (2 kg: 0.1962 N), and the centre of
+    # pressure's moment to 1% of weight x size (1 m): physical units, not metres of slide.
+    assert c["FOOT_push"].dense_tol == c["FOOT_friction"].dense_tol == pytest.approx(0.1962)
+    assert c["FOOT_pressure"].dense_tol == pytest.approx(0.1962)
+    # In the air: the base forces (exact with com=) and the torque hanging the first massive link.
+    assert s.scene.verbs["acro_flight"][1] == ("acro_flight", "acro_spin")
+    assert c["acro_flight"].dense_tol is None and len(c["acro_flight"].relations) == 2
+    assert c["acro_spin"].dense_tol == pytest.approx(0.1962) and c["acro_spin2"].dense_tol == 0.5
     s.execute("delete FOOT_contact")
-    assert not {"FOOT_planted", "FOOT_push", "FOOT_friction"} & set(s.scene.constraints)
-    assert "FOOT_planted2" in s.scene.constraints
+    assert not {"FOOT_liftoff", "FOOT_push", "FOOT_friction"} & set(s.scene.constraints)
+    assert not s.scene.attachments and "acro_spin2" in s.scene.constraints
 
 
-def test_contact_and_flight_state_their_own_dense_tolerance_on_their_nonlinear_parts():
-    # With a com base the planted foot and the flight torque are trigonometry of the joints (they
-    # hold at their instances only); dense_tol= is their stated tolerance. The push and the
-    # friction cone are linear and keep the scene's.
-    s = run_lines(Session(), ACRO + "contact acro.FOOT on ground on [0, 0.5] friction=0.8 x=0 dense_tol=0.01\n"
-                  "flight acro on [0.5, 1] dense_tol=0.5\n")
-    c = s.scene.constraints
-    assert c["FOOT_planted"].dense_tol == 0.01 and c["acro_flight"].dense_tol == 0.5
-    assert c["FOOT_push"].dense_tol is None and c["FOOT_friction"].dense_tol is None
-    assert "dense_tol=0.01" in c["FOOT_planted"].text
-    assert s.scene.verbs["FOOT_contact"][0].endswith("dense_tol=0.01")    # the journal keeps the verb
-    for bad, why in (("flight acro on [0.5, 1] dense_tol=-1", "dense_tol must be > 0"),
-                     ("contact acro.FOOT on ground on [1, 1.5] dense_tol=0", "dense_tol must be > 0"),
-                     ("contact acro.FOOT on ground on [0, 0.5] dense_tol=x", "unknown name 'x'")):
-        before = set(s.scene.constraints)
+def test_contact_states_where_the_point_is_planted_and_one_stance_at_a_time():
+    s = run_lines(Session(), ACRO + "contact acro.FOOT on ground on [0, 0.5] x=0\n")
+    before = (set(s.scene.constraints), dict(s.scene.verbs))
+    for bad, why in (("contact acro.FOOT on ground on [0.6, 1]", "x=X0 says where acro.FOOT is planted"),
+                     ("contact acro.FOOT on ground on [0.4, 1] x=1", "already planted on \\[0, 0.5\\]"),
+                     ("contact acro.FOOT on ground on [0.6, 1] x=1 support=[0.2, 0.1]", "support \\[0.2, 0.1\\] is empty"),
+                     ("contact acro.WAIST on ground on [0.6, 1] x=1", "plant acro.FOOT, the first joint"),
+                     ("contact acro.FOOT on ground on [0.6, 1] x=1 dense_tol=0", "dense_tol must be > 0"),
+                     ("flight acro on [0.5, 1] dense_tol=-1", "dense_tol must be > 0")):
         with pytest.raises(StwError, match=why):
             s.execute(bad)
-        assert set(s.scene.constraints) == before
+        assert (set(s.scene.constraints), dict(s.scene.verbs)) == before
 
 
 def _values(scene, expr_text, times):
@@ -299,37 +300,46 @@ def _values(scene, expr_text, times):
     return expression_values(scene, parse_command(f"print {expr_text}", SceneScope(scene)).expr, times)
 
 
-def test_contact_and_flight_relations_are_the_ground_force_and_free_fall_of_the_centre_of_mass():
-    # Independent of the linkage's derivation: two uniform rods of mass 1 (total 2), so the
-    # ground's force on the free base is 2 (C'' + g y) (Newton for the whole body), whatever the
-    # joints do; and the planted foot sits 0.375 and 0.125 along the links below the centre of mass.
+def test_a_planted_point_holds_by_construction_and_its_force_is_newton_for_the_whole_body():
+    # Independent of the linkage's derivation: two uniform rods of mass 1 (total 2) put the centre
+    # of mass 0.375 and 0.125 along the links from the foot. In the stance the centre of mass hangs
+    # from the planted foot, so the ground's force is 2 (C'' + g y) of that hanging centre of mass,
+    # whatever the centre of mass's own curve does; the foot stays exactly where it was planted.
     s = run_lines(Session(), ACRO + """dof FOOT = 1 + 2*t^2
 dof WAIST = 0.5*sin(3*t)
 dof CX = 0.3 + t - t^3
 dof CY = 0.5 + 2*t - 4.9*t^2
-contact acro.FOOT on ground on [0, 0.5] friction=0.8 x=0.25
+contact acro.FOOT on ground on [0, 0.5] friction=0.8 x=0.25 support=[-0.1, 0.1]
 flight acro on [0.5, 1]
 """)
     sc = s.scene
-    times = np.linspace(0.01, 0.49, 9)
-    cx, cy = (sc.dofs[n].curve.evaluate(times, 2) for n in ("CX", "CY"))
-    f = sc.dofs["FOOT"].curve.evaluate(times)
-    w = f + sc.dofs["WAIST"].curve.evaluate(times)
-    planted, push, friction = (sc.constraints[n] for n in ("FOOT_planted", "FOOT_push", "FOOT_friction"))
+    t = np.linspace(0.01, 0.49, 9)
+    f, df, ddf = (sc.dofs["FOOT"].curve.evaluate(t, k) for k in range(3))
+    w, dw, ddw = (a + b for a, b in zip((f, df, ddf), (sc.dofs["WAIST"].curve.evaluate(t, k) for k in range(3))))
+    # C = foot + 0.375 u(f) + 0.125 u(w), u = (cos, sin): its second derivative, by hand
+    cxx = -0.375 * (np.cos(f) * df ** 2 + np.sin(f) * ddf) - 0.125 * (np.cos(w) * dw ** 2 + np.sin(w) * ddw)
+    cyy = -0.375 * (np.sin(f) * df ** 2 - np.cos(f) * ddf) - 0.125 * (np.sin(w) * dw ** 2 - np.cos(w) * ddw)
+    push, friction = (sc.constraints[n] for n in ("FOOT_push", "FOOT_friction"))
+    from stw_tui.sos.attachments import restrict
     from stw_tui.sos.continuous import expression_values
-    np.testing.assert_allclose(expression_values(sc, push.relations[0].expr, times), 2 * (cy + 9.81), atol=1e-9)
-    np.testing.assert_allclose(expression_values(sc, friction.relations[0].expr, times),
-                               0.8 * 2 * (cy + 9.81) - 2 * cx, atol=1e-9)
-    foot_x = sc.dofs["CX"].curve.evaluate(times) - 0.375 * np.cos(f) - 0.125 * np.cos(w)
-    np.testing.assert_allclose(expression_values(sc, planted.relations[1].expr, times), foot_x - 0.25, atol=1e-12)
+    from stw_tui.sym.symbols import named_symbol
+    on = lambda e: restrict(sc.expand(e), 0.0, 0.5)
+    for point, value in (("acro.FOOT.x", 0.25), ("acro.FOOT.y", 0.0), ("acro.FOOT.x'", 0.0), ("acro.FOOT.y'", 0.0)):
+        np.testing.assert_allclose(expression_values(sc, on(named_symbol(point)), t), value, atol=1e-12)
+    np.testing.assert_allclose(expression_values(sc, on(push.relations[0].expr), t), 2 * (cyy + 9.81), atol=1e-9)
+    np.testing.assert_allclose(expression_values(sc, on(friction.relations[0].expr), t),
+                               0.8 * 2 * (cyy + 9.81) - 2 * cxx, atol=1e-9)
+    # In the air the centre of mass's own curve: force-free means C'' = -g y.
+    t = np.linspace(0.51, 0.99, 9)
     flight = sc.constraints["acro_flight"].relations
-    np.testing.assert_allclose(expression_values(sc, flight[0].expr, times), 2 * cx, atol=1e-9)
+    np.testing.assert_allclose(expression_values(sc, flight[0].expr, t), 2 * sc.dofs["CX"].curve.evaluate(t, 2),
+                               atol=1e-9)
 
 
 @pytest.mark.parametrize("line, message", [
     ("contact arm.tip on ground on [0, 0.5]", "fixed base"),
     ("contact acro.KNEE on ground on [0, 0.5]", "not a point of linkage acro"),
-    ("contact acro.FOOT on ground on [0, 0.5] friction=-1", "must be at least 0"),
+    ("contact acro.FOOT on ground on [0, 0.5] friction=-1 x=0", "must be at least 0"),
     ("contact acro.FOOT on floor on [0, 0.5]", "expected 'ground'"),
     ("contact acro.FOOT on ground [0, 0.5]", "expected 'on \\[A, B\\]'"),
     ("flight arm on [0, 0.5]", "fixed base"),
@@ -354,8 +364,9 @@ linkage hopper base=tx:X,ty:Y
 end
 flight hopper on [0.2, 0.6]
 """)
-    names = [str(r.expr) for r in s.scene.constraints["hopper_flight"].relations]
-    assert len(names) == 4 and "tau_ARM" not in " ".join(names)
+    c = s.scene.constraints
+    assert [str(r.expr) for r in c["hopper_flight"].relations] == ["tau_X", "tau_Y"]
+    assert [str(r.expr) for r in c["hopper_spin"].relations] == ["tau_HIP", "tau_LEG"]
 
 
 def test_contact_and_flight_remain_usable_as_constraint_names():
@@ -366,8 +377,9 @@ def test_contact_and_flight_remain_usable_as_constraint_names():
 @pytest.mark.parametrize("verb, made, deleted_by", [
     ("hold", {"B_held": ("B_released",)}, "`delete P_held`"),
     ("ballistic", {"B_flight": ("B_flight",)}, "`delete P_flight`"),
-    ("contact", {"FOOT_contact": ("FOOT_planted", "FOOT_push", "FOOT_friction")}, "`delete POINT_contact`"),
-    ("flight", {"acro_flight": ("acro_flight",)}, "`delete LINKAGE_flight`"),
+    ("contact", {"FOOT_contact": ("FOOT_liftoff", "FOOT_push", "FOOT_friction", "FOOT_pressure")},
+     "`delete POINT_contact`"),
+    ("flight", {"acro_flight": ("acro_flight", "acro_spin")}, "`delete LINKAGE_flight`"),
     ("limit", {}, "no group"),
 ])
 def test_help_documents_every_verb_with_an_example_that_runs(verb, made, deleted_by):

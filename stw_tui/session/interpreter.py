@@ -735,9 +735,11 @@ def _verb(scene: Scene, cmd) -> str:
         if cmd.weight is not None:    # sessions written when a tracking objective carried it
             note = " (weight= is not used: the object is the holding point while held)"
     elif isinstance(cmd, lang.ContactCmd):
-        group, lines = verbs.contact_lines(scene, cmd.point, _option(scene, cmd.height, "ground height") or 0.0,
-                                           a, b, _option(scene, cmd.friction, "friction coefficient"),
-                                           _option(scene, cmd.x, "x"), _option(scene, cmd.dense_tol, "dense_tol"))
+        support = None if cmd.support is None else tuple(_option(scene, v, "support") for v in cmd.support)
+        group, lines, parts = verbs.contact_lines(
+            scene, cmd.point, _option(scene, cmd.height, "ground height") or 0.0, a, b,
+            _option(scene, cmd.friction, "friction coefficient"), _option(scene, cmd.x, "x"),
+            _option(scene, cmd.dense_tol, "dense_tol"), support)
     elif isinstance(cmd, lang.FlightCmd):
         group, lines = verbs.flight_lines(scene, cmd.linkage, a, b, _option(scene, cmd.dense_tol, "dense_tol"))
     else:
@@ -750,7 +752,7 @@ def _verb(scene: Scene, cmd) -> str:
     scene.verbs[group] = (cmd.text, tuple(members))
     if parts:
         scene.attachments[group] = parts
-        lines = [f"{p.target} is {p.expr} on [{p.a:g}, {p.b:g}]" for p in parts if not p.adds] + lines
+        lines = [f"{p.target} is {sp.sstr(p.expr)} on [{p.a:g}, {p.b:g}]" for p in parts if not p.adds] + lines
         if any(p.adds for p in parts):
             lines.append(f"its mass loads {', '.join(p.target for p in parts if p.adds)}")
     return f"{lang.classify_line(cmd.text).verb} {group}: " + "; ".join(lines) + note

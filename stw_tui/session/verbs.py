@@ -11,15 +11,21 @@ whole, and no part of it is deleted or redefined alone (:func:`owned_by_verb`).
   samples: the point is trigonometry of the joint curves, P a cubic spline.)
 - ``ballistic P on [A, B]``: free flight under g along -y: PX'' = 0, PY'' + g = 0 (PZ'' = 0),
   linear in the DOF, so it holds exactly everywhere on [A, B].
-- ``contact acro.FOOT on ground [y=H] on [A, B] [friction=MU] [x=X0]``: the point stays on the
-  ground, planted (at X0, or wherever it lands), and the ground only pushes. The ground's force
-  on a creature with a free base is the generalized force of the base's translations (tau_X,
-  tau_Y): whatever else acts inside, only external forces move the base. So the push is
-  ``tau_Y >= 0`` and the friction cone ``MU*tau_Y >= |tau_X|``. With ``com=CX,CY`` those are
-  linear in the DOF (M (CY'' + g)) and hold exactly between the samples.
+- ``contact acro.FOOT on ground [y=H] on [A, B] x=X0 [friction=MU] [support=[L, R]]``: the point
+  is planted at (X0, H) by construction: over the stance the base DOF (CX, CY with ``com=``) are
+  attached to where the point stays, so the creature hangs from it (stw_tui.sos.attachments), and
+  the point cannot slide, sink or move. Their own curves (the flight's) meet it at rest at the
+  touchdown and the lift-off. The ground's force on a creature with a free base is the
+  generalized force of the base's translations (tau_X, tau_Y): whatever else acts inside, only
+  external forces move the base. So the push is ``tau_Y >= 0``, the friction cone
+  ``MU*tau_Y >= |tau_X|`` (MU = 1 by default) and the centre of pressure ``L*tau_Y <= tau_FOOT <=
+  R*tau_Y`` (a point foot by default: no moment). They hold at instances, and between them to 1%
+  of the creature's weight (and weight x size for the moment), or to dense_tol=D.
 - ``flight acro on [A, B]``: nothing outside acts on the creature: the generalized forces of its
-  base DOF vanish, and so do the torques of the joints that hang the first massive link on the
-  base, which has nothing to push against in the air (unless it has an inertia, base_inertia=).
+  base DOF vanish (``acro_flight``; linear and exact with ``com=``), and so do the torques of the
+  joints that hang the first massive link on the base, which has nothing to push against in the
+  air unless it has an inertia, base_inertia= (``acro_spin``: to 1% of weight x size between
+  instances, or dense_tol=D).
 """
 
 from __future__ import annotations
@@ -83,7 +89,7 @@ def _t(value: float) -> str:
 
 def _tol(dense_tol: float | None) -> str:
     """A generated constraint's own continuous-time tolerance, as its line states it."""
-    return f" dense_tol={float(dense_tol)!r}" if dense_tol is not None else ""
+    return f" dense_tol={float(dense_tol):.6g}" if dense_tol is not None else ""
 
 
 def hold_lines(scene, point: str, at: str, a: float, b: float,
@@ -168,10 +174,29 @@ def _free_linkage(scene, name: str, what: str):
     return spec
 
 
+def physical_scale(scene, spec) -> tuple[float, float]:
+    """(weight in N, size in m) of a creature: what its default tolerances are fractions of (1% of
+    its weight for forces, 1% of weight x size for moments). The size is its reach, the sum of
+    its links' lengths and offsets."""
+    mass = sum(j.mass for j in spec.joints) + spec.base_mass
+    size = sum(abs(j.a) + abs(j.d) for j in spec.joints) or 1.0
+    return mass * float(scene.constants.get("g", 9.81)), size
+
+
 def contact_lines(scene, point: str, height: float, a: float, b: float,
-                  friction: float | None, x: float | None,
-                  dense_tol: float | None = None) -> tuple[str, list[str]]:
-    """(group name, command lines) of ``contact``."""
+                  friction: float | None, x: float | None, dense_tol: float | None = None,
+                  support: tuple[float, float] | None = None
+                  ) -> tuple[str, list[str], tuple]:
+    """(group name, command lines, attachments) of ``contact``: the point is planted by
+    construction (the creature hangs from it: its base is attached to where the point stays),
+    it meets the ground at rest and leaves it at rest (its own curves match position and
+    velocity at the switches), and the ground only pushes, within the friction cone, with its
+    centre of pressure on the support."""
+    import sympy as sp
+
+    from stw_tui.sos.attachments import Attachment, all_attachments
+    from stw_tui.sym.symbols import dof_symbol, named_symbol
+
     spec = _free_linkage(scene, point.split(".")[0], "a contact with the ground")
     if f"{point}.y" not in scene.derived:
         points = sorted({n.rsplit(".", 1)[0] for n in scene.derived if n.startswith(spec.name + ".")})
@@ -183,34 +208,88 @@ def contact_lines(scene, point: str, height: float, a: float, b: float,
     if "ty" not in axes:
         raise StwError(f"the ground pushes linkage {spec.name} up through a base translation along y, "
                        f"and it has none: give it one, e.g. `base=tx:X,ty:Y`")
-    if friction is not None and not friction >= 0:
+    if "tz" in axes:
+        raise StwError(f"contact plants a point of a planar creature; linkage {spec.name} moves along z")
+    if "tx" in axes and x is None:
+        raise StwError(f"x=X0 says where {point} is planted: give it, e.g. `x=0` (it is planted "
+                       f"there exactly, the creature hanging from it)")
+    friction = 1.0 if friction is None else friction
+    if not friction >= 0:
         raise StwError(f"friction coefficient {friction:g} must be at least 0")
-    tangential = [(ax, axes[f"t{ax}"]) for ax in "xz" if f"t{ax}" in axes]
-    if x is not None and "tx" not in axes:
-        raise StwError(f"x= plants the point along x, and linkage {spec.name} cannot move along x")
+    for dense in (dense_tol,):
+        if dense is not None and not dense > 0:
+            raise StwError("dense_tol must be > 0")
+    for part in all_attachments(scene):
+        if part.target == axes["ty"] or part.target in spec.com:
+            if part.a < b and a < part.b:
+                raise StwError(f"linkage {spec.name} is already planted on [{part.a:g}, {part.b:g}], "
+                               f"which overlaps [{a:g}, {b:g}]")
+    weight, size = physical_scale(scene, spec)
+    force_tol = dense_tol if dense_tol is not None else 0.01 * weight
+    moment_tol = (dense_tol if dense_tol is not None else 0.01 * weight) * size
+    # The DOF that carry the base along x and y: the centroidal ones with com=, else the base's.
+    carriers = dict(zip([ax.axis for ax in spec.base], spec.com or [ax.dof for ax in spec.base]))
+    closed = {"closed_a": a <= scene.t0, "closed_b": b >= scene.t1}
+    where = {"tx": (x, f"{point}.x"), "ty": (height, f"{point}.y")}
+    parts = tuple(Attachment(carriers[ax], sp.Float(value) + dof_symbol(carriers[ax]) - named_symbol(coord), a, b,
+                             **closed) for ax, (value, coord) in where.items() if ax in axes)
     short = point.rsplit(".", 1)[-1]
     on = f"on [{_t(a)}, {_t(b)}]"
-    planted = [f"{point}.y = {height!r}"] + [
-        f"{point}.x = {x!r}" if ax == "x" and x is not None else f"{point}.{ax}' = 0" for ax, _ in tangential]
+    rest = ", ".join([f"{coord} = {value!r}" for ax, (value, coord) in where.items() if ax in axes]
+                     + [f"{coord}' = 0" for ax, (_, coord) in where.items() if ax in axes])
     normal = f"tau_{axes['ty']}"
-    lines = [f"constraint {fresh_name(scene, f'{short}_planted')}: {', '.join(planted)} {on}{_tol(dense_tol)}",
-             f"constraint {fresh_name(scene, f'{short}_push')}: {normal} >= 0 {on}"]
-    if friction is not None and tangential:
-        cone = ", ".join(f"{friction!r}*{normal} {sign} tau_{dof} >= 0" for _, dof in tangential for sign in "-+")
-        lines.append(f"constraint {fresh_name(scene, f'{short}_friction')}: {cone} {on}")
-    return fresh_name(scene, f"{short}_contact"), lines
+    lines = []
+    if a > scene.t0:
+        lines.append(f"constraint {fresh_name(scene, f'{short}_touchdown')}: {rest} @ {_t(a)}")
+    if b < scene.t1:
+        lines.append(f"constraint {fresh_name(scene, f'{short}_liftoff')}: {rest} @ {_t(b)}")
+    lines.append(f"constraint {fresh_name(scene, f'{short}_push')}: {normal} >= 0 {on}{_tol(force_tol)}")
+    if "tx" in axes:
+        tangent = f"tau_{axes['tx']}"
+        lines.append(f"constraint {fresh_name(scene, f'{short}_friction')}: {friction!r}*{normal} - {tangent} >= 0, "
+                     f"{friction!r}*{normal} + {tangent} >= 0 {on}{_tol(force_tol)}")
+    lines += _support_lines(scene, spec, point, short, normal, support or (0.0, 0.0), on, moment_tol)
+    return fresh_name(scene, f"{short}_contact"), lines, parts
+
+
+def _support_lines(scene, spec, point: str, short: str, normal: str, support, on: str, tol: float) -> list[str]:
+    """The centre of pressure on the sole [L, R] (along x, about the planted point): the ground's
+    moment about the point is c * Fy with c in [L, R]. That moment is what the joint at the
+    point passes on (the base has no mass to take any of it), so L*Fy <= tau_J <= R*Fy."""
+    lo, hi = support
+    if not lo <= hi:
+        raise StwError(f"support [{lo:g}, {hi:g}] is empty: its start must not be after its end")
+    first = spec.joints[0]
+    if point != f"{spec.name}.{first.name}" or first.kind != "revolute" or any(
+            ax.kind != "prismatic" for ax in spec.base):
+        raise StwError(f"the centre of pressure is bounded through the joint at the planted point: plant "
+                       f"{spec.name}.{first.name}, the first joint (a revolute one on a base of translations)")
+    ankle = f"tau_{first.name}"
+    return [f"constraint {fresh_name(scene, f'{short}_pressure')}: {ankle} - {lo!r}*{normal} >= 0, "
+            f"{hi!r}*{normal} - {ankle} >= 0 {on}{_tol(tol)}"]
 
 
 def flight_lines(scene, name: str, a: float, b: float, dense_tol: float | None = None) -> tuple[str, list[str]]:
-    """(group name, command lines) of ``flight``: the unactuated DOF's forces vanish on [A, B]."""
+    """(group name, command lines) of ``flight``: the unactuated DOF's forces vanish on [A, B].
+    The base forces are linear with ``com=`` (exact everywhere); the torques hanging the first
+    massive link on the massless base are not: they hold to 1% of weight x size between their
+    instances (or to dense_tol=D, in N m)."""
     spec = _free_linkage(scene, name, "flight")
-    free = [axis.dof for axis in spec.base]
+    weight, size = physical_scale(scene, spec)
+    base = [axis.dof for axis in spec.base]
+    hung = []
     # joints up to the first massive link hang on a base that can take no torque (a bare frame, or
     # a point mass); a base with an inertia of its own (base_inertia=) takes the first joint's
     for joint in spec.joints if not spec.base_inertia else ():
-        free.append(joint.name)
+        hung.append(joint.name)
         if joint.mass > 0:
             break
     group = fresh_name(scene, f"{name}_flight")
-    return group, [f"constraint {group}: {', '.join(f'tau_{d} = 0' for d in free)} on [{_t(a)}, {_t(b)}]"
-                   + _tol(dense_tol)]
+    on = f"on [{_t(a)}, {_t(b)}]"
+    force_tol = None if spec.com else 0.01 * weight
+    spin_tol = dense_tol if dense_tol is not None else 0.01 * weight * size
+    lines = [f"constraint {group}: {', '.join(f'tau_{d} = 0' for d in base)} {on}{_tol(force_tol)}"]
+    if hung:
+        lines.append(f"constraint {fresh_name(scene, f'{name}_spin')}: "
+                     f"{', '.join(f'tau_{d} = 0' for d in hung)} {on}{_tol(spin_tol)}")
+    return group, lines

@@ -230,15 +230,17 @@ class BallisticCmd:
 
 @dataclass(frozen=True)
 class ContactCmd:
-    """`contact POINT on ground [y=H] on [A, B] [friction=MU] [x=X0] [dense_tol=D]`: a point on the ground."""
+    """`contact POINT on ground [y=H] on [A, B] x=X0 [friction=MU] [support=[L, R]] [dense_tol=D]`:
+    a point planted on the ground."""
 
     point: str                      # a linkage point, e.g. acro.FOOT
     height: sp.Expr | None          # the ground's height (None: 0)
     interval: Interval
-    friction: sp.Expr | None        # Coulomb coefficient (None: no friction cone)
-    x: sp.Expr | None               # where the point is planted (None: wherever it lands)
+    friction: sp.Expr | None        # Coulomb coefficient (None: 1)
+    x: sp.Expr | None               # where the point is planted
     text: str = ""
-    dense_tol: sp.Expr | None = None   # the planted point's own continuous-time tolerance
+    dense_tol: sp.Expr | None = None   # the ground force's own continuous-time tolerance (N)
+    support: Interval | None = None    # the foot's sole along the ground, about the point (None: [0, 0])
 
 
 @dataclass(frozen=True)
@@ -391,7 +393,8 @@ class CommandParser(ExpressionParser):
             raise self.unexpected("end of line")
 
     def options(self, allowed: dict[str, str]) -> dict[str, object]:
-        """`key=value` options in any order; ``allowed`` maps key to "int", "seed" or "expr"."""
+        """`key=value` options in any order; ``allowed`` maps key to "int", "seed", "expr" or
+        "interval" (``[A, B]``)."""
         found: dict[str, object] = {}
         while self.token.kind == NAME and self.token.text in allowed:
             key = self.advance()
@@ -399,7 +402,7 @@ class CommandParser(ExpressionParser):
                 raise self.error(f"'{key.text}' given twice", key)
             self.expect_op("=", f"'=' after {key.text}")
             kind = allowed[key.text]
-            found[key.text] = self.number_expr() if kind == "expr" else \
+            found[key.text] = self.number_expr() if kind == "expr" else self.interval() if kind == "interval" else \
                 self.integer(f"a whole number for {key.text}", MAX_SEED if kind == "seed" else MAX_COUNT,
                              _COUNT_LIMITS.get(key.text) if kind == "int" else None)
         return found
@@ -687,7 +690,7 @@ class CommandParser(ExpressionParser):
         return BallisticCmd(point, self.interval(), self.text)
 
     def p_contact(self):
-        """`contact POINT on ground [y=H] on [A, B] [friction=MU] [x=X0] [dense_tol=D]`."""
+        """`contact POINT on ground [y=H] on [A, B] [x=X0] [friction=MU] [support=[L, R]] [dense_tol=D]`."""
         point = self.name("a linkage point such as acro.FOOT").text
         for word, expected in (("on", "'on ground'"), ("ground", "'ground' (the surface y = H)")):
             if not self.token.is_word(word):
@@ -698,9 +701,9 @@ class CommandParser(ExpressionParser):
             raise self.unexpected("'on [A, B]'")
         self.advance()
         interval = self.interval()
-        opts = self.options({"friction": "expr", "x": "expr", "dense_tol": "expr"})
+        opts = self.options({"friction": "expr", "x": "expr", "dense_tol": "expr", "support": "interval"})
         return ContactCmd(point, height, interval, opts.get("friction"), opts.get("x"), self.text,
-                          opts.get("dense_tol"))
+                          opts.get("dense_tol"), opts.get("support"))
 
     def p_flight(self):
         """`flight LINKAGE on [A, B] [dense_tol=D]`."""

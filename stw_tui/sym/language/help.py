@@ -72,22 +72,23 @@ COMMAND_HELP: dict[str, CommandHelp] = {
                              "PX'' = 0, PY'' + g = 0 (PZ'' = 0), exact between the samples. "
                              "`delete P_flight` removes it.",
                              "ballistic B on [0.55, 1.5]"),
-    "contact": CommandHelp("contact POINT on ground [y=H] on [A, B] [friction=MU] [x=X0] [dense_tol=D]",
-                           "The linkage point stays on the ground y = H (default 0), planted at x = X0 or "
-                           "wherever it lands (POINT_planted), and the ground only pushes: its force on "
-                           "the free base, tau of the base's y translation, is >= 0 (POINT_push); with "
-                           "friction=MU the tangential force stays in the friction cone (POINT_friction). "
-                           "With `com=CX,CY` the push and the cone are linear and hold everywhere. "
-                           "One contact at a time per creature: the base force is their sum. "
-                           "With `com=` the planted point is trigonometry of the joint curves, so it "
-                           "holds exactly only at its instances; dense_tol=D states how far it may stray between "
-                           "them (metres), checked after each solve. "
+    "contact": CommandHelp("contact POINT on ground [y=H] on [A, B] x=X0 [friction=MU] [support=[L, R]] [dense_tol=D]",
+                           "The linkage point (its first joint) is planted at (X0, H) by construction: over "
+                           "the stance the creature hangs from it (its centre of mass, com=, is read as the "
+                           "point plus the links' offset), so it cannot slide, sink or move; the flight's "
+                           "own curves meet it at rest at the touchdown and the lift-off (POINT_touchdown, "
+                           "POINT_liftoff). The ground only pushes (POINT_push: the base's y force >= 0), "
+                           "within the friction cone (POINT_friction, MU = 1 by default), with its centre "
+                           "of pressure on the support [L, R] along the ground (POINT_pressure; a point "
+                           "foot [0, 0] by default). These hold at their instances and between them to 1% "
+                           "of the creature's weight (N; weight x size for the moment), or to dense_tol=D. "
+                           "One contact at a time per creature. "
                            "`delete POINT_contact` (FOOT_contact) removes all of it.",
                            "contact acro.FOOT on ground on [0, 0.5] friction=1 x=0"),
     "flight": CommandHelp("flight LINKAGE on [A, B] [dense_tol=D]",
                           "Nothing outside acts on the creature: the forces of its base DOF and the "
                           "torques of the joints up to its first massive link (which hang on the "
-                          "base: a base with base_inertia= takes them) are 0 (LINKAGE_flight). With `com=CX,CY` the base part is "
+                          "base: a base with base_inertia= takes them) are 0 (LINKAGE_flight, LINKAGE_spin). With `com=CX,CY` the base part is "
                           "linear (CX'' = 0, CY'' + g = 0) and holds everywhere; the torques are "
                           "nonlinear, and dense_tol=D states how large they may grow between the "
                           "instances. "
