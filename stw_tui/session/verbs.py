@@ -265,7 +265,8 @@ def _support_lines(scene, spec, point: str, short: str, normal: str, support, on
         raise StwError(f"the centre of pressure is bounded through the joint at the planted point: plant "
                        f"{spec.name}.{first.name}, the first joint (a revolute one on a base of translations)")
     ankle = f"tau_{first.name}"
-    return [f"constraint {fresh_name(scene, f'{short}_pressure')}: {ankle} - {lo!r}*{normal} >= 0, "
+    heel = f"{ankle} + {-lo!r}*{normal}" if lo < 0 else f"{ankle} - {lo!r}*{normal}"
+    return [f"constraint {fresh_name(scene, f'{short}_pressure')}: {heel} >= 0, "
             f"{hi!r}*{normal} - {ankle} >= 0 {on}{_tol(tol)}"]
 
 
