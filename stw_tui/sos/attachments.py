@@ -117,10 +117,17 @@ def restrict(expr: sp.Basic, lo: float, hi: float) -> sp.Basic:
     if not expr.has(sp.Piecewise):
         return expr
 
+    memo: dict = {}     # a shared subtree (the hand's terms) is folded once
+
     def fold(node):
         if not node.args:
             return node
-        args = [fold(a) for a in node.args]
+        done = memo.get(node)
+        if done is None:
+            done = memo[node] = _fold(node)
+        return done
+
+    def _fold(node):
         if isinstance(node, sp.Piecewise):
             kept = []
             for value, cond in node.args:
@@ -133,6 +140,7 @@ def restrict(expr: sp.Basic, lo: float, hi: float) -> sp.Basic:
                 if decided is True:
                     break
             return sp.Piecewise(*kept) if kept else sp.nan
+        args = [fold(a) for a in node.args]
         if all(a is b for a, b in zip(args, node.args)):
             return node
         return node.func(*args)
