@@ -164,3 +164,34 @@ def test_a_batch_solver_that_fails_to_start_is_a_message_not_a_crash():
         create_batch_solver(Faulty, 4, {})
     with pytest.raises(StwError, match="backend declines cannot solve a batch"):
         create_batch_solver(Declines, 4, {})
+
+
+def test_a_backend_that_hands_back_nan_multipliers_is_refused_and_the_start_is_kept():
+    """Finite control points and converged=True, but NaN multipliers: they would be the next
+    solve's warm start (issue 54: it poisoned it, 'KKT system stayed singular')."""
+    import catalogue
+    import numpy as np
+    from stw_tui.sos.backend import Backend, SolverState, StepReport, run_iterations
+    from stw_tui.sos.window import WindowProblem
+    from stw_tui.sym.errors import SolveError
+
+    class Poisoned(Backend):
+        name = "poisoned"
+
+        def init(self, problem, state, settings):
+            return state
+
+        def step(self, problem, state, iteration):
+            ev = problem.evaluate(state.s)
+            new = SolverState(state.s, np.full_like(state.lam_eq, np.nan), state.lam_ge, state.working_set)
+            return new, StepReport(iteration, ev.objective, ev.max_violation(), 0.0, 1.0, 0, 0, converged=True)
+
+        def state(self, inner):
+            return inner
+
+    session = catalogue.problem("particle_jet").setup()
+    problem = WindowProblem(session.scene)
+    start = SolverState.start(problem)
+    with pytest.raises(SolveError, match="returned non-finite multipliers"):
+        run_iterations(Poisoned(), problem, start, 3, session.scene.settings)
+    assert np.isfinite(start.lam_eq).all()

@@ -368,6 +368,11 @@ class _Loop:
                     and np.isfinite(report.max_violation)):
                 raise SolveError(f"iteration {k} produced non-finite values (diverged); "
                                  "the scene is unchanged — try damping, a smaller window or `shake`")
+            # what the next solve starts from is kept too: multipliers a plugin left NaN (with
+            # finite control points and converged=True) poisoned the next solve's first system
+            if not (np.isfinite(state.lam_eq).all() and np.isfinite(state.lam_ge).all()):
+                raise SolveError(f"iteration {k}: backend {backend.name!r} returned non-finite multipliers; "
+                                 "the scene is unchanged")
             if self.on_state is not None and self._callback(self.on_state, k, state) is _GIVEN_UP:
                 break
             if report.coefficients is None:   # the shared SQP's steps carry them already
