@@ -143,7 +143,8 @@ class EquationsPanel(ScenePanel):
             return (label, "constraint", show(c.weight), scope,
                     "n/a" if viol is None else f"{viol:.2e}", c.text.split(":", 1)[-1].strip())
         o = scene.objectives[name]
-        scope = f"on [{o.interval[0]:g}, {o.interval[1]:g}]" if o.interval else "span"
+        scope = f"@ {o.at:g}" if o.at is not None else f"on [{o.interval[0]:g}, {o.interval[1]:g}]" \
+            if o.interval else "span"
         return label, "objective", show(o.weight), scope, "", o.text.split(":", 1)[-1].strip()
 
     @staticmethod

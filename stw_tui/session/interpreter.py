@@ -216,7 +216,8 @@ def _outside_span(scene: Scene, t0: float, t1: float) -> list[str]:
 
     found = [f"constraint {c.name} {c.scope_text}" for c in scene.constraints.values()
              if out(*((c.at, c.at) if c.at is not None else c.interval))]
-    found += [f"objective {o.name}" for o in scene.objectives.values() if o.interval and out(*o.interval)]
+    found += [f"objective {o.name}" for o in scene.objectives.values()
+              if (o.interval and out(*o.interval)) or (o.at is not None and out(o.at, o.at))]
     found += [f"window {w.name}" for w in scene.windows.values() if w.interval and out(*w.interval)]
     found += [f"a key of {d.name}" for d in scene.dofs.values() if d.keys and out(d.keys[0][0], d.keys[-1][0])]
     return found
@@ -340,9 +341,11 @@ def _objective(scene: Scene, cmd) -> str:
             raise StwError(f"a term of objective '{cmd.name}' does not depend on any DOF")
         compile_term(scene.expand(expr), set(scene.dofs), set(scene.constants))
     interval = _interval(scene, cmd.interval, "interval") if cmd.interval is not None else None
+    at = _time_in_span(scene, scene.numeric(cmd.at, "objective time"), "objective time") \
+        if cmd.at is not None else None
     scene.objectives[cmd.name] = Objective(cmd.name, tuple(cmd.exprs), interval,
-                                           _weight_value(scene, cmd.weight, True), cmd.text)
-    return f"objective {cmd.name}: {len(cmd.exprs)} term(s)"
+                                           _weight_value(scene, cmd.weight, True), cmd.text, at)
+    return f"objective {cmd.name}: {len(cmd.exprs)} term(s)" + (f" at t={at:g}" if at is not None else "")
 
 
 def _key(scene: Scene, cmd) -> str:

@@ -87,6 +87,13 @@ def _show_constraint(scene: Scene, name: str) -> list[str]:
 
 def _show_objective(scene: Scene, name: str) -> list[str]:
     o = scene.objectives[name]
+    if o.at is not None:
+        lines = [f"objective {name}: minimize weight {o.weight:g} times the square of "
+                 f"{'each term' if len(o.exprs) > 1 else 'its term'} at t={o.at:g} (a terminal cost)"]
+        for expr in o.exprs:
+            lines.append(f"  {sp.sstr(expr)}")
+            lines += _forms(scene, expr, scope=(o.at, o.at))
+        return lines
     where = f"[{o.interval[0]:g}, {o.interval[1]:g}]" if o.interval else f"[{scene.t0:g}, {scene.t1:g}]"
     lines = [f"objective {name}: minimize weight {o.weight:g} times the integral over {where} of the "
              f"square of {'each term' if len(o.exprs) > 1 else 'its term'}"]

@@ -104,13 +104,15 @@ class Constraint:
 
 @dataclass
 class Objective:
-    """Expressions to minimize: squared, weighted and integrated over an interval (None: the span)."""
+    """Expressions to minimize: squared, weighted and integrated over an interval (None: the span),
+    or squared and weighted at one instant ``at`` (a terminal cost)."""
 
     name: str
     exprs: tuple[sp.Expr, ...]
     interval: tuple[float, float] | None = None
     weight: float = 1.0
     text: str = ""
+    at: float | None = None
 
 
 @dataclass

@@ -262,7 +262,7 @@ def _structure_key(scene: Scene, window_name: str | None) -> tuple:
     return (structure_key(scene), name, window.dofs, window.interval,
             tuple((c.name, c.relations, c.at, c.interval, c.when, c.weight, c.samples)
                   for c in scene.constraints.values()),
-            tuple((o.name, o.exprs, o.interval, o.weight) for o in scene.objectives.values()),
+            tuple((o.name, o.exprs, o.interval, o.at, o.weight) for o in scene.objectives.values()),
             tuple((d.name, d.lo, d.hi) for d in scene.dofs.values()),
             frozenset(scene.extra_instances.items()), frozenset(scene.constants.items()),
             scene.settings["quadrature"])
@@ -407,6 +407,10 @@ class WindowProblem:
         quad = int(scene.settings["quadrature"])
         for o in scene.objectives.values():
             a, b = self.reach
+            if o.at is not None:      # a terminal cost: each term squared at that instant
+                if a - 1e-12 <= o.at <= b + 1e-12:
+                    self._add_terminal(o)
+                continue
             if o.interval is not None:
                 a, b = max(a, o.interval[0]), min(b, o.interval[1])
             if b <= a:
@@ -426,6 +430,17 @@ class WindowProblem:
                     times, weights = gauss_legendre_nodes(breaks, quad, lo, hi)
                     self._add_group(label, o.name, OBJ, expr, times, o.weight, None, term=term,
                                     weights=weights * o.weight)
+
+    def _add_terminal(self, o) -> None:
+        """A terminal cost: each term's square at ``o.at``, weighed by ``o.weight`` (one
+        quadrature point of weight W, so the objective gains W * e(T)^2)."""
+        times = np.array([o.at])
+        for e_index, expr in enumerate(o.exprs):
+            term = self._compile(expr, (o.at, o.at))
+            if term.dofs & self.free_dofs:
+                label = o.name if len(o.exprs) == 1 else f"{o.name}[{e_index + 1}]"
+                self._add_group(label, o.name, OBJ, expr, times, o.weight, None, term=term,
+                                weights=np.array([o.weight]))
 
     def _basis_rows(self, term: CompiledTerm, times: np.ndarray) -> list[BasisRows]:
         """Per variable of ``term``: the rows mapping all coefficients to its values at ``times``."""

@@ -86,13 +86,14 @@ class ConstraintCmd:
 
 @dataclass(frozen=True)
 class ObjectiveCmd:
-    """`objective NAME: EXPR[, …] [on [A, B]] [weight=W]`: expressions to minimize."""
+    """`objective NAME: EXPR[, …] [on [A, B] | @ T] [weight=W]`: expressions to minimize."""
 
     name: str
     exprs: tuple[sp.Expr, ...]
     interval: Interval | None
     weight: sp.Expr | None
     text: str = ""
+    at: sp.Expr | None = None      # a terminal (Mayer) cost: the squares at one instant
 
 
 @dataclass(frozen=True)
@@ -521,19 +522,22 @@ class CommandParser(ExpressionParser):
         return Relation(left - right, kind, column)
 
     def p_objective(self):
-        """`objective NAME: EXPR[, EXPR…] [on [A, B]] [weight=W]`."""
+        """`objective NAME: EXPR[, EXPR…] [on [A, B] | @ T] [weight=W]`."""
         name = self.new_name("an objective name")
         self.expect_op(":", "':' after the objective name")
         exprs = [self.expression()]
         while self.token.is_op(","):
             self.advance()
             exprs.append(self.expression())
-        interval = None
+        interval = at = None
         if self.token.is_word("on"):
             self.advance()
             interval = self.interval()
+        elif self.token.is_op("@"):
+            self.advance()
+            at = self.number_expr()
         weight = self.options({"weight": "expr"}).get("weight")
-        return ObjectiveCmd(name, tuple(exprs), interval, weight, self.text)
+        return ObjectiveCmd(name, tuple(exprs), interval, weight, self.text, at)
 
     def p_key(self):
         """`key T DOF=V[, DOF=V…]`."""

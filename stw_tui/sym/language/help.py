@@ -48,8 +48,11 @@ COMMAND_HELP: dict[str, CommandHelp] = {
                               "against D (default: `set dense_tol`). f' and f'' of a subexpression f are "
                               "its time derivatives (arm.tip.x' is the hand's velocity).",
                               "constraint floor: y >= 0 on [0, 1.5] when x > 1"),
-    "objective": CommandHelp("objective NAME: EXPR[, EXPR…] [on [A, B]] [weight=W]",
-                             "Minimize the weighted integral of each expression squared.",
+    "objective": CommandHelp("objective NAME: EXPR[, EXPR…] [on [A, B] | @ T] [weight=W]",
+                             "Minimize the weighted integral of each expression squared (over the span, "
+                             "or on [A, B]); with @ T, a terminal cost: W times each expression squared "
+                             "at the instant T (EXPR - 2 @ 1: end as near 2 as it can). Each enters the "
+                             "merit as its weighted square.",
                              "objective fuel: f"),
     "key": CommandHelp("key T DOF=V[, DOF=V…]",
                        "Sketch a keyframe: bend the DOF curves smoothly through V at time T (starting "
