@@ -79,6 +79,17 @@ class History:
         del self.undo_steps[:-self.limit]
         self.redo_steps.clear()
 
+    def saved(self) -> tuple:
+        """The stacks and snapshots as they are now, for :meth:`put_back` (handlers such as `undo`
+        and `snapshot` change them in place, before their journal line is written)."""
+        return list(self.undo_steps), list(self.redo_steps), dict(self.snapshots)
+
+    def put_back(self, saved: tuple) -> None:
+        """Return to what :meth:`saved` kept: the command that changed them did not happen."""
+        self.undo_steps[:], self.redo_steps[:] = saved[0], saved[1]
+        self.snapshots.clear()
+        self.snapshots.update(saved[2])
+
     def measured(self, name: str):
         """A snapshot's :class:`~stw_tui.session.snapshots.Measures`, computed once (its scene never changes)."""
         from stw_tui.session.snapshots import measure

@@ -4,6 +4,7 @@ session imports it."""
 
 from __future__ import annotations
 
+import os
 import time
 from pathlib import Path
 
@@ -18,7 +19,9 @@ def resume(journal: str | Path, *, resolve: bool = False, on_line=None,
            on_note=None) -> tuple["Session", int, int]:
     """A session rebuilt from ``journal``, which it goes on appending to. A solve that was running
     when the process died is brought back from its last running checkpoint (midsolve.py), and
-    ``on_note`` is called with a sentence saying so.
+    ``on_note`` is called with a sentence saying so. A last line without its newline (never
+    acknowledged) is dropped and cut off the file, and a line that is not UTF-8 is skipped; each
+    with a note saying what was dropped.
 
     Returns:
         (session, solves restored from checkpoints, solves run again).
@@ -34,9 +37,15 @@ def resume(journal: str | Path, *, resolve: bool = False, on_line=None,
     session = Session()           # no journal file while replaying: the lines are there already
     restored = solved = 0
     offset = 0
-    for number, raw in enumerate(data.split(b"\n"), start=1):
+    *lines, torn = data.split(b"\n")
+    for number, raw in enumerate(lines, start=1):
         offset += len(raw) + 1
-        text = raw.decode("utf-8")
+        try:
+            text = raw.decode("utf-8")
+        except UnicodeDecodeError as exc:   # not a line stw wrote: a damaged file, or an old torn one
+            _note(on_note, f"journal line {number} is not valid UTF-8 ({exc.reason} at byte {exc.start}); "
+                           f"dropped: {raw[:80]!r}")
+            continue
         verb = classify_line(text).verb if not session.in_block else None
         record = records.get(offset) if verb in SOLVE_COMMANDS else None
         if record is not None:
@@ -50,12 +59,24 @@ def resume(journal: str | Path, *, resolve: bool = False, on_line=None,
         solved += verb in SOLVE_COMMANDS
         if on_line is not None:
             on_line(number, text, outcome)
+    if torn:   # no newline: never acknowledged (a kill or a full disk while it was written)
+        _note(on_note, f"journal line {len(lines) + 1} was cut off before its end and never acknowledged; "
+                       f"dropped: {torn[:80]!r}")
+        try:   # cut it off, or the next line journalled would be appended to it
+            os.truncate(journal, offset)
+        except OSError as exc:
+            raise StwError(f"cannot cut the unfinished last line off journal {journal}: {exc}") from exc
     session.journal.path = journal
     session.checkpoints = Checkpoints(journal)
-    note = restore(session, journal, len(data), resolve)
+    note = restore(session, journal, offset, resolve)
     if note is not None and on_note is not None:
         on_note(note)
     return session, restored, solved
+
+
+def _note(on_note, text: str) -> None:
+    if on_note is not None:
+        on_note(text)
 
 
 def restore(session: Session, journal: Path, size: int, resolve: bool) -> str | None:

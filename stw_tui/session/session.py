@@ -64,18 +64,35 @@ class Journal:
         if self.path is None:
             return
         try:
+            data = (self._render(entry) + "\n").encode("utf-8")
             # never through a link, and only into a regular file (not a device or a fifo)
             fd = os.open(self.path, os.O_WRONLY | os.O_APPEND | os.O_CREAT | os.O_NOFOLLOW | os.O_NONBLOCK, 0o666)
-            with open(fd, "a", encoding="utf-8") as out:
+            try:
                 if not stat.S_ISREG(os.fstat(fd).st_mode):
                     raise OSError(errno.EINVAL, "not a regular file")
-                out.write(self._render(entry) + "\n")
-                out.flush()
-                os.fsync(out.fileno())
+                self._write_whole(fd, data)
+            finally:
+                os.close(fd)
         except (OSError, ValueError) as exc:
             entry.ok, entry.error = False, f"the journal could not record it: {exc}"
             raise StwError(f"the journal {self.path} could not record the line ({exc}); "
                            "the scene is unchanged") from exc
+
+    @staticmethod
+    def _write_whole(fd: int, data: bytes) -> None:
+        """Append ``data`` (whole lines) to the file and sync it; if any of it is refused (a full
+        disk), cut the file back to its length before, so no fragment is left for the next line to
+        be appended to (which a resume would then read as one line). Written with ``os.write``, not
+        a buffered file, whose close would try the refused bytes again."""
+        size = os.fstat(fd).st_size
+        try:
+            view = memoryview(data)
+            while view:
+                view = view[os.write(fd, view):]
+            os.fsync(fd)
+        except OSError:
+            os.ftruncate(fd, size)
+            raise
 
     @staticmethod
     def _render(entry: JournalEntry) -> str:
@@ -223,6 +240,7 @@ class Session:
     def _apply_journalled(self, text: str, line: int | None, on_report, block=None) -> Outcome:
         entry = self.journal.append(text, line)
         before = State.of(self)
+        kept = self.history.saved(), self.proposal, self.survey   # what handlers change in place
         scene = self.scene.copy()
         try:
             with limits.active(self.scene.limits):
@@ -232,16 +250,16 @@ class Session:
                 else:
                     outcome = interpreter.apply_line(self, scene, text, line, on_report, SESSION_HANDLERS)
         except SourceError as exc:
-            self.warm = before.warm   # the solver's warm start too (a solve may have run)
+            self._unwind(before, kept)   # the warm start too (a solve may have run), the history
             error = exc if exc.line is not None or line is None else exc.at_line(line)
             self._settle_failed(entry, str(error))
             raise error from None
         except StwError as exc:
-            self.warm = before.warm   # the solver's warm start too (a solve may have run)
+            self._unwind(before, kept)   # the warm start too (a solve may have run), the history
             self._settle_failed(entry, str(exc))
             raise type(exc)(f"line {line}: {exc}" if line is not None else str(exc)) from exc
         except Exception as exc:  # a bug must not lose the scene or the session: report it
-            self.warm = before.warm   # the solver's warm start too (a solve may have run)
+            self._unwind(before, kept)   # the warm start too (a solve may have run), the history
             message = f"internal error ({type(exc).__name__}: {exc}); the scene is unchanged"
             self._settle_failed(entry, message)
             raise StwError(f"line {line}: {message}" if line is not None else message) from exc
@@ -249,15 +267,15 @@ class Session:
         if broken:   # shake amplitude=1e308, a key at 1e308: a curve must stay a curve
             message = (f"the command would make the curve of {', '.join(broken)} non-finite; "
                        "the scene is unchanged")
-            self.warm = before.warm
+            self._unwind(before, kept)
             self._settle_failed(entry, message)
             raise StwError(f"line {line}: {message}" if line is not None else message)
         if outcome.journal_text is not None:
             entry.text = outcome.journal_text
         try:
             self.journal.settle(entry, True)   # on disk first: only then is the command applied
-        except StwError as exc:
-            self.warm = before.warm
+        except StwError as exc:   # not on disk, so not applied: `undo` pops no step, `snapshot` keeps none
+            self._unwind(before, kept)
             raise StwError(f"line {line}: {exc}" if line is not None else str(exc)) from exc.__cause__
         if outcome.run is not None and scene.settings.get("preview"):
             
@@ -273,6 +291,13 @@ class Session:
             if self.checkpoints is not None and outcome.journal_text is None:   # not a stopped solve
                 self.checkpoints.record(self)
         return outcome
+
+    def _unwind(self, before: State, kept: tuple) -> None:
+        """Undo what a command that is not applied changed outside its scene copy: the warm start,
+        and the history, proposal and survey that session commands change in place."""
+        self.warm = before.warm
+        self.history.put_back(kept[0])
+        self.proposal, self.survey = kept[1], kept[2]
 
     def _settle_failed(self, entry: JournalEntry, message: str) -> None:
         """Record a failed line; a journal that cannot record it must not hide the line's error."""
