@@ -755,7 +755,7 @@ def _verb(scene: Scene, cmd) -> str:
     scene.verbs[group] = (cmd.text, tuple(members))
     if parts:
         scene.attachments[group] = parts
-        lines = [f"{p.target} is {sp.sstr(p.expr)} on [{p.a:g}, {p.b:g}]" for p in parts if not p.adds] + lines
+        lines = [p.describe() for p in parts if not p.adds] + lines
         if any(p.adds for p in parts):
             lines.append(f"its mass loads {', '.join(p.target for p in parts if p.adds)}")
     return f"{lang.classify_line(cmd.text).verb} {group}: " + "; ".join(lines) + note

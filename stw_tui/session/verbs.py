@@ -216,9 +216,6 @@ def contact_lines(scene, point: str, height: float, a: float, b: float,
     friction = 1.0 if friction is None else friction
     if not friction >= 0:
         raise StwError(f"friction coefficient {friction:g} must be at least 0")
-    for dense in (dense_tol,):
-        if dense is not None and not dense > 0:
-            raise StwError("dense_tol must be > 0")
     for part in all_attachments(scene):
         if part.target == axes["ty"] or part.target in spec.com:
             if part.a < b and a < part.b:

@@ -50,9 +50,9 @@ class Attachment:
         upper = (TIME <= self.b) if self.closed_b else (TIME < self.b)
         return sp.And(lower, upper)
 
-    def covers(self, t: float) -> bool:
-        """Whether it applies at time ``t``."""
-        return (self.a <= t if self.closed_a else self.a < t) and (t <= self.b if self.closed_b else t < self.b)
+    def describe(self) -> str:
+        """What it does, as `hold` and `show` print it: ``BX is arm.tip.x on [0, 0.55]``."""
+        return f"{self.target} is {sp.sstr(self.expr)} on [{self.a:g}, {self.b:g}]"
 
 
 def all_attachments(scene) -> tuple[Attachment, ...]:

@@ -18,7 +18,7 @@ from stw_tui.sos.spline import DofCurve, SharedTimes
 from stw_tui.sym.compiler import free_symbols
 from stw_tui.sym.errors import LimitError, StwError
 from stw_tui.sym.kinds import TermKind
-from stw_tui.sym.symbols import named_symbol
+from stw_tui.sym.symbols import dof_symbol, named_symbol
 
 DEFAULT_SETTINGS: dict[str, float] = {
     "tol_violation": 1e-8,   # max |constraint| accepted as satisfied
@@ -264,7 +264,6 @@ class Scene:
             StwError: it would need a DOF's third derivative (curves have two).
         """
         from stw_tui.sym.linkage.derivative import time_derivative
-        from stw_tui.sym.symbols import dof_symbol
 
         for k in range(order):
             used = expr.free_symbols               # a walk of the whole tree: once, not per DOF
@@ -358,7 +357,6 @@ class Scene:
         """DOF ``name`` (its ``order``-th time derivative) at ``times`` as the motion has it: its
         curve, except where it is attached (a held object is the hand's point there)."""
         if name in attached_dofs(self):
-            from stw_tui.sym.symbols import dof_symbol
             return self.evaluate(dof_symbol(name, order), np.asarray(times, float))
         return self.dofs[name].curve.evaluate(times, order)
 
