@@ -8,24 +8,21 @@ import pytest
 
 from conftest import SESSIONS
 from stw_tui.session.session import Session
+from test_creatures import _planar_tip, _player_tip
 
 G = 9.81
-LINKS = (0.35, 0.30, 0.15)     # the arm of every bundled thrower
 JOINTS = ("SHOULDER", "ELBOW", "WRIST")
 STEP = 1e-3
 
 
 def hand(scene, t: np.ndarray) -> np.ndarray:
-    """(n, 3): the tip of the planar arm, angles relative and from +x (y up), in a vertical plane
-    that a base (PX, PZ, TURN about y) carries and turns when the scene has one."""
-    heading, x, y = np.zeros_like(t), np.zeros_like(t), np.zeros_like(t)
-    for length, joint in zip(LINKS, JOINTS):
-        heading = heading + scene.dofs[joint].curve.evaluate(t)
-        x, y = x + length * np.cos(heading), y + length * np.sin(heading)
+    """(n, 3): the tip of the planar arm (test_creatures' kinematics, written apart from stw's), in
+    a vertical plane that a base (PX, PZ, TURN about y) carries and turns when the scene has one."""
+    angles = [scene.dofs[joint].curve.evaluate(t) for joint in JOINTS]
     if "TURN" not in scene.dofs:
+        x, y = _planar_tip(angles)
         return np.stack([x, y, np.zeros_like(t)], axis=1)
-    px, pz, turn = (scene.dofs[n].curve.evaluate(t) for n in ("PX", "PZ", "TURN"))
-    return np.stack([px + x * np.cos(turn), y, pz - x * np.sin(turn)], axis=1)
+    return _player_tip(angles, [scene.dofs[n].curve.evaluate(t) for n in ("PX", "PZ", "TURN")]).T
 
 
 def hand_velocity(scene, t: np.ndarray, h: float = 1e-6) -> np.ndarray:

@@ -6,6 +6,7 @@ control points says so."""
 import numpy as np
 import pytest
 
+import catalogue
 from conftest import run_lines
 from stw_tui.session.checkpoint_record import restored_scene, scene_record
 from stw_tui.session.session import Session
@@ -120,14 +121,7 @@ set adaptive off
 
 
 # The issue's raw grasp: a three-link arm and a ball, tied by a constraint, not by `hold`.
-IN_HAND = """time 0 1.5 knots=24 samples=24
-const g = 9.81
-linkage arm base=fixed
-  SHOULDER revolute a=0.35 mass=2
-  ELBOW    revolute a=0.30 mass=1.5
-  WRIST    revolute a=0.15 mass=0.5
-end
-dof BX, BY
+IN_HAND = catalogue.problem("analytic_arm3").text + """dof BX, BY
 limit SHOULDER -2.6 3.2
 limit ELBOW 0 2.5
 limit WRIST -1.2 1.2
