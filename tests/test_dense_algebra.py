@@ -65,7 +65,7 @@ def test_dense_matrix_operations_match_the_sparse_ones():
     dense, sparse = NumpyDenseAlgebra(), SparseAlgebra()
     A, B = dense.matrix(a), dense.matrix(b)
     assert np.allclose(dense.gram(A, w), sparse.gram(a, w).toarray())
-    assert dense.max_gram_diagonal(A) == pytest.approx(sparse.max_gram_diagonal(a))
+    assert np.allclose(dense.row_squares(A), sparse.row_squares(a), rtol=1e-14, atol=0)
     assert np.allclose(dense.add(A, B), sparse.add(a, b).toarray())
     assert np.allclose(dense.matvec(A, x), sparse.matvec(a, x))
     assert np.allclose(dense.rmatvec(A, w), sparse.rmatvec(a, w))
@@ -136,10 +136,12 @@ def test_a_jacobian_object_is_made_dense_once_and_a_new_one_anew():
     # every row in order is the matrix itself; any other choice of rows is a copy of them
     assert la.rows(other, np.arange(4)) is other
     assert np.array_equal(la.rows(other, np.array([2, 0])), second.toarray()[[2, 0]])
-    # the widest column of a kept (read-only) matrix is kept too; a writable one is worked out anew
-    widest = (second.toarray() ** 2).sum(axis=0).max()
-    assert la.max_gram_diagonal(other) == pytest.approx(widest, rel=1e-14)
+    # the rows' sums of squares of a kept (read-only) matrix are kept too; a writable one's are
+    # worked out anew
+    squares = (second.toarray() ** 2).sum(axis=1)
+    assert np.allclose(la.row_squares(other), squares, rtol=1e-14, atol=0)
+    assert la.row_squares(other) is la.row_squares(other)
     writable = second.toarray()
-    assert la.max_gram_diagonal(writable) == pytest.approx(widest, rel=1e-14)
+    assert np.allclose(la.row_squares(writable), squares, rtol=1e-14, atol=0)
     writable *= 2.0
-    assert la.max_gram_diagonal(writable) == pytest.approx(4.0 * widest, rel=1e-14)
+    assert np.allclose(la.row_squares(writable), 4.0 * squares, rtol=1e-14, atol=0)

@@ -639,19 +639,40 @@ def test_replayed_column_ordering_factorizes_bit_for_bit_as_colamd():
     assert replayed >= 20 + 10
 
 
-def test_the_widest_gram_diagonal_is_the_products_own_number():
+def test_each_backend_gives_the_rows_own_sums_of_squares():
     import scipy.sparse as sps
 
+    from stw_scipy.dense import NumpyDenseAlgebra
     from stw_scipy.linear import SparseAlgebra
-    from stw_tui.sos.sqp.algebra import LinearAlgebra
 
-    la = SparseAlgebra()
     rng = np.random.default_rng(2)
     for shape in ((1, 1), (4, 23), (40, 135), (0, 5)):
         A = sps.random_array(shape, density=0.3, rng=rng, format="csr") * 1e3
-        got = la.max_gram_diagonal(A)
-        assert got == LinearAlgebra.max_gram_diagonal(la, A)            # bit for bit
-        assert got == pytest.approx(float(((A.toarray() ** 2).sum(0)).max(initial=0.0)), rel=1e-12)
+        want = (A.toarray() ** 2).sum(axis=1)
+        assert np.allclose(SparseAlgebra().row_squares(A), want, rtol=1e-14, atol=0)
+        assert np.allclose(NumpyDenseAlgebra().row_squares(A.toarray()), want, rtol=1e-14, atol=0)
+
+
+def test_convexify_sees_a_convex_model_through_nearly_dependent_rows_of_any_scale():
+    """The raw grasp's failure, in three variables: two rows of scales 1e4 apart (as rows on a
+    position and on an acceleration) that nearly coincide leave a direction constrained by a
+    singular value 1e-3 of A (7e-4 of its unit rows). H is -0.01 there and +1 on the free
+    direction: convex on the null space. A penalty relative to the widest row gave that direction
+    1e-6 of H's scale, took the model for indefinite and shifted it by 0.01 (on the grasp: 40,
+    a proximal crawl at the iteration limit); unit rows give it 0.5."""
+    import scipy.sparse as sps
+    from stw_scipy.linear import SparseAlgebra
+    from stw_tui.sos.sqp.curvature import convexify
+
+    la = SparseAlgebra()
+    e = 1e-3
+    A = sps.csr_array([[1.0, 0.0, 0.0], [1e4 * (1.0 - e), 1e4 * e, 0.0]])   # null space: e₂ only
+    H = sps.csr_array(np.diag([-0.01, -0.01, 1.0]))
+    model, shift = convexify(la, H, A)
+    assert shift == 0.0 and model is H
+    # without the first row, a direction near e₁ is free where H is -0.01: that is the model's,
+    # and it is shifted, just enough
+    assert 0.01 / 10 ** (1 / 8) < convexify(la, H, A[[1]])[1] <= 0.01 * 10 ** (1 / 8)
 
 
 CATCH = """

@@ -60,7 +60,7 @@ class NumpyDenseAlgebra(NumpyVectors):
 
     def __init__(self):
         # kind -> (the evaluation's sparse Jacobian, dense); "gram" -> (a read-only matrix, its
-        # max_gram_diagonal)
+        # row_squares)
         self._kept: dict[str, tuple] = {}
 
     def matrix(self, m):
@@ -103,15 +103,15 @@ class NumpyDenseAlgebra(NumpyVectors):
     def max_abs_diagonal(self, m):
         return float(np.abs(m.diagonal()).max(initial=0.0))
 
-    def max_gram_diagonal(self, a):
+    def row_squares(self, a):
         # the curvature test asks it of the same kept (read-only) Jacobian at every step
         kept = self._kept.get("gram")
         if kept is not None and kept[0] is a:
             return kept[1]
-        widest = float(np.einsum("ij,ij->j", a, a).max(initial=0.0))
+        squares = np.einsum("ij,ij->i", a, a)
         if not a.flags.writeable:
-            self._kept["gram"] = (a, widest)
-        return widest
+            self._kept["gram"] = (a, squares)
+        return squares
 
     def positive_definite(self, m):
         # LAPACK may carry a NaN through instead of stopping: a NaN entry reaches a pivot.

@@ -457,13 +457,9 @@ class SparseAlgebra(NumpyVectors):
         return _recent(self._placements, lambda placed: placed.fits(H, plan, Ae),
                        lambda: _BarrierPlacement.of(H, plan, Ae))
 
-    def max_gram_diagonal(self, a):
-        # The diagonal of gram(a, 1) without the product: each column's squares summed in row
-        # order from 0, as scipy's product sums them (the same number, bit for bit).
+    def row_squares(self, a):
         a = _csr(a)
-        data = a.data[:a.nnz]
-        sums = np.bincount(a.indices[:a.nnz], weights=data * data, minlength=a.shape[1])
-        return float(sums.max(initial=0.0))
+        return np.asarray(a.multiply(a).sum(axis=1), dtype=float).ravel()
 
     def max_abs_diagonal(self, m):
         return float(np.abs(m.diagonal()).max(initial=0.0))

@@ -92,6 +92,9 @@ class DenseAlgebra(LinearAlgebra):
     def max_abs_diagonal(self, m):
         return float(m.diagonal().abs().max()) if m.numel() else 0.0
 
+    def row_squares(self, a):
+        return (a * a).sum(dim=1).cpu().numpy()
+
     def positive_definite(self, m):
         return int(torch.linalg.cholesky_ex(m).info) == 0
 

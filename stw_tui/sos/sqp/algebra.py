@@ -118,10 +118,11 @@ class LinearAlgebra(ABC):
     def max_abs_diagonal(self, m: Matrix) -> float:
         """max |m_ii|."""
 
-    def max_gram_diagonal(self, a: Matrix) -> float:
-        """max_j Σ_i a_ij², the largest diagonal entry of aᵀa. A backend may find it without the
-        product (the default forms it)."""
-        return self.max_abs_diagonal(self.gram(a, self.full(a.shape[0], 1.0)))
+    def row_squares(self, a: Matrix) -> np.ndarray:
+        """Σ_j a_ij² for each row i, as numpy. The default gives every row the widest column's
+        Σ_i a_ij² instead (an upper bound of no row's own): a backend should supply the rows'."""
+        gram = self.gram(a, self.full(a.shape[0], 1.0))
+        return np.full(a.shape[0], self.max_abs_diagonal(gram))
 
     @abstractmethod
     def kkt(self, H: Matrix, A: Matrix, e: float | Vector, exact: bool = False) -> KKTSystem:

@@ -16,14 +16,21 @@ import numpy as np
 
 from stw_tui.sos.sqp.algebra import LinearAlgebra, Matrix
 
-# Relative to max(1, max |H_ii|):
-# ρ·max (AᵀA)_ii in the test H + ρAᵀA > 0. Debreu's ρ must outweigh H along every direction the
-# rows constrain, also the weakly constrained ones: rows in different units (a planted foot in
-# metres beside flight torques in N·m, sessions/acrobat.stw) leave some 1e-3 of the widest, and
-# with 1e4 a model convex on the null space was taken for indefinite and shifted ~300x, turning
-# Newton's steps into a linear crawl (60 steps, KKT 8e-4, against 13 steps to convergence).
-# Rounding limits how far it can go: 1e8 still sees curvature above ~1e-8 of H's scale.
-CURVATURE_PENALTY = 1e8
+# Relative to max(1, max |H_ii|), per unit row: the test is H + ρ Σᵢ aᵢaᵢᵀ/|aᵢ|². Debreu's ρ must
+# outweigh H along every direction the rows constrain, also the weakly constrained ones. A ρ
+# relative to the widest row (as this test once had) leaves a row in other units (a planted foot
+# in metres beside flight torques in N·m, sessions/acrobat.stw) or on a finer knot span (a
+# position row beside one on an acceleration, |B''| ~ 1/h²) some 1e-3 to 1e-7 of the penalty,
+# and a model convex on the null space is taken for indefinite and shifted: the raw in_hand grasp
+# (tests/test_refinement.py) was shifted by 40 where its reduced Hessian's least eigenvalue
+# was -0.2, or positive, and crawled at the iteration limit with full steps. Scaling each row
+# to unit length changes no null space. What is left is the rows' near dependence: directions
+# they constrain by a singular value σ of the unit rows get ρσ² (σ ~ 5e-4 there: 0.25 of H's
+# scale). Rounding sets the other side: the Cholesky test cannot see curvature below ~ε·ρ of H's
+# scale, and a direction the objective leaves flat (acrobat's, curvature ~ the proximal term)
+# fails it and is shifted by that much. With 1e8 that was 50 on acrobat's 2e10 (its 129
+# iterations became 354); 1e6 leaves both sessions and the grasp as measured (tests/test_sqp_robust.py).
+CURVATURE_PENALTY = 1e6
 # The first shift tried is near the rounding floor of a Cholesky test on H's scale (a shift below
 # ~n·ε_mach·max H_ii is not seen): the curvature that needs a shift can be that small. On a curve
 # of span width h the smooth motions, the ones the objective's low-order terms (g·sin th, λ·∇²c)
@@ -41,12 +48,17 @@ def convex_on(la: LinearAlgebra, H: Matrix, A: Matrix | None) -> bool:
 
 
 def _penalized(la: LinearAlgebra, H: Matrix, A: Matrix | None, scale: float) -> Matrix:
-    """H + ρAᵀA with Debreu's ρ (CURVATURE_PENALTY, relative to H's scale and A's widest row)."""
-    if A is not None and A.shape[0]:
-        widest = la.max_gram_diagonal(A)
-        if widest > 0:
-            return la.add(H, la.gram(A, la.full(A.shape[0], CURVATURE_PENALTY * scale / widest)))
-    return H
+    """H + ρ Σᵢ aᵢaᵢᵀ/|aᵢ|² with Debreu's ρ (CURVATURE_PENALTY, relative to H's scale), the rows
+    aᵢ of A scaled to unit length (a row of zeros constrains nothing, and is left out)."""
+    if A is None or not A.shape[0]:
+        return H
+    squares = la.row_squares(A)
+    # rows below 1e-16 of the widest are zero to rounding: they would make their noise a constraint
+    floor = 1e-16 * float(squares.max(initial=0.0))
+    if floor <= 0:
+        return H
+    weights = np.where(squares > floor, CURVATURE_PENALTY * scale / np.maximum(squares, floor), 0.0)
+    return la.add(H, la.gram(A, la.vector(weights)))
 
 
 def convexify(la: LinearAlgebra, H: Matrix, A: Matrix | None, last: float = 0.0) -> tuple[Matrix, float]:
