@@ -282,3 +282,28 @@ def test_a_replaced_snapshot_is_measured_again():
     s.execute("iterate 10")
     s.execute("snapshot a")
     assert s.history.measured("a").violation < 1e-8 < first.violation
+
+
+@pytest.mark.parametrize("first, second, kind", [
+    ("constraint c: x = 0 @ 0", "constraint c: x = 1 @ 0", "constraints"),
+    ("objective e: x''", "objective e: x'", "objectives"),
+    ("let u = x + 1", "let u = x + 2", "lets"),
+])
+def test_redefining_a_name_says_so_and_undo_brings_the_old_one_back(first, second, kind):
+    s = run_lines(Session(), f"time 0 1 knots=8\ndof x\n{first}\n")
+    assert "replaced" not in s.execute("constraint other: x = 0 @ 1").message   # a new name: nothing to say
+    before = state(s.scene)[kind]
+    message = s.execute(second).message
+    assert "replaced the old definition; `undo` brings it back" in message
+    assert state(s.scene)[kind] != before
+    s.execute("undo")
+    assert state(s.scene)[kind] == before
+
+
+def test_a_constant_given_a_new_value_says_what_it_was():
+    s = run_lines(Session(), "const k = 1\n")
+    assert s.execute("const k = 2").message == "k = 2 (k was 1; `undo` brings it back)"
+    assert s.execute("const k = 2").message == "k = 2"     # the same value: nothing replaced
+    s.execute("undo")
+    s.execute("undo")
+    assert s.scene.constants["k"] == 1

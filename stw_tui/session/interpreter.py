@@ -223,11 +223,24 @@ def _outside_span(scene: Scene, t0: float, t1: float) -> list[str]:
     return found
 
 
+REPLACED = " (replaced the old definition; `undo` brings it back)"
+
+
+def _replaced(previous) -> str:
+    """What a command that redefines a name adds to its message: it says so, and how to go back."""
+    return REPLACED if previous is not None else ""
+
+
 def _const(scene: Scene, cmd) -> str:
+    was = {}
     for name, expr in cmd.items:
         _check_new_name(scene, name, ("const",))
+        if name in scene.constants and name not in was:
+            was[name] = scene.constants[name]
         scene.constants[name] = scene.numeric(expr, f"constant {name}")
-    return ", ".join(f"{n} = {scene.constants[n]:g}" for n, _ in cmd.items)
+    changed = [f"{n} was {v:g}" for n, v in was.items() if v != scene.constants[n]]
+    return ", ".join(f"{n} = {scene.constants[n]:g}" for n, _ in cmd.items) + (
+        f" ({', '.join(changed)}; `undo` brings it back)" if changed else "")
 
 
 def _dof(scene: Scene, cmd) -> str:
@@ -278,7 +291,7 @@ def _let(scene: Scene, cmd) -> str:
         raise StwError(f"'{cmd.name}' would be defined in terms of itself") from None
     if sp.Symbol(cmd.name, real=True) in expanded.free_symbols:
         raise StwError(f"'{cmd.name}' would be defined in terms of itself")
-    return f"let {cmd.name}" + (" (redefined)" if previous is not None else "")
+    return f"let {cmd.name}" + _replaced(previous)
 
 
 def _refers_to_itself(scene: Scene, name: str) -> bool:
@@ -326,10 +339,12 @@ def _constraint(scene: Scene, cmd) -> str:
     if dense_tol is not None and dense_tol <= 0:
         raise StwError(f"dense_tol must be > 0, not {dense_tol:g}")
     scene.extra_instances.pop(cmd.name, None)   # placed for the old definition
+    previous = scene.constraints.get(cmd.name)
     scene.constraints[cmd.name] = Constraint(cmd.name, tuple(relations), at, interval, cmd.when,
                                              _weight_value(scene, cmd.weight, False), cmd.text,
                                              cmd.samples, dense_tol)
-    return f"constraint {cmd.name}: {len(relations)} relation(s) {scene.constraints[cmd.name].scope_text}"
+    return (f"constraint {cmd.name}: {len(relations)} relation(s) {scene.constraints[cmd.name].scope_text}"
+            + _replaced(previous))
 
 
 def _objective(scene: Scene, cmd) -> str:
@@ -343,9 +358,11 @@ def _objective(scene: Scene, cmd) -> str:
     interval = _interval(scene, cmd.interval, "interval") if cmd.interval is not None else None
     at = _time_in_span(scene, scene.numeric(cmd.at, "objective time"), "objective time") \
         if cmd.at is not None else None
+    previous = scene.objectives.get(cmd.name)
     scene.objectives[cmd.name] = Objective(cmd.name, tuple(cmd.exprs), interval,
                                            _weight_value(scene, cmd.weight, True), cmd.text, at)
-    return f"objective {cmd.name}: {len(cmd.exprs)} term(s)" + (f" at t={at:g}" if at is not None else "")
+    return (f"objective {cmd.name}: {len(cmd.exprs)} term(s)" + (f" at t={at:g}" if at is not None else "")
+            + _replaced(previous))
 
 
 def _key(scene: Scene, cmd) -> str:
