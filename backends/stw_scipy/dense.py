@@ -59,8 +59,8 @@ class NumpyDenseAlgebra(NumpyVectors):
     """numpy vectors and dense 2-D arrays; LAPACK's LU and Cholesky. One per solve."""
 
     def __init__(self):
-        # kind -> (the evaluation's sparse Jacobian, dense); "gram" -> (a read-only matrix, its
-        # row_squares)
+        # kind -> (the evaluation's sparse Jacobian, dense); "row_squares" -> (a read-only matrix,
+        # its row_squares)
         self._kept: dict[str, tuple] = {}
 
     def matrix(self, m):
@@ -105,12 +105,12 @@ class NumpyDenseAlgebra(NumpyVectors):
 
     def row_squares(self, a):
         # the curvature test asks it of the same kept (read-only) Jacobian at every step
-        kept = self._kept.get("gram")
+        kept = self._kept.get("row_squares")
         if kept is not None and kept[0] is a:
             return kept[1]
         squares = np.einsum("ij,ij->i", a, a)
         if not a.flags.writeable:
-            self._kept["gram"] = (a, squares)
+            self._kept["row_squares"] = (a, squares)
         return squares
 
     def positive_definite(self, m):

@@ -151,8 +151,7 @@ class EquationsPanel(ScenePanel):
     def _heading(scene: "Scene", info: SceneInfo, group: str, members: list[str]) -> tuple:
         """The verb's row: its word, the time its parts cover, their worst violation, its line."""
         line = scene.verbs[group][0]
-        spans = [(c.at, c.at) if c.at is not None else c.interval
-                 for c in (scene.constraints[m] for m in members if m in scene.constraints)]
+        spans = [scene.constraints[m].span for m in members if m in scene.constraints]
         spans += [scene.objectives[m].interval for m in members if m in scene.objectives]
         spans += [(p.a, p.b) for p in scene.attachments.get(group, ())]    # a hold's time in the hand
         if not spans or None in spans:

@@ -215,7 +215,7 @@ def _outside_span(scene: Scene, t0: float, t1: float) -> list[str]:
         return a < t0 - 1e-12 or b > t1 + 1e-12
 
     found = [f"constraint {c.name} {c.scope_text}" for c in scene.constraints.values()
-             if out(*((c.at, c.at) if c.at is not None else c.interval))]
+             if out(*c.span)]
     found += [f"objective {o.name}" for o in scene.objectives.values()
               if (o.interval and out(*o.interval)) or (o.at is not None and out(o.at, o.at))]
     found += [f"window {w.name}" for w in scene.windows.values() if w.interval and out(*w.interval)]

@@ -69,7 +69,7 @@ def equation_series(scene: "Scene", name: str, n: int = 161) -> tuple[list[Serie
     times = np.linspace(scene.t0, scene.t1, n)
     if name in scene.constraints:
         c = scene.constraints[name]
-        scope = (c.at, c.at) if c.at is not None else c.interval
+        scope = c.span
         out = []
         for i, rel in enumerate(c.relations, start=1):
             label = f"{name}[{i}] {'= 0' if rel.kind == TermKind.EQ else '>= 0'}"

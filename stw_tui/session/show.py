@@ -81,7 +81,7 @@ def _show_constraint(scene: Scene, name: str) -> list[str]:
     for rel in c.relations:
         lines.append(f"  {_relation_text(rel.expr, rel.kind)}")
         lines += _forms(scene, rel.expr, "  = 0" if rel.kind is TermKind.EQ else "  >= 0",
-                        (c.at, c.at) if c.at is not None else c.interval)
+                        c.span)
     return lines
 
 

@@ -210,8 +210,7 @@ def _sample(samplings: list[_Sampling]) -> list[_Samples]:
 def _relation_samplings(scene, constraint, kept: dict) -> list[_Sampling]:
     out = []
     for rel in constraint.relations:
-        scope = (constraint.at, constraint.at) if constraint.at is not None else constraint.interval
-        def score(shared, part, values=scene.evaluator(rel.expr, kept, scope), kind=rel.kind):
+        def score(shared, part, values=scene.evaluator(rel.expr, kept, constraint.span), kind=rel.kind):
             v = _score(values.at(shared, part), kind, constraint.weight)
             if constraint.when is not None:   # a conditional constraint counts only where it applies
                 v = np.where(condition_holds(scene, constraint.when, shared.times[part]), v, -np.inf)

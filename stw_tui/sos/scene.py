@@ -97,6 +97,11 @@ class Constraint:
     dense_tol: float | None = None   # largest violation between instances (None: the scene's)
 
     @property
+    def span(self) -> tuple[float, float]:
+        """The times it holds at: its interval, or (T, T) for an instant (Scene.expand's ``scope``)."""
+        return (self.at, self.at) if self.at is not None else self.interval
+
+    @property
     def scope_text(self) -> str:
         """Where the constraint holds, as typed: ``@ T`` or ``on [A, B]``."""
         return f"@ {self.at:g}" if self.at is not None else f"on [{self.interval[0]:g}, {self.interval[1]:g}]"

@@ -387,9 +387,8 @@ class WindowProblem:
             for r_index, rel in enumerate(c.relations):
                 label = c.name if len(c.relations) == 1 else f"{c.name}[{r_index + 1}]"
                 times = inside(relation_instances(scene, c, rel, kept))
-                scope = (c.at, c.at) if c.at is not None else c.interval
                 self._add_group(label, c.name, rel.kind, rel.expr, times, c.weight, c.when,
-                                term=self._compile(rel.expr, scope))
+                                term=self._compile(rel.expr, c.span))
         for name in self.window_dofs:
             dof = scene.dofs[name]
             if dof.lo is None and dof.hi is None:

@@ -119,8 +119,9 @@ class LinearAlgebra(ABC):
         """max |m_ii|."""
 
     def row_squares(self, a: Matrix) -> np.ndarray:
-        """Σ_j a_ij² for each row i, as numpy. The default gives every row the widest column's
-        Σ_i a_ij² instead (an upper bound of no row's own): a backend should supply the rows'."""
+        """Σ_j a_ij² for each row i, as numpy. The default, for a backend that does not supply
+        it, gives every row the widest column's Σ_i a_ij²: the curvature test then weighs its rows
+        as it did before it scaled each to unit length."""
         gram = self.gram(a, self.full(a.shape[0], 1.0))
         return np.full(a.shape[0], self.max_abs_diagonal(gram))
 
