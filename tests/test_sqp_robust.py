@@ -217,6 +217,64 @@ def test_a_hard_qp_at_its_rounding_floor_is_polished_there_not_after_stalling(mo
     assert slack.min() >= -1e-12 and z.min() >= 0.0 and np.abs(z * slack).max() <= 1e-9 * scale
 
 
+def _sole_qp():
+    """A hard QP of the acrobat's ballistic phase with a 30 cm sole (support=[-0.15, 0.15]): 376
+    variables, 90 equality and 1551 inequality rows, recorded with the multipliers it was warm
+    started from: those of an elastic step, |y0| up to 1.6e7 (IPOPT solves the same QP with
+    |y| <= 2.8e4)."""
+    import scipy.sparse as sps
+    f = np.load(ROOT / "tests" / "data" / "acrobat_sole_qp.npz")
+
+    def matrix(name):
+        return sps.csr_array((f[name + "_data"], f[name + "_indices"], f[name + "_indptr"]),
+                             shape=tuple(f[name + "_shape"]))
+    return matrix("H"), f["g"], matrix("Ae"), f["ce"], matrix("Ai"), f["ci"], f["y0"], f["z0"]
+
+
+def test_a_hard_qp_warm_started_on_an_elastic_steps_multipliers_solves_from_cold():
+    # Stabilized around multipliers of 1.6e7, the interior-point method follows two nearly
+    # dependent rows' multipliers out there and stalls (capped); from zero the same QP solves,
+    # and its answer meets the KKT conditions of the QP (convex: H is positive definite).
+    from stw_scipy.linear import SparseAlgebra
+    from stw_tui.sos.sqp import qp as Q
+
+    H, g, Ae, ce, Ai, ci, y0, z0 = _sole_qp()
+    assert np.linalg.eigvalsh(H.toarray()).min() > 0
+    warm = Q.solve_qp(SparseAlgebra(), H, g, Ae, ce, Ai, ci, y0=y0, z0=z0, convex=True)
+    assert warm.capped                       # the failure the SQP works around
+    cold = Q.solve_qp(SparseAlgebra(), H, g, Ae, ce, Ai, ci, convex=True)
+    assert not cold.capped
+    d, y, z = cold.d, cold.y, cold.z
+    scale = 1.0 + np.abs(g).max()
+    slack = Ai @ d + ci
+    assert np.abs(H @ d + g + Ae.T @ y - Ai.T @ z).max() <= 1e-8 * scale
+    # its equality rows are stabilized (Ae d + ce = ε y, solve_qp): met up to 1e-3 of their
+    # violation, as the SQP asks of a hard step
+    assert np.abs(Ae @ d + ce - Q.KKT_EPS * y).max() <= 1e-6 * np.abs(ce).max()
+    assert np.abs(Ae @ d + ce).max() <= 1e-3 * np.abs(ce).max() and slack.min() >= -1e-10
+    assert z.min() >= 0.0 and np.abs(z * slack).max() <= 1e-8 * scale
+    assert np.abs(y).max() <= 1e5               # IPOPT's multipliers on it: |y| <= 2.8e4
+
+
+def test_the_sqp_takes_the_hard_step_a_warm_start_could_not_find():
+    # The same QP as the SQP's subproblem: it tries the warm-started hard QP, then the cold one,
+    # and only then the elastic QP. The step it returns is the cold QP's, which meets the rows.
+    from types import SimpleNamespace
+
+    from stw_scipy.linear import SparseAlgebra
+    from stw_tui.sos.sqp import solver as S
+
+    H, g, Ae, ce, Ai, ci, y0, z0 = _sole_qp()
+    la = SparseAlgebra()
+    ev = SimpleNamespace(s=np.zeros(g.size), gradient=g, c_eq=ce, c_ge=ci)
+    lin = S._Linearization(np.arange(ce.size), np.arange(ci.size), g, Ae, ce, Ai, ci, y0, -z0,
+                           np.zeros(ci.size, bool))
+    counts = S._Counts()
+    sub, _rho = ScipyBackend()._subproblem(la, H, ev, lin, 0.0, {"tol_violation": 1e-8}, counts, convex=True)
+    assert not counts.elastic and sub.qp.elastic is None and not sub.qp.capped
+    assert np.abs(Ae @ sub.d + ce).max() <= 1e-3 * np.abs(ce).max() and (Ai @ sub.d + ci).min() >= -1e-10
+
+
 def _sketched_throw() -> str:
     text = (SESSIONS / "arm_throw.stw").read_text()
     head = text[:text.index("iterate 150")]

@@ -414,6 +414,17 @@ class SQPBackend(Backend):
             if newton is not None:
                 return newton, rho_elastic
         hard = self._qp(la, H, ev, lin, None, counts, convex, floor)
+        if (hard is None or hard.qp.capped) and (la.max_abs(lin.y0) > 0 or la.max_abs(lin.z0) > 0):
+            # Once more from cold multipliers, before the elastic QP: the stabilization centres
+            # the QP's multipliers on the last step's, and an elastic step's can be far off
+            # (its slack prices, up to ρ, and a free choice along nearly dependent rows). On the
+            # acrobat's ballistic phase with a 30 cm sole they were 1.3e8 against IPOPT's 6.3e3
+            # on the same QP; every warm interior-point solve stalled, and the SQP declared the
+            # constraints infeasible at violation 8.9e-5. From zero the same QP solves.
+            cold = self._qp(la, H, ev, replace(lin, y0=la.zeros(lin.eq_rows.size),
+                                               z0=la.zeros(lin.ge_rows.size)), None, counts, convex, floor)
+            if cold is not None and not cold.qp.capped:
+                hard = cold
         if hard is not None and not hard.qp.capped and self._meets(la, lin, hard):
             return hard, rho_elastic
         multipliers = float(np.abs(hard.lam_eq).max(initial=0.0)) if hard is not None else 0.0
