@@ -42,6 +42,26 @@ def test_save_and_export_refuse_an_existing_file_unless_told(tmp_path):
     assert not [p for p in tmp_path.iterdir() if p.name.endswith(".tmp")]
 
 
+@pytest.mark.parametrize("umask, mode", [(0o022, 0o644), (0o077, 0o600), (0o002, 0o664)])
+def test_saved_and_exported_files_follow_the_umask(tmp_path, monkeypatch, umask, mode):
+    """A new file's mode is 0666 less the umask, as for any program's; and writing one never sets
+    the umask (it is process-wide: another thread's file made meanwhile would get a wrong mode)."""
+    session = scene()
+    old = os.umask(umask)
+    try:
+        calls = []
+        monkeypatch.setattr(os, "umask", lambda *args: calls.append(args) or umask)
+        for line in (f"save {tmp_path / 'a.stw'}", f"export csv {tmp_path / 'a.csv'}", f"export json {tmp_path / 'a.json'}"):
+            session.execute(line)
+        monkeypatch.undo()
+    finally:
+        os.umask(old)
+    assert calls == []
+    for name in ("a.stw", "a.csv", "a.json"):
+        assert stat.S_IMODE((tmp_path / name).stat().st_mode) == mode, name
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["a.csv", "a.json", "a.stw"]
+
+
 def test_never_through_a_link_nor_onto_a_device(tmp_path):
     secret = tmp_path / "secret"
     secret.write_text("keep\n")

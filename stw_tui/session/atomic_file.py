@@ -8,6 +8,7 @@ from __future__ import annotations
 
 import errno
 import os
+import secrets
 import tempfile
 from pathlib import Path
 
@@ -15,7 +16,7 @@ from pathlib import Path
 def replace_text(path: Path, text: str, *, overwrite: bool = True) -> None:
     """Write ``text`` (UTF-8, newlines as given) to a temporary file beside ``path``, fsync it,
     rename it over ``path`` and fsync the folder, so that the rename survives a crash too. The file
-    gets the mode a new file gets under the user's umask (not the temporary file's 0600).
+    gets the mode any new file gets under the user's umask (0644 under 022, 0600 under 077).
 
     Args:
         overwrite: replace a regular file at ``path``; without it, an existing one is refused
@@ -29,9 +30,8 @@ def replace_text(path: Path, text: str, *, overwrite: bool = True) -> None:
     """
     if path.is_symlink() or (path.exists() and not path.is_file()):
         raise FileExistsError(errno.EEXIST, "it is not a regular file (a link, a folder or a device)")
-    fd, temporary = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.", suffix=".tmp")
+    fd, temporary = _new_temporary(path)
     try:
-        os.fchmod(fd, 0o666 & ~_umask())
         with os.fdopen(fd, "w", encoding="utf-8", newline="") as out:
             out.write(text)
             out.flush()
@@ -47,10 +47,20 @@ def replace_text(path: Path, text: str, *, overwrite: bool = True) -> None:
     _sync_folder(path.parent)
 
 
-def _umask() -> int:
-    mask = os.umask(0o022)   # the only way to read it is to set it: put it straight back
-    os.umask(mask)
-    return mask
+def _new_temporary(path: Path) -> tuple[int, str]:
+    """A new, empty temporary file beside ``path``: (descriptor open for writing, its name).
+
+    Made like any new file, with mode 0666 less the umask, which the system applies. (mkstemp makes
+    0600, and reading the umask to widen that means setting it, process-wide, for a moment: a file
+    another thread creates meanwhile, such as a journal line's or the theme's, gets the wrong mode.)
+    """
+    for _ in range(tempfile.TMP_MAX):
+        name = str(path.parent / f".{path.name}.{secrets.token_hex(4)}.tmp")
+        try:
+            return os.open(name, os.O_WRONLY | os.O_CREAT | os.O_EXCL | os.O_NOFOLLOW, 0o666), name
+        except FileExistsError:
+            continue
+    raise FileExistsError(errno.EEXIST, f"no free temporary name beside {path.name}")
 
 
 def _sync_folder(folder: Path) -> None:
