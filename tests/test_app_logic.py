@@ -82,6 +82,7 @@ def test_tab_completes_paths_after_open_save_and_export(files, jet):
     scene = jet.scene
     assert complete("open jumps/h", scene) == ("open jumps/high.stw ", [])
     assert complete("save jumps/l", scene) == ("save jumps/long.stw ", [])
+    assert complete("save --journal jumps/l", scene) == ("save --journal jumps/long.stw ", [])
     assert complete("open jumps", scene) == ("open jumps/", [])       # a directory: no space, Tab again
     assert complete("open jumps/", scene) == ("open jumps/", ["high.stw", "long.stw"])
     assert complete("open ju", scene) == ("open jump", ["jump.stw", "jump.csv", "jumper.json", "jumps/"])

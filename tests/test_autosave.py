@@ -57,6 +57,7 @@ def test_resume_restores_every_solve_from_its_checkpoint_without_solving(tmp_pat
     monkeypatch.undo()
     assert (restored, solved) == (4, 0)
     same_scene(resumed, original)
+    assert resumed.history.lines == original.history.lines   # what `save` writes: the same clean session
     original.journal.path = original.checkpoints = None     # only the resumed one journals on
     # The history is rebuilt too: undo takes back the last solve in both, to the same scene.
     original.execute("undo")

@@ -207,6 +207,82 @@ def test_save_writes_a_session_that_replays_to_the_same_scene(tmp_path):
         s.execute("save")
 
 
+def _same_scene(a: Session, b: Session) -> None:
+    """The same curves bit for bit (knots and control points), constants and objective."""
+    from stw_tui.session.snapshots import measure
+
+    assert list(a.scene.dofs) == list(b.scene.dofs)
+    for name in a.scene.dofs:
+        assert np.array_equal(a.scene.dofs[name].curve.knots, b.scene.dofs[name].curve.knots), name
+        assert np.array_equal(a.scene.dofs[name].curve.coef, b.scene.dofs[name].curve.coef), name
+    assert a.scene.constants == b.scene.constants
+    assert measure(a.scene).objective == measure(b.scene).objective
+
+
+def test_save_writes_only_the_lines_that_make_the_scene(tmp_path):
+    """Issue 52 item 4: no failed lines, no undone lines nor the `undo`, no queries; a `restore` or
+    an `accept` as the lines that made that state. Replayed headless, the file gives the scene;
+    `save --journal` keeps everything, as before."""
+    jet = SESSIONS.joinpath("particle_jet.stw").read_text()
+    setup = [line for line in jet.split("iterate")[0].splitlines() if line.strip() and not line.startswith("#")]
+    s = run_lines(Session(), "\n".join(setup) + "\n")
+    typed = ["print x @ 0.5", "const k = 3", "undo", "shake x amplitude=0.05 seed=4", "show fuel",
+             "snapshot shaken", "iterate 3", "help iterate", "const g = 1.6", "undo", "redo",
+             "restore shaken", "set preview on", "iterate 2", "reject", "iterate 4", "accept",
+             "cse fuel", "const k = 2", "undo"]
+    for line in typed[:3]:
+        s.execute(line)
+    with pytest.raises(StwError):
+        s.execute("weight nosuch 2")                 # failed: never saved
+    for line in typed[3:]:
+        s.execute(line)
+    out = tmp_path / "clean.stw"
+    message = s.execute(f"save {out}").message
+    assert message.startswith(f"saved {len(setup) + 4} command line(s)")
+    assert "--journal" in message
+    assert out.read_text().splitlines() == [*setup, "shake x amplitude=0.05 seed=4", "set preview on",
+                                            "iterate 4", "accept"]
+    replay = Session()
+    replay.run_file(out)
+    _same_scene(replay, s)
+    # --journal: everything, as the journal holds it (the failed line as a comment)
+    everything = tmp_path / "journal.stw"
+    assert s.execute(f"save {everything} --journal").message == \
+        f"saved {len(setup) + len(typed)} command line(s) to {everything}"
+    text = everything.read_text()
+    assert "# failed: weight nosuch 2" in text and "\nundo\n" in text and "\nprint x @ 0.5\n" in text
+    assert text.splitlines()[-1] == f"# save {out}"
+    replay = Session()
+    replay.run_file(everything)
+    _same_scene(replay, s)
+
+
+def test_save_keeps_a_linkage_block_whole_and_a_stopped_solve_as_it_ran(tmp_path):
+    s = run_lines(Session(), "time 0 1 knots=6\nconst g = 9.81\nlinkage arm base=fixed\n  J1 revolute a=1 mass=1\nend\n"
+                             "constraint up: arm.tip.y = 1 @ 1\nobjective effort: tau_J1\n")
+    s.execute("iterate 3 adapt=0")
+    s.execute("undo")
+    s.execute("iterate 2 adapt=0")
+    out = tmp_path / "arm.stw"
+    s.execute(f"save {out}")
+    assert out.read_text() == ("time 0 1 knots=6\nconst g = 9.81\nlinkage arm base=fixed\n  J1 revolute a=1 mass=1\nend\n"
+                               "constraint up: arm.tip.y = 1 @ 1\nobjective effort: tau_J1\niterate 2 adapt=0\n")
+    replay = Session()
+    replay.run_file(out)
+    _same_scene(replay, s)
+
+
+def test_save_journal_option_parses_anywhere_after_save(tmp_path):
+    s = run_lines(Session(), "dof x\nprint x @ 0\n")
+    s.execute(f"save --journal {tmp_path / 'a.stw'}")
+    s.execute(f"save {tmp_path / 'a.stw'} --journal overwrite")
+    assert (tmp_path / "a.stw").read_text() == f"dof x\nprint x @ 0\n# save --journal {tmp_path / 'a.stw'}\n"
+    s.execute(f'save "{tmp_path / "--journal"}"')     # quoted: a file of that name
+    assert (tmp_path / "--journal").read_text() == "dof x\n"
+    with pytest.raises(SourceError, match="unexpected '--jornal' after the file"):
+        s.execute(f"save {tmp_path / 'b.stw'} --jornal")
+
+
 def test_only_export_and_save_lines_are_read_as_plain_text():
     s = run_lines(Session(), "dof x\n")
     with pytest.raises(SourceError, match="unexpected character"):

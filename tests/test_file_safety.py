@@ -51,15 +51,15 @@ def test_saved_and_exported_files_follow_the_umask(tmp_path, monkeypatch, umask,
     try:
         calls = []
         monkeypatch.setattr(os, "umask", lambda *args: calls.append(args) or umask)
-        for line in (f"save {tmp_path / 'a.stw'}", f"export csv {tmp_path / 'a.csv'}", f"export json {tmp_path / 'a.json'}"):
+        for line in (f"save {tmp_path / 'a.stw'}", f"save {tmp_path / 'b.stw'} --journal", f"export csv {tmp_path / 'a.csv'}", f"export json {tmp_path / 'a.json'}"):
             session.execute(line)
         monkeypatch.undo()
     finally:
         os.umask(old)
     assert calls == []
-    for name in ("a.stw", "a.csv", "a.json"):
+    for name in ("a.stw", "b.stw", "a.csv", "a.json"):
         assert stat.S_IMODE((tmp_path / name).stat().st_mode) == mode, name
-    assert sorted(p.name for p in tmp_path.iterdir()) == ["a.csv", "a.json", "a.stw"]
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["a.csv", "a.json", "a.stw", "b.stw"]
 
 
 def test_never_through_a_link_nor_onto_a_device(tmp_path):

@@ -179,7 +179,7 @@ def test_stw_run_prints_hostile_lines_and_paths_escaped(tmp_path):
     out = _stw("run", str(session), cwd=folder)   # a session file writes only inside its folder
     assert out.returncode == 2, out
     printed = out.stdout + out.stderr
-    assert "saved 2 command line(s) to out\\u202e\\u2067.stw" in out.stdout
+    assert "saved 1 command line(s) to out\\u202e\\u2067.stw" in out.stdout
     assert "dir\\u202eevil\\x9b/s\\u2066.stw: line 5" in out.stderr
     assert "constraint c\\x1b]2;T\\x1b\\: x = 1 @ 0" in out.stderr
     assert not raw_in(printed), raw_in(printed)

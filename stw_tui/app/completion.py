@@ -118,7 +118,7 @@ def _path_context(text: str) -> tuple[str, str | None] | None:
     if before and not before[-1].isspace():
         return None
     words = before.split()
-    if words in (["open"], ["save"]):
+    if words in (["open"], ["save"], ["save", "--journal"]):
         return partial, ".stw"
     if words == ["export"]:
         return partial, None

@@ -180,9 +180,22 @@ def export(session: SessionLike, scene: Scene, cmd) -> Outcome:
 
 
 def save(session: SessionLike, scene: Scene, cmd) -> Outcome:
-    """`save FILE [overwrite]`: the session so far, replayable; not a step, and journalled as a comment."""
+    """`save FILE [--journal] [overwrite]`: the session so far, replayable: the clean session (the
+    lines that rebuild the scene, history.History.lines) or, with `--journal`, the whole journal.
+    Not a step, and journalled as a comment."""
 
-    text = session.journal.text()
+    if cmd.journal:
+        text = session.journal.text()
+    else:
+        text = "".join(line + "\n" for line in session.history.lines)
     target = write_text(cmd.path, text, cmd.overwrite, _folder(session, cmd))
-    lines = sum(1 for line in text.splitlines() if line.strip() and not line.lstrip().startswith("#"))
-    return Outcome(message=f"saved {lines} command line(s) to {target}", journal_text=f"# {cmd.text or 'save'}")
+    lines = _command_lines(text)
+    message = f"saved {lines} command line(s) to {target}"
+    kept = _command_lines(session.journal.text())
+    if not cmd.journal and kept > lines:
+        message += f" (the lines that make the scene; `--journal` saves all {kept} of the journal)"
+    return Outcome(message=message, journal_text=f"# {cmd.text or 'save'}")
+
+
+def _command_lines(text: str) -> int:
+    return sum(1 for line in text.splitlines() if line.strip() and not line.lstrip().startswith("#"))

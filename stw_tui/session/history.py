@@ -11,6 +11,11 @@ next solve are exactly what they would have been without the undone command.
 undoes the same steps. A step is one command that succeeded and may change the scene; commands
 that only read it (`print`, `show`, `cse`, `help`, `snapshots`, `diff`, `export`, `save`) and `snapshot` are not
 steps, and neither is a command that failed.
+
+Each state also keeps the clean session that rebuilds it (``lines``, what `save` writes): the
+steps that led to it, in order. A step adds its line to the lines before it; `undo`, `redo`,
+`restore` and `accept` return to a kept state, and with it to that state's lines, adding none of
+their own. So an undone line, the `undo` itself, a failed line and a read-only one are never in it.
 """
 
 from __future__ import annotations
@@ -38,12 +43,13 @@ class State:
 
     scene: Scene
     warm: Any = None     # backend.WarmStart | None
+    lines: tuple[str, ...] = ()   # the clean session that rebuilds it (History.lines)
 
     @classmethod
     def of(cls, session: SessionLike) -> "State":
         """The session's state, kept apart from it: the warm start is copied, because a backend
         may reuse its arrays."""
-        return cls(session.scene, copy.deepcopy(session.warm))
+        return cls(session.scene, copy.deepcopy(session.warm), session.history.lines)
 
 
 @dataclass(frozen=True)
@@ -62,22 +68,32 @@ class History:
     undo_steps: list[Step] = field(default_factory=list)
     redo_steps: list[Step] = field(default_factory=list)
     snapshots: dict[str, State] = field(default_factory=dict)
+    # The clean session: the lines that rebuild the scene now, in order (a multi-line block is one)
+    lines: tuple[str, ...] = ()
     _measures: dict = field(default_factory=dict, repr=False)   # name -> (scene, its Measures)
 
-    def settled(self, text: str, before: State, journal_text: str | None = None) -> None:
+    def settled(self, text: str, before: State, journal_text: str | None = None,
+                lines: tuple[str, ...] | None = None) -> None:
         """A command succeeded (called by the session after it replaced the scene).
 
         Args:
             text: the command as typed; its first word says whether it is a step.
             before: the session's state before the command.
             journal_text: what the journal keeps instead of ``text``, if anything.
+            lines: the clean session now, where the command returned to a kept state
+                (``Outcome.lines``); None: a step adds its line to :attr:`lines`, another
+                command leaves them.
         """
+        if lines is not None:
+            self.lines = lines
         verb = classify_line(text).verb
         if verb is None or verb in NOT_STEPS:
             return
         self.undo_steps.append(Step(journal_text or text, before))
         del self.undo_steps[:-self.limit]
         self.redo_steps.clear()
+        if lines is None:
+            self.lines = (*self.lines, journal_text or text)
 
     def saved(self) -> tuple:
         """The stacks and snapshots as they are now, for :meth:`put_back` (handlers such as `undo`
@@ -127,7 +143,7 @@ def undo(session: SessionLike, scene: Scene, cmd) -> Outcome:
     become(session, scene, step.state)
     left = len(history.undo_steps)
     return Outcome(message=f"undid {History.describe(step.text)} "
-                           f"({left} more step{'s' if left != 1 else ''} to undo)")
+                           f"({left} more step{'s' if left != 1 else ''} to undo)", lines=step.state.lines)
 
 
 def redo(session: SessionLike, scene: Scene, cmd) -> Outcome:
@@ -139,7 +155,7 @@ def redo(session: SessionLike, scene: Scene, cmd) -> Outcome:
     step = history.redo_steps.pop()
     history.undo_steps.append(Step(step.text, State.of(session)))
     become(session, scene, step.state)
-    return Outcome(message=f"redid {History.describe(step.text)}")
+    return Outcome(message=f"redid {History.describe(step.text)}", lines=step.state.lines)
 
 
 # --- named snapshots -------------------------------------------------------------------------
@@ -162,8 +178,10 @@ def snapshot(session: SessionLike, scene: Scene, cmd) -> Outcome:
 def restore(session: SessionLike, scene: Scene, cmd) -> Outcome:
     """Make the scene a snapshot's (a step: `undo` takes it back)."""
 
-    become(session, scene, _snapshot_state(session, cmd.name))
-    return Outcome(message=f"restored snapshot {cmd.name}")
+    state = _snapshot_state(session, cmd.name)
+    become(session, scene, state)
+    # the snapshot's own lines: a saved session has no snapshot to restore
+    return Outcome(message=f"restored snapshot {cmd.name}", lines=state.lines)
 
 
 def list_snapshots(session: SessionLike, scene: Scene, cmd) -> Outcome:

@@ -26,6 +26,9 @@ class Outcome:
     prints: list[PrintResult] = field(default_factory=list)
     run: RunResult | None = None
     journal_text: str | None = None   # what replays this command, when that differs from the text
+    # the clean session after it (history.History.lines), where the command returned to a kept
+    # state (undo, redo, restore, accept) rather than adding its own line
+    lines: tuple[str, ...] | None = None
     # the continuous-time check of the scene the command left, where it made one (an `iterate`'s):
     # the panels show it instead of checking the same motion again
     dense: DenseReport | None = None

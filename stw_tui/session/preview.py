@@ -23,10 +23,12 @@ def comparison(session: SessionLike) -> str:
             f"  now:      {measure(session.scene).describe()}")
 
 
-def propose(session: SessionLike, scene: Scene, before: State, outcome: Outcome) -> Outcome:
+def propose(session: SessionLike, scene: Scene, before: State, outcome: Outcome, text: str) -> Outcome:
     """Keep a solve's result as the proposal (with its warm start), leaving the scene and the
-    warm start as they were before the solve."""
-    session.proposal = State(scene, session.warm)
+    warm start as they were before the solve. ``text`` is the solve's line: with `accept` after
+    it, it makes the lines that rebuild the proposal as the scene."""
+    lines = (*session.history.lines, outcome.journal_text or text, "accept")
+    session.proposal = State(scene, session.warm, lines)
     session.warm = before.warm
     outcome.dense = None   # the proposal's check, not the scene's
     outcome.message = (f"{outcome.message}\npreview: the scene is unchanged; `accept` takes the result, "
@@ -42,9 +44,10 @@ def _pending(session: SessionLike, verb: str) -> State:
 
 def accept(session: SessionLike, scene: Scene, cmd) -> Outcome:
     """`accept`: the proposal becomes the scene (a step)."""
-    become(session, scene, _pending(session, "accept"))
+    proposal = _pending(session, "accept")
+    become(session, scene, proposal)
     session.proposal = None
-    return Outcome(message="accepted the proposed motion (`undo` takes it back)")
+    return Outcome(message="accepted the proposed motion (`undo` takes it back)", lines=proposal.lines)
 
 
 def reject(session: SessionLike, scene: Scene, cmd) -> Outcome:

@@ -280,9 +280,9 @@ class Session:
         if outcome.run is not None and scene.settings.get("preview"):
             
             self.runs.append(outcome.run)
-            return propose(self, scene, before, outcome)
+            return propose(self, scene, before, outcome, text)
         self.scene = scene
-        self.history.settled(text, before, outcome.journal_text)
+        self.history.settled(text, before, outcome.journal_text, outcome.lines)
         if self.proposal is not None and classify_line(text).verb not in NOT_STEPS:
             self.proposal = None    # proposed from a scene that is no longer the scene
         self.prints.extend(outcome.prints)

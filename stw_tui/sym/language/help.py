@@ -273,9 +273,12 @@ COMMAND_HELP.update({
                         "own (a replay never reads FILE again). Stops at the first line that fails; a "
                         "file whose first line is not a command is refused unread.",
                         "open throw.stw"),
-    "save": CommandHelp("save FILE [overwrite]",
-                        "Write the session so far as a replayable .stw file (the journal's lines that "
-                        "succeeded). " + _WRITES + "The scene does not change.", "save throw.stw"),
+    "save": CommandHelp("save FILE [--journal] [overwrite]",
+                        "Write the session so far as a clean, replayable .stw file: the lines that made "
+                        "the scene, in order (no failed lines, no undone lines nor the `undo`, no `print` "
+                        "or other queries; a `restore` or `accept` as the lines that made that state). "
+                        "`--journal` writes everything as the journal has it, failed lines as comments. "
+                        + _WRITES + "The scene does not change.", "save throw.stw"),
     "survey": CommandHelp("survey N [seed=S] [from=shake|sketch|random] [amplitude=A] [window=W] [workers=K] "
                           "[iterate=M]",
                           "Solve N starts made from the scene (shaken curves, the default; jittered keyframes; "

@@ -85,12 +85,13 @@ class ExportCmd:
 
 @dataclass(frozen=True)
 class SaveCmd:
-    """`save FILE [overwrite]`: write the session so far as a replayable .stw file."""
+    """`save FILE [--journal] [overwrite]`: write the session so far as a replayable .stw file."""
 
     path: str
     text: str = ""
     overwrite: bool = False      # replace FILE if it exists (else refused)
     line: int | None = None      # its line in a session file being replayed; None when typed
+    journal: bool = False        # the whole journal (failed lines, undo, print…), not the clean session
 
 
 @dataclass(frozen=True)
@@ -247,6 +248,7 @@ SESSION_PARSERS = {"undo": _p_undo, "redo": _p_redo, "snapshot": _p_snapshot, "r
                    "open": _p_file, "show": _p_show, "cse": _p_cse, "journal": _p_journal,
                    "accept": _p_accept, "reject": _p_reject, **SURVEY_PARSERS}
 FILE_COMMANDS = ("export", "save", "open")
+JOURNAL_FLAG = "--journal"   # `save FILE --journal`: everything, as the journal has it
 
 
 # --- commands with a file path ---------------------------------------------------------------
@@ -304,15 +306,20 @@ def parse_file_command(text: str, line: int | None = None):
     overwrite = word in ("save", "export") and len(rest) > 1 and rest[-1][0] == "overwrite" and not rest[-1][2]
     if overwrite:
         rest = rest[:-1]
+    journal = word == "save" and any(w == JOURNAL_FLAG and not quoted for w, _, quoted in rest)
+    if journal:   # anywhere after `save` (a file of that name is quoted)
+        rest = [w for w in rest if not (w[0] == JOURNAL_FLAG and not w[2])]
     if word in ("save", "open"):
         if not rest:
             raise _error(f"{word} needs a file", text, line, end, expected="a file path")
         if len(rest) > 1:
             raise _error(f"unexpected '{rest[1][0]}' after the file", text, line, rest[1][1],
-                         expected="overwrite or end of line (quote a path with spaces)" if word == "save"
-                         else "end of line (quote a path with spaces)")
+                         expected="--journal, overwrite or end of line (quote a path with spaces)"
+                         if word == "save" else "end of line (quote a path with spaces)")
         path = _path(rest[0][0], rest[0][1], text, line)
-        return SaveCmd(path, command_text, overwrite, line) if word == "save" else OpenCmd(path, command_text)
+        if word == "save":
+            return SaveCmd(path, command_text, overwrite, line, journal)
+        return OpenCmd(path, command_text)
     if not rest or rest[0][0] not in EXPORT_FORMATS:
         at = rest[0][1] if rest else end
         got = f"unknown export format '{rest[0][0]}'" if rest else "export needs a format"
