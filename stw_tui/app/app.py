@@ -31,7 +31,7 @@ from stw_tui.app.messages import (CommandFinished, CommandRequested, CommandStar
                        Origin, SurveyProgressed, TaskFinished)
 from stw_tui.app.panels import ConstantsPanel, DofPanel, EquationsPanel, OptimizationPanel, TimePanel, WindowsPanel
 from stw_tui.app.plots import ConvergencePlot, DofPlot, ExpressionPlot, FigurePlot, ScenePlot
-from stw_tui.app.runner import Runner, Script
+from stw_tui.app.runner import Runner, Script, changes_scene
 from stw_tui.app.status import StatusLine
 from stw_tui.session.queries import SceneInfo
 from stw_tui.session.throttle import ThrottledCall
@@ -240,16 +240,36 @@ class StwApp(App[int]):
 
     # --- running commands --------------------------------------------------------------------
     def submit(self, line: str, origin: Origin = Origin.CONSOLE, number: int | None = None) -> None:
-        """Run one command line through the session, after any running or queued ones."""
-        if self.runner.submit(Job(line, number=number, origin=origin)) and origin != Origin.FILE:
+        """Run one command line through the session, after any running or queued ones. While a
+        session file replays, a command that may change the scene waits for the file's end, and a
+        read-only one runs before the file's next line (see :class:`Script`)."""
+        job = Job(line, number=number, origin=origin)
+        script = self.script
+        if script is not None and script.running and origin != Origin.FILE:
+            if changes_scene(line):
+                script.held.append(job)
+                self.repl.write_note(f"queued until the replay ends: {line}")
+                return
+            script.queries.append(job)
+            if self.runner.solving:
+                self.repl.write_note(f"answers when the running solve ends: {line}")
+            self._feed_script()
+            return
+        if self.runner.submit(job) and origin != Origin.FILE:
             self.repl.write_note(f"queued until the running command ends: {line}")
 
     def _feed_script(self) -> None:
-        """Send the next line of a replaying script when nothing else is running."""
+        """When nothing runs: the read-only commands typed during a replay (never inside a
+        `linkage` block of the file, whose rows they would become), else the replay's next line."""
         script = self.script
-        if script is None or not script.running or self.runner.busy:
+        if script is None or self.runner.busy:
             return
-        self._send_next_line()
+        if script.queries and not (self.session is not None and self.session.in_block):
+            for job in script.queries:
+                self.runner.submit(job)
+            script.queries.clear()
+        elif script.running:
+            self._send_next_line()
 
     def _send_next_line(self) -> None:
         comments, job = self.script.advance()
@@ -258,6 +278,13 @@ class StwApp(App[int]):
         if job is None:
             self.script.running = False
             self.repl.write_note(f"end of {self.script.path.name}")
+            typed = [*self.script.queries, *self.script.held]
+            self.script.queries.clear()
+            self.script.held.clear()
+            if typed:
+                self.repl.write_note(f"running the {len(typed)} command(s) typed during the replay")
+            for job in typed:
+                self.runner.submit(job)
             self.refresh_bindings()
             self._show_state()
             return
@@ -386,19 +413,19 @@ class StwApp(App[int]):
             self.repl.write_error(error)
             if job.origin == Origin.FILE and self.script is not None:
                 self.script.running = False   # pause the replay; F6/F7 go on after the fix
-                self.repl.write_note("replay paused: fix it at the console, then F6/F7 to go on")
+                self.repl.write_note("replay paused: fix it at the console, then F6/F7 to go on" + self._held_note())
         elif outcome is not None:
             self.repl.write_result(outcome.message)
             if outcome.run is not None and outcome.run.reports:
                 self.status_line.show(report=outcome.run.reports[-1])
                 self.query_one(ConvergencePlot).set_reports(outcome.run.reports)
-            elif _changes_scene(job.line):
+            elif changes_scene(job.line):
                 self.status_line.show(stale=True)   # the last solve's numbers no longer hold
             if job.origin == Origin.FILE and _was_stopped(outcome) and self.script is not None:
                 # The lines after a stopped solve assume it ran to the end: do not run them.
                 self.script.running = False
                 self.repl.write_note(f"replay halted: the solve at line {job.number} was stopped "
-                                     "before it ended; F6 runs the next line, F7 the rest")
+                                     "before it ended; F6 runs the next line, F7 the rest" + self._held_note())
         self._coefficients = None
         self._drop_live_report()
         if event.scene is not None:
@@ -600,10 +627,15 @@ class StwApp(App[int]):
         if self.script is not None and self.script.running:
             self.script.running = False
             if not (stopped and self.runner.current.origin == Origin.FILE):   # else the solve's end says it
-                self.repl.write_note("replay paused: F6 next line, F7 the rest")
+                self.repl.write_note("replay paused: F6 next line, F7 the rest" + self._held_note())
         elif not stopped:
             self.repl.write_note("nothing to stop")
         self._show_state()
+
+    def _held_note(self) -> str:
+        """What a paused replay's note adds about the commands waiting for its end."""
+        held = self.script.held if self.script is not None else []
+        return f"; {len(held)} command(s) typed during it run at its end" if held else ""
 
     def action_escape(self) -> None:
         """Esc: return to the console; at the console, drop an open linkage block. Never stops a solve."""
@@ -619,15 +651,6 @@ class StwApp(App[int]):
         and left behind (a daemon thread)."""
         self.runner.abandon()
         self.exit()
-
-
-READ_ONLY_COMMANDS = frozenset({"print", "help", "show", "cse", "journal"})
-
-
-def _changes_scene(line: str) -> bool:
-    """Whether a command line (that succeeded) may have changed the scene."""
-    verb = classify_line(line).verb
-    return verb is not None and verb not in READ_ONLY_COMMANDS
 
 
 def _was_stopped(outcome) -> bool:

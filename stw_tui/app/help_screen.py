@@ -35,7 +35,7 @@ A first animation: Witkin & Kass's jet-propelled particle (sessions/particle_jet
 
 While it solves, the plots follow each iteration: F3 cycles Curves, Expr (constraint values), Figure (space plays, arrows scrub) and Conv (convergence). F2 cycles the panels, which edit the scene by running commands you can see in the console. Typing always reaches the console; Esc brings the focus back to it.
 
-`stw sessions/NAME.stw` replays a session; with --step, F6 runs it line by line and F7 runs the rest. Ctrl+P opens the command palette."""
+`stw sessions/NAME.stw` replays a session; with --step, F6 runs it line by line and F7 runs the rest. A command typed while it replays waits for its end (so the file's own lines run on the scene it builds); print, show and help answer at once. Ctrl+P opens the command palette."""
 
 CONSOLE_KEYS = (("Enter", "run the line"), ("Up / Down", "previous / next command"),
                 ("Tab", "complete a command, name or setting"), ("PgUp/PgDn", "scroll the log"),

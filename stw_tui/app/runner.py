@@ -37,14 +37,31 @@ if TYPE_CHECKING:
 
 
 
+# First words of the commands that only read the scene (and the session): typed while a session
+# file replays, they answer between two of its lines instead of waiting for its end.
+READ_ONLY_COMMANDS = frozenset({"print", "help", "show", "cse", "journal", "snapshots", "diff"})
+
+
+def changes_scene(line: str) -> bool:
+    """Whether a command line (that succeeded) may have changed the scene (or, as `save` and
+    `export` do, writes what the scene is): any command but the read-only ones."""
+    verb = classify_line(line).verb
+    return verb is not None and verb not in READ_ONLY_COMMANDS
+
+
 class Script:
-    """The lines of an opened session file, replayed to the end or stepped through."""
+    """The lines of an opened session file, replayed to the end or stepped through, and the
+    commands typed (or sent by a key or a panel) while it replays: those that may change the scene
+    wait for its end (the file's own lines, its `print` checks among them, must run on the scene
+    it builds), and read-only ones answer between two of its lines."""
 
     def __init__(self, path: Path, text: str, stepping: bool):
         self.path = path
         self.lines = text.splitlines()
         self.position = 0             # index of the next line to run
         self.running = not stepping   # False: wait for a step key
+        self.held: list[Job] = []     # typed during the replay: run after its last line, in order
+        self.queries: list[Job] = []  # read-only ones typed during it: run before its next line
 
     @property
     def done(self) -> bool:
