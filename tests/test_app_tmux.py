@@ -139,8 +139,14 @@ def test_autosave_survives_kill_9_and_resume_reopens_it_without_solving(tmp_path
     name = f"stw-test-{uuid.uuid4().hex[:8]}"
     base = start(name, f"env XDG_STATE_HOME={state} {STW} --resume")
     try:
-        screen = wait_for(base, name, "stw>")
+        # what it restored, inside the TUI (not on the shell's hidden screen), and Up recalls
+        # the resumed session's last command
+        screen = wait_for(base, name, "resumed ")
         assert "stw>" in screen and "backend scipy" in screen, screen
+        assert "solve(s) restored from checkpoints" in " ".join(screen.split()), screen
+        tmux(*base, "send-keys", "-t", name, "Up")
+        screen = wait_for(base, name, "print f")
+        assert "print f" in screen, screen
         tmux(*base, "send-keys", "-t", name, "C-q")
         deadline = time.monotonic() + 10
         while name in tmux(*base, "list-sessions") and time.monotonic() < deadline:

@@ -155,8 +155,8 @@ def test_stw_autosaves_by_default_and_resume_opens_the_last_journal(tmp_path, mo
     monkeypatch.setenv("XDG_STATE_HOME", str(tmp_path / "state"))
     opened = {}
 
-    def fake_run_app(session_path=None, step=False, journal=None, exit_process=True, session=None):
-        opened.update(session_path=session_path, journal=journal, session=session)
+    def fake_run_app(session_path=None, step=False, journal=None, exit_process=True, session=None, notes=None):
+        opened.update(session_path=session_path, journal=journal, session=session, notes=notes)
         return 0
     monkeypatch.setattr(app_module, "run_app", fake_run_app)
     assert cli.main([]) == 0
@@ -164,7 +164,9 @@ def test_stw_autosaves_by_default_and_resume_opens_the_last_journal(tmp_path, mo
     assert journal.parent == tmp_path / "state" / "stw" and journal.name.startswith("session-")
     original = journalled(journal, "time 0 1 knots=8\ndof x\nconstraint c: x = 1 @ 1\nobjective o: x''\niterate 10\n")
     assert cli.main(["--resume"]) == 0
-    assert "1 solve(s) from checkpoints, 0 solved again" in capsys.readouterr().err
+    assert opened["notes"] == [f"resumed {journal}: 5 command(s), 1 solve(s) restored from checkpoints, "
+                               "0 solved again; Up recalls its commands"]   # said in the TUI, not the shell
+    assert "resumed" not in capsys.readouterr().err
     same_scene(opened["session"], original)
     assert opened["session"].journal.path == journal
     assert cli.main(["--resume", str(tmp_path / "missing.stw")]) == 1

@@ -163,7 +163,7 @@ def test_a_checkpoint_during_a_later_slide_position_replays_the_positions_before
 
 
 def test_stw_run_killed_with_sigkill_during_a_long_iterate_resumes_from_its_running_checkpoint(
-        tmp_path, monkeypatch, capsys):
+        tmp_path, monkeypatch):
     """A real `stw run --journal J` process, killed with SIGKILL in the middle of an endless solve;
     `stw --resume J` starts from the last running checkpoint and says so."""
     import stw_tui.app as app_module
@@ -195,14 +195,14 @@ def test_stw_run_killed_with_sigkill_during_a_long_iterate_resumes_from_its_runn
     assert "iterate 1000000" not in journal.read_text()          # never acknowledged: still running
     opened = {}
 
-    def fake_run_app(session_path=None, step=False, journal=None, exit_process=True, session=None):
-        opened.update(session=session)
+    def fake_run_app(session_path=None, step=False, journal=None, exit_process=True, session=None, notes=None):
+        opened.update(session=session, notes=notes)
         return 0
     monkeypatch.setattr(app_module, "run_app", fake_run_app)
     assert cli.main(["--resume", str(journal)]) == 0
-    err = capsys.readouterr().err
+    notes = "\n".join(opened["notes"])       # said in the TUI's console
     k = record["iteration"]
-    assert f"resumed from the running solve's last checkpoint: `iterate 1000000` at iteration {k} " in err
+    assert f"resumed from the running solve's last checkpoint: `iterate 1000000` at iteration {k} " in notes
     resumed = opened["session"]
     assert np.array_equal(resumed.scene.coefficient_vector(), np.array(record["coef"]["x"]))
     assert journal.read_text().splitlines()[-1] == f"iterate {k} adapt=0"

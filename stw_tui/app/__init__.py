@@ -26,7 +26,8 @@ def settings_file() -> Path:
 
 def create_app(session_path: str | Path | None = None, step: bool = False, session: "Session | None" = None,
                *, show_timing: bool = True, blink: bool = True, settings_path: str | Path | None = None,
-               solver_process: bool = True, journal: str | Path | None = None) -> StwApp:
+               solver_process: bool = True, journal: str | Path | None = None,
+               notes: "list[str] | None" = None) -> StwApp:
     """A ready-to-run app.
 
     Args:
@@ -41,9 +42,10 @@ def create_app(session_path: str | Path | None = None, step: bool = False, sessi
         journal: without ``session``, the file the new session journals to (its solves
             checkpointed beside it); the session is made, with the core's imports, off the UI
             thread once the app shows.
+        notes: lines to show in the console when the app opens (what `stw --resume` restored).
     """
     return StwApp(session=session, session_path=session_path, step=step, show_timing=show_timing, blink=blink,
-                  settings_path=settings_path, solver_process=solver_process, journal=journal)
+                  settings_path=settings_path, solver_process=solver_process, journal=journal, notes=notes)
 
 
 # Seconds a thread may hold the interpreter lock while another waits for it (Python's default is
@@ -56,7 +58,8 @@ SWITCH_INTERVAL = 0.0005
 
 
 def run_app(session_path: str | Path | None = None, step: bool = False,
-            journal: str | Path | None = None, exit_process: bool = True, session: "Session | None" = None) -> int:
+            journal: str | Path | None = None, exit_process: bool = True, session: "Session | None" = None,
+            notes: "list[str] | None" = None) -> int:
     """Run the TUI until the user quits, then end the process (or return its exit code).
 
     Args:
@@ -65,6 +68,7 @@ def run_app(session_path: str | Path | None = None, step: bool = False,
             is written and closed at once, so nothing is pending at exit); solves are
             checkpointed beside it (stw_tui/session/autosave.py).
         session: drive this session (a resumed one, see stw_tui/session/autosave.py) instead of a new one.
+        notes: lines to show in the console when the app opens (what a resume restored).
         exit_process: end the process with ``os._exit`` once the screen is restored, so Ctrl+Q
             takes well under a second: an interpreter that has loaded sympy and scipy spends about
             a second finalizing them, and a solve abandoned by Ctrl+Q (a daemon thread) is not
@@ -74,7 +78,8 @@ def run_app(session_path: str | Path | None = None, step: bool = False,
     # imports (numpy, scipy, sympy) took 1.2 s before the first frame when it was made here.
     # Its Runner starts multiprocessing's helpers here, before Textual replaces stderr
     # (child_process.start_helpers).
-    app = create_app(session_path, step=step, session=session, settings_path=settings_file(), journal=journal)
+    app = create_app(session_path, step=step, session=session, settings_path=settings_file(), journal=journal,
+                     notes=notes)
     sys.setswitchinterval(SWITCH_INTERVAL)
     app.run()
     code = app.return_code or 0

@@ -81,6 +81,7 @@ class StwApp(App[int]):
         blink: blink text cursors (False for deterministic snapshots).
         settings_path: a JSON file remembering the theme between runs (None: nothing is
             remembered, as in tests).
+        notes: lines to show in the console when it opens (what `stw --resume` restored).
     """
 
     CSS_PATH = "app.tcss"
@@ -109,8 +110,9 @@ class StwApp(App[int]):
     def __init__(self, session: "Session | None" = None, session_path: str | Path | None = None,
                  step: bool = False, show_timing: bool = True, blink: bool = True,
                  settings_path: str | Path | None = None, solver_process: bool = True,
-                 journal: str | Path | None = None):
+                 journal: str | Path | None = None, notes: "list[str] | None" = None):
         super().__init__()
+        self.notes = list(notes or ())
         if "TEXTUAL_ANIMATIONS" not in os.environ:
             # The tab underline slides for 0.3 s after F2/F3: ~18 frames of the whole screen's
             # compositor, UI time that keys typed meanwhile wait for (and, during a solve, that
@@ -218,6 +220,10 @@ class StwApp(App[int]):
         journal = self.runner.session.journal.path if self.runner.session is not None else self.runner.journal
         if journal is not None:   # autosaved (stw_tui/session/autosave.py): say where, once
             self.repl.write_note(f"journal: {journal} (`journal` says more; `stw --resume` reopens it)")
+        for note in self.notes:
+            self.repl.write_note(note)
+        if self.runner.session is not None:   # a session given (resumed): Up recalls its commands
+            self.repl.input.history.extend(self.runner.session.journal.commands())
         self.status_line.show(state="loading")
         self.runner.submit(Job("", origin=Origin.STARTUP))   # loads the core and measures the scene, off the UI thread
         if self.session_path is not None:

@@ -30,6 +30,11 @@ class History:
             self.lines.append(line)
         self._index = len(self.lines)
 
+    def extend(self, lines) -> None:
+        """Remember earlier commands, oldest first (a resumed session's)."""
+        for line in lines:
+            self.add(line)
+
     def previous(self, current: str) -> str:
         """The line before the one shown (keeps what was being typed as a draft)."""
         if self._index == len(self.lines):

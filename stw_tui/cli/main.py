@@ -397,14 +397,16 @@ def _resume_tui(args: argparse.Namespace, run_app) -> int:
     if path is None:
         _say(f"stw: no autosaved session in {state_dir()} to resume", err=True)
         return 2
+    notes: list[str] = []   # shown in the TUI's console (the shell's screen is hidden while it runs)
     try:
-        session, restored, solved = resume(path, resolve=args.resolve,
-                                           on_note=lambda note: _say(f"stw: {note}", err=True))
+        session, restored, solved = resume(path, resolve=args.resolve, on_note=notes.append)
     except (SourceError, StwError) as exc:
         _say(f"stw: cannot resume {path}: {exc}", err=True)
         return 1
-    _say(f"stw: resumed {path}: {restored} solve(s) from checkpoints, {solved} solved again", err=True)
-    return run_app(None, session=session)
+    commands = sum(1 for entry in session.journal.entries if entry.ok)
+    notes.insert(0, f"resumed {path}: {commands} command(s), {restored} solve(s) restored from checkpoints, "
+                    f"{solved} solved again; Up recalls its commands")
+    return run_app(None, session=session, notes=notes)
 
 
 if __name__ == "__main__":

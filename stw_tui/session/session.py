@@ -105,6 +105,12 @@ class Journal:
         """The lines that succeeded, in order: running them again rebuilds the scene."""
         return [e.text for e in self.entries if e.ok]
 
+    def commands(self) -> list[str]:
+        """Every command line as typed or read, failed ones too, in order (a block's rows one by
+        one; the journal's comments, such as an `export` kept as one, left out): a console's history."""
+        return [line for entry in self.entries for line in entry.text.splitlines()
+                if line.strip() and not line.lstrip().startswith("#")]
+
     def text(self) -> str:
         """The journal as session text: the lines that succeeded, and failed ones as comments."""
         return "\n".join(self._render(e) for e in self.entries if e.ok is not None) + "\n"
