@@ -27,7 +27,7 @@ from stw_tui.app.messages import (CommandFinished, CommandStarted, IterationRepo
 from stw_tui.session.child_process import NotPortable, SolverProcess, runs_in_solver_process, start_helpers
 from stw_tui.session.queries import SceneInfo, scene_info
 from stw_tui.sym.errors import StwError
-from stw_tui.sym.language import classify_line
+from stw_tui.sym.language import QUERIES, classify_line
 
 if TYPE_CHECKING:
     from textual.app import App
@@ -36,17 +36,11 @@ if TYPE_CHECKING:
     from stw_tui.sos.backend import StepReport
 
 
-
-# First words of the commands that only read the scene (and the session): typed while a session
-# file replays, they answer between two of its lines instead of waiting for its end.
-READ_ONLY_COMMANDS = frozenset({"print", "help", "show", "cse", "journal", "snapshots", "diff"})
-
-
 def changes_scene(line: str) -> bool:
     """Whether a command line (that succeeded) may have changed the scene (or, as `save` and
-    `export` do, writes what the scene is): any command but the read-only ones."""
+    `export` do, writes what the scene is): any command but the queries (language.QUERIES)."""
     verb = classify_line(line).verb
-    return verb is not None and verb not in READ_ONLY_COMMANDS
+    return verb is not None and verb not in QUERIES
 
 
 class Script:

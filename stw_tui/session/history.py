@@ -28,13 +28,13 @@ from stw_tui.session.outcome import Outcome
 from stw_tui.session.protocol import SessionLike
 from stw_tui.sos.scene import Scene
 from stw_tui.sym.errors import StwError
-from stw_tui.sym.language import classify_line
+from stw_tui.sym.language import QUERIES, WRITERS, classify_line
 
 
 HISTORY_LIMIT = 200
-# First words of commands that never change the scene (or manage the history themselves).
-NOT_STEPS = frozenset({"undo", "redo", "print", "help", "snapshot", "snapshots", "diff", "export", "save",
-                       "survey", "show", "cse", "journal", "reject"})
+# First words of commands that are no step of the history: they never change the scene, or
+# manage the history themselves.
+NOT_STEPS = QUERIES | WRITERS | {"undo", "redo", "snapshot", "reject"}
 
 
 @dataclass(frozen=True)

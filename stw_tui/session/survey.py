@@ -25,6 +25,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from stw_tui.sym.language import QUERIES, WRITERS
 from stw_tui.sym.errors import StwError
 
 SOURCES = ("shake", "sketch", "random")
@@ -38,7 +39,7 @@ SAMPLES = 201           # times over the span at which motions are compared (as 
 FRAMES = 4              # stick figures per optimum for the gallery's thumbnails, evenly over the span
 DEFAULT_ITERATIONS = 100
 # First words of journal lines a worker must not replay: they read the scene (or write files).
-READ_ONLY = frozenset({"print", "help", "snapshots", "diff", "export", "save", "survey"})
+READ_ONLY = QUERIES | WRITERS
 RANDOM_MODES = 3        # sine modes of a `from=random` curve
 
 

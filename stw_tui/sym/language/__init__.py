@@ -8,9 +8,9 @@ first use of any of their names.
 
 import importlib
 
-from stw_tui.sym.language.tokens import CommandLine, classify_line, strip_comment, tokenize
+from stw_tui.sym.language.tokens import QUERIES, WRITERS, CommandLine, classify_line, strip_comment, tokenize
 
-__all__ = ["COMMAND_NAMES", "COMMAND_HELP", "CommandLine", "classify_line",
+__all__ = ["COMMAND_NAMES", "COMMAND_HELP", "CommandLine", "QUERIES", "WRITERS", "classify_line",
            "FUNCTIONS", "DictScope", "NameKind", "Relation", "Scope",
            "help_text", "parse_command", "parse_condition", "parse_expression", "strip_comment", "tokenize"]
 

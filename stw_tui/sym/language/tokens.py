@@ -90,6 +90,13 @@ class CommandLine:
         return not self.words
 
 
+# First words of the commands that only read the scene and the session (queries), and of those
+# that write files from it: neither kind changes the scene. Here, with the classifier, so the TUI
+# can tell them apart before the solver stack is imported.
+QUERIES = frozenset({"print", "help", "show", "cse", "journal", "snapshots", "diff"})
+WRITERS = frozenset({"export", "save", "survey"})
+
+
 def classify_line(text: str) -> CommandLine:
     """The :class:`CommandLine` of one line of text."""
     return CommandLine(tuple(strip_comment(text).split()))
