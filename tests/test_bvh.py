@@ -183,3 +183,67 @@ def test_bvh_is_refused_without_one_linkage_and_stw_export_writes_it(tmp_path):
                            "-o", str(out), "--fps", "10"], capture_output=True, text=True)
     assert done.returncode == 0, done.stderr
     check_positions(run_lines(Session(), LAST_PRISMATIC), out.read_text(), "arm", 10)
+
+
+# A branched planar figure on a free base: a leg, and from the base a trunk carrying two arms and
+# a head (the base's children and a link's children), one arm with an angle offset.
+TREE = """time 0 1 knots=6
+const g = 9.81
+linkage fig base=tx:X,ty:Y
+  SHIN  revolute a=0.45 mass=3.5
+  THIGH revolute a=0.42 mass=7
+  TRUNK revolute a=0.55 mass=30 parent=base
+  LARM  revolute a=0.6 mass=3 parent=TRUNK
+  RARM  revolute a=0.55 mass=2.5 parent=TRUNK theta=0.3
+  HEAD  revolute a=0.25 mass=5 parent=TRUNK
+end
+dof X = 0.5*t
+dof Y = 0.1*sin(3*t)
+dof SHIN = pi/2 - 0.3*t
+dof THIGH = 0.6*t
+dof TRUNK = pi/2 + 0.2*sin(2*t)
+dof LARM = 2 + t
+dof RARM = -2 + t^2
+dof HEAD = -0.3*t
+"""
+
+
+def test_bvh_of_a_branched_linkage_is_its_tree_and_bvhio_reads_stws_positions(tmp_path):
+    """The hierarchy nests each joint under the one it hangs from and ends every leaf in an End
+    Site; this file's reader and bvhio (an independent BVH library) both put every joint and
+    every link's end where stw's forward kinematics does, to 1e-6 at each frame."""
+    bvhio = pytest.importorskip("bvhio")
+    s = run_lines(Session(), TREE)
+    text = export_bvh(s, tmp_path, "export bvh FILE fps=10")
+    joints, frame_time, values = parse_bvh(text)
+    parent = {j[0]: joints[j[1]][0] for j in joints if j[1] >= 0 and not j[4]}
+    assert parent == {"SHIN": "fig", "THIGH": "SHIN", "TRUNK": "fig", "LARM": "TRUNK",
+                      "RARM": "TRUNK", "HEAD": "TRUNK"}
+    ends = [joints[j[1]][0] for j in joints if j[4]]
+    assert ends == ["THIGH", "LARM", "RARM", "HEAD"]
+    times = frame_times(s.scene, 10)
+
+    def stw(point):
+        return np.stack([np.broadcast_to(s.scene.evaluate(named_symbol(f"{point}.{ax}"), times), times.shape)
+                         for ax in "xyz"], axis=1)
+
+    expected = {name: stw(f"fig.{name}") for name in parent}
+    expected_ends = {name: stw(f"fig.{name}.end") for name in ends}
+    for f, row in enumerate(values):      # this file's own reader
+        world = world_positions(joints, row)
+        for n, j in enumerate(joints):
+            if not j[4] and j[0] in expected:
+                np.testing.assert_allclose(world[n], expected[j[0]][f], atol=1e-6, rtol=0)
+            elif j[4]:
+                np.testing.assert_allclose(world[n], expected_ends[joints[j[1]][0]][f], atol=1e-6, rtol=0)
+    root = bvhio.readAsHierarchy(str(tmp_path / "out.bvh"))
+    seen = set()
+    for f in range(len(times)):
+        root.loadPose(f)
+        for joint, _, _ in root.layout():
+            p = joint.PositionWorld
+            got = np.array([p.x, p.y, p.z])
+            if joint.Name in expected:
+                np.testing.assert_allclose(got, expected[joint.Name][f], atol=1e-6, rtol=0)
+                seen.add(joint.Name)
+    assert seen == set(expected)

@@ -29,6 +29,7 @@ import numpy as np
 
 from stw_tui.sos.scene import Scene
 from stw_tui.sym.errors import StwError
+from stw_tui.sym.linkage.spec import parent_indices
 from stw_tui.sym.symbols import named_symbol
 
 ROTATION_ORDER = ("Xrotation", "Zrotation", "Yrotation")
@@ -75,38 +76,60 @@ def _root_channels(spec) -> tuple[list[str], list[tuple[str, float | None]]]:
 
 def hierarchy(spec) -> tuple[str, list[tuple]]:
     """The HIERARCHY text, and per channel in file order a source: (DOF name or None, scale,
-    constant offset) meaning ``scale * DOF + offset``."""
+    constant offset) meaning ``scale * DOF + offset``.
+
+    A branched linkage (rows with ``parent=``) is written as the tree it is: each joint is a
+    child of the joint whose link it hangs from (of the ROOT for the base's children), and every
+    link without children ends in an End Site."""
     lines = ["HIERARCHY", f"ROOT {spec.name}", "{", "  OFFSET 0 0 0"]
     root_names, root_sources = _root_channels(spec)
     lines.append(f"  CHANNELS {len(root_names)} {' '.join(root_names)}")
     sources = [(dof, scale, 0.0) for dof, scale in root_sources]
-    depth, previous = 1, None
+    parents = parent_indices(spec)
+    children = {i: [k for k, p in enumerate(parents) if p == i] for i in range(-1, len(spec.joints))}
     deg = math.degrees(1.0)
-    for joint in spec.joints:
+
+    def write(index: int, depth: int) -> None:
+        joint = spec.joints[index]
+        previous = spec.joints[parents[index]] if parents[index] >= 0 else None
         pad = "  " * depth
         offset = (previous.a, 0.0, previous.d) if previous else (0.0, 0.0, 0.0)
-        lines += [f"{pad}JOINT {joint.name}", f"{pad}{{", f"{pad}  OFFSET {_numbers(offset)}"]
+        lines.extend([f"{pad}JOINT {joint.name}", f"{pad}{{", f"{pad}  OFFSET {_numbers(offset)}"])
         names = []
         if previous is not None and previous.kind == "prismatic":
             names += POSITIONS
-            sources += [(None, 0.0, 0.0), (None, 0.0, 0.0), (previous.name, 1.0, 0.0)]
+            sources.extend([(None, 0.0, 0.0), (None, 0.0, 0.0), (previous.name, 1.0, 0.0)])
         names += ROTATION_ORDER
-        sources += [(None, 0.0, math.degrees(previous.alpha) if previous else 0.0),
-                    (joint.name if joint.kind == "revolute" else None, deg, math.degrees(joint.theta)),
-                    (None, 0.0, 0.0)]
+        sources.extend([(None, 0.0, math.degrees(previous.alpha) if previous else 0.0),
+                        (joint.name if joint.kind == "revolute" else None, deg, math.degrees(joint.theta)),
+                        (None, 0.0, 0.0)])
         lines.append(f"{pad}  CHANNELS {len(names)} {' '.join(names)}")
-        depth, previous = depth + 1, joint
-    pad = "  " * depth
-    last = spec.joints[-1]
-    if last.kind == "prismatic":    # the tip slides with the last joint: a joint, not an End Site
-        lines += [f"{pad}JOINT tip", f"{pad}{{", f"{pad}  OFFSET {_numbers((last.a, 0.0, last.d))}",
-                  f"{pad}  CHANNELS 3 {' '.join(POSITIONS)}",
-                  f"{pad}  End Site", f"{pad}  {{", f"{pad}    OFFSET 0 0 0", f"{pad}  }}", f"{pad}}}"]
-        sources += [(None, 0.0, 0.0), (None, 0.0, 0.0), (last.name, 1.0, 0.0)]
-    else:
-        lines += [f"{pad}End Site", f"{pad}{{", f"{pad}  OFFSET {_numbers((last.a, 0.0, last.d))}", f"{pad}}}"]
-    for level in range(depth - 1, -1, -1):
-        lines.append("  " * level + "}")
+        for child in children[index]:
+            write(child, depth + 1)
+        if not children[index]:
+            _end_site(joint, depth + 1)
+        lines.append(f"{pad}}}")
+
+    def _end_site(last, depth: int) -> None:
+        pad = "  " * depth
+        if last.kind == "prismatic":    # the tip slides with the last joint: a joint, not an End Site
+            lines.extend([f"{pad}JOINT {_tip_name(last)}", f"{pad}{{",
+                          f"{pad}  OFFSET {_numbers((last.a, 0.0, last.d))}",
+                          f"{pad}  CHANNELS 3 {' '.join(POSITIONS)}",
+                          f"{pad}  End Site", f"{pad}  {{", f"{pad}    OFFSET 0 0 0", f"{pad}  }}", f"{pad}}}"])
+            sources.extend([(None, 0.0, 0.0), (None, 0.0, 0.0), (last.name, 1.0, 0.0)])
+        else:
+            lines.extend([f"{pad}End Site", f"{pad}{{", f"{pad}  OFFSET {_numbers((last.a, 0.0, last.d))}",
+                          f"{pad}}}"])
+
+    def _tip_name(last) -> str:
+        # a chain's one sliding end keeps the name it always had; a tree's ends are told apart
+        leaves = sum(1 for i in range(len(spec.joints)) if not children[i])
+        return "tip" if leaves == 1 else f"{last.name}_tip"
+
+    for root_child in children[-1]:
+        write(root_child, 1)
+    lines.append("}")
     return "\n".join(lines), sources
 
 

@@ -252,7 +252,8 @@ def contact_lines(scene, point: str, height: float, a: float, b: float,
 def _support_lines(scene, spec, point: str, short: str, normal: str, support, on: str, tol: float) -> list[str]:
     """The centre of pressure on the sole [L, R] (along x, about the planted point): the ground's
     moment about the point is c * Fy with c in [L, R]. That moment is what the joint at the
-    point passes on (the base has no mass to take any of it), so L*Fy <= tau_J <= R*Fy."""
+    point passes on (the base has no mass to take any of it), so L*Fy <= tau_J <= R*Fy; with
+    several joints on the base (a tree), the sum of their torques."""
     lo, hi = support
     if not lo <= hi:
         raise StwError(f"support [{lo:g}, {hi:g}] is empty: its start must not be after its end")
@@ -261,7 +262,11 @@ def _support_lines(scene, spec, point: str, short: str, normal: str, support, on
             ax.kind != "prismatic" for ax in spec.base):
         raise StwError(f"the centre of pressure is bounded through the joint at the planted point: plant "
                        f"{spec.name}.{first.name}, the first joint (a revolute one on a base of translations)")
-    ankle = f"tau_{first.name}"
+    from stw_tui.sym.linkage import base_children
+
+    ankle = " + ".join(f"tau_{r}" for r in base_children(spec))
+    if " + " in ankle:
+        ankle = f"({ankle})"
     heel = f"{ankle} + {-lo!r}*{normal}" if lo < 0 else f"{ankle} - {lo!r}*{normal}"
     return [f"constraint {fresh_name(scene, f'{short}_pressure')}: {heel} >= 0, "
             f"{hi!r}*{normal} - {ankle} >= 0 {on}{_tol(tol)}"]
@@ -277,11 +282,17 @@ def flight_lines(scene, name: str, a: float, b: float, dense_tol: float | None =
     base = [axis.dof for axis in spec.base]
     hung = []
     # joints up to the first massive link hang on a base that can take no torque (a bare frame, or
-    # a point mass); a base with an inertia of its own (base_inertia=) takes the first joint's
-    for joint in spec.joints if not spec.base_inertia else ():
-        hung.append(joint.name)
+    # a point mass); a base with an inertia of its own (base_inertia=) takes the first joint's.
+    # Several joints on the base (a tree): the world's moment is the sum of theirs
+    from stw_tui.sym.linkage import base_children
+
+    roots = base_children(spec)
+    for joint in spec.joints if not spec.base_inertia and len(roots) == 1 else ():
+        hung.append(f"tau_{joint.name} = 0")
         if joint.mass > 0:
             break
+    if len(roots) > 1 and not spec.base_inertia:
+        hung.append(" + ".join(f"tau_{r}" for r in roots) + " = 0")
     group = fresh_name(scene, f"{name}_flight")
     on = f"on [{_t(a)}, {_t(b)}]"
     force_tol = None if spec.com else 0.01 * weight
@@ -289,5 +300,5 @@ def flight_lines(scene, name: str, a: float, b: float, dense_tol: float | None =
     lines = [f"constraint {group}: {', '.join(f'tau_{d} = 0' for d in base)} {on}{_tol(force_tol)}"]
     if hung:
         lines.append(f"constraint {fresh_name(scene, f'{name}_spin')}: "
-                     f"{', '.join(f'tau_{d} = 0' for d in hung)} {on}{_tol(spin_tol)}")
+                     f"{', '.join(hung)} {on}{_tol(spin_tol)}")
     return group, lines

@@ -172,7 +172,10 @@ COMMAND_HELP: dict[str, CommandHelp] = {
                            "forces tau_DOF become subexpressions. Planar conventions: y is up (gravity=-y, "
                            "of magnitude the constant g), a revolute joint's angle is measured "
                            "counterclockwise, the first from +x, each next one from the link before "
-                           "(0 = straight on). A link is by default a uniform rod of length a (mass 1): "
+                           "(0 = straight on). Rows form a chain, each hanging from the end of the link "
+                           "above; `parent=P` hangs a row from the end of P's link instead (`parent=base`: "
+                           "from the base), so a linkage may branch into a tree (two legs, two arms, a "
+                           "head), and each link's end is then NAME.JOINT.end.x. A link is by default a uniform rod of length a (mass 1): "
                            "its mass mid-link, inertia m a^2/12 about its middle. The base axes "
                            "(tx, ty, tz, rx, ry, rz) apply in the order given; `base_mass=M` puts a mass "
                            "at the base frame origin after them (it counts in NAME.com and in the base "
@@ -181,7 +184,10 @@ COMMAND_HELP: dict[str, CommandHelp] = {
                            "`com=CX,CY` makes the DOF the centre of mass (base_mass included) and the base "
                            "a subexpression (free flight is then CX'' = 0, CY'' + g = 0, exact between "
                            "the samples).",
-                           "linkage cp base=tx:X base_mass=1\n  POLE revolute a=0.5 mass=0.2\nend"),
+                           "linkage cp base=tx:X base_mass=1\n  POLE revolute a=0.5 mass=0.2\nend\n"
+                           "linkage fig base=tx:X,ty:Y\n  SHIN revolute a=0.45 mass=3.5\n"
+                           "  TRUNK revolute a=0.6 mass=30 parent=base\n  ARM revolute a=0.6 mass=3\n"
+                           "  HEAD revolute a=0.25 mass=5 parent=TRUNK\nend"),
 }
 
 OPERATORS = "+ - * / ^ (or **), unary -, parentheses; x' and x'' are a DOF's velocity and acceleration; t is time"

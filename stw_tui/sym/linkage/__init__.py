@@ -25,9 +25,10 @@ from stw_tui.sym.symbols import dof_symbol
 from stw_tui.sym.linkage.derivative import time_derivative
 from stw_tui.sym.linkage.dynamics import generalized_forces
 from stw_tui.sym.linkage.kinematics import SYMENGINE, chain, positions, to_sympy
-from stw_tui.sym.linkage.spec import BaseAxis, JointSpec, LinkageSpec, curve_dofs, dof_names, parse_linkage
+from stw_tui.sym.linkage.spec import (BaseAxis, JointSpec, LinkageSpec, base_children, curve_dofs, dof_names,
+                                      parse_linkage)
 
-__all__ = ["BaseAxis", "JointSpec", "LinkageSpec", "curve_dofs", "derive", "dof_names", "parse_linkage",
+__all__ = ["BaseAxis", "JointSpec", "LinkageSpec", "base_children", "curve_dofs", "derive", "dof_names", "parse_linkage",
            "segments", "time_derivative"]
 
 
@@ -35,7 +36,8 @@ def derive(spec: LinkageSpec) -> dict[str, sp.Expr]:
     """Every derived subexpression of the linkage, by name.
 
     ``<linkage>.<JOINT>.x|y|z``: where joint i sits (the origin of DH frame i-1; the base frame for
-    the first joint). ``<linkage>.tip.x|y|z``: origin of the last DH frame. ``<linkage>.com.x|y|z``:
+    the first joint; with ``parent=P``, the end of P's link). ``<linkage>.tip.x|y|z``: where the last
+    row's link ends; a branched linkage also has ``<linkage>.<JOINT>.end.x|y|z`` for every link. ``<linkage>.com.x|y|z``:
     centre of mass of the whole linkage (its ``base_mass`` included). ``tau_<DOF>``: generalized force of each DOF, base DOF
     included (recursive Newton–Euler, see :mod:`.dynamics`).
     """
@@ -48,11 +50,14 @@ def derive(spec: LinkageSpec) -> dict[str, sp.Expr]:
 
 @lru_cache(maxsize=64)
 def _point_function(spec: LinkageSpec):
-    """(DOF names, numpy function of the DOF values -> (n_joints + 1) x 3 points), once per spec."""
+    """(DOF names, numpy function of the DOF values -> 2 n_joints x 3 points: where each joint sits,
+    then where its link ends), once per spec."""
     memo: dict = {}
     pos = positions(spec, SYMENGINE)
     names = dof_names(spec)
-    points = [f"{spec.name}.{j.name}" for j in spec.joints] + [f"{spec.name}.tip"]
+    ends = ([f"{spec.name}.{j.name}.end" for j in spec.joints] if f"{spec.name}.{spec.joints[0].name}.end.x" in pos
+            else [f"{spec.name}.{j.name}" for j in spec.joints[1:]] + [f"{spec.name}.tip"])
+    points = [f"{spec.name}.{j.name}" for j in spec.joints] + ends
     matrix = sp.Matrix([[to_sympy(pos[f"{p}.{axis}"], memo) for axis in "xyz"] for p in points])
     # generated from our own expressions, never from user text
     fn = sp.lambdify([dof_symbol(n) for n in names], matrix, modules="numpy", cse=True)
@@ -61,15 +66,16 @@ def _point_function(spec: LinkageSpec):
 
 def segments(spec: LinkageSpec, values: Mapping[str, float], consts: Mapping[str, float] | None = None
              ) -> list[tuple[np.ndarray, np.ndarray]]:
-    """The stick figure at one configuration: base -> joint 1 -> joint 2 -> ... -> tip.
-
-    Returns one (start, end) pair of 3-vectors per link (joint i to joint i+1, the last joint to the
-    tip); the first start is the base frame origin, where joint 1 sits. ``values`` maps every DOF of
-    the linkage to its value; ``consts`` is accepted for symmetry (positions depend on no constant).
+    """The stick figure at one configuration: one (start, end) pair of 3-vectors per link, in row
+    order, from where its joint sits to where the link ends (a chain: joint i to joint i+1, the
+    last joint to the tip; the first start is the base frame origin, where joint 1 sits).
+    ``values`` maps every DOF of the linkage to its value; ``consts`` is accepted for symmetry
+    (positions depend on no constant).
     """
     names, fn = _point_function(spec)
     missing = [n for n in names if n not in values]
     if missing:
         raise StwError(f"linkage {spec.name}: no value for DOF {', '.join(missing)}")
     pts = np.asarray(fn(*(float(values[n]) for n in names)), dtype=float)
-    return [(pts[i].copy(), pts[i + 1].copy()) for i in range(len(pts) - 1)]
+    n = len(spec.joints)
+    return [(pts[i].copy(), pts[n + i].copy()) for i in range(n)]

@@ -70,12 +70,13 @@ def generalized_forces_raw(spec: LinkageSpec, ch: Chain | None = None, lib: Lib 
     # origin (gravity included), each in its own frame's coordinates
     w, dw, a = [ZERO], [ZERO], [scale(lib.integer(-1), gravity_vector(spec, lib))]
     transforms = []
-    for step in steps:
+    for k, step in enumerate(steps):
         rot, p = step_transform(step, lib)
         transforms.append((rot, p))
         e = unit(step.axis, lib)
         v1, v2 = step_value(step, 1, lib), step_value(step, 2, lib)
-        wp, dwp, ap = w[-1], dw[-1], a[-1]
+        up = ch.parent(k)
+        wp, dwp, ap = w[up], dw[up], a[up]
         if step.kind == "revolute":
             w_rel = scale(v1, e)
             w.append(tmatvec(rot, add(wp, w_rel)))
@@ -98,11 +99,14 @@ def generalized_forces_raw(spec: LinkageSpec, ch: Chain | None = None, lib: Lib 
         moment = add(matvec(inertia, dw[k]), cross(w[k], matvec(inertia, w[k])), cross(c, force))
         return force, moment
 
+    # each frame's wrench gathers its body's and those its child frames pass on; children come
+    # after their parents, so one backward sweep sees every child before its parent
+    wrench = {k: body_wrench(k) for k in range(n + 1)}
     taus: dict[str, sp.Expr] = {}
-    f, m = body_wrench(n)
     for k in range(n, 0, -1):
         step = steps[k - 1]
         rot, p = transforms[k - 1]
+        f, m = wrench[k]
         if step.kind == "revolute":
             if step.dof is not None:
                 taus[step.dof] = m[step.axis]  # e . (R m) = (R^T e) . m = e . m
@@ -111,9 +115,9 @@ def generalized_forces_raw(spec: LinkageSpec, ch: Chain | None = None, lib: Lib 
             if step.dof is not None:
                 taus[step.dof] = f[step.axis]
             m = add(m, cross(p, f))
-        bf, bm = body_wrench(k - 1)
-        if bf is not ZERO:
-            f, m = add(f, bf), add(m, bm)
+        up = ch.parent(k - 1)
+        pf, pm = wrench[up]
+        wrench[up] = (f, m) if pf is ZERO else (add(pf, f), add(pm, m))
 
     order = [b.dof for b in spec.base] + [j.name for j in spec.joints]
     return {f"tau_{name}": taus[name] for name in order}

@@ -24,7 +24,7 @@ import sympy as sp
 
 from stw_tui.sym.symbols import dof_symbol, named_symbol
 
-from stw_tui.sym.linkage.spec import LinkageSpec, link_com, link_inertia
+from stw_tui.sym.linkage.spec import LinkageSpec, link_com, link_inertia, parent_indices
 
 Vec = tuple
 Mat = tuple
@@ -138,19 +138,32 @@ class Step:
 
 @dataclass(frozen=True)
 class Chain:
-    """A linkage lowered to elementary steps, with the frames where joints sit and links attach."""
+    """A linkage lowered to elementary steps, with the frames where joints sit and links attach.
+
+    Frame 0 is the world and step k makes frame k + 1 from frame ``parents[k]``: for a serial chain
+    ``parents[k] == k``; a branched linkage (rows with ``parent=``) starts a row's steps from the
+    frame of the link it hangs from. Parents always come before their children.
+    """
 
     steps: tuple[Step, ...]
     joint_frames: tuple[int, ...]  # index (into frames 0..len(steps)) where joint i sits
     link_frames: tuple[int, ...]  # index of the frame link i is attached to (DH frame i)
+    parents: tuple[int, ...] = ()  # frame each step starts from (empty: the serial chain, k)
+
+    def parent(self, k: int) -> int:
+        """The frame step ``k`` starts from."""
+        return self.parents[k] if self.parents else k
 
 
 def chain(spec: LinkageSpec) -> Chain:
-    """Lower a linkage to its elementary steps: the base axes, then each DH row's nonzero steps."""
+    """Lower a linkage to its elementary steps: the base axes, then each DH row's nonzero steps,
+    each row starting from the frame of the link it hangs from."""
     steps: list[Step] = [Step(b.kind, b.index, 0.0, b.dof) for b in spec.base]
+    parents = list(range(len(steps)))
     joint_frames, link_frames = [], []
-    for j in spec.joints:
-        joint_frames.append(len(steps))
+    for j, up in zip(spec.joints, parent_indices(spec)):
+        start = len(spec.base) if up < 0 else link_frames[up]
+        joint_frames.append(start)
         revolute = j.kind == "revolute"
         candidates = [
             Step("revolute", 2, j.theta, j.name if revolute else None),
@@ -158,11 +171,15 @@ def chain(spec: LinkageSpec) -> Chain:
             Step("prismatic", 0, j.a, None),
             Step("revolute", 0, j.alpha, None),
         ]
+        frame = start
         for s in candidates:
             if s.dof is not None or s.offset != 0.0:
+                parents.append(frame)
                 steps.append(s)
-        link_frames.append(len(steps))
-    return Chain(tuple(steps), tuple(joint_frames), tuple(link_frames))
+                frame = len(steps)
+        link_frames.append(frame)
+    serial = all(p == k for k, p in enumerate(parents))
+    return Chain(tuple(steps), tuple(joint_frames), tuple(link_frames), () if serial else tuple(parents))
 
 
 # ------------------------------------------------------------------------------- small 3-D algebra
@@ -270,9 +287,9 @@ def world_frames(spec: LinkageSpec, ch: Chain | None = None, lib: Lib = SYMPY
                  ) -> list[tuple[Mat, Vec]]:
     """World (R, p) of every frame of the chain: frame 0 is the world, frame k follows step k."""
     ch = ch or chain(spec)
-    r, p = identity(lib), zero_vec(lib)
-    frames = [(r, p)]
-    for step in ch.steps:
+    frames = [(identity(lib), zero_vec(lib))]
+    for k, step in enumerate(ch.steps):
+        r, p = frames[ch.parent(k)]
         value = step_value(step, 0, lib)
         if step.kind == "revolute":
             r = matmul(r, rotation(step.axis, value, lib))
@@ -297,14 +314,18 @@ def link_inertia_sym(joint, lib: Lib = SYMPY) -> Mat:
 
 
 def positions(spec: LinkageSpec, lib: Lib = SYMPY) -> dict:
-    """``NAME.JOINT.x|y|z`` (where each joint sits), ``NAME.tip.x|y|z`` and ``NAME.com.x|y|z`` (of
-    the links and the base's own mass), as expressions of ``lib`` (see :func:`to_sympy`)."""
+    """``NAME.JOINT.x|y|z`` (where each joint sits), ``NAME.tip.x|y|z`` (where the last row's link
+    ends) and ``NAME.com.x|y|z`` (of the links and the base's own mass), as expressions of ``lib``
+    (see :func:`to_sympy`). A branched linkage also names where each link ends,
+    ``NAME.JOINT.end.x|y|z`` (a leaf's end is a hand, a foot or a head)."""
     ch = chain(spec)
     frames = world_frames(spec, ch, lib)
     out: dict = {}
-    for joint, k in zip(spec.joints, ch.joint_frames):
+    for joint, k, end in zip(spec.joints, ch.joint_frames, ch.link_frames):
         _put(out, f"{spec.name}.{joint.name}", frames[k][1])
-    _put(out, f"{spec.name}.tip", frames[-1][1])
+        if ch.parents:   # a branched linkage names where each link ends (a chain: the next joint)
+            _put(out, f"{spec.name}.{joint.name}.end", frames[end][1])
+    _put(out, f"{spec.name}.tip", frames[ch.link_frames[-1]][1])
     total = spec.total_mass
     coms = link_com_world(spec, frames, ch, lib)
     weighted = add(*(scale(num(j.mass / total, lib), c) for j, c in zip(spec.joints, coms)))

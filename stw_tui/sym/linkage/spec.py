@@ -44,7 +44,7 @@ from stw_tui.sym.errors import SourceError
 
 JOINT_TYPES = ("revolute", "prismatic")
 BASE_AXES = ("tx", "ty", "tz", "rx", "ry", "rz")
-ROW_KEYS = ("a", "alpha", "d", "theta", "mass", "com", "inertia")
+ROW_KEYS = ("a", "alpha", "d", "theta", "mass", "com", "inertia", "parent")
 POSITIONAL_KEYS = ("a", "alpha", "d", "theta", "mass")
 ANGLE_KEYS = ("alpha", "theta")
 HEADER_KEYS = ("base", "gravity", "com", "base_mass", "base_inertia")
@@ -75,6 +75,7 @@ class JointSpec:
     com: tuple[float, float, float] | None = None
     inertia: tuple[float, float, float] | None = None
     line: int | None = None
+    parent: str | None = None  # the joint whose link this one hangs from; None: the row above
 
 
 @dataclass(frozen=True)
@@ -128,6 +129,23 @@ def base_rotation_axis(spec: LinkageSpec) -> int:
     """
     (axis,) = [b.index for b in spec.base if b.kind == "revolute"]
     return axis
+
+
+def parent_indices(spec: LinkageSpec) -> tuple[int, ...]:
+    """For each joint, the index of the joint whose link it hangs from (-1: the base frame).
+
+    A row without ``parent=`` hangs from the row above (the first row from the base), so a linkage
+    without any ``parent=`` is the serial chain it always was.
+    """
+    index = {j.name: i for i, j in enumerate(spec.joints)}
+    return tuple(i - 1 if j.parent is None else -1 if j.parent == "base" else index[j.parent]
+                 for i, j in enumerate(spec.joints))
+
+
+def base_children(spec: LinkageSpec) -> list[str]:
+    """The joints that hang from the base frame itself: the first row, and any with ``parent=base``.
+    The moment the world exerts on a base that cannot turn is the sum of their torques."""
+    return [j.name for j, up in zip(spec.joints, parent_indices(spec)) if up < 0]
 
 
 def dof_names(spec: LinkageSpec) -> list[str]:
@@ -313,10 +331,14 @@ def parse_linkage(header: str, rows: list[tuple[int, str]], *, header_line: int 
         row_toks = _tokens(text)
         if not row_toks:
             continue
-        joint = _parse_row(row_toks, line, text)
+        joint, parent_col = _parse_row(row_toks, line, text)
         if joint.name in used:
             raise _err(f"name {joint.name!r} used twice in linkage {name!r}", line, row_toks[0].col,
                        text, "a new joint name")
+        if joint.parent is not None and joint.parent != "base" and joint.parent not in {j.name for j in joints}:
+            above = [j.name for j in joints] + ["base"]
+            raise _err(f"parent {joint.parent!r} is not a joint above this row in linkage {name!r}"
+                       f"{_did_you_mean(joint.parent, above)}", line, parent_col, text, ", ".join(above))
         used[joint.name] = None
         joints.append(joint)
     if not joints:
@@ -328,6 +350,15 @@ def parse_linkage(header: str, rows: list[tuple[int, str]], *, header_line: int 
     return LinkageSpec(name=name, joints=tuple(joints), base=base, gravity_axis=gravity_axis,
                        gravity_sign=gravity_sign, line=hl, com=com, base_mass=base_mass,
                        base_inertia=base_inertia)
+
+
+def _did_you_mean(word: str, names: list[str]) -> str:
+    """`` (did you mean 'X'?)`` for the closest of ``names``, case aside (difflib), or nothing."""
+    import difflib
+
+    lowered = {n.lower(): n for n in names}
+    close = difflib.get_close_matches(word.lower(), list(lowered), n=1)
+    return f" (did you mean {lowered[close[0]]!r}?)" if close else ""
 
 
 def _parse_base_body(toks: dict[str, _Tok], base: tuple[BaseAxis, ...], line, source
@@ -428,6 +459,7 @@ def _parse_row(toks: list[_Tok], line, text) -> JointSpec:
                    line, kind_tok.col, text, "revolute or prismatic")
     fields: dict = {}
     positional = 0
+    parent_col = [None]
     for tok in toks[2:]:
         if tok.key is None:
             if fields.keys() - set(POSITIONAL_KEYS[:positional]):
@@ -445,8 +477,11 @@ def _parse_row(toks: list[_Tok], line, text) -> JointSpec:
             if key in fields:
                 raise _err(f"key {key!r} given twice", line, tok.col, text)
         if not value:
-            raise _err(f"{key}= needs a value", line, vcol, text, "a number")
-        if key == "com":
+            raise _err(f"{key}= needs a value", line, vcol, text, "a joint name" if key == "parent" else "a number")
+        if key == "parent":
+            fields[key] = value
+            parent_col[0] = vcol
+        elif key == "com":
             fields[key] = _triple(value, line=line, col=vcol, source=text, what="com")
         elif key == "inertia":
             inertia = _triple(value, line=line, col=vcol, source=text, what="inertia")
@@ -458,4 +493,4 @@ def _parse_row(toks: list[_Tok], line, text) -> JointSpec:
             fields[key] = _number(value, angle=key in ANGLE_KEYS, line=line, col=vcol, source=text)
             if key == "mass" and fields[key] < 0:
                 raise _err("mass cannot be negative", line, vcol, text, "mass >= 0")
-    return JointSpec(name=first.value, kind=kind, line=line, **fields)
+    return JointSpec(name=first.value, kind=kind, line=line, **fields), parent_col[0]
