@@ -748,7 +748,7 @@ def _verb(scene: Scene, cmd) -> str:
     their own lines would be, and remember them as one group that `delete` removes."""
     from stw_tui.session import verbs
 
-    a, b = _interval(scene, cmd.interval, "interval")
+    a, b = (scene.t0, scene.t1) if cmd.interval is None else _interval(scene, cmd.interval, "interval")
     parts, note = (), ""
     if isinstance(cmd, lang.HoldCmd):
         group, lines, parts = verbs.hold_lines(scene, cmd.point, cmd.at, a, b, _option(scene, cmd.mass, "mass"))
@@ -760,6 +760,10 @@ def _verb(scene: Scene, cmd) -> str:
             scene, cmd.point, _option(scene, cmd.height, "ground height") or 0.0, a, b,
             _option(scene, cmd.friction, "friction coefficient"), _option(scene, cmd.x, "x"),
             _option(scene, cmd.dense_tol, "dense_tol"), support)
+    elif isinstance(cmd, lang.AvoidCmd):
+        group, lines = verbs.avoid_lines(scene, cmd.first, cmd.second, a, b, _option(scene, cmd.by, "by"),
+                                         _option(scene, cmd.height, "ground height"),
+                                         _option(scene, cmd.dense_tol, "dense_tol"))
     elif isinstance(cmd, lang.FlightCmd):
         group, lines = verbs.flight_lines(scene, cmd.linkage, a, b, _option(scene, cmd.dense_tol, "dense_tol"))
     else:
@@ -894,5 +898,5 @@ _HANDLERS = {
     lang.SetCmd: _set, lang.IterateCmd: _iterate, lang.DeleteCmd: _delete, lang.PrintCmd: _print,
     lang.HelpCmd: _help, lang.InstancesCmd: _instances, lang.SlideCmd: _slide,
     lang.HoldCmd: _verb, lang.BallisticCmd: _verb, lang.ContactCmd: _verb,
-    lang.FlightCmd: _verb, lang.LimitCmd: _limit,
+    lang.FlightCmd: _verb, lang.AvoidCmd: _verb, lang.LimitCmd: _limit,
 }

@@ -26,9 +26,14 @@ whole, and no part of it is deleted or redefined alone (:func:`owned_by_verb`).
   joints that hang the first massive link on the base, which has nothing to push against in the
   air unless it has an inertia, base_inertia= (``acro_spin``: to 1% of weight x size between
   instances, or dense_tol=D).
+- ``avoid fig.LARM fig.TRUNK [by=D]`` / ``avoid fig.LARM ground [y=H] [by=D]``: two links (or a
+  link and the ground) kept at least D apart: each end of one stays D from the other link, ends
+  they share left out (``LARM_TRUNK_apart``), held between instances to 1 mm or dense_tol=E.
 """
 
 from __future__ import annotations
+
+import math
 
 from stw_tui.sym.errors import StwError
 
@@ -270,6 +275,113 @@ def _support_lines(scene, spec, point: str, short: str, normal: str, support, on
     heel = f"{ankle} + {-lo!r}*{normal}" if lo < 0 else f"{ankle} - {lo!r}*{normal}"
     return [f"constraint {fresh_name(scene, f'{short}_pressure')}: {heel} >= 0, "
             f"{hi!r}*{normal} - {ankle} >= 0 {on}{_tol(tol)}"]
+
+
+AVOID_DISTANCE = 0.01     # m: how far apart `avoid` keeps two links unless by= says
+AVOID_TOL = 1e-3          # m: how far inside that distance the links may come between instances
+
+
+def avoid_lines(scene, first: str, second: str, a: float, b: float, by: float | None = None,
+                height: float | None = None, dense_tol: float | None = None) -> tuple[str, list[str]]:
+    """(group name, command lines) of ``avoid``: each end of one link stays ``by`` from the other
+    link (the point-to-segment distance, its projection clamped to the segment), ends the two share
+    left out. In the plane two links that start apart can only cross after an end has met the
+    other link, so the ends' distances keep them apart. Against the ground, both ends stay ``by``
+    above it."""
+    by = AVOID_DISTANCE if by is None else by
+    if not by > 0:
+        raise StwError(f"avoid keeps links a distance apart: by={by:g} must be more than 0")
+    one = _link(scene, first)
+    on = f"on [{_t(a)}, {_t(b)}]"
+    tol = _tol(AVOID_TOL if dense_tol is None else dense_tol)
+    if second == "ground":
+        h = height or 0.0
+        relations = [f"{p}.y - {h + by!r} >= 0" for p, _ in one]
+        label = "ground"
+    else:
+        other = _link(scene, second)
+        if one == other:
+            raise StwError(f"avoid needs two different links, not {first} twice")
+        same = first.split(".")[0] == second.split(".")[0]
+        relations = _joint_range(scene, first, second, one, other, by, a) if same else None
+        if relations is None:
+            relations = [_apart(p, *(q for q, _ in other), by) for p, _ in one]
+            relations += [_apart(p, *(q for q, _ in one), by) for p, _ in other]
+        label = second.rsplit(".", 1)[-1]
+    name = first.rsplit(".", 1)[-1]
+    group = fresh_name(scene, f"{name}_{label}_avoid")
+    return group, [f"constraint {fresh_name(scene, f'{name}_{label}_apart')}: {', '.join(relations)} {on}{tol}"]
+
+
+def _link(scene, name: str) -> tuple[tuple[str, int], tuple[str, int]]:
+    """The ends of the link named by its joint (``fig.LARM``), or a clear error."""
+    from stw_tui.sym.linkage import link_ends
+
+    linkage, _, joint = name.partition(".")
+    spec = scene.linkages.get(linkage)
+    if spec is None or joint not in {j.name for j in spec.joints}:
+        links = ", ".join(f"{s.name}.{j.name}" for s in scene.linkages.values() for j in s.joints)
+        raise StwError(f"'{name}' is not a link (a link is named by its joint: {links or 'no linkage yet'})")
+    return link_ends(spec, joint)
+
+
+def _joint_range(scene, first: str, second: str, one, other, by: float, a: float) -> list[str] | None:
+    """Two planar links that share a joint, kept ``by`` apart as a range of their angle, or None
+    when they share none. Their ends' distances would not do: a link folding through the other
+    between two instances is at a safe distance at both, one side and then the other (the angle
+    wraps). The range cannot wrap, so the angle cannot pass the fold.
+
+    Parent and child (an elbow): the child's angle q + theta stays in [-pi + e, pi - e], e =
+    asin(D / shorter link). Siblings (two arms on a shoulder): the difference of their angles stays
+    in [e, 2 pi - e]. Each range is taken on the branch (2 pi k) where the curves are at ``a``; it
+    is in radians, and so is its dense_tol (1e-3 rad is 1 mm at 1 m).
+    """
+    spec = scene.linkages[first.split(".")[0]]
+    joints = {j.name: j for j in spec.joints}
+    j1, j2 = joints[first.split(".", 1)[1]], joints[second.split(".", 1)[1]]
+    (_, s1), (_, e1) = one
+    (_, s2), (_, e2) = other
+    if e2 == s1:
+        j1, j2, s1, e1, s2, e2 = j2, j1, s2, e2, s1, e1      # j1 is the parent
+    if e1 == s2:
+        kind = "elbow"
+    elif s1 == s2:
+        kind = "siblings"
+    else:
+        return None
+    if any(j.kind != "revolute" or j.alpha or j.d for j in (j1, j2)):
+        raise StwError(f"avoid: {first} and {second} share a joint, and are kept apart by their angle, "
+                       f"which needs planar revolute links (no alpha= or d=)")
+    shorter = min(abs(j1.a), abs(j2.a))
+    if not by < shorter:
+        raise StwError(f"avoid: by={by:g} is not less than the shorter link ({shorter:g} m): the two "
+                       f"links, joined at one end, cannot be that far apart")
+    e = math.asin(by / shorter)
+    now = {n: float(scene.dofs[n].curve.evaluate([a])[0]) for n in (j1.name, j2.name)}
+    if kind == "elbow":
+        angle, value, lo, hi = f"{j2.name}", now[j2.name] + j2.theta, -math.pi + e, math.pi - e
+        offset = j2.theta
+    else:
+        angle = f"{j2.name} - {j1.name}"
+        value = now[j2.name] + j2.theta - now[j1.name] - j1.theta
+        lo, hi, offset = e, 2 * math.pi - e, j2.theta - j1.theta
+    k = math.floor((value - lo) / (2 * math.pi))
+    lo, hi = lo + 2 * math.pi * k - offset, hi + 2 * math.pi * k - offset
+    if not lo <= value - offset <= hi:
+        raise StwError(f"avoid: at t = {a:g} {first} and {second} are already closer than {by:g} "
+                       f"({angle} = {value - offset:.4g}, outside [{lo:.4g}, {hi:.4g}]): sketch them apart first")
+    return [f"{angle} - {lo!r} >= 0", f"{hi!r} - ({angle}) >= 0"]
+
+
+def _apart(p: str, q1: str, q2: str, by: float) -> str:
+    """``distance(P, segment Q1 Q2) - by >= 0`` as session text (the projection clamped to the
+    segment). A link that passes through another between two instances is at a safe distance at
+    both; the continuous-time check finds it (the distance reaches 0 there) and adaptive refinement
+    adds instances where it did."""
+    ux, uy = f"({q2}.x - {q1}.x)", f"({q2}.y - {q1}.y)"
+    wx, wy = f"({p}.x - {q1}.x)", f"({p}.y - {q1}.y)"
+    along = f"min(max(({wx}*{ux} + {wy}*{uy})/({ux}^2 + {uy}^2), 0), 1)"
+    return f"sqrt(({wx} - {along}*{ux})^2 + ({wy} - {along}*{uy})^2) - {by!r} >= 0"
 
 
 def flight_lines(scene, name: str, a: float, b: float, dense_tol: float | None = None) -> tuple[str, list[str]]:

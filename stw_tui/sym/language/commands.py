@@ -255,6 +255,20 @@ class FlightCmd:
 
 
 @dataclass(frozen=True)
+class AvoidCmd:
+    """`avoid LINK (LINK | ground [y=H]) [by=D] [on [A, B]] [dense_tol=E]`: two links, or a link and
+    the ground, kept at least D apart."""
+
+    first: str                      # a link, named by its joint: fig.LARM
+    second: str                     # another link, or "ground"
+    height: sp.Expr | None          # the ground's height (None: 0)
+    by: sp.Expr | None              # the least distance (None: the default)
+    interval: Interval | None       # when (None: the whole animation)
+    text: str = ""
+    dense_tol: sp.Expr | None = None
+
+
+@dataclass(frozen=True)
 class LimitCmd:
     """`limit DOF A B`: a range for a DOF (a joint's limits)."""
 
@@ -306,14 +320,14 @@ class HelpCmd:
 Command = (TimeCmd | ConstCmd | DofCmd | LetCmd | ConstraintCmd | ObjectiveCmd | KeyCmd | WindowCmd
            | UseCmd | WeightCmd | DampCmd | FilterCmd | ShakeCmd | RefineCmd | BackendCmd | SetCmd
            | IterateCmd | DeleteCmd | PrintCmd | HelpCmd | InstancesCmd | SlideCmd | HoldCmd
-           | BallisticCmd | ContactCmd | FlightCmd | LimitCmd)
+           | BallisticCmd | ContactCmd | FlightCmd | AvoidCmd | LimitCmd)
 
 COMMAND_NAMES = ("time", "const", "dof", "let", "constraint", "objective", "key", "window", "use",
                  "weight", "damp", "filter", "shake", "refine", "backend", "set", "iterate", "delete",
-                 "print", "help", "linkage", "instances", "slide", "hold", "ballistic", "contact", "flight", "limit")
-# `contact` and `flight` became verbs after sessions had named constraints so; a line's first word
-# is its command, so they stay free as names.
-RESERVED = (set(COMMAND_NAMES) - {"contact", "flight"}) | set(FUNCTIONS) | {"t", "pi", "all", "on", "when",
+                 "print", "help", "linkage", "instances", "slide", "hold", "ballistic", "contact", "flight", "avoid", "limit")
+# `contact`, `flight` and `avoid` became verbs after sessions had named constraints so; a line's
+# first word is its command, so they stay free as names.
+RESERVED = (set(COMMAND_NAMES) - {"contact", "flight", "avoid"}) | set(FUNCTIONS) | {"t", "pi", "all", "on", "when",
                                                                           "and", "or", "not"}
 
 
@@ -718,6 +732,19 @@ class CommandParser(ExpressionParser):
         interval = self.interval()
         opts = self.options({"dense_tol": "expr"})
         return FlightCmd(linkage, interval, self.text, opts.get("dense_tol"))
+
+    def p_avoid(self):
+        """`avoid LINK (LINK | ground [y=H]) [by=D] [on [A, B]] [dense_tol=E]`."""
+        first = self.name("a link, named by its joint, such as fig.LARM").text
+        second = self.name("another link (fig.TRUNK) or 'ground'").text
+        height = self.options({"y": "expr"}).get("y") if second == "ground" else None
+        opts = self.options({"by": "expr"})
+        interval = None
+        if self.token.is_word("on"):
+            self.advance()
+            interval = self.interval()
+        opts |= self.options({"by": "expr", "dense_tol": "expr"} if "by" not in opts else {"dense_tol": "expr"})
+        return AvoidCmd(first, second, height, opts.get("by"), interval, self.text, opts.get("dense_tol"))
 
     def p_limit(self):
         """`limit DOF A B`."""

@@ -97,6 +97,16 @@ COMMAND_HELP: dict[str, CommandHelp] = {
                           "instances. "
                           "`delete LINKAGE_flight` removes it.",
                           "flight acro on [0.5, 1]"),
+    "avoid": CommandHelp("avoid LINK (LINK | ground [y=H]) [by=D] [on [A, B]] [dense_tol=E]",
+                         "Keeps two links at least D apart (D = 0.01 m unless by= says), over the "
+                         "whole animation or on [A, B]: a link is named by its joint (fig.LARM: from "
+                         "the LARM joint to where its link ends). Each end of one link stays D from "
+                         "the other link (ends two links share, such as an elbow, are left out), so "
+                         "neither passes through the other; against `ground`, both ends stay D above "
+                         "y = H (0 unless y= says). The distances hold at the instances and, by the "
+                         "continuous-time check, between them to dense_tol=E (1 mm unless given). "
+                         "`delete LARM_TRUNK_avoid` removes it.",
+                         "avoid fig.LARM fig.TRUNK by=0.05"),
     "limit": CommandHelp("limit DOF A B",
                          "A range for a DOF (a joint's limits): A <= DOF <= B everywhere, imposed on its "
                          "control points. The same as `dof DOF lo=A hi=B` (no group: a range is the DOF's own).",

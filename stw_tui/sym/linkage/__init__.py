@@ -28,7 +28,8 @@ from stw_tui.sym.linkage.kinematics import SYMENGINE, chain, positions, to_sympy
 from stw_tui.sym.linkage.spec import (BaseAxis, JointSpec, LinkageSpec, base_children, curve_dofs, dof_names,
                                       parse_linkage)
 
-__all__ = ["BaseAxis", "JointSpec", "LinkageSpec", "base_children", "curve_dofs", "derive", "dof_names", "parse_linkage",
+__all__ = ["BaseAxis", "JointSpec", "LinkageSpec", "base_children", "curve_dofs", "derive", "dof_names", "link_ends",
+           "parse_linkage",
            "segments", "time_derivative"]
 
 
@@ -46,6 +47,20 @@ def derive(spec: LinkageSpec) -> dict[str, sp.Expr]:
     out = {name: to_sympy(e, memo) for name, e in positions(spec, SYMENGINE).items()}
     out.update(generalized_forces(spec, ch))
     return out
+
+
+def link_ends(spec: LinkageSpec, joint: str) -> tuple[tuple[str, int], tuple[str, int]]:
+    """Where the link of ``joint`` starts and ends: ((point name, frame), (point name, frame)), the
+    names as the scene knows them (a chain's link ends at the next joint or the tip, a tree's at
+    ``NAME.JOINT.end``) and the frames (:func:`chain`'s indices) to tell shared points apart."""
+    ch = chain(spec)
+    index = [j.name for j in spec.joints].index(joint)
+    start, end = ch.joint_frames[index], ch.link_frames[index]
+    if ch.parents:
+        end_name = f"{spec.name}.{joint}.end"
+    else:
+        end_name = f"{spec.name}.{spec.joints[index + 1].name}" if index + 1 < len(spec.joints) else f"{spec.name}.tip"
+    return (f"{spec.name}.{joint}", start), (end_name, end)
 
 
 @lru_cache(maxsize=64)
