@@ -252,3 +252,13 @@ def test_flight_and_the_soles_moment_of_a_tree_sum_the_base_joints():
     assert [str(r.expr) for r in spin.relations] == ["tau_SHIN + tau_TRUNK"]
     pressure = s.scene.constraints["SHIN_pressure"]
     assert "tau_SHIN + tau_TRUNK" in pressure.text and "0.2*tau_Y" in pressure.text
+
+
+def test_defining_a_tree_says_where_it_branches_and_what_it_names():
+    from stw_tui.session.session import Session
+
+    s = Session()
+    outcomes = [s.execute(line) for line in ("time 0 1", "const g = 9.81", *FIGURE.strip().splitlines())]
+    message = outcomes[-1].message
+    assert "branched: base -> SHIN, TRUNK; TRUNK -> LARM, RARM, HEAD" in message
+    assert "fig.JOINT.end.*" in message
