@@ -262,12 +262,13 @@ def _player_tip(angles, base):
 def test_basketball_player_catches_its_own_throw_and_scores():
     s = Session()
     s.run_file(SESSIONS / "basketball.stw")
+    # 1e-8: the solve's own convergence test (tol_violation), not a bound on what it reaches (4.5e-13)
     assert s.runs[-1].converged and s.runs[-1].reports[-1].max_violation <= 1e-8
     _assert_holds_continuously(s)
     px, pz, turn, catch_y, bx = (_print(s, e) for e in ("PX", "PZ", "TURN", "player.tip.y", "BX"))
     assert np.hypot(px, pz) > 0.3 and abs(turn) > 0.1   # it moved and turned to catch (a 30 kg trunk)
     assert 0.3 < catch_y < 0.7                           # caught at head height (0.517 m up)
-    assert bx == pytest.approx(2.0, abs=1e-9)
+    assert bx == pytest.approx(2.0, abs=1e-11)          # stw's own value at the instance (<= 4.5e-13)
     scene = s.scene
     hand = lambda t: _hand(scene, t, tip=lambda ang, at: _player_tip(
         ang, _curves(scene, ("PX", "PZ", "TURN"), at)))
@@ -275,7 +276,9 @@ def test_basketball_player_catches_its_own_throw_and_scores():
     out = s.execute("print player.tip.z @ 1.7").prints[0].value
     assert _player_tip(_curves(scene, ("SHOULDER", "ELBOW", "WRIST"), 1.7),
                        _curves(scene, ("PX", "PZ", "TURN"), 1.7))[2] == pytest.approx(out, abs=1e-12)
-    # Throw: from the hand at 0.55 through the goal point at t = 1 ...
+    # Throw: from the hand at 0.55 through the goal point at t = 1 ... (bounds ~10-30x what is
+    # reached, measured: goal 3.4e-8 m, catch 7.2e-8 m and 1.3e-7 m/s, basket 3.7e-8 m: the
+    # hand's state at release, held to the solve's tolerances, carried through a flight)
     p, v = hand(0.55)
     assert np.linalg.norm(_fly(p, v, 0.45) - np.array([0.8, 1.2, 0.5])) < 1e-6
     # ... into the hand at the catch (t = 1.5), with the hand's velocity (a soft catch) ...
@@ -285,11 +288,14 @@ def test_basketball_player_catches_its_own_throw_and_scores():
     # ... and from the hand at 1.95 into the basket at t = 3.
     p2, v2 = hand(1.95)
     assert np.linalg.norm(_fly(p2, v2, 1.05) - np.array([2.0, 1.0, 1.0])) < 1e-6
-    # Held, the ball is the hand at every 1 ms (the hand by kinematics written here).
+    # Held, the ball is the hand at every 1 ms (the hand by kinematics written here): the hand's
+    # point by construction, so only rounding differs (measured 5.0e-16; 1e-13, 200x, allows
+    # another evaluation order's rounding: a real gap, a ball tied by constraints at instances
+    # only, is 1e-4 m or more).
     for a, b in ((0, 0.55), (1.5, 1.95)):
         for t in np.arange(a + 1e-3, b, 1e-3):     # (the hand's velocity is a central difference)
             ball = [scene.dof_values(n, [t])[0] for n in ("BX", "BY", "BZ")]
-            assert np.linalg.norm(np.array(ball) - hand(t)[0]) < 1e-10, t
+            assert np.linalg.norm(np.array(ball) - hand(t)[0]) < 1e-13, t
     _assert_human_arm(s, end=3.0)                      # within the arm's ranges everywhere ...
     turn = scene.dofs["TURN"].curve.evaluate(np.linspace(0, 3, 30_001))
     assert turn.min() >= -1.6 - 1e-9 and turn.max() <= 1.6 + 1e-9   # ... and the base's

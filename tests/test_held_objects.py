@@ -26,7 +26,8 @@ def hand(scene, t: np.ndarray) -> np.ndarray:
 
 
 def hand_velocity(scene, t: np.ndarray, h: float = 1e-6) -> np.ndarray:
-    """A central difference of :func:`hand` (error ~h^2 |p'''|, far below the 1e-6 asked)."""
+    """A central difference of :func:`hand` (error ~h^2 |p'''| plus rounding ~eps |p| / h:
+    about 1e-10, below the 1e-8 asked)."""
     return (hand(scene, t + h) - hand(scene, t - h)) / (2 * h)
 
 
@@ -55,8 +56,10 @@ def test_a_held_ball_is_in_the_hand_at_every_millisecond(thrower):
     for a, b in holds(scene):
         t = np.arange(a, b, STEP)
         gap = np.linalg.norm(ball(scene, t) - hand(scene, t), axis=1)
-        assert gap.max() <= 1e-4, (a, b, gap.max())          # the target: 0.1 mm ...
-        assert gap.max() <= 1e-10                             # ... and what it is: rounding
+        # The target is 0.1 mm; held, the ball is the hand's point by construction, so the gap
+        # is rounding: measured 2.3e-16 (arm_throw, arm_overhand), 1.6e-15 (basketball). 1e-13
+        # leaves room for another evaluation order (60x the worst).
+        assert gap.max() <= 1e-13, (a, b, gap.max())
 
 
 def test_the_ball_leaves_and_is_caught_with_the_hands_velocity_and_flies_a_parabola(thrower):
@@ -65,8 +68,10 @@ def test_the_ball_leaves_and_is_caught_with_the_hands_velocity_and_flies_a_parab
     assert times
     for t in times:                        # its own curve meets the hand at a release and a catch
         at = np.array([t])
-        assert np.linalg.norm(ball(scene, at, own=True) - hand(scene, at)) <= 1e-8
-        assert np.linalg.norm(ball(scene, at, 1, own=True) - hand_velocity(scene, at)) <= 1e-6
+        # measured: 7.1e-13 m (arm_overhand; 3e-15 the others), to the solve's violation there
+        assert np.linalg.norm(ball(scene, at, own=True) - hand(scene, at)) <= 5e-11
+        # measured: 9.3e-10 m/s at worst, the central difference's rounding (eps |p| / h ~ 1e-10)
+        assert np.linalg.norm(ball(scene, at, 1, own=True) - hand_velocity(scene, at)) <= 1e-8
     for a, b in holds(scene):              # after each release: a parabola from the hand's state
         if b >= scene.t1:
             continue
@@ -75,9 +80,10 @@ def test_the_ball_leaves_and_is_caught_with_the_hands_velocity_and_flies_a_parab
         p0, v0 = hand(scene, np.array([b]))[0], hand_velocity(scene, np.array([b]))[0]
         dt = (t - b)[:, None]
         parabola = p0 + v0 * dt + np.array([0, -G / 2, 0]) * dt ** 2
-        # the residual is the hand's velocity difference times the flight (<= 1e-6 m/s * 1 s)
-        # plus rounding; the ball's own curve against its own release state is exact:
-        assert np.abs(ball(scene, t) - parabola).max() <= 2e-6
+        # the residual is the hand's velocity difference times the flight (<= 1e-8 m/s * 1 s)
+        # plus rounding: measured 9.6e-10 m at worst (basketball); the ball's own curve against
+        # its own release state is exact (measured 3.0e-15; 1e-12 allows for rounding):
+        assert np.abs(ball(scene, t) - parabola).max() <= 2e-8
         own = ball(scene, np.array([b]), own=True)[0], ball(scene, np.array([b]), 1, own=True)[0]
         exact = own[0] + own[1] * dt + np.array([0, -G / 2, 0]) * dt ** 2
-        assert np.abs(ball(scene, t) - exact).max() <= 1e-9
+        assert np.abs(ball(scene, t) - exact).max() <= 1e-12
