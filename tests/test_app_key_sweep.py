@@ -8,8 +8,10 @@ this test (and the test checks that each key a class binds was pressed in its ar
 Ctrl+Q (pressed once, last: it quits), and the text-editing keys of Textual's Input (cursor moves,
 deletions, cut and paste, Enter in a dialog's field: they act on the field's text, and a dialog is
 left with Esc); the console's own keys (history, Tab, PgUp/PgDn) are pressed. The app's keys
-(F1-F10, Ctrl+Z/Y, Ctrl+P...) are pressed once, at the console: they do the same from any focus,
-and F2, F3 and Esc are pressed on every panel and plot anyway. F6 and F7 step an opened session
+(F1-F10, Ctrl+Z/Y, Ctrl+P...) are pressed at the console, and on each screen that lets them
+through (the help screen; a modal dialog, the palette and the gallery do not), not again on every
+panel and plot: they do the same from any focus there, and F2, F3 and Esc are pressed on every
+panel and plot anyway. F6 and F7 step an opened session
 file: with none open they are disabled, and pressed anyway.
 
 *The journal intact*: the journal file's lines before the sweep are, unchanged and in order, the
@@ -137,7 +139,8 @@ class Sweep:
 
     async def screen_keys(self, open_it, opened: bool = False) -> None:
         """Press each key of the screen ``open_it`` opens (open already when ``opened``), opening
-        it again after a key that closes it. The screen's own keys go last (Esc, the gallery's
+        it again after a key that closes it. The app's keys are pressed too where the screen lets
+        them through (the help screen is not modal). The screen's own keys go last (Esc, the gallery's
         Enter and `a`, the comparison's `c`: the ones that close it), Esc the very last. A kind of
         screen already swept (the panels open a dozen edit dialogs) is only closed, with Esc."""
         main = self.app.screen_stack[0]
@@ -152,7 +155,7 @@ class Sweep:
             area = type(screen).__name__
             if remaining is None:
                 own = declared_keys(type(screen))
-                remaining = sorted(own_keys(self.app, screen), key=lambda k: (k == "escape", k in own))
+                remaining = sorted(own_keys(self.app, None), key=lambda k: (k == "escape", k in own))
                 if area in self.pressed:
                     remaining = ["escape"]
             while remaining:

@@ -546,7 +546,12 @@ class StwApp(App[int]):
         return True
 
     def _cycle_tabs(self, tabs_id: str, kind: type[Widget]) -> None:
-        """Focus the tab group's active view; when it already has the focus, go to the next tab."""
+        """Focus the tab group's active view; when it already has the focus, go to the next tab.
+        Only on the main screen: pressed on the help screen, F2 and F3 moved its focus to a panel
+        behind it, and Esc then no longer closed it (found by the key sweep). (Not disabled in
+        check_action: the palette lists what that allows, and it is open when it asks.)"""
+        if self.screen is not self.screen_stack[0]:
+            return
         tabs = self.query_one(f"#{tabs_id}", TabbedContent)
         if self.focused is not None and tabs in self.focused.ancestors:
             ids = [pane.id for pane in tabs.query(TabPane)]
