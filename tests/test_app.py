@@ -586,9 +586,12 @@ def test_f1_opens_a_scrollable_searchable_help_screen_and_help_cmd_still_prints(
         screen = app.screen
         assert isinstance(screen, HelpScreen)
         titles = [section.title for section in screen.sections]
-        assert titles[:3] == ["Getting started", "Keys", "Commands"] and "iterate" in titles
+        assert titles[:4] == ["Getting started", "Keys", "Panel columns", "Commands"] and "iterate" in titles
         keys = screen.sections[1].body
         assert "F4" in keys.upper() and "Stop" in keys and "Prev DOF" in keys and "Complete" not in keys
+        assert "In/out: put the DOF in or out of the active window" in keys     # the hint's short text, then more
+        columns = screen.sections[2].body        # the panels' abbreviated headings, in full
+        assert "DOF panel" in columns and "  sp         knot spans" in columns and "Eqns panel" in columns
         body = screen.query_one("#help-body")
         assert body.max_scroll_y > 0
         await pilot.press("pagedown")

@@ -49,13 +49,14 @@ def test_the_equations_panel_groups_a_verbs_constraints_under_its_line(tmp_path)
         # @ 0.2, release @ 0.55), the worst violation of its constraints, and its line.
         violations = panel.info.violations
         worst = max(violations["B_caught"], violations["B_released"])
-        assert cells[VERB_KEY + "B_held"] == ["B_held", "hold", "", "on [0.2, 0.55]", f"{worst:.2e}",
+        # (The violation comes second, to be in view at 80x24.)
+        assert cells[VERB_KEY + "B_held"] == ["B_held", f"{worst:.2e}", "on [0.2, 0.55]", "hold", "",
                                               "hold B at arm.tip on [0.2, 0.55]"]
-        assert cells[VERB_KEY + "B_flight"][1:5] == ["ballistic", "", "on [0.55, 1.5]",
-                                                     f"{violations['B_flight']:.2e}"]
+        assert cells[VERB_KEY + "B_flight"][1:5] == [f"{violations['B_flight']:.2e}", "on [0.55, 1.5]",
+                                                     "ballistic", ""]
         # Parts are rows like any other (weights, scopes, their own violations); so are the rest.
-        assert cells["B_caught"][1:5] == ["constraint", "1", "@ 0.2", f"{violations['B_caught']:.2e}"]
-        assert cells["hang"] == ["hang", "constraint", "1", "@ 0", f"{violations['hang']:.2e}", "SHOULDER = -pi/2 @ 0"]
+        assert cells["B_caught"][1:5] == [f"{violations['B_caught']:.2e}", "@ 0.2", "con", "1"]
+        assert cells["hang"] == ["hang", f"{violations['hang']:.2e}", "@ 0", "con", "1", "SHOULDER = -pi/2 @ 0"]
 
         journalled = list(app.session.journal.replayable())
         await focus_row(pilot, panel, VERB_KEY + "B_held")

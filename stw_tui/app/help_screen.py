@@ -84,11 +84,24 @@ class HelpSection:
 
 
 def _key_lines(app: "App", bindings: Iterable[Binding]) -> list[str]:
+    """A line per binding: its key, its description (as the key hints show it, short) and, where
+    it has one, its tooltip (the longer text)."""
     rows = []
     for binding in bindings:
         if isinstance(binding, Binding) and binding.description:
-            rows.append(f"  {app.get_key_display(binding):<10} {binding.description}")
+            more = f": {binding.tooltip}" if binding.tooltip else ""
+            rows.append(f"  {app.get_key_display(binding):<10} {binding.description}{more}")
     return rows
+
+
+def column_sections(areas: Iterable[tuple[str, type]]) -> str:
+    """What each panel's abbreviated column headings stand for (their COLUMN_HELP)."""
+    lines: list[str] = []
+    for title, cls in areas:
+        explained = getattr(cls, "COLUMN_HELP", {})
+        if explained:
+            lines += ([""] if lines else []) + [title] + [f"  {name:<10} {what}" for name, what in explained.items()]
+    return "\n".join(lines)
 
 
 def key_sections(app: "App", areas: Iterable[tuple[str, type]]) -> str:
@@ -106,8 +119,9 @@ def help_sections(app: "App", areas: Iterable[tuple[str, type]]) -> list[HelpSec
     """The tutorial, the keys, the command list, then one section per command."""
     from stw_tui.sym.language.help import COMMAND_HELP, help_text   # here: the language loads sympy
 
+    areas = list(areas)
     sections = [HelpSection("Getting started", TUTORIAL), HelpSection("Keys", key_sections(app, areas)),
-                HelpSection("Commands", help_text())]
+                HelpSection("Panel columns", column_sections(areas)), HelpSection("Commands", help_text())]
     sections += [HelpSection(f"{name}", help_text(name)) for name in COMMAND_HELP]
     return sections
 

@@ -15,8 +15,9 @@ from textual.widget import Widget
 
 class KeyHints(Widget):
     """Keys and what they do, in one line: ``order`` (actions) first, in that order, then the
-    other shown bindings of the focused widget and its ancestors; what does not fit is cut at
-    the right edge, so at 80 columns it is the widget's own keys that go, never the app's."""
+    other shown bindings of the focused widget and its ancestors. Only whole hints are shown:
+    one that does not fit is left out with those after it, so at 80 columns it is the widget's
+    own keys that go, never the app's; an ellipsis says some are left out (F1 lists them all)."""
 
     COMPONENT_CLASSES = {"key-hints--key", "key-hints--disabled"}
     DEFAULT_CSS = """
@@ -62,11 +63,19 @@ class KeyHints(Widget):
         disabled = self.get_component_rich_style("key-hints--disabled")
         text = Text(no_wrap=True, overflow="crop", end="", style=self.rich_style)   # the line's background
         self._spans = []
-        for key, display, description, enabled in self.hints():
+        width = self.size.width or None
+        hints = self.hints()
+        for i, (key, display, description, enabled) in enumerate(hints):
             start = len(text)
-            text.append(display, key_style if enabled else disabled)
+            hint = Text(display, key_style if enabled else disabled)
             if description:
-                text.append(f" {description}", None if enabled else disabled)
+                hint.append(f" {description}", None if enabled else disabled)
+            # Room for " …" after it unless it is the last: a next hint (3 cells or more) would not fit
+            room_after = 0 if i == len(hints) - 1 else 2
+            if width is not None and text.cell_len + hint.cell_len + room_after > width:
+                text.append("…", disabled)   # more keys than fit: F1 lists them
+                break
+            text.append_text(hint)
             self._spans.append((start, len(text), key if enabled else ""))
             text.append(" ")
         return text

@@ -31,23 +31,56 @@ def show(value: float | None) -> str:
     return "—" if value is None else f"{value:.6g}"
 
 
+def short(value: float | None) -> str:
+    """A number for a narrow table cell (3 significant digits: `show NAME` has them all)."""
+    return "—" if value is None else f"{value:.3g}"
+
+
 MAX_WIDTH = 48   # longest cell shown in full
+FLEX_MIN = 8     # narrowest the last column is cut to, to fit the panel's width
+NAME_MIN = 12    # narrowest the first column (the names) is cut to, to keep the next ones in view
+GAP = 1          # blank cells between columns (DataTable's own padding is two: one either side)
 
 
 def _cell(value) -> "Text | object":
-    """A cell as plain text. DataTable reads a str cell as Rich markup: user text with [brackets]
-    would be restyled or rejected, and parsing every cell again at each focus change (which
-    clears the table's caches) was most of an F2's UI time on basketball at 80x24."""
-    return Text(value, no_wrap=True, end="") if isinstance(value, str) else value
+    """A cell as plain text, ending in an ellipsis where the column is narrower. DataTable reads
+    a str cell as Rich markup: user text with [brackets] would be restyled or rejected, and
+    parsing every cell again at each focus change (which clears the table's caches) was most of
+    an F2's UI time on basketball at 80x24."""
+    if isinstance(value, str):
+        return Text(value, no_wrap=True, overflow="ellipsis", end="")
+    if isinstance(value, Text):
+        value.no_wrap, value.overflow = True, "ellipsis"
+    return value
+
+
+def column_widths(labels, rows, room: int | None, keep: int = 2) -> list[int]:
+    """The width of each column: its longest cell or label (at most MAX_WIDTH). When ``room`` (the
+    panel's width) is known and they do not all fit, the last column (a definition, a help text)
+    gets what is left, down to FLEX_MIN; and a first column (the names) so long that the first
+    ``keep`` columns (the Eqns panel's name, violation and scope) would not be in view is cut,
+    down to NAME_MIN. The full text is in the dialog, `show` and `help`."""
+    widths = [min(MAX_WIDTH, max([len(str(label))] + [len(str(cells[i])) for cells in rows]))
+              for i, label in enumerate(labels)]
+    if room and widths:
+        left = room - sum(widths[:-1]) - GAP * (len(widths) - 1)
+        widths[-1] = max(min(widths[-1], left), min(widths[-1], FLEX_MIN))
+        if len(widths) > keep:
+            others = sum(widths[1:keep]) + GAP * (keep - 1)
+            widths[0] = max(min(widths[0], room - others), min(widths[0], NAME_MIN))
+    return widths
 
 
 class ScenePanel(DataTable):
     """A row-per-item table of one aspect of the scene. Subclasses define COLUMNS and rows()."""
 
     COLUMNS: tuple[str, ...] = ()
+    KEEP_IN_VIEW = 2     # columns kept in view in a narrow panel (see column_widths)
 
     def __init__(self, **kwargs):
-        super().__init__(cursor_type="row", zebra_stripes=True, **kwargs)
+        # One blank between columns (GAP, in the widths) instead of DataTable's two: at 80x24 a
+        # panel is 40 columns wide.
+        super().__init__(cursor_type="row", zebra_stripes=True, cell_padding=0, **kwargs)
         self.scene: "Scene | None" = None
         self.info = SceneInfo()
 
@@ -59,9 +92,29 @@ class ScenePanel(DataTable):
         # Explicit widths: DataTable's own auto widths are measured on idle, and a table refilled
         # just as its tab is shown sometimes kept the header widths (flaky snapshots, cut names).
         self.clear(columns=True)
-        for label, width in zip(self.COLUMNS, widths):
-            self.add_column(label, width=width, key=label or "_")
+        last = len(self.COLUMNS) - 1
+        for i, (label, width) in enumerate(zip(self.COLUMNS, widths)):
+            self.add_column(label, width=width + (GAP if i < last else 0), key=label or "_")
         self._widths = widths
+
+    def _room(self, rows: int) -> int | None:
+        """The columns the table has for its cells when it shows ``rows`` rows, less a vertical
+        scrollbar when they do not fit its height (None before it is laid out)."""
+        width, height = self.size
+        if width <= 0:
+            return None
+        if rows + self.show_header > height:
+            width -= self.styles.scrollbar_size_vertical
+        return width
+
+    def on_resize(self) -> None:
+        """Fit the columns to the new width (the last one is cut to fit, see column_widths); not
+        in a hidden tab, nor when they are as they were (a tab shown at the size it had)."""
+        if self.scene is None or not self.size.width:
+            return
+        rows = [cells for _, cells in self.table_rows(self.scene, self.info)]
+        if column_widths(self.COLUMNS, rows, self._room(len(rows)), self.KEEP_IN_VIEW) != self._widths:
+            self.set_scene(self.scene)
 
     def set_scene(self, scene: "Scene", info: SceneInfo | None = None) -> None:
         """Show ``scene``; the cursor stays on the same row."""
@@ -70,8 +123,8 @@ class ScenePanel(DataTable):
             self.info = info
         row = self.cursor_row
         rows = list(self.table_rows(scene, self.info))
-        widths = [min(MAX_WIDTH, max([len(label)] + [len(str(cells[i])) for _, cells in rows]))
-                  for i, label in enumerate(self.COLUMNS)]
+        widths = column_widths(self.COLUMNS, [cells for _, cells in rows], self._room(len(rows)),
+                               self.KEEP_IN_VIEW)
         if widths != self._widths:
             self._set_columns(widths)
         else:

@@ -12,7 +12,7 @@ from rich.text import Text
 from textual.binding import Binding
 
 from stw_tui.app.messages import ItemChosen
-from stw_tui.app.panel_base import ScenePanel, SettingRow, SettingsPanel, num, show
+from stw_tui.app.panel_base import ScenePanel, SettingRow, SettingsPanel, num, short, show
 from stw_tui.session.queries import SceneInfo
 from stw_tui.session.verbs import verb_of
 
@@ -23,15 +23,19 @@ if TYPE_CHECKING:
 class DofPanel(ScenePanel):
     """Degrees of freedom: in the window or not, bounds, knots, damping, keyframes."""
 
-    COLUMNS = ("DOF", "win", "lo", "hi", "spans", "ctrl", "damp", "keys")
+    # Short enough for the 40 columns a panel has at 80x24; the help's Panels section says them in full
+    COLUMNS = ("DOF", "win", "lo", "hi", "sp", "cp", "damp", "keys")
+    COLUMN_HELP = {"win": "in the active window (✓) or not (·)", "lo": "lower bound", "hi": "upper bound",
+                   "sp": "knot spans", "cp": "control points", "damp": "damping of its change per iteration",
+                   "keys": "keyframes"}
     BINDINGS = [
-        Binding("i", "include", "In/out of window"),
+        Binding("i", "include", "In/out", tooltip="put the DOF in or out of the active window"),
         Binding("b", "bounds", "Bounds"),
-        Binding("k", "knots", "Knots"),
+        Binding("k", "knots", "Knots", tooltip="knot spans (refits the curve)"),
         Binding("d", "damp", "Damp"),
-        Binding("f", "filter", "Filter"),
-        Binding("r", "refine", "Refine"),
-        Binding("s", "shake", "Shake"),
+        Binding("f", "filter", "Filter", tooltip="smooth the curve"),
+        Binding("r", "refine", "Refine", tooltip="double its knots"),
+        Binding("s", "shake", "Shake", tooltip="a seeded random change of the curve"),
     ]
 
     def table_rows(self, scene: "Scene", info: SceneInfo):
@@ -39,8 +43,8 @@ class DofPanel(ScenePanel):
         window = scene.window
         for name, dof in scene.dofs.items():
             inside = window.dofs is None or name in window.dofs
-            yield name, (name, "✓" if inside else "·", show(dof.lo), show(dof.hi), str(dof.curve.spans),
-                         str(dof.curve.n_coef), show(dof.damp), str(len(dof.keys)))
+            yield name, (name, "✓" if inside else "·", short(dof.lo), short(dof.hi), str(dof.curve.spans),
+                         str(dof.curve.n_coef), short(dof.damp), str(len(dof.keys)))
 
     def activate(self, key: str) -> None:
         """Choose the DOF for the curve plot."""
@@ -107,7 +111,14 @@ class EquationsPanel(ScenePanel):
     What a motion verb made is grouped under a heading row with the verb's line (and the worst
     violation of its parts): the verb is the unit the animator wrote, and the one `delete` removes."""
 
-    COLUMNS = ("name", "kind", "weight", "scope", "max viol", "definition")
+    # The violation next to the name: at 80x24 (a panel 40 columns wide) it shows the name, the
+    # violation and the scope; the definition, last, is cut to what is left
+    COLUMNS = ("name", "max viol", "scope", "kind", "weight", "definition")
+    KEEP_IN_VIEW = 3
+    COLUMN_HELP = {"max viol": "largest violation over the constraint's whole scope (dense check)",
+                   "scope": "the instant or interval it holds at",
+                   "kind": "con(straint), obj(ective), let, or the verb whose parts follow",
+                   "definition": "as written (`show NAME` prints it whole)"}
     BINDINGS = [
         Binding("w", "weight", "Weight"),
         Binding("x", "delete", "Delete"),
@@ -132,7 +143,7 @@ class EquationsPanel(ScenePanel):
             if not members:
                 yield VERB_KEY + group, self._heading(scene, info, group, [])
         for name, expr in scene.lets.items():
-            yield name, (name, "let", "", "", "", str(expr))
+            yield name, (name, "", "", "let", "", str(expr))
 
     @staticmethod
     def _cells(scene: "Scene", info: SceneInfo, name: str, label: str) -> tuple:
@@ -140,12 +151,12 @@ class EquationsPanel(ScenePanel):
             c = scene.constraints[name]
             scope = c.scope_text + (" when…" if c.when is not None else "")
             viol = info.violations.get(name)
-            return (label, "constraint", show(c.weight), scope,
-                    "n/a" if viol is None else f"{viol:.2e}", c.text.split(":", 1)[-1].strip())
+            return (label, "n/a" if viol is None else f"{viol:.2e}", scope, "con", show(c.weight),
+                    c.text.split(":", 1)[-1].strip())
         o = scene.objectives[name]
         scope = f"@ {o.at:g}" if o.at is not None else f"on [{o.interval[0]:g}, {o.interval[1]:g}]" \
             if o.interval else "span"
-        return label, "objective", show(o.weight), scope, "", o.text.split(":", 1)[-1].strip()
+        return label, "", scope, "obj", show(o.weight), o.text.split(":", 1)[-1].strip()
 
     @staticmethod
     def _heading(scene: "Scene", info: SceneInfo, group: str, members: list[str]) -> tuple:
@@ -161,7 +172,7 @@ class EquationsPanel(ScenePanel):
             scope = f"@ {a:g}" if a == b else f"on [{a:g}, {b:g}]"
         viols = [info.violations[m] for m in members if m in scene.constraints and m in info.violations]
         worst = f"{max(viols):.2e}" if viols else ("n/a" if any(m in scene.constraints for m in members) else "")
-        return Text(group, style="bold"), Text(line.split()[0], style="bold"), "", scope, worst, line
+        return Text(group, style="bold"), worst, scope, Text(line.split()[0], style="bold"), "", line
 
     def activate(self, key: str) -> None:
         """Enter on a verb shows its expansion; on a constraint or objective, plots its values."""
@@ -263,8 +274,8 @@ class OptimizationPanel(SettingsPanel):
 
     BINDINGS = [
         Binding("i", "iterate", "Iterate"),
-        Binding("s", "shake", "Shake window"),
-        Binding("c", "compare", "Compare backends"),
+        Binding("s", "shake", "Shake", tooltip="shake the window's DOF (a seeded random change)"),
+        Binding("c", "compare", "Compare", tooltip="solve copies of the scene with each backend, side by side"),
     ]
 
     def __init__(self, **kwargs):

@@ -1,0 +1,96 @@
+"""The TUI at 80x24 and below, read off the screen as a person sees it (issue 52 item 3).
+
+Each test runs the app under Pilot at a fixed terminal size and reads the composed screen's text
+(what the terminal would show), not the widgets' state alone: the Eqns panel's violation in view,
+headers and key hints that fit.
+"""
+
+from __future__ import annotations
+
+import asyncio
+
+import test_app_support as support
+from stw_tui.app import create_app
+
+JET = support.SESSIONS / "particle_jet.stw"
+
+LONG_NAME = "start_at_rest_with_a_long_descriptive_name"
+SCENE = f"""time 0 1 knots=8
+dof x
+constraint {LONG_NAME}: x = 0, x' = 0 @ 0
+constraint end: x = 1 @ 1
+objective effort: x''
+"""
+
+
+def run(scenario, app, size):
+    async def main():
+        async with app.run_test(size=size) as pilot:
+            await support.settle(pilot)
+            await scenario(pilot)
+
+    asyncio.run(main())
+
+
+def screen_lines(app) -> list[str]:
+    """The terminal's rows as text, as the compositor draws them."""
+    return [strip.text for strip in app.screen._compositor.render_strips()]
+
+
+async def shown(pilot) -> list[str]:
+    await support.settle(pilot)
+    await pilot.pause(0.1)
+    return screen_lines(pilot.app)
+
+
+def test_the_equations_panel_shows_each_violation_beside_its_name_at_80x24(tmp_path):
+    path = tmp_path / "long.stw"
+    path.write_text(SCENE)
+    app = create_app(path, show_timing=False, blink=False)
+
+    async def scenario(pilot):
+        await pilot.press("f2", "f2")                                   # DOF, Eqns
+        panel = app.query_one("#eqns-panel")
+        lines = await shown(pilot)
+        right = panel.region.right                                      # where the plots begin
+        assert right <= 42, panel.region
+        header = next(line for line in lines if line.startswith("name"))
+        assert "max viol" in header[:right] and "scope" in header[:right], header
+        for name in (LONG_NAME, "end"):
+            violation = f"{panel.info.violations[name]:.2e}"
+            # the row of the constraint: its (possibly cut) name at the left, its violation in view
+            row = next(line for line in lines if line.startswith(name[:10]))
+            assert violation in row[:right], (name, row)
+        long_row = next(line for line in lines if line.startswith(LONG_NAME[:10]))
+        assert "…" in long_row[:right]                                  # the long name is cut, and says so
+        assert LONG_NAME not in long_row
+        # the objective and its scope, and the panel never reaches past its half of the screen
+        assert any(line.startswith("effort") and "span" in line[:right] for line in lines)
+        assert panel.virtual_size.width > panel.size.width              # kind, weight, definition: scroll right
+
+    run(scenario, app, size=(80, 24))
+
+
+def test_headers_and_key_hints_fit_80_columns():
+    app = create_app(JET, show_timing=False, blink=False)
+
+    async def scenario(pilot):
+        await pilot.press("f2")                                        # the DOF panel
+        lines = await shown(pilot)
+        right = app.query_one("#dof-panel").region.right
+        header = next(line for line in lines if line.startswith("DOF"))
+        assert header[:right].split() == ["DOF", "win", "lo", "hi", "sp", "cp", "damp", "keys"], header
+        hints = lines[-1]
+        assert len(hints) == 80 and hints.startswith("f1 Help f2 Panels f3 Plots f4 Stop f5 Iterate")
+        # whole hints only: the DOF panel's seven keys do not all fit, and an ellipsis says so
+        assert "i In/out" in hints and hints.rstrip().endswith("…"), hints
+        for _ in range(5):
+            await pilot.press("f2")                                    # ... Opt
+        lines = await shown(pilot)
+        assert lines[-1].rstrip().endswith("i Iterate s Shake c Compare"), lines[-1]
+        # option lists are cut to the panel, with an ellipsis; `help` has them whole
+        right = app.query_one("#opt-panel").region.right
+        factor = next(line for line in lines if line.strip().startswith("factor"))
+        assert factor[:right].rstrip().endswith("…"), factor
+
+    run(scenario, app, size=(80, 24))
