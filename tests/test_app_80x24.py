@@ -2,7 +2,7 @@
 
 Each test runs the app under Pilot at a fixed terminal size and reads the composed screen's text
 (what the terminal would show), not the widgets' state alone: the Eqns panel's violation in view,
-headers and key hints that fit.
+headers and key hints that fit, the "too small" screen below 80x24 and back.
 """
 
 from __future__ import annotations
@@ -94,3 +94,51 @@ def test_headers_and_key_hints_fit_80_columns():
         assert factor[:right].rstrip().endswith("…"), factor
 
     run(scenario, app, size=(80, 24))
+
+
+def test_below_80x24_a_screen_says_so_and_goes_when_the_terminal_is_large_enough():
+    from stw_tui.app.help_screen import HelpScreen
+    from stw_tui.app.dialogs import TooSmallScreen
+
+    app = create_app(JET, show_timing=False, blink=False)
+
+    async def scenario(pilot):
+        assert not isinstance(app.screen, TooSmallScreen)
+        await pilot.resize_terminal(60, 20)
+        await support.until(pilot, lambda: isinstance(app.screen, TooSmallScreen), "the too-small screen")
+        await pilot.pause(0.1)
+        text = "\n".join(screen_lines(app))
+        assert "The terminal is 60×20: make it at least 80×24" in text, text
+        assert "Curves" not in text and "stw>" not in text              # not the broken layout
+        focused = app.screen_stack[0].focused
+        await pilot.press("f2", "f1", "f3")                              # the main screen's keys do nothing here
+        assert isinstance(app.screen, TooSmallScreen) and app.screen_stack[0].focused is focused
+        await pilot.resize_terminal(79, 30)                              # one column short: still too small
+        await pilot.pause(0.1)
+        assert "The terminal is 79×30" in "\n".join(screen_lines(app))
+        await pilot.resize_terminal(80, 24)
+        await support.until(pilot, lambda: not isinstance(app.screen, TooSmallScreen), "the screen gone")
+        await pilot.pause(0.1)
+        lines = screen_lines(app)
+        assert "Curves" in lines[0] and any(line.startswith("stw>") for line in lines)
+        assert len(app.screen_stack) == 1
+        # over the help screen too, which comes back with the size
+        await pilot.press("f1")
+        await pilot.resize_terminal(70, 24)
+        await support.until(pilot, lambda: isinstance(app.screen, TooSmallScreen), "the too-small screen")
+        await pilot.resize_terminal(100, 30)
+        await support.until(pilot, lambda: isinstance(app.screen, HelpScreen), "the help back")
+        assert not any(isinstance(screen, TooSmallScreen) for screen in app.screen_stack)
+
+    run(scenario, app, size=(80, 24))
+
+    small = create_app(show_timing=False, blink=False)
+
+    async def starts_small(pilot):
+        await pilot.pause(0.1)
+        assert isinstance(small.screen, TooSmallScreen)
+        assert "make it at least 80×24" in "\n".join(screen_lines(small))
+        await pilot.press("ctrl+q")                                     # still quits
+
+    run(starts_small, small, size=(60, 20))
+    assert small.return_code == 0 or small.return_code is None

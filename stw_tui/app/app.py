@@ -21,7 +21,7 @@ from textual.widget import Widget
 from textual.widgets import TabbedContent, TabPane, Tabs
 
 from stw_tui.app.console import Console
-from stw_tui.app.dialogs import CompareScreen
+from stw_tui.app.dialogs import CompareScreen, TooSmallScreen, too_small
 from stw_tui.app.gallery import GalleryScreen, OptimumChosen
 from stw_tui.app.help_screen import HelpScreen, help_sections
 from stw_tui.app.key_hints import KeyHints
@@ -206,6 +206,18 @@ class StwApp(App[int]):
             message = printable(f"cannot remember the theme in {self.settings_path}: {exc}")
             self.notify(message, severity="warning", markup=False)
 
+    def on_resize(self, event: events.Resize) -> None:
+        """Below 80x24 the layout does not fit: a screen says so until the terminal is larger."""
+        self._guard_size(event.size)
+
+    def _guard_size(self, size) -> None:
+        shown = [screen for screen in self.screen_stack if isinstance(screen, TooSmallScreen)]
+        if too_small(size):
+            if not shown:
+                self.push_screen(TooSmallScreen())
+        elif shown and self.screen is shown[-1]:
+            self.pop_screen()   # (one under another screen closes itself when it is on top again)
+
     def on_unmount(self) -> None:
         """The app is shutting down (Ctrl+Q, or the end of a test's run): its solver process ends
         with it rather than at the interpreter's exit."""
@@ -213,6 +225,7 @@ class StwApp(App[int]):
 
     def on_mount(self) -> None:
         self._load_settings()
+        self._guard_size(self.size)
         self.repl.input.focus()
         self.repl.write_note("stw — Spacetime Windows. Type a command (`help` lists them); "
                              "F1 help, F2 panels, F3 plots, F5 iterate, F4 stops, Esc back here, Ctrl+P palette, "
@@ -538,7 +551,10 @@ class StwApp(App[int]):
         return self.focused is not self.repl.input and key.key not in self.active_bindings
 
     def check_action(self, action: str, parameters: tuple) -> bool | None:
-        """Enable stepping only while a session file has lines left, the gallery only after a survey."""
+        """Enable stepping only while a session file has lines left, the gallery only after a
+        survey, and the palette not while the terminal is too small."""
+        if action == "command_palette" and isinstance(self.screen, TooSmallScreen):
+            return False    # (the palette's key is the one that reaches past that modal screen)
         if action in ("step", "run_rest"):
             return self.script is not None and not self.script.done
         if action == "gallery":

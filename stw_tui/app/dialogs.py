@@ -1,6 +1,13 @@
-"""Dialogs: a one-line edit (panels ask for a value, then turn it into a command line) and the
-backend comparison table. Their text is shown literally: never read as markup (titles and hints
-hold command synopses with [brackets]), control characters escaped."""
+"""Dialogs: a one-line edit (panels ask for a value, then turn it into a command line), the
+backend comparison table, and the screen shown while the terminal is smaller than 80x24. Their
+text is shown literally: never read as markup (titles and hints hold command synopses with
+[brackets]), control characters escaped.
+
+Below 80x24 the panels, plots, console and key hints no longer fit (at 60x20 the Opt tab
+disappeared and the hints were cut): instead of a broken layout, :class:`TooSmallScreen` says so,
+and goes away by itself once the terminal is large enough again. It is modal, so the app's keys
+(F1, F2…) do not act on the screen hidden behind it; Ctrl+Q still quits.
+"""
 
 from __future__ import annotations
 
@@ -8,8 +15,9 @@ from rich.text import Text
 from textual.app import ComposeResult
 from textual.binding import Binding
 from textual.containers import Vertical
+from textual.geometry import Size
 from textual.screen import ModalScreen
-from textual.widgets import DataTable, Input, Label
+from textual.widgets import DataTable, Input, Label, Static
 
 from stw_tui.sym.errors import printable
 
@@ -87,3 +95,52 @@ class CompareScreen(ModalScreen[None]):
 
     def action_close(self) -> None:
         self.dismiss(None)
+
+
+MIN_SIZE = Size(80, 24)
+
+
+def too_small(size: Size) -> bool:
+    """Whether a terminal of ``size`` is too small for stw's layout."""
+    return size.width < MIN_SIZE.width or size.height < MIN_SIZE.height
+
+
+def too_small_message(size: Size) -> str:
+    """What the screen says for a terminal of ``size``."""
+    return (f"The terminal is {size.width}×{size.height}: make it at least "
+            f"{MIN_SIZE.width}×{MIN_SIZE.height} to use stw.\n\n"
+            "(A larger window, or a smaller font.) Ctrl+Q quits.")
+
+
+class TooSmallScreen(ModalScreen[None]):
+    """'Make the terminal at least 80x24', until it is."""
+
+    DEFAULT_CSS = """
+    TooSmallScreen {
+        align: center middle;
+        background: $background;
+    }
+    TooSmallScreen > Static {
+        width: 100%;
+        height: auto;
+        padding: 0 1;
+        text-align: center;
+    }
+    """
+
+    def compose(self) -> ComposeResult:
+        yield Static(too_small_message(self.app.size), id="too-small", markup=False)
+
+    def on_resize(self) -> None:
+        """Say the new size; close once it is large enough (the app asks too, see StwApp)."""
+        size = self.app.size
+        if not too_small(size):
+            if self.app.screen is self:
+                self.dismiss(None)
+            return
+        self.query_one("#too-small", Static).update(too_small_message(size))
+
+    def on_screen_resume(self) -> None:
+        """Back on top (a screen pushed over it closed): close if the terminal is large enough now."""
+        if not too_small(self.app.size):
+            self.dismiss(None)
