@@ -2,7 +2,8 @@
 
 Each test runs the app under Pilot at a fixed terminal size and reads the composed screen's text
 (what the terminal would show), not the widgets' state alone: the Eqns panel's violation in view,
-headers and key hints that fit, the "too small" screen below 80x24 and back.
+headers and key hints that fit, the "too small" screen below 80x24 and back, the console rewrapped
+after a resize.
 """
 
 from __future__ import annotations
@@ -142,3 +143,34 @@ def test_below_80x24_a_screen_says_so_and_goes_when_the_terminal_is_large_enough
 
     run(starts_small, small, size=(60, 20))
     assert small.return_code == 0 or small.return_code is None
+
+
+def test_console_text_rewraps_when_the_terminal_is_resized():
+    app = create_app(show_timing=False, blink=False)
+    words = " ".join(f"word{i:03d}" for i in range(50))                  # 399 characters
+
+    async def scenario(pilot):
+        log = app.repl.log_widget
+        app.repl.write_note(words)
+        await pilot.pause(0.1)
+
+        def rows() -> list[str]:
+            return [line.text.rstrip() for line in log.lines if "word" in line.text]
+
+        at_80 = rows()
+        assert len(at_80) == 5 and max(map(len, at_80)) <= 79, at_80
+        await pilot.resize_terminal(160, 30)
+        await support.until(pilot, lambda: len(rows()) == 3, "the note rewrapped at 160 columns")
+        assert max(map(len, rows())) > 79
+        assert " ".join(rows()).split() == words.split()                 # the same text, in order
+        # what is seen on screen: the note's first row is now longer than 80 columns
+        await pilot.pause(0.1)
+        assert any(line.startswith("word000") and "word012" in line for line in screen_lines(app))
+        await pilot.resize_terminal(80, 24)
+        await support.until(pilot, lambda: len(rows()) == 5, "the note rewrapped at 80 columns")
+        assert max(map(len, rows())) <= 79 and log.virtual_size.width <= 79
+        await support.until(pilot, lambda: log.max_scroll_y > 0 and log.is_vertical_scroll_end,
+                            "the newest lines still in view")
+        assert screen_lines(app)[-4].startswith("word040")               # the note's last row, above the prompt
+
+    run(scenario, app, size=(80, 24))

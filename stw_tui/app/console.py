@@ -2,12 +2,14 @@
 
 from __future__ import annotations
 
+from collections import deque
 from typing import TYPE_CHECKING, Callable
 
 from rich.text import Text
 from textual.app import ComposeResult
 from textual.binding import Binding
 from textual.containers import Horizontal, Vertical
+from textual.events import Resize
 from textual.geometry import Size
 from textual.widget import Widget
 from textual.widgets import Input, Label, RichLog
@@ -66,6 +68,72 @@ class CommandInput(Input):
             self.screen.query_one(Console).write_note("  ".join(choices))
 
 
+class ConsoleLog(RichLog):
+    """A RichLog whose text wraps to its own width, again whenever that width changes.
+
+    RichLog renders what is written into lines at the width it has then, and keeps only those
+    lines: after a resize the console stayed wrapped at the old width (issue 52). This keeps what
+    was written (as many entries as the log keeps lines) and, when the width has changed, renders
+    it all again at the new width (2000 entries: ~0.1 s, once per resize). Each entry is rendered
+    at the log's width, given explicitly: RichLog otherwise measures text against the app
+    console's width, which is the terminal's in a terminal but stays 80 under a test's Pilot.
+    """
+
+    def __init__(self, **kwargs):
+        super().__init__(**kwargs)
+        self._written: deque[tuple[object, dict]] = deque(maxlen=self.max_lines)
+        self._wrapped_at: int | None = None    # the width the lines were rendered at
+        self._rewriting = False
+
+    def _width(self) -> int | None:
+        width = self.scrollable_content_region.width
+        return width if self._size_known and width > 0 else None
+
+    def write(self, content, *args, **kwargs) -> "ConsoleLog":
+        """Write ``content`` (kept, to be wrapped again at another width)."""
+        options = {**dict(zip(("width", "expand", "shrink", "scroll_end", "animate"), args)), **kwargs}
+        if not self._rewriting:
+            self._written.append((content, options))
+        width = self._width()
+        if options.get("width") is None and width is not None:
+            options = {**options, "width": width}
+            self._wrapped_at = width
+        super().write(content, **options)
+        return self
+
+    def clear(self) -> "ConsoleLog":
+        """Clear the log and what it keeps."""
+        self._written.clear()
+        super().clear()
+        return self
+
+    def on_resize(self, event: Resize) -> None:
+        """Wrap again once the new size is laid out: while the Resize event is handled, the
+        region the lines would be wrapped to is still the old one. (RichLog's own handler renders
+        what was written before the size was known.)"""
+        self._rewriting = True
+        try:
+            super().on_resize(event)
+        finally:
+            self._rewriting = False
+        self.call_after_refresh(self._rewrap)
+
+    def _rewrap(self) -> None:
+        width = self._width()
+        if width is None or width == self._wrapped_at:
+            return
+        at_end = self.is_vertical_scroll_end
+        self._rewriting = True
+        try:
+            RichLog.clear(self)
+            for content, options in self._written:
+                self.write(content, **{**options, "scroll_end": False})
+        finally:
+            self._rewriting = False
+        if at_end:
+            self.scroll_end(animate=False, immediate=False, x_axis=False)
+
+
 class Console(Vertical):
     """Log plus prompt. Submitting a line posts :class:`CommandRequested`; the app runs it."""
 
@@ -77,7 +145,7 @@ class Console(Vertical):
         self._blink = blink
 
     def compose(self) -> ComposeResult:
-        yield RichLog(id="console-log", wrap=True, markup=False, max_lines=2000)
+        yield ConsoleLog(id="console-log", wrap=True, markup=False, max_lines=2000)
         with Horizontal(id="prompt-row"):
             yield Label(PROMPT, id="prompt")
             command_input = CommandInput(self._scene_of, self._backends, id="command-input",
