@@ -368,8 +368,9 @@ def test_figure_scrubs_and_plays():
     app = create_app(support.SESSIONS / "cat_mouse.stw")
 
     async def scenario(pilot):
-        for _ in range(3):
-            await pilot.press("f3")                  # Curves, Expr, Figure
+        # A scene with point objects opens on the figure player: F3 focuses it
+        assert app.query_one("#plots").active == "tab-figure"
+        await pilot.press("f3")
         figure = app.query_one("#figure-plot")
         assert app.focused is figure
         await pilot.press("right", "right")
@@ -449,6 +450,7 @@ def test_views_never_compile_or_evaluate_on_the_ui_thread(monkeypatch):
     app = create_app(support.SESSIONS / "cat_mouse.stw")
 
     async def scenario(pilot):
+        app.query_one("#plots").active = "tab-curves"            # (it opened on the figure)
         await pilot.press("f3", "v", "right_square_bracket")     # Curves: velocity, next DOF
         await support.settle(pilot)
         await pilot.press("f3", "right_square_bracket")          # Expr: the next equation
@@ -531,8 +533,8 @@ def test_typing_in_a_panel_or_plot_goes_to_the_console():
     app = create_app(support.SESSIONS / "point_mass_2d.stw")
 
     async def scenario(pilot):
-        await pilot.press("f3")                              # a plot
-        assert app.focused is app.query_one("#curves-plot")
+        await pilot.press("f3")                              # a plot (the figure: a point mass)
+        assert app.focused is app.query_one("#figure-plot")
         await pilot.press(*"print")
         assert app.focused is app.repl.input
         assert app.repl.input.value == "print"
@@ -776,7 +778,7 @@ def test_plot_titles_fit_80_columns_and_a_constant_dof_plots_plainly():
     app = create_app(support.SESSIONS / "cat_mouse.stw")
 
     async def scenario(pilot):
-        await pilot.press("f3", "f3", "f3", "right")          # Figure, one frame on
+        await pilot.press("f3", "right")                      # the Figure it opened on, one frame on
         await support.settle(pilot)
         figure = app.query_one("#figure-plot")
         assert figure.size.width <= 40

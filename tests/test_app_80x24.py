@@ -3,7 +3,7 @@
 Each test runs the app under Pilot at a fixed terminal size and reads the composed screen's text
 (what the terminal would show), not the widgets' state alone: the Eqns panel's violation in view,
 headers and key hints that fit, the "too small" screen below 80x24 and back, the console rewrapped
-after a resize.
+after a resize, and the figure player in front with axes that hold still.
 """
 
 from __future__ import annotations
@@ -172,5 +172,60 @@ def test_console_text_rewraps_when_the_terminal_is_resized():
         await support.until(pilot, lambda: log.max_scroll_y > 0 and log.is_vertical_scroll_end,
                             "the newest lines still in view")
         assert screen_lines(app)[-4].startswith("word040")               # the note's last row, above the prompt
+
+    run(scenario, app, size=(80, 24))
+
+
+def test_the_player_opens_on_the_figure_with_axes_fixed_over_the_motion():
+    from stw_tui.app.plots import FigurePlot
+
+    app = create_app(support.SESSIONS / "point_mass_2d.stw", show_timing=False, blink=False)
+
+    async def scenario(pilot):
+        assert app.query_one("#plots").active == "tab-figure"            # a point mass: the figure in front
+        figure = app.query_one(FigurePlot)
+        await pilot.press("f3")                                         # F3 focuses it; Space plays
+        assert app.focused is figure
+        seen = set()
+        positions = []
+        for _ in range(figure.FRAMES):
+            await pilot.press("right")
+            await support.settle(pilot)
+            seen.add(figure.axes[:2])
+            positions += [p for _, p in figure.data.points]
+        assert len(seen) == 1, seen                                     # the same axes at every frame
+        (x0, x1), (y0, y1) = seen.pop()
+        assert all(x0 <= x <= x1 and y0 <= y <= y1 for x, y in positions)   # over the whole motion
+        assert min(y for _, y in positions) < 0.1 < 0.4 < max(y for _, y in positions)   # and it moves
+        await pilot.press("space")
+        await support.until(pilot, lambda: figure.playing, "playing")
+        await pilot.press("space")
+
+    run(scenario, app, size=(80, 24))
+
+
+def test_a_still_point_has_short_ticks_and_a_lone_dof_stays_on_the_curves():
+    from stw_tui.app.plots import FigurePlot
+
+    app = create_app(show_timing=False, blink=False)
+
+    async def scenario(pilot):
+        await support.submit(pilot, "dof q")                             # a lone DOF: no figure to open on
+        await support.settle(pilot)
+        assert app.query_one("#plots").active == "tab-curves"
+        await support.submit(pilot, "dof x, y")                          # a point that never moves
+        await support.settle(pilot)
+        assert app.query_one("#plots").active == "tab-figure"
+        figure = app.query_one(FigurePlot)
+        await pilot.press("f3", "right", "right")
+        await support.settle(pilot)
+        axes = figure.axes
+        await pilot.press("right")
+        await support.settle(pilot)
+        assert figure.axes == axes
+        labels = [*axes[2], *axes[3]]
+        assert labels and all(len(label) <= 5 for label in labels), labels   # not 0.000000000000044
+        text = "\n".join(screen_lines(app))
+        assert "0.0000" not in text
 
     run(scenario, app, size=(80, 24))

@@ -129,6 +129,10 @@ class StwApp(App[int]):
         self._info = SceneInfo()
         self._views = ThrottledCall(self._show_views, VIEW_INTERVAL, self.set_timer)
         self._stale: set[str] = set()     # ids of views in hidden tabs that missed a refresh
+        # The plots open on the figure player once a scene has something to draw, unless a plot
+        # was chosen before (F3, Enter on a row, F8, the gallery): see _open_on_figure
+        self._plot_chosen = False
+        self._figure_checked: "Scene | None" = None
         # What the views show: the worker's copy of the scene after the last command (the
         # session's own scene belongs to the worker), and a running solve's control points.
         self._shown: "Scene | None" = None
@@ -414,6 +418,7 @@ class StwApp(App[int]):
         best = table.optima[event.rank - 1].best
         figure = self.query_one(FigurePlot)
         self._stale.discard(figure.id)   # showing its tab must not put the scene back over the preview
+        self._plot_chosen = True
         self.query_one("#plots", TabbedContent).active = "tab-figure"
         preview = preview_scene(self._shown, best)
         figure.set_scene(preview)
@@ -492,8 +497,26 @@ class StwApp(App[int]):
                 self._views.cancel()   # a refresh waiting out the replay's interval: now instead
         self._views.request()
 
+    def _open_on_figure(self, scene: "Scene | None") -> None:
+        """Bring the figure player to the front the first time the scene has a linkage or a point
+        object (a pair of x/y names), unless a plot was chosen before: the motion is what an
+        animator opened the session to see (it took F3 three times and Space)."""
+        if self._plot_chosen or scene is None or scene is self._figure_checked:
+            return
+        self._figure_checked = scene
+        from stw_tui.session.figure import point_pairs
+
+        try:
+            drawable = bool(scene.linkages) or bool(point_pairs(scene))
+        except Exception:   # a half-built scene: the curves stay in front
+            return
+        if drawable:
+            self._plot_chosen = True
+            self.query_one("#plots", TabbedContent).active = "tab-figure"
+
     def _show_views(self) -> None:
         scene = self._shown
+        self._open_on_figure(scene)
         for tabs in self.query(TabbedContent):
             for pane in tabs.query(TabPane):
                 # Hidden tabs are brought up to date when shown: rebuilding them all costs layout.
@@ -521,6 +544,7 @@ class StwApp(App[int]):
         else:
             plot, tab = self.query_one(ExpressionPlot), "tab-expr"
             plot.name_shown = event.name
+        self._plot_chosen = True
         self.query_one("#plots", TabbedContent).active = tab
         plot.request_data()
 
@@ -581,6 +605,8 @@ class StwApp(App[int]):
         self._cycle_tabs("panels", ScenePanel)
 
     def action_plots(self) -> None:
+        if self.screen is self.screen_stack[0]:
+            self._plot_chosen = True
         self._cycle_tabs("plots", ScenePlot)
 
     def action_help(self) -> None:
@@ -643,6 +669,7 @@ class StwApp(App[int]):
             self._feed_script()
 
     def action_play(self) -> None:
+        self._plot_chosen = True
         self.query_one("#plots", TabbedContent).active = "tab-figure"
         self.query_one(FigurePlot).action_play()
 

@@ -182,6 +182,7 @@ class ScenePlot(PlotextPlot, can_focus=True):
         raise NotImplementedError
 
     _label_width = 5   # of the y tick labels of the last draw (the title's room depends on it)
+    axes: tuple | None = None   # (xlim, ylim, x labels, y labels) set by the newest draw, if any
     _draw_size = Size(0, 0)   # of the figure being drawn
 
     def set_axes(self, plt, xlim: tuple[float, float], ylim: tuple[float, float], xinteger: bool = False) -> None:
@@ -196,6 +197,7 @@ class ScenePlot(PlotextPlot, can_focus=True):
         if yticks:
             plt.yticks(yticks, ylabels)
         self._label_width = max(map(len, ylabels), default=5)
+        self.axes = (xlim, ylim, xlabels, ylabels)   # of the newest figure (tests read them)
 
     def set_title(self, plt, *variants: str) -> None:
         """The most detailed of ``variants`` that fits (plotext would drop one that does not)."""
