@@ -50,8 +50,11 @@ def survey(session: SessionLike, scene, cmd, on_report=None) -> Outcome:
         if on_report is not None and on_report(table) is False:
             stop["asked"] = True
 
+    # F4 is also polled between results (the TUI's callback carries its stop flag), so a stop
+    # does not wait for the next start to finish
+    polled = getattr(on_report, "cancelled", None) or (lambda: False)
     table = run_survey(session, plan, scheduler=scene.scheduler or None, on_progress=progress,
-                       cancelled=lambda: stop["asked"])
+                       cancelled=lambda: stop["asked"] or polled())
     table.fingerprint = fingerprint(session.scene)
     session.survey = table
     return Outcome(message=table.describe(),
