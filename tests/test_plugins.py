@@ -195,3 +195,93 @@ def test_a_backend_that_hands_back_nan_multipliers_is_refused_and_the_start_is_k
     with pytest.raises(SolveError, match="returned non-finite multipliers"):
         run_iterations(Poisoned(), problem, start, 3, session.scene.settings)
     assert np.isfinite(start.lam_eq).all()
+
+
+def _liar(corrupt):
+    """A plugin backend that takes one gradient step, says converged=True and hands back what
+    ``corrupt(state, coefficients)`` makes of its state and its report's control points."""
+    import numpy as np
+    from stw_tui.sos.backend import Backend, SolverState, StepReport
+
+    class Liar(Backend):
+        name = "liar"
+
+        def init(self, problem, state, settings):
+            return state
+
+        def step(self, problem, state, iteration):
+            ev = problem.evaluate(state.s)
+            s = state.s - 1e-3 * ev.gradient
+            new, coefficients = corrupt(SolverState(s, state.lam_eq, state.lam_ge, state.working_set),
+                                        problem.scatter(s))
+            return new, StepReport(iteration, ev.objective, ev.max_violation(), 0.0, 1.0, 0, 0, converged=True,
+                                   coefficients=np.asarray(coefficients, float))
+
+        def state(self, inner):
+            return inner
+
+    return Liar
+
+
+def _nan(values):
+    import numpy as np
+
+    return np.full(np.shape(values), np.nan)
+
+
+LIES = {   # what the plugin corrupts -> what the refusal says
+    "NaN equality multipliers": (lambda st, c: (replace(st, lam_eq=_nan(st.lam_eq)), c), "non-finite multipliers"),
+    "a multiplier too few": (lambda st, c: (replace(st, lam_eq=st.lam_eq[:-1]), c),
+                             r"equality multipliers of shape \(\d+,\) where the window has \d+"),
+    "a control point too many": (lambda st, c: (replace(st, s=list(st.s) + [0.0]), c),
+                                 r"control points of shape \(\d+,\) where the window has \d+"),
+    "an inequality multiplier where there is no inequality":
+        (lambda st, c: (replace(st, lam_ge=[0.0], working_set=[False]), c),
+         r"inequality multipliers of shape \(1,\) where the window has 0"),
+    "a NaN merit weight": (lambda st, c: (replace(st, merit_weight=float("nan")), c),
+                           r"a non-finite merit_weight \(nan\) in its state"),
+    "an infinite trust radius": (lambda st, c: (replace(st, trust_radius=float("inf")), c),
+                                 r"a non-finite trust_radius \(inf\) in its state"),
+    "a working set of numbers": (lambda st, c: (replace(st, working_set=st.working_set.astype(float)), c),
+                                 "a working set of float64, not of booleans"),
+    "NaN control points in its report": (lambda st, c: (st, _nan(c)), "non-finite control points in its report"),
+}
+
+
+def replace(state, **changes):
+    import dataclasses
+
+    return dataclasses.replace(state, **changes)
+
+
+@pytest.mark.parametrize("lie", list(LIES))
+def test_a_backend_handing_back_bad_numbers_is_refused_and_the_scene_kept(monkeypatch, registered, lie):
+    """Issue 54 item 8: every number a backend hands back is checked before it is kept. Finite
+    control points with NaN multipliers and converged=True used to be accepted, and the next
+    solve (the built-in SQP, warm-started from them) failed: 'KKT system stayed singular'; the
+    wrong sizes failed later as broadcasting errors. Each is refused with the backend's name,
+    the scene and the warm start stay as they were, and the next solve converges."""
+    import catalogue
+    import numpy as np
+    import stw_tui.sos.backend as backend
+    from test_guards import _Entry
+    from stw_tui.sym.errors import StwError
+
+    corrupt, message = LIES[lie]
+    installed = {**backend.available_backends(), "liar": _Entry(lambda: _liar(corrupt))}
+    monkeypatch.setattr(backend, "available_backends", lambda: installed)
+    session = catalogue.problem("particle_jet").setup()
+    session.execute("iterate 2")                     # a warm start to keep
+    session.execute("backend liar")
+    scene, coefficients, warm = session.scene, session.scene.coefficient_vector().copy(), session.warm
+    assert warm is not None
+    with pytest.raises(StwError, match=rf"iteration 1: backend 'liar' returned {message}; the scene is unchanged"):
+        session.execute("iterate 3")
+    assert session.scene is scene
+    assert session.warm.signature == warm.signature
+    for name in ("s", "lam_eq", "lam_ge", "working_set", "merit_weight", "trust_radius"):
+        np.testing.assert_array_equal(getattr(session.warm.state, name), getattr(warm.state, name))
+    np.testing.assert_array_equal(session.scene.coefficient_vector(), coefficients)
+    session.execute("backend scipy")
+    outcome = session.execute("iterate 30")
+    assert outcome.run.converged, outcome.message

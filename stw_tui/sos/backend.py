@@ -364,15 +364,12 @@ class _Loop:
             self.where = f"iteration {k}"
             inner, report = backend.step(problem, inner, k)
             state = backend.state(inner)
+            _check_shapes(backend.name, problem, state, k)
             if not (np.isfinite(state.s).all() and np.isfinite(report.objective)
                     and np.isfinite(report.max_violation)):
                 raise SolveError(f"iteration {k} produced non-finite values (diverged); "
                                  "the scene is unchanged — try damping, a smaller window or `shake`")
-            # what the next solve starts from is kept too: multipliers a plugin left NaN (with
-            # finite control points and converged=True) poisoned the next solve's first system
-            if not (np.isfinite(state.lam_eq).all() and np.isfinite(state.lam_ge).all()):
-                raise SolveError(f"iteration {k}: backend {backend.name!r} returned non-finite multipliers; "
-                                 "the scene is unchanged")
+            _check_kept(backend.name, state, report, k)
             if self.on_state is not None and self._callback(self.on_state, k, state) is _GIVEN_UP:
                 break
             if report.coefficients is None:   # the shared SQP's steps carry them already
@@ -397,3 +394,41 @@ class _Loop:
 
 
 _GIVEN_UP = object()   # what _Loop._callback answers once the caller stopped waiting
+
+
+def _refused(name: str, k: int, what: str) -> SolveError:
+    return SolveError(f"iteration {k}: backend {name!r} returned {what}; the scene is unchanged")
+
+
+def _check_shapes(name: str, problem, state: SolverState, k: int) -> None:
+    """Raise unless ``state`` has ``problem``'s sizes: a control point or multiplier per variable
+    and row (a plugin's wrong sizes failed later, far from it, as broadcasting errors)."""
+    rows = getattr(problem, "row_counts", None)
+    if rows is None:   # not a window problem (a test's stand-in): nothing to compare with
+        return
+    eq, ge = rows[TermKind.EQ], rows[TermKind.GE]
+    for what, values, expected in (("control points", state.s, problem.n_free),
+                                   ("equality multipliers", state.lam_eq, eq),
+                                   ("inequality multipliers", state.lam_ge, ge),
+                                   ("working-set flags", state.working_set, ge)):
+        shape = np.shape(values)
+        if shape != (expected,):
+            raise _refused(name, k, f"{what} of shape {shape} where the window has {expected}")
+
+
+def _check_kept(name: str, state: SolverState, report: StepReport, k: int) -> None:
+    """Raise unless every number of ``state`` and ``report`` that stw keeps is finite: the
+    multipliers and the rest of the state are the next solve's warm start (NaN multipliers with
+    finite control points and converged=True poisoned it: 'KKT system stayed singular'), and a
+    report's control points are drawn and checkpointed. (Both checks: 7 µs an iteration here.)"""
+    if not (np.isfinite(state.lam_eq).all() and np.isfinite(state.lam_ge).all()):
+        raise _refused(name, k, "non-finite multipliers")
+    if report.coefficients is not None and not np.isfinite(report.coefficients).all():
+        raise _refused(name, k, "non-finite control points in its report")
+    for field_name in ("merit_weight", "regularization", "trust_radius", "elastic_weight"):
+        value = getattr(state, field_name)
+        if not math.isfinite(value):
+            raise _refused(name, k, f"a non-finite {field_name} ({value!r}) in its state")
+    kind = np.asarray(state.working_set).dtype
+    if kind != bool:
+        raise _refused(name, k, f"a working set of {kind}, not of booleans")
