@@ -154,6 +154,8 @@ def test_slide_solves_at_each_position_and_equals_the_windows_written_by_hand():
     ("slide sight by 0.25 to 0.4", "already ends at 0.5"),
     ("slide sight by 0.25 to 3", "outside the animation span"),
     ("slide sight by 0.000001", "at most 1000"),
+    ("slide sight by 1e-300", r"at about 1.5e\+300 positions \(at most 1000\)"),   # was: over 6 GB
+    ("slide sight by 1e-320", r"at more than 1e308 positions"),                     # 1.5/1e-320 is inf
     ("slide sight 0.25", "expected 'by DT'"),
 ])
 def test_slide_errors_leave_the_scene_as_it_was(line, message):
@@ -163,6 +165,22 @@ def test_slide_errors_leave_the_scene_as_it_was(line, message):
         s.execute(line)
     assert np.array_equal(s.scene.coefficient_vector(), before)
     assert s.scene.windows["sight"].interval == (0.0, 0.5)
+
+
+def test_a_slide_counts_its_positions_before_it_lists_them():
+    # 1.5 million positions, refused: its list of them was built first (issue 54 item 6), 48 MB
+    # here, and over 6 GB for `by 1e-300` (whose refusal the test above checks)
+    import tracemalloc
+
+    s = run_lines(Session(), CHASE)
+    tracemalloc.start()
+    try:
+        with pytest.raises(StwError, match=r"slide would solve at 150000\d positions"):
+            s.execute("slide sight by 0.000001")
+        peak = tracemalloc.get_traced_memory()[1]
+    finally:
+        tracemalloc.stop()
+    assert peak < 5e6, f"{peak / 1e6:.0f} MB"
 
 
 def test_a_stopped_slide_is_journalled_as_the_positions_it_solved():

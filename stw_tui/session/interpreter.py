@@ -829,7 +829,12 @@ def _slide(session: SessionLike, scene: Scene, cmd, on_report) -> Outcome:
         raise StwError(f"window '{cmd.window}' already ends at {b:g}; slide it `to` a later time than that")
     if cmd.n < 1:
         raise StwError("slide needs a positive number of iterations at each position")
-    count = int(np.floor((end - b) / by + 1e-9))
+    steps = (end - b) / by   # counted before the list is built: `by 1e-300` asked for 1e300 of them
+    if not steps < MAX_SLIDE_POSITIONS:
+        many = (f"{int(steps) + 1}" if steps < 1e15 else f"about {steps:.3g}" if np.isfinite(steps)
+                else "more than 1e308")
+        raise StwError(f"slide would solve at {many} positions (at most {MAX_SLIDE_POSITIONS}); take a larger step")
+    count = int(np.floor(steps + 1e-9))
     ends = [b + k * by for k in range(count + 1)]
     if end - ends[-1] > 1e-9 * (scene.t1 - scene.t0):
         ends.append(end)
