@@ -197,6 +197,13 @@ def test_ballistic_needs_g_and_limit_is_a_dof_range():
     message = s.execute("limit PX 0 1").message
     assert "outside now" in message and "to 2)" in message
     assert (s.scene.dofs["PX"].lo, s.scene.dofs["PX"].hi) == (0.0, 1.0)
+    # two negative bounds: the second read as a subtraction is caught, and the fix is named
+    with pytest.raises(SourceError) as err:
+        s.execute("limit PX -2.9 -0.9")
+    assert "a negative B after A reads as a subtraction" in str(err.value) and "(-0.9)" in str(err.value)
+    assert (s.scene.dofs["PX"].lo, s.scene.dofs["PX"].hi) == (0.0, 1.0)
+    s.execute("limit PX -2.9 (-0.9)")
+    assert (s.scene.dofs["PX"].lo, s.scene.dofs["PX"].hi) == (-2.9, -0.9)
 
 
 def test_a_verb_and_its_delete_are_each_one_undo_step():

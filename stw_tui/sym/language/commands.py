@@ -749,7 +749,12 @@ class CommandParser(ExpressionParser):
     def p_limit(self):
         """`limit DOF A B`."""
         dof = self.dof_name()
+        start = self.token
         lo = self.number_expr()
+        if self.token.kind == END:   # `limit Q -2.9 -0.9` reads as one bound, -2.9 - 0.9
+            raise self.error("limit needs two bounds, A and B; a negative B after A reads as a "
+                             "subtraction (-2.9 -0.9 is -3.8): put it in parentheses", start,
+                             expected=f"limit {dof} A B, e.g. limit {dof} -2.9 (-0.9)")
         hi = self.number_expr()
         return LimitCmd(dof, lo, hi, self.text)
 

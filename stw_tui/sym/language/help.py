@@ -109,7 +109,9 @@ COMMAND_HELP: dict[str, CommandHelp] = {
                          "avoid fig.LARM fig.TRUNK by=0.05"),
     "limit": CommandHelp("limit DOF A B",
                          "A range for a DOF (a joint's limits): A <= DOF <= B everywhere, imposed on its "
-                         "control points. The same as `dof DOF lo=A hi=B` (no group: a range is the DOF's own).",
+                         "control points. The same as `dof DOF lo=A hi=B` (no group: a range is the DOF's own). "
+                         "A negative B goes in parentheses (`limit KNEE -2.9 (-0.9)`): `-2.9 -0.9` "
+                         "would read as one number, -3.8.",
                          "limit ELBOW 0 2.5"),
     "slide": CommandHelp("slide WINDOW by DT [to T] [iterate N]",
                          "Move a window along the time axis by DT at a time, solving N iterations "
