@@ -21,6 +21,7 @@ from stw_tui.sos.backend import (RunResult, SolverState, Status, WarmStart, crea
 from stw_tui.sos.batch import joined_backend
 from stw_tui.sos import refinement
 from stw_tui.sos.continuous import DenseReport, check_scene, survey_failures
+from stw_tui.sos.instances import dofs_used
 from stw_tui.sos.scene import DEFAULT_SETTINGS, Constraint, Dof, Objective, Relation, Scene, Window
 from stw_tui.sos.spline import DofCurve
 from stw_tui.sos.window import WindowProblem
@@ -669,11 +670,17 @@ class SolveReport:
             lines[0] += done + f", {self.resolves} re-solve(s)"
         lines[0] += self.adapted.undone
         # (constraints in conflict fail at their instances too: refining would not help)
-        if self.dense.failing(self.tol) and self.run.status is not Status.INFEASIBLE:
+        failing = self.dense.failing(self.tol)
+        if failing and self.run.status is not Status.INFEASIBLE:
+            outside = beyond_window(self.problem, failing)
             stop = self.adapted.stop_note()
             hint = f" — {stop}" if stop else " — refine the knots there, or `set dense_tol`"
+            if len(outside) == len(failing):   # refining would not help: the window cannot reach them
+                hint = ""
             lines.append(f"between the instances it fails dense_tol {self.tol:.0e} (or its own): "
                          f"{self.dense.describe_failures(self.tol)}{hint}")
+            if outside:
+                lines.append(outside_note(self.problem, outside))
         last = self.run.reports[-1] if self.run.reports else None
         if self.run.status is Status.INFEASIBLE and last is not None and last.message:
             lines.append(last.message)    # names the constraints in conflict
@@ -682,13 +689,57 @@ class SolveReport:
         return lines
 
     def message(self) -> str:
-        """The console message of the `iterate`."""
+        """The console message of the `iterate`. A window's objective and violation are its own
+        (the terms its free control points change, over the times they reach), not the whole
+        animation's: the line says so."""
         last = self.run.reports[-1] if self.run.reports else None
         text = f"{self.problem.summary()}\n{len(self.run.reports)} iteration(s) with {self.backend}: {self.run.status.value}"
         if last is not None:
-            text += (f"; objective {last.objective:.6g}, max violation {last.max_violation:.2e}, "
+            whose = "" if _is_everything(self.problem) else f" (window '{self.problem.window.name}')"
+            text += (f"; objective{whose} {last.objective:.6g}, max violation {last.max_violation:.2e}, "
                      f"KKT {last.kkt_residual:.2e}")
         return "\n".join([text, *self.dense_lines()])
+
+
+def _is_everything(problem: WindowProblem) -> bool:
+    """Whether a window problem frees every control point (the window `all`, or one as large)."""
+    return problem.n_free == problem.n_total
+
+
+def beyond_window(problem: WindowProblem, failing: list) -> list:
+    """The failing checks that a solve on ``problem``'s window cannot repair: worst where none of
+    its free control points reach, or on DOF it does not free."""
+    if _is_everything(problem):
+        return []
+    scene, (a, b) = problem.scene, problem.reach
+    out = []
+    for check in failing:
+        if check.worst_t is not None and not a - 1e-12 <= check.worst_t <= b + 1e-12:
+            out.append(check)
+            continue
+        constraint = scene.constraints.get(check.name)
+        dofs = [check.name[:-len(".bounds")]] if check.name.endswith(".bounds") else None
+        try:
+            if constraint is not None:
+                dofs = dofs_used(scene, [rel.expr for rel in constraint.relations], constraint.span)
+        except Exception:  # a constraint that no longer compiles: say nothing of it
+            continue
+        if dofs is not None and not set(dofs) & problem.free_dofs:
+            out.append(check)
+    return out
+
+
+def outside_note(problem: WindowProblem, outside: list) -> str:
+    """The console line that says which failures lie outside the window and what to do instead."""
+    window = problem.window
+    names = ", ".join(c.name for c in outside[:3]) + (f" and {len(outside) - 3} more" if len(outside) > 3 else "")
+    where = f"[{window.interval[0]:g}, {window.interval[1]:g}]" if window.interval is not None else "the whole span"
+    dofs = f", DOF {', '.join(window.dofs)}" if window.dofs else ""
+    a, b = problem.reach
+    return (f"{names} {'fails' if len(outside) == 1 else 'fail'} outside window '{window.name}' ({where}{dofs}; "
+            f"its control points reach t={a:.4g}..{b:.4g}): its solve cannot repair "
+            f"{'it' if len(outside) == 1 else 'them'} — `use all` (or a window that covers "
+            f"{'it' if len(outside) == 1 else 'them'}), then `iterate`")
 
 
 def _iterate(session: SessionLike, scene: Scene, cmd, on_report) -> Outcome:

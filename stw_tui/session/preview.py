@@ -16,10 +16,13 @@ from stw_tui.sym.errors import StwError
 
 
 def comparison(session: SessionLike) -> str:
-    """Objective and violations of the proposal and of the scene, one line each."""
+    """Objective and violations of the proposal and of the scene over the whole animation, one
+    line each (a window's solve reports the window's own objective: the terms its free control
+    points change, over the times they reach; these are the numbers to compare)."""
     from stw_tui.session.snapshots import measure
 
-    return (f"  proposal: {measure(session.proposal.scene).describe()}\n"
+    return ("over the whole animation, proposed and as it is now:\n"
+            f"  proposal: {measure(session.proposal.scene).describe()}\n"
             f"  now:      {measure(session.scene).describe()}")
 
 
