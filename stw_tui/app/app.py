@@ -340,7 +340,7 @@ class StwApp(App[int]):
         job = event.job
         if job.origin not in (Origin.STARTUP, Origin.MEASURE) and job.line.strip():
             self.repl.write_command(job.line, job.number, job.origin, job.continuation)
-        if job.is_solve:
+        if job.is_solve and classify_line(job.line).verb != "survey":   # a survey's starts go to its gallery
             self.query_one(ConvergencePlot).set_reports([])
         self._show_state()
 
@@ -441,10 +441,7 @@ class StwApp(App[int]):
         elif outcome is not None:
             self.repl.write_result(outcome.message)
             if outcome.run is not None and outcome.run.reports:
-                self.status_line.show(report=outcome.run.reports[-1])
                 self.query_one(ConvergencePlot).set_reports(outcome.run.reports)
-            elif changes_scene(job.line):
-                self.status_line.show(stale=True)   # the last solve's numbers no longer hold
             if job.origin == Origin.FILE and _was_stopped(outcome) and self.script is not None:
                 # The lines after a stopped solve assume it ran to the end: do not run them.
                 self.script.running = False
@@ -452,6 +449,7 @@ class StwApp(App[int]):
                                      "before it ended; F6 runs the next line, F7 the rest" + self._held_note())
         self._coefficients = None
         self._drop_live_report()
+        self._show_measures(event)
         if event.scene is not None:
             self._shown = event.scene
         if self.session is None or self._shown is None:   # the core failed to load
@@ -465,6 +463,19 @@ class StwApp(App[int]):
         self.runner.finished()
         self._feed_script()
         self._show_state()
+
+    def _show_measures(self, event: CommandFinished) -> None:
+        """The status line's numbers after a command: the scene's, measured in the worker after
+        every command (whatever it was: undo, reject, open, adopt, a solve). A replayed line
+        with more to come is not measured: a solve's last iterate stands in for it, and after
+        any other change the numbers shown are marked stale until the next measurement."""
+        info, outcome = event.info, event.outcome
+        if info is not None and (info.measures is not None or (event.scene is not None and not event.scene.dofs)):
+            self.status_line.measured(info.measures, info.proposal.proposed if info.proposal is not None else None)
+        elif event.error is None and outcome is not None and outcome.run is not None and outcome.run.reports:
+            self.status_line.show(report=outcome.run.reports[-1])
+        elif event.error is None and info is None and changes_scene(event.job.line):
+            self.status_line.show(stale=True)   # the numbers shown no longer hold
 
     def on_task_finished(self, event: TaskFinished) -> None:
         if event.error is not None:

@@ -42,6 +42,20 @@ class SceneInfo:
     backend_error: str = ""
     figure_bounds: tuple[float, float, float, float] | None = None   # with a proposal: of both
     proposal: "ProposalView | None" = None     # a solve's result under `set preview on`
+    measures: "SceneMeasures | None" = None    # what the status line shows (None: not measured)
+
+
+@dataclass(frozen=True)
+class SceneMeasures:
+    """How good the scene's motion is now, in the numbers the status line shows: the objective
+    over the whole animation, the largest violation at the constraint instances and anywhere
+    (the continuous-time check, the one that counts), and the check that is worst there."""
+
+    objective: float | None      # None: the objective cannot be evaluated (a broken term)
+    instances: float | None      # None: the constraints cannot be checked (a broken term)
+    dense: float | None
+    worst: str = ""              # the worst check's name, where the dense violation fails
+    worst_t: float | None = None
 
 
 def dof_series(scene: "Scene", name: str, order: int, n: int = 161) -> Series:
@@ -86,15 +100,47 @@ def equation_violations(scene: "Scene", dense: "DenseReport | None" = None) -> d
     """Max violation of every constraint over its whole scope, between instances too (the
     continuous-time check), whatever window is in use ({} when a constraint no longer compiles).
     ``dense``: that check of ``scene`` already made (an `iterate`'s, Outcome.dense)."""
+    report = dense_check(scene, dense)
+    return {} if report is None else {name: c.dense for name, c in report.checks.items()}
+
+
+def dense_check(scene: "Scene", dense: "DenseReport | None" = None) -> "DenseReport | None":
+    """The continuous-time check of ``scene`` (``dense`` when already made), or None when there
+    is nothing to check or a constraint no longer compiles (e.g. it names a deleted definition)."""
+    if dense is not None:
+        return dense
     if not scene.constraints or not scene.dofs:
-        return {}
+        return None
     try:
         from stw_tui.sos.continuous import check_scene
 
-        report = dense if dense is not None else check_scene(scene)
-        return {name: c.dense for name, c in report.checks.items()}
-    except Exception:  # a half-built scene (e.g. a constraint on a deleted name) has no check
-        return {}
+        return check_scene(scene)
+    except Exception:  # a half-built scene has no check
+        return None
+
+
+def scene_measures(scene: "Scene", dense: "DenseReport | None") -> "SceneMeasures | None":
+    """The status line's numbers for ``scene`` (in the worker: it builds the whole animation's
+    window problem, ~0.1-20 ms on the bundled sessions). ``dense``: its continuous-time check
+    (None: nothing to check, or it failed). None when the scene has no DOF."""
+    if not scene.dofs:
+        return None
+    objective = None
+    try:
+        from stw_tui.sos.window import WindowProblem
+
+        problem = WindowProblem.of(scene, "all")
+        objective = float(problem.merit_values(problem.initial()).objective)
+    except Exception:  # a broken term: the violations are still worth showing
+        objective = None
+    if objective is not None and not np.isfinite(objective):
+        objective = None
+    if dense is None:   # no constraint (DOF bounds hold everywhere: on the control points), or a broken one
+        return SceneMeasures(objective, None, None) if scene.constraints else SceneMeasures(objective, 0.0, 0.0)
+    failing = dense.failing(float(scene.settings["dense_tol"]))
+    worst = failing[0] if failing else None
+    return SceneMeasures(objective, float(dense.instance_violation), float(dense.dense_violation),
+                         worst.name if worst is not None else "", worst.worst_t if worst is not None else None)
 
 
 def figure_bounds(scene: "Scene", frames: int = 11, proposal: "Scene | None" = None
@@ -158,8 +204,10 @@ def scene_info(scene: "Scene", proposal: "Scene | None" = None,
     """Everything slow the panels need, measured once per command (called in the worker); with
     the scene a solve proposes under `set preview on`, what the figure player shows of it.
     ``dense``: the continuous-time check of ``scene`` the command made (Outcome.dense), if any."""
-    info = SceneInfo(violations=equation_violations(scene, dense),
-                     figure_bounds=figure_bounds(scene, proposal=proposal))
+    report = dense_check(scene, dense)
+    info = SceneInfo(violations={} if report is None else {name: c.dense for name, c in report.checks.items()},
+                     figure_bounds=figure_bounds(scene, proposal=proposal),
+                     measures=scene_measures(scene, report))
     if proposal is not None:
         info.proposal = proposal_view(scene, proposal)
     try:
