@@ -188,3 +188,37 @@ def test_quitting_after_a_survey_leaves_no_warning_on_the_terminal_and_no_proces
         assert "leaked" not in screen and "Warning" not in screen, screen
     finally:
         tmux(*base, "kill-server")
+
+
+def test_resizing_below_80x24_asks_for_80x24_and_resizing_back_restores_the_layout():
+    """Issue 52 items 3 and 2, in a real terminal: below 80x24 a screen asks for 80x24 (the
+    panels' tabs used to vanish at 60x20); at 80x24 again the layout is back, still working, and
+    the status line shows the scene's dense violation. (Runs this checkout's code: PYTHONPATH.)"""
+    name = f"stw-test-{uuid.uuid4().hex[:8]}"
+    base = start(name, f"env PYTHONPATH={ROOT} {STW} sessions/particle_jet.stw")
+    try:
+        screen = wait_for(base, name, "end of particle_jet.stw")
+        assert "end of particle_jet.stw" in screen and "dense " in screen, screen
+        tmux(*base, "resize-window", "-t", name, "-x", "60", "-y", "20")
+        screen = wait_for(base, name, "make it at least")
+        assert "make it at least" in screen and "60" in screen, screen
+        assert "stw>" not in screen and "Eqns" not in screen, screen
+        tmux(*base, "resize-window", "-t", name, "-x", "79", "-y", "30")   # one column short
+        screen = wait_for(base, name, "79")
+        assert "make it at least" in screen and "79" in screen, screen
+        tmux(*base, "resize-window", "-t", name, "-x", "80", "-y", "24")
+        deadline = time.monotonic() + 30
+        screen = tmux(*base, "capture-pane", "-p", "-t", name)
+        while "make it at least" in screen and time.monotonic() < deadline:
+            time.sleep(0.1)
+            screen = tmux(*base, "capture-pane", "-p", "-t", name)
+        lines = screen.splitlines()
+        assert "make it at least" not in screen and len(lines) == 24, screen
+        assert max(len(line) for line in lines) <= 80, screen
+        for visible in ("stw>", "DOF", "Eqns", "Opt", "f5 Iterate", "dense "):
+            assert visible in screen, (visible, screen)
+        tmux(*base, "send-keys", "-t", name, "print x @ 0.5", "Enter")   # the console still answers
+        screen = wait_for(base, name, "x @ 0.5 = ")
+        assert "x @ 0.5 = " in screen, screen
+    finally:
+        tmux(*base, "kill-server")
