@@ -292,9 +292,20 @@ HANGING_PLUGIN = textwrap.dedent('''
 ''')
 
 
-def _install_hanging(tmp_path) -> dict:
+# A plugin whose second iteration holds the interpreter lock in C for ever: a regular expression
+# that backtracks exponentially (2^64 ways to split the a's) runs in _sre without releasing the lock
+# or looking at signals, so no other thread of its process runs Python meanwhile, Ctrl+C's handler
+# on the main thread included.
+LOCK_HOLDING_PLUGIN = HANGING_PLUGIN.replace(
+    'print("hanging now", flush=True)',
+    'print("holding the lock now", flush=True); BACKTRACKS.match("a" * 64 + "b")'
+).replace("import time\n", 'import re\nimport time\n\nBACKTRACKS = re.compile(r"(a+)+$")   # compiled here: compiling runs Python\n', 1)
+assert LOCK_HOLDING_PLUGIN != HANGING_PLUGIN
+
+
+def _install_hanging(tmp_path, plugin: str = HANGING_PLUGIN) -> dict:
     """test_plugins' way: a real distribution whose entry point names the hanging plugin."""
-    (tmp_path / "stw_hanging.py").write_text(HANGING_PLUGIN)
+    (tmp_path / "stw_hanging.py").write_text(plugin)
     info = tmp_path / "stw_hanging-0.1.dist-info"
     info.mkdir()
     (info / "METADATA").write_text("Metadata-Version: 2.1\nName: stw-hanging\nVersion: 0.1\n")
@@ -356,6 +367,75 @@ def test_headless_ctrl_c_ends_a_hung_solve_at_once_with_an_error(tmp_path):
     assert process.returncode == 1, err
     assert "interrupted (Ctrl+C) during iteration 2 of backend hanging" in err and "Traceback" not in err
     print(f"Ctrl+C to exit, hung backend, headless: {latency:.2f} s")
+
+
+def _start_run(tmp_path, env: dict, *options: str) -> subprocess.Popen:
+    """`stw run hang.stw [OPTIONS]`, with SIGINT at its default as a terminal's foreground job has it (see
+    test_headless_ctrl_c_ends_a_hung_solve_at_once_with_an_error)."""
+    previous = signal.signal(signal.SIGINT, signal.default_int_handler)
+    try:
+        return subprocess.Popen([sys.executable, "-m", "stw_tui.cli", "run", str(tmp_path / "hang.stw"), *options],
+                                env=env, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    finally:
+        signal.signal(signal.SIGINT, previous)
+
+
+def _wait_for_line(process: subprocess.Popen, text: str, timeout: float) -> list[str]:
+    """Read ``process``'s stdout until a line ``text`` (the lines read); fails after ``timeout`` s."""
+    import queue
+
+    lines: queue.SimpleQueue = queue.SimpleQueue()
+    threading.Thread(target=lambda: [lines.put(line) for line in process.stdout] + [lines.put(None)],
+                     daemon=True).start()
+    seen, until = [], time.monotonic() + timeout
+    while True:
+        try:
+            line = lines.get(timeout=max(0.0, until - time.monotonic()))
+        except queue.Empty:
+            line = None
+        if line is None:
+            process.kill()
+            pytest.fail(f"no line {text!r} from stw run within {timeout:g} s; stdout: {seen}, "
+                        f"stderr: {process.communicate()[1]}")
+        seen.append(line)
+        if line.strip() == text:
+            return seen
+
+
+@pytest.mark.skipif(not Path("/proc/self/stat").exists(), reason="reads process states in /proc")
+def test_headless_ctrl_c_ends_a_backend_holding_the_interpreter_lock_and_leaves_no_process(tmp_path):
+    """A plugin backend runs in a process of its own under `stw run` (the built-in SQP does not
+    need one): stw's own process stays free to take Ctrl+C, ends that process and exits 1 with
+    the reason, however long the backend holds its interpreter lock; its journal records the
+    solve as failed, as one interrupted in stw's own process."""
+    psutil = pytest.importorskip("psutil")
+    env = {**_install_hanging(tmp_path, LOCK_HOLDING_PLUGIN), "PYTHONFAULTHANDLER": "1"}
+    journal = tmp_path / "journal.stw"
+    process = _start_run(tmp_path, env, "--journal", str(journal))
+    try:
+        _wait_for_line(process, "holding the lock now", timeout=120)
+        time.sleep(1.0)                                      # well inside the match by now
+        descendants = psutil.Process(process.pid).children(recursive=True)
+        pressed = time.monotonic()
+        process.send_signal(signal.SIGINT)
+        try:
+            _, err = process.communicate(timeout=QUICK)
+        except subprocess.TimeoutExpired:
+            pytest.fail(_why_still_running(process))
+        latency = time.monotonic() - pressed
+    finally:
+        process.kill()
+    assert process.returncode == 1, err
+    assert "interrupted (Ctrl+C) during iteration 2 of backend hanging" in err, err
+    assert "the scene is unchanged" in err and "Traceback" not in err, err
+    _, alive = psutil.wait_procs(descendants, timeout=QUICK)   # the fork server ends as its parent goes
+    assert not alive, [(p.pid, p.name(), p.cmdline()) for p in alive]
+    lines = journal.read_text().splitlines()
+    assert lines[:3] == ["dof x = 0.5", "objective o: x - 1", "backend hanging"], lines
+    assert lines[3] == "# failed: iterate 100" and "interrupted (Ctrl+C)" in lines[4], lines
+    assert not Path(f"{journal}.solving").exists()
+    print(f"Ctrl+C to exit, backend holding the interpreter lock, headless: {latency:.2f} s; "
+          f"{len(descendants)} child process(es), none left")
 
 
 @pytest.mark.skipif(not Path("/proc/self/stat").exists(), reason="reads process states in /proc")

@@ -126,6 +126,11 @@ def _run(args: argparse.Namespace) -> int:
         except StwError as exc:   # e.g. a backend that is not installed: say so, run nothing
             _say(f"stw run: --backend {args.backend}: {exc}", err=True)
             return 2
+    # A plugin backend solves in a process of its own, so Ctrl+C ends it even while it holds the
+    # interpreter lock in C (stw_tui/session/child_process.py); the built-in SQP solves here.
+    from stw_tui.session.child_process import SolverProcess
+
+    session.solver_process = SolverProcess(quiet=False)
     try:
         session.run_file(args.session, on_line=on_line)
     except SourceError as exc:
@@ -134,6 +139,8 @@ def _run(args: argparse.Namespace) -> int:
     except StwError as exc:
         _say(f"{args.session}: {exc}", err=True)
         return 1
+    finally:
+        session.solver_process.close()
     seconds = time.perf_counter() - started
     if args.json:
         print(json.dumps(summary(session, args.samples, seconds)))

@@ -12,6 +12,12 @@ result is bit for bit the one of a solve in this process.
 A process that dies (killed, out of memory, a crashing backend) costs only the command: the
 session here is the one from before it, and the journal on disk never saw the line (an entry is
 written when it is settled, at the end).
+
+Headless, `stw run` solves there too when the backend is a plugin other than the shared SQP
+(:attr:`~stw_tui.sos.backend.Backend.bounded_calls` false; see ``Session.solver_process``): a plugin
+that holds the interpreter lock in C would otherwise keep Ctrl+C's handler from ever running. The
+child ignores SIGINT (a terminal sends it to the whole process group); Ctrl+C in the waiting
+process ends the child at once (SIGKILL) and the command with an error.
 """
 
 from __future__ import annotations
@@ -20,8 +26,10 @@ import ctypes
 import multiprocessing
 import os
 import pickle
+import signal
 from typing import Callable
 
+from stw_tui.sos.backend_calls import interrupted
 from stw_tui.sym.errors import StwError
 from stw_tui.sym.language import classify_line
 
@@ -77,9 +85,15 @@ class NotPortable(Exception):
 
 class SolverProcess:
     """One child process that executes solve commands on a copy of the session, started on the
-    first solve and kept for the next ones (its caches of compiled terms stay warm)."""
+    first solve and kept for the next ones (its caches of compiled terms stay warm).
 
-    def __init__(self):
+    Args:
+        quiet: the child writes nothing to the terminal (the TUI's; `stw run`'s child writes a
+            plugin's output where the command's own goes).
+    """
+
+    def __init__(self, quiet: bool = True):
+        self.quiet = quiet
         self._process = None
         self._conn = None
         self._cancel = None
@@ -100,6 +114,8 @@ class SolverProcess:
 
         Raises:
             StwError: the child died; ``session`` is as it was.
+            SolveError: Ctrl+C (headless) while the child ran: it is ended at once (SIGKILL, which
+                no interpreter lock held in C can delay); ``session`` is as it was.
             NotPortable: the session cannot be copied to a process (the caller then runs the
                 command itself).
         """
@@ -107,6 +123,20 @@ class SolverProcess:
             payload = pickle.dumps(session, protocol=pickle.HIGHEST_PROTOCOL)
         except Exception as exc:   # e.g. a plugin's object that does not pickle
             raise NotPortable(str(exc)) from exc
+        done = [0]   # the last iteration reported
+
+        def reported(report) -> bool | None:
+            done[0] = getattr(report, "iteration", done[0])
+            return on_report(report)
+        try:
+            return self._execute(payload, text, line, reported, cancelled)
+        except KeyboardInterrupt:   # wherever in the wait it lands
+            self._drain(done)
+            self.close()
+            backend = getattr(getattr(session, "scene", None), "backend", "?")
+            raise interrupted(backend, f"iteration {done[0] + 1}") from None
+
+    def _execute(self, payload: bytes, text: str, line: int | None, on_report: Callable, cancelled: Callable[[], bool]):
         process, conn, cancel = self._ensure_started()
         cancel.value = False
         try:
@@ -131,6 +161,17 @@ class SolverProcess:
             raise StwError(f"the solver process ended during `{text.strip()}`{how}; "
                            "the scene is as it was before the command") from exc
 
+    def _drain(self, done: list[int]) -> None:
+        """Read the reports the child had sent before Ctrl+C, so that the message names the
+        iteration it was in (``done[0]``: the last one reported)."""
+        try:
+            while self._conn is not None and self._conn.poll(0):
+                kind, *rest = pickle.loads(self._conn.recv_bytes())
+                if kind == "report":
+                    done[0] = getattr(rest[0], "iteration", done[0])
+        except Exception:   # a broken pipe, a half-sent message: the count is then what it was
+            pass
+
     def _ensure_started(self):
         if self._process is not None and self._process.is_alive():
             return self._process, self._conn, self._cancel
@@ -140,7 +181,8 @@ class SolverProcess:
         # A flag in shared memory, not an Event: an Event's five named semaphores outlive the
         # os._exit with which the TUI quits, and the resource tracker warns about them after it.
         self._cancel = context.RawValue(ctypes.c_bool, False)
-        self._process = context.Process(target=serve, args=(theirs, self._cancel), name="stw-solver", daemon=True)
+        self._process = context.Process(target=serve, args=(theirs, self._cancel, self.quiet), name="stw-solver",
+                                        daemon=True)
         self._process.start()
         theirs.close()
         self._conn = ours
@@ -160,10 +202,12 @@ class SolverProcess:
         return process.exitcode
 
 
-def serve(conn, cancel) -> None:
+def serve(conn, cancel, quiet: bool = True) -> None:
     """The child: execute each (session, command) it is sent, streaming the reports, until the
-    pipe closes."""
-    quiet_child()
+    pipe closes. Ctrl+C is its parent's to act on (it ends this process)."""
+    signal.signal(signal.SIGINT, signal.SIG_IGN)
+    if quiet:
+        quiet_child()
     parent = os.getppid()
     try:   # where cores are scarce, the keys come first: the TUI process wins the CPU over the solve
         os.nice(CHILD_NICENESS)

@@ -135,6 +135,15 @@ class Session:
         self.proposal: State | None = None   # a solve's result under `set preview on` (preview.py)
         self.trusted_schedulers: set[str] = set()   # clusters named on the command line (survey_session.py)
         self.replay_folder: Path | None = None   # the replayed file's folder: its lines write only there (export.py)
+        # child_process.SolverProcess: where `stw run` has a plugin backend solve (_solve_in_process);
+        # never pickled (the copy sent there solves itself)
+        self.solver_process = None
+
+    def __getstate__(self) -> dict:
+        return {**self.__dict__, "solver_process": None}
+
+    def __setstate__(self, state: dict) -> None:
+        self.__dict__.update({"solver_process": None, **state})
 
     # --- commands ----------------------------------------------------------------------------
     @property
@@ -166,7 +175,46 @@ class Session:
             return Outcome(message="linkage block: enter joint rows, then `end`")
         if kind.verb == "open":
             return self._open(text, line, on_report)
+        if self.solver_process is not None and self._plugin_solves(kind):
+            return self._solve_in_process(text.rstrip(), line, on_report)
         return self._apply(text.rstrip(), line, on_report)
+
+    def _plugin_solves(self, kind: CommandLine) -> bool:
+        """Whether ``kind`` is a solve by a backend whose calls may hang (a plugin of its own, not
+        the shared SQP: ``Backend.bounded_calls``). A backend that does not load says so when it runs."""
+        from stw_tui.session.child_process import SOLVE_VERBS
+        from stw_tui.sos.backend import load_backend
+
+        if kind.verb not in SOLVE_VERBS:
+            return False
+        try:
+            return not load_backend(self.scene.backend).bounded_calls
+        except StwError:
+            return False
+
+    def _solve_in_process(self, text: str, line: int | None, on_report) -> Outcome:
+        """A solve in :attr:`solver_process` (stw_tui/session/child_process.py) on a copy of this
+        session, which then takes the copy's state, changed exactly as the solve here would have
+        changed it (its journal line and checkpoints written there). Ctrl+C, or the process's
+        death, leaves everything as it was, with the line journalled as failed."""
+        from stw_tui.session.child_process import NotPortable
+
+        solver = self.solver_process
+        try:
+            session, outcome, error = solver.execute(self, text, line, on_report or (lambda report: True),
+                                                     lambda: False)
+        except NotPortable:   # a session that does not pickle still solves, here
+            return self._apply(text, line, on_report)
+        except StwError as exc:
+            entry = self.journal.append(text, line)
+            self._settle_failed(entry, str(exc))
+            if self.checkpoints is not None:   # the ended process's running checkpoint, if it wrote one
+                self.checkpoints.midsolve.ended(force=True)
+            raise type(exc)(f"line {line}: {exc}" if line is not None else str(exc)) from exc
+        self.__dict__.update(session.__dict__, solver_process=solver)
+        if error is not None:
+            raise error
+        return outcome
 
     def _open(self, text: str, line: int | None, on_report) -> Outcome:
         """`open FILE`: run the file's lines as if typed, each journalled (and undoable) on its

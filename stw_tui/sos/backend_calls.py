@@ -80,7 +80,7 @@ class BackendThread:
             ok, value = self._wait(reply, what)
             self._answered = True
         except KeyboardInterrupt:   # wherever in the wait it lands
-            raise _interrupted(self.name, what) from None
+            raise interrupted(self.name, what) from None
         if ok:
             return value
         raise value
@@ -140,7 +140,7 @@ class Inline:
         try:
             return fn(*args)
         except KeyboardInterrupt:
-            raise _interrupted(self.name, what) from None
+            raise interrupted(self.name, what) from None
 
     def close(self) -> None:
         """Nothing to close: no thread was taken."""
@@ -174,7 +174,7 @@ def _said(what: str | Callable[[], str]) -> str:
     return what() if callable(what) else what
 
 
-def _interrupted(name: str, what: str | Callable[[], str]) -> SolveError:
+def interrupted(name: str, what: str | Callable[[], str]) -> SolveError:
     """The error of a solve ended by Ctrl+C, on a backend thread or on the caller's."""
     return SolveError(f"interrupted (Ctrl+C) during {_said(what)} of backend {name}; the scene is unchanged")
 
