@@ -35,6 +35,7 @@ from stw_tui.sos.products import GRAM_PLAN_TERMS, GramPlan, ProductPlan
 from stw_tui.sos.scene import Scene
 from stw_tui.sos.sparse_matvec import matvec
 from stw_tui.sos.spline import gauss_legendre_nodes, times_checker
+from stw_tui.sym import limits
 from stw_tui.sym.compiler import CompiledTerm, compile_term
 from stw_tui.sym.errors import StwError
 from stw_tui.sym.kinds import TermKind
@@ -42,6 +43,17 @@ from stw_tui.sym.symbols import dof_symbol
 
 EQ, GE, OBJ = TermKind.EQ, TermKind.GE, TermKind.OBJ
 HESSIAN_PLAN_AFTER = 4   # Hessians assembled by plain sparse products before a plan is made
+
+# Bytes an `iterate` allocates per entry of its largest arrays (memory_estimate). A stored sparse
+# entry is 12 bytes (a float64 and an int32 column); the Hessian of the Lagrangian is held about
+# ten times at its peak: the Gauss-Newton product and its temporaries, its sum with the second
+# derivatives, the KKT matrix, its column form and its factors. Measured with tracemalloc on the
+# issue's sum of 99 DOF (125-136 bytes per Hessian entry, 10 to 99 DOF, 100 to 400 knot spans).
+BYTES_PER_HESSIAN_ENTRY = 130
+# A basis row's entry (P) or a Jacobian entry: the triplets they are made from (three 8-byte
+# arrays), P's and G's CSR forms, the Jacobian's values and its product plan.
+BYTES_PER_ROW_ENTRY = 60
+SPAN_REACH = 7   # cubic B-spline coefficients whose supports meet one coefficient's (i-3 .. i+3)
 # The comparisons of a `when` condition, as operators: numpy arrays and torch tensors both take them.
 _RELATIONS = {
     sp.StrictGreaterThan: operator.gt, sp.GreaterThan: operator.ge,
@@ -300,6 +312,7 @@ class WindowProblem:
             if found is not None:
                 _BUILT.move_to_end(key)
         if found is not None:
+            found._check_memory()   # the limit may have been lowered since it was built
             return found._on(scene)
         problem = cls(scene, window_name)
         problem._affine()     # made now, so that the copies share them: the affine rows and the
@@ -338,6 +351,8 @@ class WindowProblem:
             raise StwError(f"window '{window.name}' names unknown DOF {', '.join(missing)}")
         self._select_free()
         self._build_groups()
+        self.memory_estimate = self._memory_estimate()
+        self._check_memory()   # before the window's large arrays are made
         self._assemble_patterns()
 
     # --- building ----------------------------------------------------------------------------
@@ -368,6 +383,45 @@ class WindowProblem:
         for name, idx in zip(self.window_dofs, free):
             self.dof_of_free[pos:pos + idx.size] = name
             pos += idx.size
+
+    def _memory_estimate(self) -> float:
+        """Bytes an `iterate` on this window allocates at its peak, from its sizes alone (the
+        groups' instances and variables, the free control points): made before any of it is.
+
+        The largest arrays are the Hessian of the Lagrangian and the matrices made from it (the
+        Gauss-Newton product Joᵀ W Jo, the KKT matrix and its factors): a free coefficient of DOF
+        a meets the :data:`SPAN_REACH` coefficients of DOF b around it wherever a term couples a
+        and b (an objective's residual couples all its DOF, a constraint its second derivatives'),
+        but no more entries than the coupling groups' instances make (16 a pair and instance).
+        Then P's rows (4 coefficients per variable and instance) and the Jacobians' entries."""
+        free_of = {name: int(np.count_nonzero(self.dof_of_free == name)) for name in self.window_dofs}
+        pairs: dict[tuple[str, str], float] = {}
+        row_entries = 0
+        for group in self.groups:
+            term, n = group.term, group.n
+            dofs = {v.dof for v in term.variables} & self.free_dofs
+            row_entries += 4 * n * (term.k + len(dofs))
+            if group.kind == OBJ:
+                coupled = [(a, b) for a in dofs for b in dofs]
+            else:
+                coupled = [(term.variables[i].dof, term.variables[j].dof) for i, j in term.hessian_pairs]
+                coupled = [p for q in coupled if set(q) <= dofs for p in (q, q[::-1])]
+            for a, b in coupled:
+                entries = min(SPAN_REACH * min(free_of[a], free_of[b]), 16 * n)
+                pairs[a, b] = max(pairs.get((a, b), 0), entries)
+        diagonal = sum(SPAN_REACH * free_of[name] for name in self.window_dofs)   # the KKT's own
+        hessian = sum(pairs.values()) + diagonal
+        return BYTES_PER_HESSIAN_ENTRY * hessian + BYTES_PER_ROW_ENTRY * row_entries
+
+    def _check_memory(self) -> None:
+        """Refuse the window when its estimate is over the limit ``memory`` in force.
+
+        Raises:
+            LimitError: with the estimate and what it is made of.
+        """
+        limits.check_memory(self.memory_estimate,
+                            f"an iterate on window '{self.window.name}' ({self.n_free} free control points, "
+                            f"{sum(g.n for g in self.groups)} instances of {len(self.groups)} term(s)) needs")
 
     def _compile(self, expr: sp.Basic, scope: tuple[float, float] | None = None) -> CompiledTerm:
         """``expr`` compiled as read on ``scope`` (an attached DOF: see Scene.expand)."""

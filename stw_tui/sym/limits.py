@@ -49,6 +49,8 @@ LIMITS: dict[str, Limit] = {limit.name: limit for limit in (
     Limit("filter_passes", 10_000, 1_000_000, "passes of one `filter`"),
     Limit("iterations", 1_000_000, 100_000_000, "iterations of one `iterate` (it reports each and can be stopped)"),
     Limit("adapt_rounds", 100, 10_000, "adaptive re-solves of one `iterate` (adapt=, adaptive_rounds)"),
+    Limit("memory", 500, 1_000_000, "megabytes one command may allocate, estimated from its sizes before "
+          "it starts (an `iterate`'s window problem and its solve, a `print`'s samples)", 10),
 )}
 
 _ACTIVE: ContextVar[Mapping[str, int] | None] = ContextVar("stw_limits", default=None)
@@ -95,6 +97,22 @@ def check(name: str, requested: int | float, what: str | None = None) -> None:
     """
     if requested > value(name):
         raise LimitError(over(name, requested, what))
+
+
+MB = 1_000_000
+
+
+def check_memory(estimate: float, what: str, limit: int | None = None) -> None:
+    """Refuse a command whose allocation ``estimate`` (bytes, worked out from its sizes before it
+    allocates) is over the limit ``memory`` in force (megabytes; ``limit`` instead where given);
+    outside a line's application only the ceiling holds (:func:`value_or_ceiling`).
+
+    Raises:
+        LimitError: with the estimate, the limit and how to raise it.
+    """
+    most = value_or_ceiling("memory") if limit is None else limit
+    if estimate > most * MB:
+        raise LimitError(over("memory", f"about {estimate / MB:,.0f} MB, which", what) + "; the scene is unchanged")
 
 
 def validated(name: str, requested: int) -> int:
