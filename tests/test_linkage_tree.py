@@ -262,3 +262,14 @@ def test_defining_a_tree_says_where_it_branches_and_what_it_names():
     message = outcomes[-1].message
     assert "branched: base -> SHIN, TRUNK; TRUNK -> LARM, RARM, HEAD" in message
     assert "fig.JOINT.end.*" in message
+
+
+def test_a_sole_that_ends_at_the_planted_point_reads_without_a_zero_term():
+    """support=[-0.22, 0] (planted at the toe): the toe's bound is -tau >= 0, not 0.0*tau_Y - tau."""
+    from stw_tui.session.session import Session
+
+    s = Session()
+    s.run_text("time 0 1 knots=8\nconst g = 9.81\nset limit expression_size 200000\n" + FIGURE
+               + "contact fig.SHIN on ground on [0, 0.5] x=0 support=[-0.22, 0]\n")
+    text = s.scene.constraints["SHIN_pressure"].text
+    assert "(tau_SHIN + tau_TRUNK) + 0.22*tau_Y >= 0, -(tau_SHIN + tau_TRUNK) >= 0" in text and "0.0*" not in text

@@ -272,9 +272,10 @@ def _support_lines(scene, spec, point: str, short: str, normal: str, support, on
     ankle = " + ".join(f"tau_{r}" for r in base_children(spec))
     if " + " in ankle:
         ankle = f"({ankle})"
-    heel = f"{ankle} + {-lo!r}*{normal}" if lo < 0 else f"{ankle} - {lo!r}*{normal}"
-    return [f"constraint {fresh_name(scene, f'{short}_pressure')}: {heel} >= 0, "
-            f"{hi!r}*{normal} - {ankle} >= 0 {on}{_tol(tol)}"]
+    # c*Fy about the point, c at the sole's ends (a term of 0*Fy left out: -tau >= 0 reads better)
+    heel = f"{ankle} + {-lo!r}*{normal}" if lo < 0 else f"{ankle} - {lo!r}*{normal}" if lo > 0 else ankle
+    toe = f"{hi!r}*{normal} - {ankle}" if hi != 0 else f"-{ankle}"
+    return [f"constraint {fresh_name(scene, f'{short}_pressure')}: {heel} >= 0, {toe} >= 0 {on}{_tol(tol)}"]
 
 
 AVOID_DISTANCE = 0.01     # m: how far apart `avoid` keeps two links unless by= says
