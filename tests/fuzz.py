@@ -178,12 +178,15 @@ def grammar_line(rng: random.Random) -> list[str]:
 
 
 def session_units() -> list[list[str]]:
-    """The lines of the bundled sessions (the test catalogue's), a `linkage` block kept as one unit."""
+    """The lines of the bundled sessions (the test catalogue's, less its HEAVY ones), a `linkage` block
+    kept as one unit."""
     import catalogue
     from stw_tui.sym.language import classify_line
 
     units: list[list[str]] = []
-    for problem in catalogue.BUNDLED.values():
+    for problem in catalogue.problems():
+        if problem.path is None:
+            continue
         block: list[str] | None = None
         for line in problem.text.splitlines():
             kind = classify_line(line)

@@ -52,13 +52,15 @@ from stw_tui.app.gallery import GalleryScreen
 from stw_tui.app.help_screen import HelpScreen
 from stw_tui.app.messages import CommandStarted, Origin
 from stw_tui.app.panel_base import ScenePanel
+import catalogue
 from stw_tui.app.panels import OptimizationPanel
 from stw_tui.app.plots import FigurePlot, ScenePlot
 from stw_tui.session.child_process import runs_in_solver_process
 from stw_tui.session.session import Session
 from stw_tui.sym.language import classify_line
 
-SESSION_FILES = sorted(support.SESSIONS.glob("*.stw"))
+# (the catalogue's HEAVY sessions compile for minutes before their first key: test_jumper.py)
+SESSION_FILES = sorted(p for p in support.SESSIONS.glob("*.stw") if p.stem not in catalogue.HEAVY)
 QUIT_KEYS = {"ctrl+q"}
 # Keys Textual's Input binds for editing its text (the console's own bindings are not among them)
 TEXT_KEYS = {(key.strip(), binding.action) for binding in Input.BINDINGS for key in binding.key.split(",")}

@@ -10,7 +10,8 @@ from stw_tui.sos.window import WindowProblem
 
 def test_the_catalogue_holds_every_bundled_session_and_the_analytic_problems():
     bundled = sorted(p.stem for p in catalogue.SESSIONS.glob("*.stw"))
-    assert [p.name for p in catalogue.problems() if p.path is not None] == bundled
+    everyday = [p.name for p in catalogue.problems() if p.path is not None]
+    assert sorted(everyday + list(catalogue.HEAVY)) == bundled and set(catalogue.HEAVY) <= set(bundled)
     assert set(catalogue.QUICK) <= set(bundled)
     assert all(p.known for p in catalogue.ANALYTIC.values())
     assert catalogue.installed_backends()[0] == "scipy"
