@@ -327,6 +327,18 @@ def _signal_masks(pid: int | str) -> str:
                     if line.startswith(("State", "SigBlk", "SigIgn", "SigCgt")))
 
 
+def _interrupt(process) -> tuple[str, float]:
+    """Ctrl+C to a headless `stw run`: (its stderr, seconds from the signal to its exit); the
+    test fails, saying what still runs, when it has not exited within QUICK."""
+    pressed = time.monotonic()
+    process.send_signal(signal.SIGINT)
+    try:
+        _, err = process.communicate(timeout=QUICK)
+    except subprocess.TimeoutExpired:
+        pytest.fail(_why_still_running(process))
+    return err, time.monotonic() - pressed
+
+
 def _why_still_running(process: subprocess.Popen) -> str:
     """What a child that outlived its Ctrl+C was doing: its signal masks, then every thread's
     stack (faulthandler, enabled in it by PYTHONFAULTHANDLER, writes them on SIGABRT)."""
@@ -355,13 +367,7 @@ def test_headless_ctrl_c_ends_a_hung_solve_at_once_with_an_error(tmp_path):
         for line in process.stdout:                          # `stw run` prints each line's result
             if line.strip() == "hanging now":
                 break
-        pressed = time.monotonic()
-        process.send_signal(signal.SIGINT)
-        try:
-            _, err = process.communicate(timeout=QUICK)
-        except subprocess.TimeoutExpired:
-            pytest.fail(_why_still_running(process))
-        latency = time.monotonic() - pressed
+        err, latency = _interrupt(process)
     finally:
         process.kill()
     assert process.returncode == 1, err
@@ -416,13 +422,7 @@ def test_headless_ctrl_c_ends_a_backend_holding_the_interpreter_lock_and_leaves_
         _wait_for_line(process, "holding the lock now", timeout=120)
         time.sleep(1.0)                                      # well inside the match by now
         descendants = psutil.Process(process.pid).children(recursive=True)
-        pressed = time.monotonic()
-        process.send_signal(signal.SIGINT)
-        try:
-            _, err = process.communicate(timeout=QUICK)
-        except subprocess.TimeoutExpired:
-            pytest.fail(_why_still_running(process))
-        latency = time.monotonic() - pressed
+        err, latency = _interrupt(process)
     finally:
         process.kill()
     assert process.returncode == 1, err
