@@ -228,13 +228,19 @@ def test_dask_survives_a_killed_worker(pendulum, serial_table):
 
     def on_progress(table, result):
         if result is not None and not killed:
-            pids = sorted(client.run(os.getpid).values())
+            by_pid = {pid: address for address, pid in client.run(os.getpid).items()}
+            pids = sorted(by_pid)
             killed.append(pids[0])
             _kill_one(pids)
+            # until the scheduler has seen it go: the engine looks for lost workers after each
+            # pass over the results, and the other worker could otherwise finish the survey first
+            deadline = time.monotonic() + 30
+            while by_pid[pids[0]] in client.ncores() and time.monotonic() < deadline:
+                time.sleep(0.05)
 
     table = run_survey(pendulum, PLAN, engine, on_progress=on_progress)
     assert killed
-    assert any("was lost" in note for note in table.notes)
+    assert any("was lost" in note for note in table.notes), table.notes
     assert len(table.results) == PLAN.n
     assert table_rows(table) == table_rows(serial_table)
 

@@ -97,6 +97,7 @@ class SolverProcess:
         self._process = None
         self._conn = None
         self._cancel = None
+        self._progress = None
 
     @property
     def pid(self) -> int | None:
@@ -123,22 +124,20 @@ class SolverProcess:
             payload = pickle.dumps(session, protocol=pickle.HIGHEST_PROTOCOL)
         except Exception as exc:   # e.g. a plugin's object that does not pickle
             raise NotPortable(str(exc)) from exc
-        done = [0]   # the last iteration reported
-
-        def reported(report) -> bool | None:
-            done[0] = getattr(report, "iteration", done[0])
-            return on_report(report)
         try:
-            return self._execute(payload, text, line, reported, cancelled)
+            return self._execute(payload, text, line, on_report, cancelled)
         except KeyboardInterrupt:   # wherever in the wait it lands
-            self._drain(done)
+            # the child's own count, not the reports read here: Ctrl+C may land between a
+            # report's arrival and its reading
+            done = self._progress.value if self._progress is not None else 0
             self.close()
             backend = getattr(getattr(session, "scene", None), "backend", "?")
-            raise interrupted(backend, f"iteration {done[0] + 1}") from None
+            raise interrupted(backend, f"iteration {done + 1}") from None
 
     def _execute(self, payload: bytes, text: str, line: int | None, on_report: Callable, cancelled: Callable[[], bool]):
         process, conn, cancel = self._ensure_started()
         cancel.value = False
+        self._progress.value = 0
         try:
             conn.send_bytes(pickle.dumps((payload, text, line), protocol=pickle.HIGHEST_PROTOCOL))
             while True:
@@ -161,17 +160,6 @@ class SolverProcess:
             raise StwError(f"the solver process ended during `{text.strip()}`{how}; "
                            "the scene is as it was before the command") from exc
 
-    def _drain(self, done: list[int]) -> None:
-        """Read the reports the child had sent before Ctrl+C, so that the message names the
-        iteration it was in (``done[0]``: the last one reported)."""
-        try:
-            while self._conn is not None and self._conn.poll(0):
-                kind, *rest = pickle.loads(self._conn.recv_bytes())
-                if kind == "report":
-                    done[0] = getattr(rest[0], "iteration", done[0])
-        except Exception:   # a broken pipe, a half-sent message: the count is then what it was
-            pass
-
     def _ensure_started(self):
         if self._process is not None and self._process.is_alive():
             return self._process, self._conn, self._cancel
@@ -181,8 +169,9 @@ class SolverProcess:
         # A flag in shared memory, not an Event: an Event's five named semaphores outlive the
         # os._exit with which the TUI quits, and the resource tracker warns about them after it.
         self._cancel = context.RawValue(ctypes.c_bool, False)
-        self._process = context.Process(target=serve, args=(theirs, self._cancel, self.quiet), name="stw-solver",
-                                        daemon=True)
+        self._progress = context.RawValue(ctypes.c_long, 0)   # the last iteration the child reported
+        self._process = context.Process(target=serve, args=(theirs, self._cancel, self.quiet, self._progress),
+                                        name="stw-solver", daemon=True)
         self._process.start()
         theirs.close()
         self._conn = ours
@@ -202,9 +191,11 @@ class SolverProcess:
         return process.exitcode
 
 
-def serve(conn, cancel, quiet: bool = True) -> None:
+def serve(conn, cancel, quiet: bool = True, progress=None) -> None:
     """The child: execute each (session, command) it is sent, streaming the reports, until the
-    pipe closes. Ctrl+C is its parent's to act on (it ends this process)."""
+    pipe closes. Ctrl+C is its parent's to act on (it ends this process). ``progress``: shared
+    memory the child sets to each report's iteration before sending it, which the parent reads
+    when Ctrl+C ends the child."""
     signal.signal(signal.SIGINT, signal.SIG_IGN)
     if quiet:
         quiet_child()
@@ -226,6 +217,8 @@ def serve(conn, cancel, quiet: bool = True) -> None:
             return cancel.value or os.getppid() != parent
 
         def on_report(report) -> bool:
+            if progress is not None:
+                progress.value = int(getattr(report, "iteration", progress.value))
             conn.send_bytes(pickle.dumps(("report", report), protocol=pickle.HIGHEST_PROTOCOL))
             return not cancelled()
         on_report.cancelled = cancelled   # polled inside one-call backends (IPOPT)
