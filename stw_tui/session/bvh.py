@@ -29,7 +29,7 @@ import numpy as np
 
 from stw_tui.sos.scene import Scene
 from stw_tui.sym.errors import StwError
-from stw_tui.sym.linkage.spec import parent_indices
+from stw_tui.sym.linkage.spec import child_indices, parent_indices
 from stw_tui.sym.symbols import named_symbol
 
 ROTATION_ORDER = ("Xrotation", "Zrotation", "Yrotation")
@@ -86,7 +86,7 @@ def hierarchy(spec) -> tuple[str, list[tuple]]:
     lines.append(f"  CHANNELS {len(root_names)} {' '.join(root_names)}")
     sources = [(dof, scale, 0.0) for dof, scale in root_sources]
     parents = parent_indices(spec)
-    children = {i: [k for k, p in enumerate(parents) if p == i] for i in range(-1, len(spec.joints))}
+    children = child_indices(spec)
     deg = math.degrees(1.0)
 
     def write(index: int, depth: int) -> None:

@@ -101,22 +101,19 @@ def apply_linkage(session: SessionLike, scene: Scene, block) -> Outcome:
     scene.derived.update(derived)
     scene.linkages[spec.name] = spec
     forces = ", ".join(f"tau_{n}" for n in dof_names(spec))
+    tree = _branches(spec)
+    ends = f"{spec.name}.JOINT.end.* (branched: {tree}), " if tree else ""
     return Outcome(message=f"linkage {spec.name}: DOF {', '.join(names)}; forces {forces}; "
-                           f"positions {spec.name}.JOINT.x|y|z, "
-                           + (f"{spec.name}.JOINT.end.* (branched: {tree})" if (tree := _branches(spec)) else "")
-                           + f"{'' if not tree else ', '}{spec.name}.tip.*, {spec.name}.com.*")
+                           f"positions {spec.name}.JOINT.x|y|z, {ends}{spec.name}.tip.*, {spec.name}.com.*")
 
 
 def _branches(spec) -> str:
     """``HIP -> SHIN, THIGH2; ...``: the joints with more than one child (empty for a chain)."""
-    from stw_tui.sym.linkage.spec import parent_indices
+    from stw_tui.sym.linkage.spec import child_indices
 
-    parents = parent_indices(spec)
-    names = ["base"] + [j.name for j in spec.joints]
-    kids: dict[int, list[str]] = {}
-    for joint, up in zip(spec.joints, parents):
-        kids.setdefault(up, []).append(joint.name)
-    return "; ".join(f"{names[up + 1]} -> {', '.join(k)}" for up, k in kids.items() if len(k) > 1)
+    names = {i: j.name for i, j in enumerate(spec.joints)} | {-1: "base"}
+    return "; ".join(f"{names[up]} -> {', '.join(names[k] for k in kids)}"
+                     for up, kids in child_indices(spec).items() if len(kids) > 1)
 
 
 def _base_from_com(spec, derived: dict) -> dict:

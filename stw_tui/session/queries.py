@@ -100,7 +100,11 @@ def equation_violations(scene: "Scene", dense: "DenseReport | None" = None) -> d
     """Max violation of every constraint over its whole scope, between instances too (the
     continuous-time check), whatever window is in use ({} when a constraint no longer compiles).
     ``dense``: that check of ``scene`` already made (an `iterate`'s, Outcome.dense)."""
-    report = dense_check(scene, dense)
+    return _violations(dense_check(scene, dense))
+
+
+def _violations(report: "DenseReport | None") -> dict[str, float]:
+    """Each check's largest violation anywhere, by name ({} without a report)."""
     return {} if report is None else {name: c.dense for name, c in report.checks.items()}
 
 
@@ -205,7 +209,7 @@ def scene_info(scene: "Scene", proposal: "Scene | None" = None,
     the scene a solve proposes under `set preview on`, what the figure player shows of it.
     ``dense``: the continuous-time check of ``scene`` the command made (Outcome.dense), if any."""
     report = dense_check(scene, dense)
-    info = SceneInfo(violations={} if report is None else {name: c.dense for name, c in report.checks.items()},
+    info = SceneInfo(violations=_violations(report),
                      figure_bounds=figure_bounds(scene, proposal=proposal),
                      measures=scene_measures(scene, report))
     if proposal is not None:

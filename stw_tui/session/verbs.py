@@ -284,11 +284,11 @@ AVOID_TOL = 1e-3          # m: how far inside that distance the links may come b
 
 def avoid_lines(scene, first: str, second: str, a: float, b: float, by: float | None = None,
                 height: float | None = None, dense_tol: float | None = None) -> tuple[str, list[str]]:
-    """(group name, command lines) of ``avoid``: each end of one link stays ``by`` from the other
-    link (the point-to-segment distance, its projection clamped to the segment), ends the two share
-    left out. In the plane two links that start apart can only cross after an end has met the
-    other link, so the ends' distances keep them apart. Against the ground, both ends stay ``by``
-    above it."""
+    """(group name, command lines) of ``avoid``. Two links joined at a joint keep their angle in a
+    range (:func:`_joint_range`); two others keep each end ``by`` from the other link (the
+    point-to-segment distance, its projection clamped to the segment: in the plane, links that
+    start apart cross only after an end has met the other link). Against the ground, both ends
+    stay ``by`` above it."""
     by = AVOID_DISTANCE if by is None else by
     if not by > 0:
         raise StwError(f"avoid keeps links a distance apart: by={by:g} must be more than 0")

@@ -50,7 +50,7 @@ LIMITS: dict[str, Limit] = {limit.name: limit for limit in (
     Limit("iterations", 1_000_000, 100_000_000, "iterations of one `iterate` (it reports each and can be stopped)"),
     Limit("adapt_rounds", 100, 10_000, "adaptive re-solves of one `iterate` (adapt=, adaptive_rounds)"),
     Limit("memory", 500, 1_000_000, "megabytes one command may allocate, estimated from its sizes before "
-          "it starts (an `iterate`'s window problem and its solve, a `print`'s samples)", 10),
+          "it starts (an `iterate`'s window problem and its solve)", 10),
 )}
 
 _ACTIVE: ContextVar[Mapping[str, int] | None] = ContextVar("stw_limits", default=None)

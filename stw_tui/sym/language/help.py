@@ -100,11 +100,13 @@ COMMAND_HELP: dict[str, CommandHelp] = {
     "avoid": CommandHelp("avoid LINK (LINK | ground [y=H]) [by=D] [on [A, B]] [dense_tol=E]",
                          "Keeps two links at least D apart (D = 0.01 m unless by= says), over the "
                          "whole animation or on [A, B]: a link is named by its joint (fig.LARM: from "
-                         "the LARM joint to where its link ends). Each end of one link stays D from "
-                         "the other link (ends two links share, such as an elbow, are left out), so "
-                         "neither passes through the other; against `ground`, both ends stay D above "
-                         "y = H (0 unless y= says). The distances hold at the instances and, by the "
-                         "continuous-time check, between them to dense_tol=E (1 mm unless given). "
+                         "the LARM joint to where its link ends). Two links joined at a joint (an "
+                         "elbow, two arms on a shoulder) keep their angle at least asin(D / shorter "
+                         "link) from the fold, so one cannot fold through the other; two others keep "
+                         "each end D from the other link; against `ground`, both ends stay D above "
+                         "y = H (0 unless y= says). These hold at the instances and, by the "
+                         "continuous-time check, between them to dense_tol=E (1 mm, or 1e-3 rad for "
+                         "an angle, unless given). "
                          "`delete LARM_TRUNK_avoid` removes it.",
                          "avoid fig.LARM fig.TRUNK by=0.05"),
     "limit": CommandHelp("limit DOF A B",

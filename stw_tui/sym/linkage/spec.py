@@ -142,10 +142,18 @@ def parent_indices(spec: LinkageSpec) -> tuple[int, ...]:
                  for i, j in enumerate(spec.joints))
 
 
+def child_indices(spec: LinkageSpec) -> dict[int, list[int]]:
+    """For the base (-1) and each joint, the joints that hang from it, in row order."""
+    children: dict[int, list[int]] = {i: [] for i in range(-1, len(spec.joints))}
+    for index, up in enumerate(parent_indices(spec)):
+        children[up].append(index)
+    return children
+
+
 def base_children(spec: LinkageSpec) -> list[str]:
     """The joints that hang from the base frame itself: the first row, and any with ``parent=base``.
     The moment the world exerts on a base that cannot turn is the sum of their torques."""
-    return [j.name for j, up in zip(spec.joints, parent_indices(spec)) if up < 0]
+    return [spec.joints[i].name for i in child_indices(spec)[-1]]
 
 
 def dof_names(spec: LinkageSpec) -> list[str]:
