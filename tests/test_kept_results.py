@@ -81,7 +81,8 @@ def _problem_data(problem) -> dict:
     ev = problem.evaluate(s)
     lam_eq, lam_ge = np.linspace(1, 2, ev.c_eq.size), np.linspace(2, 3, ev.c_ge.size)
     groups = [(g.label, g.source, g.kind, g.term.expr, g.times.tobytes(), g.weights.tobytes(),
-               np.asarray(g.params, float).tobytes(), g.slot_offset, g.row_offset, g.condition is None)
+               np.asarray(g.params, float).tobytes(), g.slot_offset, g.row_offset, g.condition is None,
+               g.linear)
               for g in problem.groups]
     dense = lambda m: np.asarray(m.toarray() if hasattr(m, "toarray") else m).tobytes()  # noqa: E731
     return {"free": problem.free.tobytes(), "coef0": problem.coef0.tobytes(), "reach": problem.reach,
@@ -99,11 +100,12 @@ from test_history import STEPS, TWO_D  # noqa: E402
 
 CHANGES = STEPS + ["const m = 3", "set quadrature 3", "use w", "weight thrust 4", "delete band",
                    "instances band add 0.37", "constraint band: y >= -2 on [0, 2] samples=8",
-                   "dof y lo=-4 hi=5", "let h = x - y"]
+                   "dof y lo=-4 hi=5", "let h = x - y", "objective small: maximize x on [0.5, 1.5] weight=0.1"]
 # ... of which these change the problem itself (a kept one that missed them would differ)
 STRUCTURAL = {"const m = 3", "set quadrature 3", "use w", "weight thrust 4", "delete band",
               "instances band add 0.37", "constraint band: y >= -2 on [0, 2] samples=8",
-              "refine y [0.5, 1]", "set samples 20", "damp x 0.3", "window w dofs=y [0.5, 1.5]"}
+              "refine y [0.5, 1]", "set samples 20", "damp x 0.3", "window w dofs=y [0.5, 1.5]",
+              "objective small: maximize x on [0.5, 1.5] weight=0.1"}
 
 
 @pytest.mark.parametrize("command", CHANGES)
@@ -130,3 +132,16 @@ def test_a_solve_that_moves_the_control_points_keeps_the_window_build():
     assert again.P is first.P and again.groups is first.groups   # the same build, not a new one
     assert not np.array_equal(again.coef0, first.coef0)          # on the new control points
     assert _problem_data(again) == _problem_data(WindowProblem(s.scene))
+
+
+def test_turning_an_objective_into_a_signed_one_is_a_new_structure():
+    """The same expression, interval and weight, squared and then maximized: the kept build of
+    the first must not serve the second (the structure key holds the objective's sense)."""
+    from stw_tui.sos.window import WindowProblem
+
+    s = run_lines(Session(), TWO_D + "objective small: x on [0.5, 1.5] weight=0.1\niterate 2\n")
+    before = _problem_data(WindowProblem.of(s.scene))
+    s.execute("objective small: maximize x on [0.5, 1.5] weight=0.1")
+    after = _problem_data(WindowProblem.of(s.scene))
+    assert after == _problem_data(WindowProblem(s.scene))
+    assert after["groups"] != before["groups"] and after["objective"] != before["objective"]

@@ -76,6 +76,9 @@ class TorchBackend(SQPBackend):
     def init(self, problem, state, settings) -> SQPInner:
         from .evaluate import check_finite
 
+        if getattr(problem, "linear_objective", None) is not None:
+            raise StwError("the torch backend squares every objective term: it does not take a "
+                           "`maximize` or `minimize` objective yet; use `backend scipy` (or ipopt)")
         inner = super().init(problem, state, settings)
         check_finite(inner.ev, problem)
         return inner

@@ -372,8 +372,9 @@ def _objective(scene: Scene, cmd) -> str:
         if cmd.at is not None else None
     previous = scene.objectives.get(cmd.name)
     scene.objectives[cmd.name] = Objective(cmd.name, tuple(cmd.exprs), interval,
-                                           _weight_value(scene, cmd.weight, True), cmd.text, at)
-    return (f"objective {cmd.name}: {len(cmd.exprs)} term(s)" + (f" at t={at:g}" if at is not None else "")
+                                           _weight_value(scene, cmd.weight, True), cmd.text, at, cmd.sense)
+    what = f"{cmd.sense} its term" if cmd.sense else f"{len(cmd.exprs)} term(s)"
+    return (f"objective {cmd.name}: {what}" + (f" at t={at:g}" if at is not None else "")
             + _replaced(previous))
 
 
@@ -683,7 +684,20 @@ class SolveReport:
             lines.append(last.message)    # names the constraints in conflict
         elif self.run.status is Status.STALLED:
             lines.append("— try `shake`, a keyframe, damping, or a smaller window")
+        elif self.run.status is Status.MAX_ITERATIONS and self._runs_away():
+            lines.append(f"— the objective is still falling ({last.objective:.3g}): a `maximize` or "
+                         "`minimize` term is unbounded unless something bounds it (an effort objective, "
+                         "constraints, DOF bounds)")
         return lines
+
+    def _runs_away(self) -> bool:
+        """Whether a signed objective fell without bound: it fell at each of the last steps, to
+        over 1000 times its first size (a sum of squares cannot: it stays >= 0)."""
+        objectives = [r.objective for r in self.run.reports[-5:]]
+        first = self.run.reports[0].objective if self.run.reports else 0.0
+        return (self.problem.linear_objective is not None and len(objectives) >= 2
+                and all(b < a for a, b in zip(objectives, objectives[1:]))
+                and objectives[-1] < first - 1e3 * max(1.0, abs(first)))
 
     def message(self) -> str:
         """The console message of the `iterate`. A window's objective and violation are its own

@@ -87,6 +87,15 @@ def _show_constraint(scene: Scene, name: str) -> list[str]:
 
 def _show_objective(scene: Scene, name: str) -> list[str]:
     o = scene.objectives[name]
+    if o.sense is not None:
+        where = f"at t={o.at:g} (a terminal cost)" if o.at is not None else "integrated over " + (
+            f"[{o.interval[0]:g}, {o.interval[1]:g}]" if o.interval else f"[{scene.t0:g}, {scene.t1:g}]")
+        lines = [f"objective {name}: {o.sense} its term, weight {o.weight:g}, {where}; it enters the merit "
+                 f"as {'-' if o.sense == 'maximize' else ''}{o.weight:g} times its value, not squared"]
+        for expr in o.exprs:
+            lines.append(f"  {sp.sstr(expr)}")
+            lines += _forms(scene, expr, scope=(o.at, o.at) if o.at is not None else o.interval)
+        return lines
     if o.at is not None:
         lines = [f"objective {name}: minimize weight {o.weight:g} times the square of "
                  f"{'each term' if len(o.exprs) > 1 else 'its term'} at t={o.at:g} (a terminal cost)"]

@@ -110,7 +110,8 @@ class Constraint:
 @dataclass
 class Objective:
     """Expressions to minimize: squared, weighted and integrated over an interval (None: the span),
-    or squared and weighted at one instant ``at`` (a terminal cost)."""
+    or squared and weighted at one instant ``at`` (a terminal cost). ``sense`` "minimize" or
+    "maximize": one expression taken as it is, signed, not squared (W e or -W e)."""
 
     name: str
     exprs: tuple[sp.Expr, ...]
@@ -118,6 +119,7 @@ class Objective:
     weight: float = 1.0
     text: str = ""
     at: float | None = None
+    sense: str | None = None
 
 
 @dataclass

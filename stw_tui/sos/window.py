@@ -113,7 +113,8 @@ class Condition:
 class TermGroup:
     """One compiled expression evaluated at a set of instance times.
 
-    ``kind`` is EQ (= 0), GE (>= 0) or OBJ (squared and integrated). Slot ``(a, i)`` — the
+    ``kind`` is EQ (= 0), GE (>= 0) or OBJ (squared and integrated; a ``linear`` objective
+    group enters as its signed weights times its values, not squared: `maximize`). Slot ``(a, i)`` — the
     value of variable ``a`` at instance ``i`` — lives at ``slot_offset + a * n + i`` of the slot
     vector; the group's rows are ``row_offset .. row_offset + n`` among the rows of its kind.
     """
@@ -129,6 +130,7 @@ class TermGroup:
     row_offset: int = 0
     condition: Condition | None = None
     basis: list | None = None   # basis rows computed while choosing instances, until assembly
+    linear: bool = False   # OBJ only: Σ weight × value (signed weights) instead of Σ weight × value²
 
     @property
     def n(self) -> int:
@@ -274,7 +276,7 @@ def _structure_key(scene: Scene, window_name: str | None) -> tuple:
     return (structure_key(scene), name, window.dofs, window.interval,
             tuple((c.name, c.relations, c.at, c.interval, c.when, c.weight, c.samples)
                   for c in scene.constraints.values()),
-            tuple((o.name, o.exprs, o.interval, o.at, o.weight) for o in scene.objectives.values()),
+            tuple((o.name, o.exprs, o.interval, o.at, o.weight, o.sense) for o in scene.objectives.values()),
             tuple((d.name, d.lo, d.hi) for d in scene.dofs.values()),
             frozenset(scene.extra_instances.items()), frozenset(scene.constants.items()),
             scene.settings["quadrature"])
@@ -460,9 +462,11 @@ class WindowProblem:
         quad = int(scene.settings["quadrature"])
         for o in scene.objectives.values():
             a, b = self.reach
-            if o.at is not None:      # a terminal cost: each term squared at that instant
+            # `minimize`/`maximize`: the value itself, signed, instead of its square
+            linear, sign = o.sense is not None, -1.0 if o.sense == "maximize" else 1.0
+            if o.at is not None:      # a terminal cost: each term (squared) at that instant
                 if a - 1e-12 <= o.at <= b + 1e-12:
-                    self._add_terminal(o)
+                    self._add_terminal(o, linear, sign)
                 continue
             if o.interval is not None:
                 a, b = max(a, o.interval[0]), min(b, o.interval[1])
@@ -482,18 +486,19 @@ class WindowProblem:
                     breaks = np.unique(np.concatenate([scene.dofs[d].curve.breakpoints for d in term.dofs]))
                     times, weights = gauss_legendre_nodes(breaks, quad, lo, hi)
                     self._add_group(label, o.name, OBJ, expr, times, o.weight, None, term=term,
-                                    weights=weights * o.weight)
+                                    weights=weights * (sign * o.weight), linear=linear)
 
-    def _add_terminal(self, o) -> None:
+    def _add_terminal(self, o, linear: bool, sign: float) -> None:
         """A terminal cost: each term's square at ``o.at``, weighed by ``o.weight`` (one
-        quadrature point of weight W, so the objective gains W * e(T)^2)."""
+        quadrature point of weight W, so the objective gains W * e(T)^2); ``linear``: its value,
+        times ``sign`` × W (W * e(T) for `minimize`, -W * e(T) for `maximize`)."""
         times = np.array([o.at])
         for e_index, expr in enumerate(o.exprs):
             term = self._compile(expr, (o.at, o.at))
             if term.dofs & self.free_dofs:
                 label = o.name if len(o.exprs) == 1 else f"{o.name}[{e_index + 1}]"
                 self._add_group(label, o.name, OBJ, expr, times, o.weight, None, term=term,
-                                weights=np.array([o.weight]))
+                                weights=np.array([sign * o.weight]), linear=linear)
 
     def _basis_rows(self, term: CompiledTerm, times: np.ndarray) -> list[BasisRows]:
         """Per variable of ``term``: the rows mapping all coefficients to its values at ``times``."""
@@ -506,7 +511,7 @@ class WindowProblem:
         return blocks
 
     def _add_group(self, label, source, kind, expr, times, weight, when, *, term=None, weights=None,
-                   basis=None):
+                   basis=None, linear=False):
         """``basis``: rows mapping all coefficients to the term's variables at ``times`` (default:
         the curves' basis functions at ``times``)."""
         term = term or self._compile(expr)
@@ -521,7 +526,7 @@ class WindowProblem:
                 return
             condition = Condition(when)
         self.groups.append(TermGroup(label, source, kind, term, times, weights, self._params(term),
-                                     condition=condition, basis=basis))
+                                     condition=condition, basis=basis, linear=linear))
 
     def _touching_free(self, term: CompiledTerm, times: np.ndarray, blocks=None):
         """Drop instances that no free control point can influence (their Jacobian rows are zero).
@@ -579,6 +584,15 @@ class WindowProblem:
         # every row's weight, by kind, in row order (read-only: evaluations share them)
         self._row_weights = {kind: np.concatenate([g.weights for g in self.groups if g.kind == kind]
                                                   or [np.zeros(0)]) for kind in (EQ, GE, OBJ)}
+        # Objective rows entered linearly (`maximize`, `minimize`): their weights apart from the
+        # squared rows', which alone make the Gauss-Newton matrix. None: every row squared.
+        self.linear_objective = None
+        linear = np.concatenate([np.full(g.n, g.linear) for g in self.groups if g.kind == OBJ]
+                                or [np.zeros(0, bool)])
+        if linear.any():
+            w = self._row_weights[OBJ]
+            self.linear_objective = (np.where(linear, 0.0, w), np.where(linear, w, 0.0))
+            self._row_weights[OBJ] = self.linear_objective[0]
         # the live masks of a problem without conditional groups, the same at every s (read-only:
         # evaluations share them); None where a `when` decides
         self.always_live = None
@@ -645,7 +659,7 @@ class WindowProblem:
         objective = 0.0
         for group, f, _, _ in self._local_terms(v, full=False):
             if group.kind == OBJ:
-                objective += float(np.dot(group.weights, f * f))
+                objective += float(np.dot(group.weights, f if group.linear else f * f))
             else:
                 out[group.kind][group.row_offset:group.row_offset + group.n] = group.weights * f
         masks = self._conditions(v)
@@ -720,10 +734,15 @@ class WindowProblem:
                     kept[kind] = (J[kind], full[kind])
             else:
                 J[kind], full[kind] = constant
-        w_obj = self._row_weights[OBJ]
+        w_obj = self._row_weights[OBJ]   # the squared rows' (0 on linear rows)
         residual = values[OBJ]
         objective = float(np.dot(w_obj, residual * residual))
-        gradient = matvec(transpose(J[OBJ]), 2.0 * w_obj * residual) if residual.size else np.zeros(self.n_free)
+        slope = 2.0 * w_obj * residual
+        if self.linear_objective is not None:
+            w_lin = self.linear_objective[1]
+            objective += float(np.dot(w_lin, residual))
+            slope += w_lin
+        gradient = matvec(transpose(J[OBJ]), slope) if residual.size else np.zeros(self.n_free)
         weights = self._row_weights
         masks = self._conditions(v)
         return Evaluation(s=s.copy(), objective=objective, gradient=np.asarray(gradient),
@@ -810,7 +829,9 @@ class WindowProblem:
             if not group.term.hessian_pairs:
                 continue
             rows = slice(group.row_offset, group.row_offset + group.n)
-            if group.kind == OBJ:
+            if group.linear:   # w e: its Hessian is w ∇²e
+                scale = group.weights
+            elif group.kind == OBJ:
                 scale = 2.0 * w_obj_all[rows] * residual[rows]
             else:
                 scale = multipliers[group.kind][rows] * group.weights

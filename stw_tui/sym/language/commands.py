@@ -86,7 +86,8 @@ class ConstraintCmd:
 
 @dataclass(frozen=True)
 class ObjectiveCmd:
-    """`objective NAME: EXPR[, …] [on [A, B] | @ T] [weight=W]`: expressions to minimize."""
+    """`objective NAME: [minimize|maximize] EXPR[, …] [on [A, B] | @ T] [weight=W]`: expressions
+    to minimize."""
 
     name: str
     exprs: tuple[sp.Expr, ...]
@@ -94,6 +95,7 @@ class ObjectiveCmd:
     weight: sp.Expr | None
     text: str = ""
     at: sp.Expr | None = None      # a terminal (Mayer) cost: the squares at one instant
+    sense: str | None = None       # "minimize" / "maximize": the expression signed, not squared
 
 
 @dataclass(frozen=True)
@@ -536,11 +538,18 @@ class CommandParser(ExpressionParser):
         return Relation(left - right, kind, column)
 
     def p_objective(self):
-        """`objective NAME: EXPR[, EXPR…] [on [A, B] | @ T] [weight=W]`."""
+        """`objective NAME: [minimize|maximize] EXPR[, EXPR…] [on [A, B] | @ T] [weight=W]`."""
         name = self.new_name("an objective name")
         self.expect_op(":", "':' after the objective name")
+        sense = None
+        # a keyword when an expression follows it (a DOF may still be named `maximize`)
+        if self.token.is_word("minimize", "maximize") and (
+                self.tokens[self.pos + 1].kind in (NAME, NUMBER) or self.tokens[self.pos + 1].is_op("(", "-")):
+            sense = self.advance().text
         exprs = [self.expression()]
         while self.token.is_op(","):
+            if sense is not None:
+                raise self.error(f"{sense} takes one expression (define one objective for each)", self.token)
             self.advance()
             exprs.append(self.expression())
         interval = at = None
@@ -551,7 +560,7 @@ class CommandParser(ExpressionParser):
             self.advance()
             at = self.number_expr()
         weight = self.options({"weight": "expr"}).get("weight")
-        return ObjectiveCmd(name, tuple(exprs), interval, weight, self.text, at)
+        return ObjectiveCmd(name, tuple(exprs), interval, weight, self.text, at, sense)
 
     def p_key(self):
         """`key T DOF=V[, DOF=V…]`."""

@@ -48,12 +48,16 @@ COMMAND_HELP: dict[str, CommandHelp] = {
                               "against D (default: `set dense_tol`). f' and f'' of a subexpression f are "
                               "its time derivatives (arm.tip.x' is the hand's velocity).",
                               "constraint floor: y >= 0 on [0, 1.5] when x > 1"),
-    "objective": CommandHelp("objective NAME: EXPR[, EXPR…] [on [A, B] | @ T] [weight=W]",
+    "objective": CommandHelp("objective NAME: [maximize|minimize] EXPR[, EXPR…] [on [A, B] | @ T] [weight=W]",
                              "Minimize the weighted integral of each expression squared (over the span, "
                              "or on [A, B]); with @ T, a terminal cost: W times each expression squared "
                              "at the instant T (EXPR - 2 @ 1: end as near 2 as it can). Each enters the "
-                             "merit as its weighted square.",
-                             "objective fuel: f"),
+                             "merit as its weighted square. `maximize EXPR` (one expression) enters as "
+                             "-W times its value (its integral, or its value at T), `minimize EXPR` as "
+                             "+W times it: signed, not squared, so give the motion something that bounds "
+                             "it (an effort objective, constraints, DOF bounds), or the solve runs away. "
+                             "Only the scipy SQP and ipopt backends take them.",
+                             "objective high: maximize BY @ 1 weight=10"),
     "key": CommandHelp("key T DOF=V[, DOF=V…]",
                        "Sketch a keyframe: bend the DOF curves smoothly through V at time T (starting "
                        "values for the optimizer, not constraints).", "key 0.75 SHOULDER=2.5 ELBOW=0.5"),
