@@ -273,3 +273,17 @@ def test_a_sole_that_ends_at_the_planted_point_reads_without_a_zero_term():
                + "contact fig.SHIN on ground on [0, 0.5] x=0 support=[-0.22, 0]\n")
     text = s.scene.constraints["SHIN_pressure"].text
     assert "(tau_SHIN + tau_TRUNK) + 0.22*tau_Y >= 0, -(tau_SHIN + tau_TRUNK) >= 0" in text and "0.0*" not in text
+
+
+def test_help_linkage_draws_its_conventions_within_80_columns():
+    """Issue 53 item 5: the angle convention and default masses, as a picture an 80-column console
+    shows whole (the console indents nothing more; its panel is 80 wide at 80x24)."""
+    from stw_tui.sym.language.help import help_text
+
+    text = help_text("linkage")
+    picture = text[text.index("picture:"):].splitlines()[1:]
+    assert len(picture) >= 8 and all(len(line) <= 78 for line in picture)
+    drawn = "\n".join(picture)
+    for shown in ("SHOULDER = 0: from +x", "ELBOW = pi/2: counterclockwise", "ELBOW = 0: straight on",
+                  "arm.tip", "m a^2/12", "gravity -y"):
+        assert shown in drawn, shown

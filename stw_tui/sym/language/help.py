@@ -17,6 +17,7 @@ class CommandHelp:
     synopsis: str
     summary: str
     example: str
+    picture: str = ""   # a small drawing in text, after the example
 
 
 # what `save` and `export` write, and where
@@ -205,7 +206,17 @@ COMMAND_HELP: dict[str, CommandHelp] = {
                            "linkage cp base=tx:X base_mass=1\n  POLE revolute a=0.5 mass=0.2\nend\n"
                            "linkage fig base=tx:X,ty:Y\n  SHIN revolute a=0.45 mass=3.5\n"
                            "  TRUNK revolute a=0.6 mass=30 parent=base\n  ARM revolute a=0.6 mass=3\n"
-                           "  HEAD revolute a=0.25 mass=5 parent=TRUNK\nend"),
+                           "  HEAD revolute a=0.25 mass=5 parent=TRUNK\nend",
+                           # `linkage arm` with SHOULDER a=0.6 and ELBOW a=0.5, at SHOULDER = 0, ELBOW = pi/2
+                           "  y                               o arm.tip (arm.tip.x, arm.tip.y)\n"
+                           "  ^                               |\n"
+                           "  |                       forearm | a=0.5: its mass mid-link,\n"
+                           "  |                               |  inertia m a^2/12 (defaults)\n"
+                           "  |   SHOULDER = 0: from +x       |\n"
+                           "  |                               |  ELBOW = pi/2: counterclockwise\n"
+                           "  |           upper arm a=0.6     |  from the upper arm's line\n"
+                           "  o-------------------------------o - - - - (ELBOW = 0: straight on)\n"
+                           "  base: arm.SHOULDER              arm.ELBOW       gravity -y, x to the right"),
 }
 
 OPERATORS = "+ - * / ^ (or **), unary -, parentheses; x' and x'' are a DOF's velocity and acceleration; t is time"
@@ -232,7 +243,8 @@ def help_text(topic: str | None = None) -> str:
         hint = f" (did you mean {' or '.join(close)}?)" if close else ""
         raise StwError(f"no help for '{topic}'{hint}")
     h = COMMAND_HELP[topic]
-    return f"{h.synopsis}\n  {h.summary}\n  example: {h.example}"
+    text = f"{h.synopsis}\n  {h.summary}\n  example: {h.example}"
+    return text + (f"\n  picture:\n{h.picture}" if h.picture else "")
 
 
 # Commands on the session rather than the scene (language/session_commands.py).
