@@ -22,6 +22,7 @@ from functools import lru_cache
 
 import sympy as sp
 
+from stw_tui.sym.compiler import free_symbols, xreplace
 from stw_tui.sym.symbols import TIME, dof_symbols, named_symbol
 
 
@@ -88,7 +89,7 @@ def replace_attached(scene, expr: sp.Basic) -> sp.Basic:
     replaced = [p for p in all_attachments(scene) if not p.adds]
     if not replaced:
         return expr
-    used = expr.free_symbols
+    used = free_symbols(expr)
     replacements = {}
     for dof in {p.target for p in replaced}:
         parts = [p for p in replaced if p.target == dof]
@@ -97,7 +98,7 @@ def replace_attached(scene, expr: sp.Basic) -> sp.Basic:
                 continue
             pieces = [(_held(scene, p.expr, order), p.condition) for p in parts]
             replacements[symbol] = sp.Piecewise(*pieces, (symbol, True))
-    return expr.xreplace(replacements) if replacements else expr
+    return xreplace(expr, replacements) if replacements else expr
 
 
 def _held(scene, expr: sp.Expr, order: int) -> sp.Expr:

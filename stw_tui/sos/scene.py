@@ -15,7 +15,7 @@ import sympy as sp
 
 from stw_tui.sos.attachments import added_terms, attached_dofs, replace_attached, restrict
 from stw_tui.sos.spline import DofCurve, SharedTimes
-from stw_tui.sym.compiler import free_symbols
+from stw_tui.sym.compiler import free_symbols, xreplace
 from stw_tui.sym.errors import LimitError, StwError
 from stw_tui.sym.kinds import TermKind
 from stw_tui.sym.symbols import dof_symbol, named_symbol
@@ -247,7 +247,7 @@ class Scene:
                 base = s.name.rstrip("'")
                 replacements[s] = self.time_derivative(self._expand(named_symbol(base)), base,
                                                        len(s.name) - len(base))
-            expr = expr.xreplace(replacements)
+            expr = xreplace(expr, replacements)
         raise StwError("subexpressions refer to each other in a circle")
 
     def _check_size(self, expr: sp.Basic, definitions: dict) -> None:
@@ -273,7 +273,7 @@ class Scene:
         from stw_tui.sym.linkage.derivative import time_derivative
 
         for k in range(order):
-            used = expr.free_symbols               # a walk of the whole tree: once, not per DOF
+            used = free_symbols(expr)              # a walk of the tree: once, not per DOF
             for dof in self.dofs:
                 if dof_symbol(dof, 2) in used:
                     raise StwError(f"{name}{chr(39) * order} needs the third derivative of {dof}; "

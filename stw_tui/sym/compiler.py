@@ -43,7 +43,6 @@ _CACHE_LOCK = threading.Lock()
 _WARNED: set[str] = set()   # cache problems already reported (each once a process)
 
 
-_KINKS = (sp.Abs, sp.sign, sp.Max, sp.Min)
 
 
 def _to_symengine(expr: sp.Basic):
@@ -105,31 +104,51 @@ def _canonical(expr: sp.Basic, memo: dict) -> sp.Basic:
     return done
 
 
-def _convert(expr: sp.Basic):
-    """:func:`_to_symengine` of an expression in canonical order."""
-    if not expr.has(*_KINKS):
-        return se.S(expr)
-    args = [_convert(a) for a in expr.args]
-    if isinstance(expr, sp.Abs):
-        return se.Piecewise((args[0], args[0] >= 0), (-args[0], True))
-    if isinstance(expr, sp.sign):
-        return _sign_piecewise(args[0])
-    if isinstance(expr, (sp.Max, sp.Min)):
-        result = args[0]
-        for arg in args[1:]:
-            keep = result >= arg if isinstance(expr, sp.Max) else result <= arg
-            result = se.Piecewise((result, keep), (arg, True))
-        return result
-    if isinstance(expr, sp.Add):
-        return sum(args[1:], args[0])
-    if isinstance(expr, sp.Mul):
-        out = args[0]
-        for a in args[1:]:
-            out = out * a
-        return out
-    if isinstance(expr, sp.Pow):
-        return args[0] ** args[1]
-    return getattr(se, expr.func.__name__)(*args)  # sin, cos, atan2, exp, log, …
+# sympy's relations and logic, as symengine builds them (Piecewise conditions, `when`)
+_LOGIC = {sp.StrictLessThan: se.Lt, sp.LessThan: se.Le, sp.StrictGreaterThan: se.Gt,
+          sp.GreaterThan: se.Ge, sp.Equality: se.Eq, sp.Unequality: se.Ne, sp.And: se.And,
+          sp.Or: se.Or, sp.Not: se.Not}
+
+
+def _convert(expr: sp.Basic, memo: dict | None = None):
+    """:func:`_to_symengine` of an expression in canonical order, node by node, each distinct
+    subtree once (``memo``). A linkage's equations of motion share their kinematics many times
+    over: converting them as a tree (symengine's own sympify walks every path, and asking each
+    node whether it holds an abs took as long again) cost 2.1 s for one of the jumper's contact
+    rows, 23 s of its cold compile; this walk takes 1.5 ms and builds the same expression."""
+    memo = {} if memo is None else memo
+    done = memo.get(expr)
+    if done is not None:
+        return done
+    if not expr.args:
+        done = se.S(expr)
+    elif isinstance(expr, sp.Piecewise):
+        done = se.Piecewise(*[(_convert(e, memo), _convert(c, memo)) for e, c in expr.args])
+    else:
+        args = [_convert(a, memo) for a in expr.args]
+        if isinstance(expr, sp.Abs):
+            done = se.Piecewise((args[0], args[0] >= 0), (-args[0], True))
+        elif isinstance(expr, sp.sign):
+            done = _sign_piecewise(args[0])
+        elif isinstance(expr, (sp.Max, sp.Min)):
+            done = args[0]
+            for arg in args[1:]:
+                keep = done >= arg if isinstance(expr, sp.Max) else done <= arg
+                done = se.Piecewise((done, keep), (arg, True))
+        elif isinstance(expr, sp.Add):
+            done = sum(args[1:], args[0])
+        elif isinstance(expr, sp.Mul):
+            done = args[0]
+            for a in args[1:]:
+                done = done * a
+        elif isinstance(expr, sp.Pow):
+            done = args[0] ** args[1]
+        elif type(expr) in _LOGIC:
+            done = _LOGIC[type(expr)](*args)
+        else:
+            done = getattr(se, expr.func.__name__)(*args)  # sin, cos, atan2, exp, log, …
+    memo[expr] = done
+    return done
 
 
 def _lambdify(args, outputs):
@@ -346,9 +365,54 @@ def _remember(key: tuple, term: CompiledTerm) -> CompiledTerm:
 
 @lru_cache(maxsize=4096)
 def free_symbols(expr: sp.Basic) -> frozenset:
-    """``expr.free_symbols``, kept: sympy walks the whole tree for it at every call, and a window
-    build asks it of each expanded relation several times (a linkage's trees have ~10^4 nodes)."""
-    return frozenset(expr.free_symbols)
+    """``expr.free_symbols``, kept, and found visiting each distinct node once. sympy walks every
+    path of the tree at every call, and a linkage's expressions share their kinematics many
+    times over: the jumper's 131 walks took 8 s of its cold start."""
+    found, seen, stack = set(), set(), [expr]
+    while stack:
+        node = stack.pop()
+        if id(node) in seen:
+            continue
+        seen.add(id(node))
+        if _own_free_symbols(type(node)):   # a Symbol, a number, or a class that binds some
+            found |= node.free_symbols
+        else:                               # sympy's own rule: the union over the arguments
+            stack.extend(node.args)
+    return frozenset(found)
+
+
+@lru_cache(maxsize=None)
+def _own_free_symbols(cls: type) -> bool:
+    """Whether ``cls`` defines free_symbols otherwise than sympy's union over the arguments."""
+    defined = next(k.__dict__["free_symbols"] for k in cls.__mro__ if "free_symbols" in k.__dict__)
+    return defined is not sp.Basic.__dict__["free_symbols"]
+
+
+def xreplace(expr: sp.Basic, rule: dict) -> sp.Basic:
+    """``expr.xreplace(rule)``, each distinct node rebuilt once (sympy's walks every path of a
+    shared tree: 8 s of the jumper's cold start, in replacing its feet's attached points)."""
+    memo: dict[int, sp.Basic] = {}
+
+    def walk(node):
+        if node in rule:
+            return rule[node]
+        done = memo.get(id(node))
+        if done is None and _own_xreplace(type(node)):   # a class with rules of its own
+            done = memo[id(node)] = node.xreplace(rule)
+        elif done is None:
+            args = [walk(a) for a in node.args]
+            changed = any(a is not b for a, b in zip(args, node.args))
+            done = memo[id(node)] = node.func(*args) if changed else node
+        return done
+
+    return walk(expr)
+
+
+@lru_cache(maxsize=None)
+def _own_xreplace(cls: type) -> bool:
+    """Whether ``cls`` replaces otherwise than sympy's rebuild from its replaced arguments."""
+    defined = next(k.__dict__["_xreplace"] for k in cls.__mro__ if "_xreplace" in k.__dict__)
+    return defined is not sp.Basic.__dict__["_xreplace"]
 
 
 def check_size(expr: sp.Basic) -> None:
