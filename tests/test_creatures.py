@@ -146,6 +146,16 @@ def _assert_planted(st: dict, weight: float, a: float) -> None:
     assert abs(st["work"]) <= 1e-3 and st["positive_work"] <= 1e-3
     assert st["fy_min"] >= -0.01 * weight and st["fy_max"] <= 10 * weight
     assert st["friction_excess"] <= 0.01 * weight
+    # What the solves reach is far inside those targets (issue 56: bounds near it). The contact
+    # holds the point exactly, so slide, depth and speed are rounding: measured 4e-17 to 2.2e-12
+    # (m, m/s) over the acrobat's and luxo's stances, and the ground's work too (|work| 3e-18 to
+    # 3e-16 J, positive 6e-16 to 2e-15 J). Rounding moves by 1000x from one run to another (luxo's
+    # resting centre of mass: 1.9e-15 and 1.5e-12 m/s), so the bounds, 1e-9 and 1e-12, sit about
+    # 500x above the largest: far below any real slip (contacts held at instances only slid 1-2
+    # cm). (Push, 9.0 body weights at most, and friction, 0.008 of the weight over the cone at
+    # most, are within 1.3x of their targets.)
+    assert max(st["slide"], st["penetration"], st["speed"]) <= 1e-9, (a, st)
+    assert abs(st["work"]) <= 1e-12 and st["positive_work"] <= 1e-12, (a, st)
 
 
 def test_acrobat_hops_twice_and_somersaults_from_a_planted_foot_with_the_ground_doing_no_work():
@@ -186,12 +196,17 @@ def test_acrobat_hops_twice_and_somersaults_from_a_planted_foot_with_the_ground_
     for a, b in flights:
         inner = np.concatenate([[a + 1e-9], np.linspace(a + 0.001, b - 0.001, round((b - a) * 1000) - 1), [b - 1e-9]])
         fl = cp.flight(cp.motion(body, _samples_at(scene, names, inner), ["FOOT", "WAIST"]), a, b)
-        assert fl["force"] <= 1e-6 * weight and fl["moment"] <= 0.01 * weight * size, (a, fl)
+        # force: exact by com= (measured 1.4e-12 to 2.7e-11 N; 1e-8 N, 370x, is rounding level:
+        # see _assert_planted); moment: the flight's target, measured 0.098 to 0.159 of 0.196
+        assert fl["force"] <= 1e-8 and fl["moment"] <= 0.01 * weight * size, (a, fl)
     # At rest at the start and the end, upright over the foot (statically balanced).
+    # (Rest is 1 cm/s by the target, and exact by the session's rest constraints: measured centre
+    # of mass 1.2e-13 m/s, joint rates and accelerations 1.8e-12, the centre of mass 2.8e-14 m
+    # off its spot; the bounds, 1e-10, 1e-9 and 1e-10, are rounding level: see _assert_planted.)
     for i, x0 in ((0, 0.0), (-1, 1.5)):
-        assert np.hypot(*m["com_v"][:, i]) <= 1e-2
-        assert all(abs(scene.dof_values(n, t[[i]], k)[0]) <= 1e-6 for n in ("FOOT", "WAIST") for k in (1, 2))
-        assert m["com"][0, i] == pytest.approx(x0, abs=1e-6)
+        assert np.hypot(*m["com_v"][:, i]) <= 1e-10
+        assert all(abs(scene.dof_values(n, t[[i]], k)[0]) <= 1e-9 for n in ("FOOT", "WAIST") for k in (1, 2))
+        assert m["com"][0, i] == pytest.approx(x0, abs=1e-10)
 
     foot, waist, head = _acrobat_points(scene, t)
     air = np.zeros_like(t, bool)
@@ -362,11 +377,15 @@ def test_luxo_jumps_from_a_planted_heel_with_the_ground_doing_no_work():
     # flight's centre of mass: read as limits from inside here).
     inner = np.concatenate([[0.6 + 1e-9], np.linspace(0.601, 0.899, 299), [0.9 - 1e-9]])
     fl = cp.flight(cp.motion(lamp, _samples_at(scene, names, inner), ["BASE", "LOWER", "UPPER"]), 0.6, 0.9)
-    assert fl["force"] <= 1e-6 * weight and fl["moment"] <= 0.01 * weight * lamp.size
+    # force exact by com= (measured 4.4e-13 N; 1e-8 N is rounding level: see _assert_planted);
+    # moment measured 0.188 of its target 0.205
+    assert fl["force"] <= 1e-8 and fl["moment"] <= 0.01 * weight * lamp.size
     # At rest at the start and the end, and statically balanced (centre of pressure on the plate).
+    # (the target is 1 cm/s; measured centre of mass 1.9e-15 to 1.5e-12 m/s, joint rates 9.1e-13:
+    # the bounds 1e-10 and 1e-9 are rounding level, as the acrobat's)
     for i in (0, -1):
-        assert np.hypot(*m["com_v"][:, i]) <= 1e-2
-        assert all(abs(scene.dof_values(n, t[[i]], k)[0]) <= 1e-6 for n in ("LOWER", "UPPER") for k in (1, 2))
+        assert np.hypot(*m["com_v"][:, i]) <= 1e-10
+        assert all(abs(scene.dof_values(n, t[[i]], k)[0]) <= 1e-9 for n in ("LOWER", "UPPER") for k in (1, 2))
     assert 0.0 < m["com"][0, 0] - 0.0 < 0.15 and 0.0 < m["com"][0, -1] - 0.5 < 0.15
     assert scene.dofs["CX"].curve.evaluate(np.array([0.75]))[0] > 0.2     # on its way between the two
 
