@@ -1,0 +1,152 @@
+"""A hand-written CasADi/IPOPT reference for the ipopt backend (issue 51, item 3).
+
+:func:`native_pendulum` states the pendulum swing-up on a clamped cubic B-spline directly in
+CasADi, as a user of CasADi would: control points as one SX vector, the basis matrices from
+scipy's ``BSpline.design_matrix`` at Gauss-Legendre nodes (numpy's), the objective
+``Σ w (θ'' + g sin θ)²`` and the four boundary conditions, ``nlpsol`` with IPOPT's exact Hessian.
+Nothing of stw's is used, so it is an independent check of the optimum, and the per-iteration
+time the ``ipopt`` backend is held against.
+
+Run as a script (``python tests/ipopt_native.py [spans ...] [--session FILE ...]``) it times the
+ipopt backend against this reference, runs interleaved, medians of several, and prints ms per
+IPOPT iteration for both.
+"""
+
+from __future__ import annotations
+
+import math
+import statistics
+import sys
+import time
+
+import casadi
+import numpy as np
+import scipy.sparse as sps
+from scipy.interpolate import BSpline
+
+G = 9.81
+PENDULUM = """time 0 2 knots={spans}
+const g = 9.81
+dof th = pi*t/2
+constraint start: th = 0, th' = 0 @ 0
+constraint goal: th = pi, th' = 0 @ 2
+objective effort: th'' + g*sin(th)
+"""
+
+
+def _dm(matrix) -> casadi.DM:
+    """A scipy sparse matrix as a CasADi sparse DM."""
+    m = sps.csc_matrix(matrix)
+    m.sort_indices()
+    sparsity = casadi.Sparsity(m.shape[0], m.shape[1], m.indptr.tolist(), m.indices.tolist())
+    return casadi.DM(sparsity, m.data)
+
+
+def native_pendulum(spans: int, quadrature: int = 4, t1: float = 2.0, options: dict | None = None):
+    """(solver, lbg, ubg) of the swing-up over ``spans`` uniform knot spans on [0, t1]."""
+    knots = np.concatenate([[0.0] * 3, np.linspace(0.0, t1, spans + 1), [t1] * 3])
+    n = spans + 3
+    x, w = np.polynomial.legendre.leggauss(quadrature)
+    cuts = np.linspace(0.0, t1, spans + 1)
+    half = (cuts[1:] - cuts[:-1])[:, None] / 2
+    times = ((cuts[1:] + cuts[:-1])[:, None] / 2 + half * x[None, :]).ravel()
+    weights = (half * w[None, :]).ravel()
+
+    def basis(ts, order):
+        B = BSpline.design_matrix(np.asarray(ts, float), knots, 3).tocsc()
+        if order == 0:
+            return B
+        cols = []
+        for j in range(n):
+            c = np.zeros(n)
+            c[j] = 1.0
+            cols.append(BSpline(knots, c, 3).derivative(order)(ts))
+        return sps.csc_matrix(np.array(cols).T)
+
+    s = casadi.SX.sym("s", n)
+    th = casadi.mtimes(_dm(basis(times, 0)), s)
+    acc = casadi.mtimes(_dm(basis(times, 2)), s)
+    u = acc + G * casadi.sin(th)
+    f = casadi.dot(casadi.DM(weights), u * u)
+    ends = np.array([0.0, t1])
+    g = casadi.vertcat(casadi.mtimes(_dm(basis(ends, 0)), s), casadi.mtimes(_dm(basis(ends, 1)), s))
+    ipopt = {"print_level": 0, "sb": "yes", "tol": 1e-8, **(options or {})}
+    solver = casadi.nlpsol("native_pendulum", "ipopt", {"x": s, "f": f, "g": g},
+                           {"ipopt": ipopt, "print_time": False})
+    target = np.array([0.0, math.pi, 0.0, 0.0])   # [th(0), th(2), th'(0), th'(2)]
+    return solver, target, target
+
+
+def _stw_problem(text: str):
+    from stw_tui.session.session import Session
+    from stw_tui.sos.window import WindowProblem
+
+    session = Session()
+    session.run_text(text)
+    return session, WindowProblem(session.scene)
+
+
+def _time_backend(problem, settings) -> tuple[float, int, float, dict]:
+    """(seconds, IPOPT iterations, objective, ms) of one whole ipopt-backend solve."""
+    from stw_tui.sos.backend import SolverState, load_backend, run_iterations
+
+    backend = load_backend("ipopt")()
+    start = SolverState.start(problem)
+    t0 = time.perf_counter()
+    result = run_iterations(backend, problem, start, 3000, settings)
+    seconds = time.perf_counter() - t0
+    return seconds, len(result.reports), result.reports[-1].objective, result.reports[0].ms
+
+
+def _time_native(solver, lbg, ubg, x0) -> tuple[float, int, float]:
+    t0 = time.perf_counter()
+    sol = solver(x0=x0, lbg=lbg, ubg=ubg)
+    seconds = time.perf_counter() - t0
+    return seconds, int(solver.stats()["iter_count"]), float(sol["f"])
+
+
+def compare_pendulum(spans: int, runs: int = 7) -> dict:
+    """The ipopt backend against :func:`native_pendulum`, runs interleaved; medians."""
+    session, problem = _stw_problem(PENDULUM.format(spans=spans))
+    x0 = problem.initial()
+    solver, lbg, ubg = native_pendulum(spans, int(session.scene.settings["quadrature"]))
+    settings = session.scene.settings
+    _time_backend(problem, settings), _time_native(solver, lbg, ubg, x0)      # warm-ups
+    ours, native = [], []
+    for _ in range(runs):
+        ours.append(_time_backend(problem, settings))
+        native.append(_time_native(solver, lbg, ubg, x0))
+    return _summary(f"pendulum {spans} spans", ours, native)
+
+
+def _summary(label, ours, native) -> dict:
+    per_ours = statistics.median(s / max(i, 1) for s, i, *_ in ours) * 1e3
+    per_native = statistics.median(s / max(i, 1) for s, i, _ in native) * 1e3 if native else float("nan")
+    row = {"case": label, "ipopt_ms_per_it": per_ours, "native_ms_per_it": per_native,
+           "ratio": per_ours / per_native, "iterations": (ours[0][1], native[0][1] if native else None),
+           "objective": (ours[0][2], native[0][2] if native else None),
+           "solve_ms": statistics.median(o[3].get("ipopt", float("nan")) for o in ours)}
+    return row
+
+
+def time_session(path: str, runs: int = 5) -> dict:
+    """The ipopt backend on the window problem before a session's first `iterate`: ms/iteration."""
+    from stw_tui.session.bench import split_at_first_iterate
+
+    text = open(path).read()
+    setup, _ = split_at_first_iterate(text)
+    session, problem = _stw_problem(setup)
+    settings = session.scene.settings
+    _time_backend(problem, settings)
+    ours = [_time_backend(problem, settings) for _ in range(runs)]
+    return _summary(path, ours, [])
+
+
+if __name__ == "__main__":
+    args = sys.argv[1:]
+    sessions = [a for a in args if a.endswith(".stw")]
+    spans = [int(a) for a in args if a.isdigit()] or ([] if sessions else [20, 80, 320])
+    for k in spans:
+        print(compare_pendulum(k), flush=True)
+    for path in sessions:
+        print(time_session(path), flush=True)
