@@ -176,10 +176,48 @@ def test_lowering_computes_what_the_compiled_term_computes(expr):
 
 def test_a_term_the_lowering_refuses_is_solved_through_stw(registered, monkeypatch):
     monkeypatch.delitem(lowering._UNARY, sp.sin)
-    ipopt.backend.forget_solvers()          # none kept from before, built with sin
+    ipopt.backend.forget_solvers()          # no solver nor local derivatives kept, built with sin
     got = Session()
     got.run_text("backend ipopt\n" + ipopt_native.PENDULUM.format(spans=20) + "iterate 100\n")
     assert got.runs[-1].converged
     message = got.runs[-1].reports[-1].message
     assert "stw evaluations" in message and "does not know 'sin'" in message
     assert got.runs[-1].reports[-1].objective == pytest.approx(68.1321319590, rel=1e-9)
+
+
+@pytest.mark.parametrize("graph", ["SX", "MX"])
+@pytest.mark.parametrize("text", [HELD, CONDITIONAL, catalogue.problem("cat_mouse").before_first_iterate()],
+                         ids=["held", "conditional", "cat_mouse"])
+def test_native_derivatives_are_the_window_problems(text, graph):
+    """The chain-rule gradient, Jacobian and Lagrangian Hessian assembled in CasADi equal stw's
+    own (WindowProblem.evaluate, lagrangian_hessian) at a perturbed point, random multipliers
+    and objective factor σ, in either graph."""
+    import scipy.sparse as sps
+
+    session = Session()
+    session.run_text(text)
+    problem = WindowProblem(session.scene)
+    rng = np.random.default_rng(7)
+    s = problem.initial() + 0.01 * rng.standard_normal(problem.n_free)
+    ev = problem.evaluate(s)
+    eq, ge = np.flatnonzero(ev.active_eq), np.flatnonzero(ev.active_ge)
+    lam_eq, lam_ge = np.zeros(ev.c_eq.size), np.zeros(ev.c_ge.size)
+    lam_eq[eq], lam_ge[ge] = rng.standard_normal(eq.size), -rng.random(ge.size)
+    sigma = 0.7
+    want_H = (ev.lagrangian_hessian(lam_eq, lam_ge)
+              + (sigma - 1) * ev.lagrangian_hessian(0 * lam_eq, 0 * lam_ge)).toarray()
+    nlp = ipopt.native.NativeNLP(problem, eq, ge, graph)
+    assert nlp.graph == graph
+    F = casadi.Function("F", [nlp.x, nlp.p, nlp.lam_f, nlp.lam_g],
+                        [nlp.f, nlp.g, nlp.grad_f, nlp.jac_g, nlp.hess_lag])
+    f, g, grad, J, H = F(s, ipopt.native.fixed_slot_values(problem), sigma, np.r_[lam_eq[eq], lam_ge[ge]])
+    H = np.array(casadi.DM(H))
+    assert np.allclose(H, np.triu(H))                       # IPOPT takes the upper triangle
+    H = H + np.triu(H, 1).T
+    scale = max(1.0, np.abs(want_H).max())
+    assert float(f) == pytest.approx(ev.objective, rel=1e-12)
+    assert np.allclose(np.asarray(g).ravel(), np.r_[ev.c_eq[eq], ev.c_ge[ge]], atol=1e-12)
+    assert np.allclose(np.asarray(grad).ravel(), ev.gradient, atol=1e-10 * max(1.0, np.abs(ev.gradient).max()))
+    want_J = sps.vstack([ev.J_eq[eq], ev.J_ge[ge]]).toarray()
+    assert np.allclose(np.array(casadi.DM(J)), want_J, atol=1e-12)
+    assert np.abs(H - want_H).max() <= 1e-12 * scale
