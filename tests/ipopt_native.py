@@ -86,11 +86,12 @@ def _stw_problem(text: str):
     return session, WindowProblem(session.scene)
 
 
-def _time_backend(problem, settings) -> tuple[float, int, float, dict]:
-    """(seconds, IPOPT iterations, objective, ms) of one whole ipopt-backend solve."""
+def _time_backend(problem, settings, evaluation: str = "native") -> tuple[float, int, float, dict]:
+    """(seconds, IPOPT iterations, objective, ms) of one whole ipopt-backend solve, through the
+    driver (run_iterations: its thread, every report, stw's convergence test), as `iterate` runs it."""
     from stw_tui.sos.backend import SolverState, load_backend, run_iterations
 
-    backend = load_backend("ipopt")()
+    backend = load_backend("ipopt")(evaluation=evaluation)
     start = SolverState.start(problem)
     t0 = time.perf_counter()
     result = run_iterations(backend, problem, start, 3000, settings)
@@ -105,41 +106,59 @@ def _time_native(solver, lbg, ubg, x0) -> tuple[float, int, float]:
     return seconds, int(solver.stats()["iter_count"]), float(sol["f"])
 
 
-def compare_pendulum(spans: int, runs: int = 7) -> dict:
-    """The ipopt backend against :func:`native_pendulum`, runs interleaved; medians."""
+def _per_iteration(runs) -> tuple[float, float]:
+    """(median, least) ms per iteration over the runs."""
+    per = [seconds / max(iterations, 1) * 1e3 for seconds, iterations, *_ in runs]
+    return statistics.median(per), min(per)
+
+
+def compare_pendulum(spans: int, runs: int = 21) -> str:
+    """The ipopt backend (native and callback evaluation) against :func:`native_pendulum`, runs
+    interleaved (the machine's drift falls on all three): a line of ms per iteration."""
     session, problem = _stw_problem(PENDULUM.format(spans=spans))
     x0 = problem.initial()
     solver, lbg, ubg = native_pendulum(spans, int(session.scene.settings["quadrature"]))
     settings = session.scene.settings
-    _time_backend(problem, settings), _time_native(solver, lbg, ubg, x0)      # warm-ups
-    ours, native = [], []
+    configs = {"native": lambda: _time_backend(problem, settings),
+               "callback": lambda: _time_backend(problem, settings, "callback"),
+               "hand-written": lambda: _time_native(solver, lbg, ubg, x0)}
+    found = {name: [] for name in configs}
+    for name, run in configs.items():      # warm-ups: the kept solver, caches
+        run()
     for _ in range(runs):
-        ours.append(_time_backend(problem, settings))
-        native.append(_time_native(solver, lbg, ubg, x0))
-    return _summary(f"pendulum {spans} spans", ours, native)
+        for name, run in configs.items():
+            found[name].append(run())
+    return _line(f"pendulum {spans} spans", found, "hand-written")
 
 
-def _summary(label, ours, native) -> dict:
-    per_ours = statistics.median(s / max(i, 1) for s, i, *_ in ours) * 1e3
-    per_native = statistics.median(s / max(i, 1) for s, i, _ in native) * 1e3 if native else float("nan")
-    row = {"case": label, "ipopt_ms_per_it": per_ours, "native_ms_per_it": per_native,
-           "ratio": per_ours / per_native, "iterations": (ours[0][1], native[0][1] if native else None),
-           "objective": (ours[0][2], native[0][2] if native else None),
-           "solve_ms": statistics.median(o[3].get("ipopt", float("nan")) for o in ours)}
-    return row
+def _line(label: str, found: dict, reference: str | None) -> str:
+    parts = []
+    ref = _per_iteration(found[reference])[0] if reference else None
+    for name, runs in found.items():
+        median, least = _per_iteration(runs)
+        ratio = f" = {median / ref:.2f}x" if ref and name != reference else ""
+        parts.append(f"{name} {median:.3f} (min {least:.3f}, {runs[0][1]} it, J {runs[0][2]:.10g}){ratio}")
+    return f"{label}: ms/iteration, medians: " + "; ".join(parts)
 
 
-def time_session(path: str, runs: int = 5) -> dict:
-    """The ipopt backend on the window problem before a session's first `iterate`: ms/iteration."""
+def time_session(path: str, runs: int = 7) -> str:
+    """The ipopt backend on the window problem before a session's first `iterate`, native and
+    callback evaluation: a line of ms per iteration."""
     from stw_tui.session.bench import split_at_first_iterate
 
-    text = open(path).read()
-    setup, _ = split_at_first_iterate(text)
+    with open(path, encoding="utf-8") as handle:
+        setup, _ = split_at_first_iterate(handle.read())
     session, problem = _stw_problem(setup)
     settings = session.scene.settings
-    _time_backend(problem, settings)
-    ours = [_time_backend(problem, settings) for _ in range(runs)]
-    return _summary(path, ours, [])
+    configs = {"native": lambda: _time_backend(problem, settings),
+               "callback": lambda: _time_backend(problem, settings, "callback")}
+    found = {name: [] for name in configs}
+    for run in configs.values():
+        run()
+    for _ in range(runs):
+        for name, run in configs.items():
+            found[name].append(run())
+    return _line(path, found, None)
 
 
 if __name__ == "__main__":

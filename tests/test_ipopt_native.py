@@ -2,6 +2,8 @@
 evaluated by CasADi with no stw evaluation per iteration, reaching the optima the SciPy backend
 and a hand-written CasADi problem reach."""
 
+import shutil
+
 import numpy as np
 import pytest
 import sympy as sp
@@ -221,3 +223,21 @@ def test_native_derivatives_are_the_window_problems(text, graph):
     want_J = sps.vstack([ev.J_eq[eq], ev.J_ge[ge]]).toarray()
     assert np.allclose(np.array(casadi.DM(J)), want_J, atol=1e-12)
     assert np.abs(H - want_H).max() <= 1e-12 * scale
+
+
+@pytest.mark.skipif(shutil.which("cc") is None, reason="jit needs a C compiler")
+def test_jit_compiles_the_same_problem():
+    session, problem = ipopt_native._stw_problem(ipopt_native.PENDULUM.format(spans=20))
+    vm = _solve(problem, session.scene.settings)
+    compiled = _solve(problem, session.scene.settings, jit=True)
+    assert compiled.converged and "jit failed" not in compiled.reports[-1].message
+    assert len(compiled.reports) == len(vm.reports)
+    assert np.abs(compiled.state.s - vm.state.s).max() <= 1e-9
+
+
+def test_a_failed_jit_falls_back_to_the_virtual_machine(monkeypatch):
+    monkeypatch.setenv("PATH", "/nonexistent")          # no cc to be found
+    session, problem = ipopt_native._stw_problem(ipopt_native.PENDULUM.format(spans=20))
+    ipopt.backend.forget_solvers()
+    result = _solve(problem, session.scene.settings, jit=True)
+    assert result.converged and "jit failed" in result.reports[-1].message

@@ -203,12 +203,13 @@ class NativeNLP:
         """The ``nlpsol`` problem dictionary."""
         return {"x": self.x, "p": self.p, "f": self.f, "g": self.g}
 
-    def derivative_options(self) -> dict:
-        """``nlpsol`` options handing IPOPT these derivatives instead of CasADi's AD of f and g."""
-        x, p = self.x, self.p
-        return {"grad_f": casadi.Function("grad_f", [x, p], [self.f, self.grad_f]),
-                "jac_g": casadi.Function("jac_g", [x, p], [self.g, self.jac_g]),
-                "hess_lag": casadi.Function("hess_lag", [x, p, self.lam_f, self.lam_g], [self.hess_lag])}
+    def derivative_options(self, function_options: dict | None = None) -> dict:
+        """``nlpsol`` options handing IPOPT these derivatives instead of CasADi's AD of f and g
+        (``function_options``: of each of those functions, say CasADi's ``jit``)."""
+        x, p, opts = self.x, self.p, function_options or {}
+        return {"grad_f": casadi.Function("grad_f", [x, p], [self.f, self.grad_f], opts),
+                "jac_g": casadi.Function("jac_g", [x, p], [self.g, self.jac_g], opts),
+                "hess_lag": casadi.Function("hess_lag", [x, p, self.lam_f, self.lam_g], [self.hess_lag], opts)}
 
 
 def _cat(parts: list) -> np.ndarray:
