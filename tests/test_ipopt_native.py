@@ -241,3 +241,15 @@ def test_a_failed_jit_falls_back_to_the_virtual_machine(monkeypatch):
     ipopt.backend.forget_solvers()
     result = _solve(problem, session.scene.settings, jit=True)
     assert result.converged and "jit failed" in result.reports[-1].message
+
+
+def test_auto_takes_stws_evaluations_where_casadis_would_be_slower(monkeypatch):
+    session, problem = ipopt_native._stw_problem(ipopt_native.PENDULUM.format(spans=20))
+    ipopt.backend.forget_solvers()
+    assert ipopt.native.instructions(problem) <= ipopt.backend.NATIVE_INSTRUCTIONS
+    monkeypatch.setattr(ipopt.backend, "NATIVE_INSTRUCTIONS", 0)
+    auto = _solve(problem, session.scene.settings)
+    assert "stw evaluations" in auto.reports[-1].message
+    forced = _solve(problem, session.scene.settings, evaluation="native")
+    assert "native CasADi" in forced.reports[-1].message
+    assert forced.reports[-1].objective == pytest.approx(auto.reports[-1].objective, rel=1e-10)

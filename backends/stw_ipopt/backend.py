@@ -1,14 +1,16 @@
 """Solve a window problem with IPOPT through CasADi.
 
-Two ways to evaluate the problem. By default (``evaluation=native``) it is built as CasADi
+Two ways to evaluate the problem. Natively (``evaluation=native``) it is built as CasADi
 expressions from the compiled terms' sympy expressions (native.py, lowering.py): IPOPT then
 evaluates the objective, the constraints and their exact first and second derivatives with
-CasADi's own AD and virtual machine, with no Python call per evaluation, as a hand-written CasADi
-problem would. The solver is built once per window structure and live rows and kept
-(:data:`KEPT_SOLVERS`; the fixed control points are its parameter), so a further `iterate` on the
-same window pays no build. Where a term holds something the lowering does not know, or with
-``evaluation=callback``, the problem's own numeric evaluations are used instead, with a note in
-the last report: the objective, its gradient, the constraint values ``g(s) = [c_eq; c_ge]``
+CasADi's own virtual machine (or, with ``jit=true``, machine code from the C compiler), with no
+Python call per evaluation, as a hand-written CasADi problem would. The solver is built once per
+window structure and live rows and kept (:data:`KEPT_SOLVERS`; the fixed control points are its
+parameter), so a further `iterate` on the same window pays no build. With ``evaluation=callback``,
+where a term holds something the lowering does not know (with a note in the last report), and
+by default (``auto``) where the terms' second derivatives are too large for CasADi's virtual
+machine to beat stw's compiled code (:data:`NATIVE_INSTRUCTIONS`: linkages' torques), the
+problem's own numeric evaluations are used instead: the objective, its gradient, the constraint values ``g(s) = [c_eq; c_ge]``
 (bounds ``[0, 0]`` and ``[0, inf)``), their sparse Jacobian and the Lagrangian Hessian come from
 :meth:`WindowProblem.evaluate` and :meth:`Evaluation.lagrangian_hessian`, wrapped as
 ``casadi.Callback`` functions and handed to ``nlpsol`` through its ``grad_f`` / ``jac_g`` /
@@ -59,7 +61,7 @@ from stw_tui.sos.backend import CANCELLED, ITERATION_BUDGET, Backend, BackendOpt
 from stw_tui.sos.sqp.termination import PROJECTION_EPS, is_converged, kkt_residual
 from stw_tui.sym.errors import StwError
 
-from .native import NativeNLP, Unsupported, fixed_slot_values, forget_local_derivatives
+from .native import NativeNLP, Unsupported, fixed_slot_values, forget_local_derivatives, instructions
 
 
 # --- sparsity handling ---------------------------------------------------------------------
@@ -191,13 +193,20 @@ class _Inner:
     seconds: float = 0.0
     build_seconds: float = 0.0
     evaluations: int | None = 0     # stw evaluations (the callback path); None: native
-    note: str = ""                  # why the callback path was taken, if it was
+    note: str = ""                  # why the callback path (or no jit) was taken, if it was
     next: int = 0
     final: SolverState | None = None
     budget_ended: bool = False      # IPOPT stopped at the driver's budget, not its own verdict
     user_stopped: bool = False      # ... or because the user asked to stop
 
 
+# evaluation=auto: the second-derivative instructions (native.instructions) above which stw's
+# evaluations are used. CasADi's virtual machine runs about 8 ns an instruction; stw's LLVM code
+# the same torques 50-100x faster, behind a fixed Python cost of 1-2 ms an iteration. Per
+# iteration, native against callback (this machine, loaded): pendulum at 1000 spans (64k) 3.9
+# against 7.3 ms, cartpole (74k) 2.2 against 8.0, arm throw (348k) 8.3 against 8.2, luxo (2.6M)
+# 39 against 24, basketball (4.6M) about 85 against 37.
+NATIVE_INSTRUCTIONS = 250_000
 DENSE_NEWTON = 400   # variables + binding rows up to which the final Newton step is solved dense
 
 
@@ -288,7 +297,6 @@ class _Solver:
     watch: _Watch
     params: object
     keep: list
-    native: bool
     evaluations: object = None      # () -> stw evaluations so far (the callback path)
     key: tuple | None = None
     holds: object = None            # the object whose id is in ``key`` (kept alive with it)
@@ -341,9 +349,12 @@ class IpoptBackend(Backend):
                       "levels write over the TUI)", minimum=0),
         BackendOption("hessian", str, "exact", "exact (the problem's Lagrangian Hessian) or "
                       "limited_memory (L-BFGS; IPOPT's limited-memory mode)", ("exact", "limited_memory")),
-        BackendOption("evaluation", str, "native", "native (the terms as CasADi expressions: "
-                      "CasADi's AD, no Python per evaluation) or callback (stw's own evaluations, "
-                      "called from IPOPT)", ("native", "callback")),
+        BackendOption("evaluation", str, "auto", "native (the terms as CasADi expressions, "
+                      "evaluated by CasADi: no Python per evaluation), callback (stw's own compiled "
+                      "evaluations, called from IPOPT), or auto: native unless the terms' second "
+                      "derivatives are large (linkages' torques), where stw's compiled code is "
+                      "faster than CasADi's virtual machine (native with jit)",
+                      ("auto", "native", "callback")),
         BackendOption("jit", bool, False, "native only: compile the problem's functions to machine "
                       "code (CasADi's jit through the C compiler; the arm throw's build takes 10 s or "
                       "more, and its iterations then run 2.5-3x faster; kept with the solver)"),
@@ -420,8 +431,10 @@ class IpoptBackend(Backend):
                 **(extra or {})}
         return casadi.nlpsol(name, "ipopt", nlp, opts)
 
-    def _native(self, problem, inner: _Inner) -> _Solver:
-        """The kept native solver of this structure, or a new one.
+    def _native(self, problem, inner: _Inner) -> _Solver | None:
+        """The kept native solver of this structure, or a new one; None where ``evaluation=auto``
+        finds the problem's second derivatives too large for CasADi's virtual machine
+        (:data:`NATIVE_INSTRUCTIONS`) and no jit is asked for.
 
         Raises:
             Unsupported: a term the lowering does not know.
@@ -433,6 +446,8 @@ class IpoptBackend(Backend):
             built.fresh = False
             return built
         jit = self.config["jit"]
+        if self.config["evaluation"] == "auto" and not jit and instructions(problem) > NATIVE_INSTRUCTIONS:
+            return None
         # jit: MX, whose C code holds each term's functions once and loops over the instances
         nlp = NativeNLP(problem, inner.eq_rows, inner.ge_rows, "MX" if jit else "auto")
         watch = _Watch(problem.n_free, inner.eq_rows.size + inner.ge_rows.size)
@@ -454,7 +469,7 @@ class IpoptBackend(Backend):
         if jit:    # f and g as one compiled Function (nlpsol derives nlp_f and nlp_g from it)
             problem_fn = casadi.Function("nlp", [nlp.x, nlp.p], [nlp.f, nlp.g], ["x", "p"], ["f", "g"], compiled)
         solver = self._nlpsol("stw_ipopt_native", problem_fn, inner, watch, extra)
-        return _Solver(solver, watch, fixed_slot_values, [], native=True, key=key, holds=problem.Pf)
+        return _Solver(solver, watch, fixed_slot_values, [], key=key, holds=problem.Pf)
 
     def _callbacks(self, problem, inner: _Inner) -> _Solver:
         """A solver over the problem's own numeric evaluations (built per solve, not kept)."""
@@ -518,14 +533,14 @@ class IpoptBackend(Backend):
         watch = _Watch(n, m)
         solver = self._nlpsol("stw_ipopt", {"x": x, "p": p, "f": F(x, p), "g": Gf(x, p)},
                               inner, watch, extra)
-        return _Solver(solver, watch, lambda problem: np.zeros(0), keep, native=False,
+        return _Solver(solver, watch, lambda problem: np.zeros(0), keep,
                        evaluations=lambda: cache.count)
 
     # --- solving ---------------------------------------------------------------------------
     def _solve(self, problem, inner: _Inner) -> None:
         t0 = time.perf_counter()
         built = None
-        if self.config["evaluation"] == "native":
+        if self.config["evaluation"] != "callback":
             try:
                 built = self._native(problem, inner)
             except Unsupported as exc:
