@@ -86,12 +86,12 @@ def _stw_problem(text: str):
     return session, WindowProblem(session.scene)
 
 
-def _time_backend(problem, settings, evaluation: str = "native") -> tuple[float, int, float, dict]:
+def _time_backend(problem, settings, evaluation: str = "native", jit: bool = False) -> tuple[float, int, float, dict]:
     """(seconds, IPOPT iterations, objective, ms) of one whole ipopt-backend solve, through the
     driver (run_iterations: its thread, every report, stw's convergence test), as `iterate` runs it."""
     from stw_tui.sos.backend import SolverState, load_backend, run_iterations
 
-    backend = load_backend("ipopt")(evaluation=evaluation)
+    backend = load_backend("ipopt")(evaluation=evaluation, jit=jit)
     start = SolverState.start(problem)
     t0 = time.perf_counter()
     result = run_iterations(backend, problem, start, 3000, settings)
@@ -110,6 +110,14 @@ def _per_iteration(runs) -> tuple[float, float]:
     """(median, least) ms per iteration over the runs."""
     per = [seconds / max(iterations, 1) * 1e3 for seconds, iterations, *_ in runs]
     return statistics.median(per), min(per)
+
+
+def _solve_per_iteration(runs) -> float | None:
+    """The median of the backend's own solve (its ``ms["ipopt"]``: build, IPOPT and its
+    callbacks, not the driver's thread and reports) per iteration; None for the reference."""
+    if len(runs[0]) < 4:
+        return None
+    return statistics.median(ms.get("ipopt", math.nan) / max(iterations, 1) for _, iterations, _, ms in runs)
 
 
 def compare_pendulum(spans: int, runs: int = 21) -> str:
@@ -137,13 +145,15 @@ def _line(label: str, found: dict, reference: str | None) -> str:
     for name, runs in found.items():
         median, least = _per_iteration(runs)
         ratio = f" = {median / ref:.2f}x" if ref and name != reference else ""
-        parts.append(f"{name} {median:.3f} (min {least:.3f}, {runs[0][1]} it, J {runs[0][2]:.10g}){ratio}")
+        solve = _solve_per_iteration(runs)
+        own = f", solve {solve:.3f}" + (f" = {solve / ref:.2f}x" if ref else "") if solve is not None else ""
+        parts.append(f"{name} {median:.3f} (min {least:.3f}{own}, {runs[0][1]} it, J {runs[0][2]:.10g}){ratio}")
     return f"{label}: ms/iteration, medians: " + "; ".join(parts)
 
 
 def time_session(path: str, runs: int = 7) -> str:
-    """The ipopt backend on the window problem before a session's first `iterate`, native and
-    callback evaluation: a line of ms per iteration."""
+    """The ipopt backend on the window problem before a session's first `iterate`, native, jit
+    and callback evaluation: a line of ms per iteration."""
     from stw_tui.session.bench import split_at_first_iterate
 
     with open(path, encoding="utf-8") as handle:
@@ -151,6 +161,7 @@ def time_session(path: str, runs: int = 7) -> str:
     session, problem = _stw_problem(setup)
     settings = session.scene.settings
     configs = {"native": lambda: _time_backend(problem, settings),
+               "jit": lambda: _time_backend(problem, settings, jit=True),
                "callback": lambda: _time_backend(problem, settings, "callback")}
     found = {name: [] for name in configs}
     for run in configs.values():
