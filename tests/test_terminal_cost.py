@@ -127,9 +127,13 @@ def test_a_bounded_signed_cost_stopped_early_is_not_called_unbounded():
     assert "iteration limit reached" in result.message and "still falling" not in result.message
 
 
-def test_ipopt_meets_the_signed_optimum_too():
+@pytest.mark.parametrize("evaluation", ["native", "callback"])
+def test_ipopt_meets_the_signed_optimum_too(evaluation):
+    """Both of ipopt's paths: its own CasADi expressions (the signed rows lowered there) and
+    stw's evaluations."""
     pytest.importorskip("casadi")
-    s = run_lines(Session(), BASE + "objective high: maximize y @ 1 weight=6\nbackend ipopt\niterate 30\n")
+    s = run_lines(Session(), BASE + "objective high: maximize y @ 1 weight=6\n"
+                  f"backend ipopt evaluation={evaluation}\niterate 30\n")
     assert s.runs[-1].converged
     curve, end, objective = _signed_optimum(6.0, 1.0)
     assert s.runs[-1].reports[-1].objective == pytest.approx(objective, rel=1e-8)

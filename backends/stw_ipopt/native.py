@@ -151,7 +151,7 @@ class NativeNLP:
             e, grad, h = local[2].map(m)(*inputs)                          # for the Hessian
             w = casadi.DM(np.asarray(group.weights, float)).T             # 1 x m
             if group.kind == OBJ:
-                linear = getattr(group, "linear", False)
+                linear = group.linear
                 objective.append(casadi.sum2(w * (e0 if linear else e0 * e0)))
                 grad_slots.append(slots.ravel())
                 scale1 = w if linear else 2 * w * e1                      # ∂R/∂e per instance
