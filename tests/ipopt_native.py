@@ -1,11 +1,11 @@
 """A hand-written CasADi/IPOPT reference for the ipopt backend (issue 51, item 3).
 
-:func:`native_pendulum` states the pendulum swing-up on a clamped cubic B-spline directly in
-CasADi, as a user of CasADi would: control points as one SX vector, the basis matrices from
-scipy's ``BSpline.design_matrix`` at Gauss-Legendre nodes (numpy's), the objective
-``Σ w (θ'' + g sin θ)²`` and the four boundary conditions, ``nlpsol`` with IPOPT's exact Hessian.
-Nothing of stw's is used, so it is an independent check of the optimum, and the per-iteration
-time the ``ipopt`` backend is held against.
+:func:`native_pendulum` is `stw bench --anchors`' statement of the pendulum swing-up directly in
+CasADi (stw_tui.cli.bench_targets.native_ipopt_nlp), as a user of CasADi would write it: control
+points as one SX vector, the basis matrices from scipy's BSpline at Gauss-Legendre nodes, the
+objective ``Σ w (θ'' + g sin θ)²`` and the four boundary conditions, ``nlpsol`` with IPOPT's exact
+Hessian. Nothing of stw's compiler or window is used, so it is an independent check of the
+optimum, and the per-iteration time the ``ipopt`` backend is held against.
 
 Run as a script (``python tests/ipopt_native.py [spans ...] [--session FILE ...]``) it times the
 ipopt backend against this reference, runs interleaved, medians of several, and prints ms per
@@ -19,10 +19,7 @@ import statistics
 import sys
 import time
 
-import casadi
 import numpy as np
-import scipy.sparse as sps
-from scipy.interpolate import BSpline
 
 G = 9.81
 PENDULUM = """time 0 2 knots={spans}
@@ -34,46 +31,12 @@ objective effort: th'' + g*sin(th)
 """
 
 
-def _dm(matrix) -> casadi.DM:
-    """A scipy sparse matrix as a CasADi sparse DM."""
-    m = sps.csc_matrix(matrix)
-    m.sort_indices()
-    sparsity = casadi.Sparsity(m.shape[0], m.shape[1], m.indptr.tolist(), m.indices.tolist())
-    return casadi.DM(sparsity, m.data)
+def native_pendulum(spans: int, quadrature: int = 4, t1: float = 2.0):
+    """(solver, lbg, ubg) of the swing-up over ``spans`` uniform knot spans on [0, t1]: `stw bench
+    --anchors`' own CasADi statement of it (bench_targets.native_ipopt_nlp)."""
+    from stw_tui.cli.bench_targets import native_ipopt_nlp
 
-
-def native_pendulum(spans: int, quadrature: int = 4, t1: float = 2.0, options: dict | None = None):
-    """(solver, lbg, ubg) of the swing-up over ``spans`` uniform knot spans on [0, t1]."""
-    knots = np.concatenate([[0.0] * 3, np.linspace(0.0, t1, spans + 1), [t1] * 3])
-    n = spans + 3
-    x, w = np.polynomial.legendre.leggauss(quadrature)
-    cuts = np.linspace(0.0, t1, spans + 1)
-    half = (cuts[1:] - cuts[:-1])[:, None] / 2
-    times = ((cuts[1:] + cuts[:-1])[:, None] / 2 + half * x[None, :]).ravel()
-    weights = (half * w[None, :]).ravel()
-
-    def basis(ts, order):
-        B = BSpline.design_matrix(np.asarray(ts, float), knots, 3).tocsc()
-        if order == 0:
-            return B
-        cols = []
-        for j in range(n):
-            c = np.zeros(n)
-            c[j] = 1.0
-            cols.append(BSpline(knots, c, 3).derivative(order)(ts))
-        return sps.csc_matrix(np.array(cols).T)
-
-    s = casadi.SX.sym("s", n)
-    th = casadi.mtimes(_dm(basis(times, 0)), s)
-    acc = casadi.mtimes(_dm(basis(times, 2)), s)
-    u = acc + G * casadi.sin(th)
-    f = casadi.dot(casadi.DM(weights), u * u)
-    ends = np.array([0.0, t1])
-    g = casadi.vertcat(casadi.mtimes(_dm(basis(ends, 0)), s), casadi.mtimes(_dm(basis(ends, 1)), s))
-    ipopt = {"print_level": 0, "sb": "yes", "tol": 1e-8, **(options or {})}
-    solver = casadi.nlpsol("native_pendulum", "ipopt", {"x": s, "f": f, "g": g},
-                           {"ipopt": ipopt, "print_time": False})
-    target = np.array([0.0, math.pi, 0.0, 0.0])   # [th(0), th(2), th'(0), th'(2)]
+    solver, target = native_ipopt_nlp(spans, quadrature, G, t1)
     return solver, target, target
 
 

@@ -139,6 +139,20 @@ def test_slsqp_in_numpy_reaches_stws_pendulum_optimum():
     assert abs(objective - stw) <= 1e-6 * stw
 
 
+@pytest.mark.parametrize("spans", [20, 80])
+def test_casadi_ipopt_written_apart_reaches_stws_pendulum_optimum(spans):
+    """The bench's native IPOPT anchor states the swing-up in CasADi from scipy's B-spline, nothing
+    of stw's: the optimum must be stw's on the same mesh (both solved to their tolerances)."""
+    pytest.importorskip("casadi")
+    case = bench.prepare("pendulum", targets.PENDULUM.replace("knots=20", f"knots={spans}"))
+    scene = case.setup.scene
+    _, objective = targets.native_ipopt_pendulum(spans, int(scene.settings["quadrature"]),
+                                                 float(scene.constants["g"]))()
+    case.setup.execute("iterate 50")
+    assert case.setup.runs[-1].converged
+    assert objective == pytest.approx(case.setup.runs[-1].reports[-1].objective, rel=1e-7)
+
+
 def test_pendulum_references_each_alternate_with_stws_runs_of_their_own(monkeypatch):
     # A solve is slowed down by the one before it (SLSQP by 1.9x right after FDDP's): the SLSQP
     # figure's runs, and the stw runs set against them, must never follow an FDDP solve.
@@ -151,6 +165,8 @@ def test_pendulum_references_each_alternate_with_stws_runs_of_their_own(monkeypa
     monkeypatch.setattr(targets, "prepare", lambda name, text: case)
     monkeypatch.setattr(targets, "slsqp_solve", lambda scene: order.append("SLSQP") or (0.004, 65.48090953))
     monkeypatch.setattr(targets, "fddp_solve", lambda g: order.append("FDDP") or (0.05, 65.4809))
+    monkeypatch.setattr(targets, "native_ipopt_pendulum",
+                        lambda spans, quadrature, g: lambda: order.append(f"IPOPT{spans}") or (0.003, 65.48090953))
     calls = []
 
     def fake_measure(case, configs, repeat, between=None, setups=None):
@@ -164,11 +180,13 @@ def test_pendulum_references_each_alternate_with_stws_runs_of_their_own(monkeypa
     monkeypatch.setattr(targets, "_measure_together", fake_measure)
 
     figures = targets.pendulum_figures(3, anchors=True)
-    assert [f.label for f in figures] == ["pendulum: time / SLSQP", "pendulum: time / FDDP"]
+    assert [f.label for f in figures] == ["pendulum: time / SLSQP", "pendulum: time / FDDP",
+                                          "pendulum 20: time / IPOPT", "pendulum 80: time / IPOPT"]
     assert figures[0].value == pytest.approx(0.006 / 0.004) and figures[0].counted
+    assert figures[2].value == pytest.approx(0.006 / 0.003) and figures[2].counted
     pairs = list(zip(order, order[1:]))
     assert ("FDDP", "SLSQP") not in pairs and ("FDDP", "stw1") not in pairs
-    assert order.count("stw1") == order.count("stw2") == 3
+    assert order.count("stw1") == order.count("stw2") == order.count("stw3") == 3
     last_slsqp_side = max(i for i, what in enumerate(order) if what in ("SLSQP", "stw1"))
     assert last_slsqp_side < order.index("FDDP")          # no FDDP solve among SLSQP's rounds
 
@@ -177,12 +195,15 @@ def test_without_crocoddyl_the_fddp_figure_says_so(monkeypatch):
     import sys
 
     monkeypatch.setitem(sys.modules, "crocoddyl", None)    # an import of it fails
+    monkeypatch.setitem(sys.modules, "casadi", None)       # and of casadi (the ipopt extra)
     case = bench.prepare("pendulum", targets.PENDULUM)
     monkeypatch.setattr(targets, "prepare", lambda name, text: case)
     figures = targets.pendulum_figures(3, anchors=True)
-    assert [f.label for f in figures] == ["pendulum: time / SLSQP", "pendulum: time / FDDP"]
+    assert [f.label for f in figures] == ["pendulum: time / SLSQP", "pendulum: time / FDDP",
+                                          "pendulum 20: time / IPOPT", "pendulum 80: time / IPOPT"]
     assert figures[0].value is not None and figures[0].counted
     assert figures[1].value is None and figures[1].verdict() == "crocoddyl missing"
+    assert all(f.value is None and f.verdict() == "casadi missing" for f in figures[2:])
 
 
 def test_crocoddyls_fddp_reaches_the_pendulums_optimum_within_the_anchor_accuracy():
