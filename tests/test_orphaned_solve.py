@@ -11,11 +11,14 @@ returned.
 
 from __future__ import annotations
 
+import json
 import os
+import shutil
 import signal
 import subprocess
 import sys
 import time
+import uuid
 from pathlib import Path
 
 import numpy as np
@@ -29,8 +32,12 @@ from stw_tui.session.session import Session
 from stw_tui.sym.errors import StwError
 
 ROOT = Path(__file__).resolve().parent.parent
+PROMISE_S = 3.0    # the README: a kill loses at most 3 s of a running solve
 GONE_S = 5.0       # seconds within which every process stw started must have ended
 NEVER = "1000"   # STW_CHECKPOINT_EVERY where no periodic checkpoint may fall due
+# ... in a real terminal: the one the solver process writes when its parent goes is newer, but a
+# niced process on a loaded machine may be killed (PR_SET_PDEATHSIG) before it gets to it
+EVERY = "2"
 
 needs_proc = pytest.mark.skipif(not Path("/proc/self/stat").exists(), reason="reads process states in /proc")
 
@@ -106,6 +113,100 @@ def test_the_pending_checkpoint_of_a_solve_never_travels_with_the_session(tmp_pa
     midsolve_._unwritten = lambda: None                # as if a solve were running
     copy = pickle.loads(pickle.dumps(session))
     assert copy.checkpoints.midsolve._unwritten is None
+
+
+# --- the real TUI in a real terminal -----------------------------------------------------------
+
+def _tmux():
+    if shutil.which("tmux") is None:
+        pytest.skip("needs tmux")
+    import test_app_tmux as term
+
+    if not term.STW.exists():
+        pytest.skip("needs the installed `stw` script")
+    return term
+
+
+def _solving_tui(term, tmp_path):
+    """`stw endless.stw` in tmux, run by a shell as a terminal's job is (so its death alone hangs
+    up nothing else), well into its solve. Returns (tmux args, name, stw's pid, its descendants,
+    the journal)."""
+    psutil = pytest.importorskip("psutil")
+    state = tmp_path / "state"
+    name = f"stw-orphan-{uuid.uuid4().hex[:8]}"
+    env = f"PYTHONPATH={ROOT} XDG_STATE_HOME={state} STW_CHECKPOINT_EVERY={EVERY}"
+    base = term.start(name, f"sh -c 'env {env} {term.STW} {endless_jet(tmp_path)}; echo EXITED $?; sleep 60'")
+    screen = term.wait_for(base, name, "solving")
+    assert "solving" in screen, screen
+    deadline = time.monotonic() + 30
+    while not list((state / "stw").glob("endless-*.stw.solving")) and time.monotonic() < deadline:
+        time.sleep(0.05)                          # a periodic checkpoint is on disk: well into the solve
+    shell = int(term.tmux(*base, "display-message", "-p", "-t", name, "#{pane_pid}").strip())
+    stw = psutil.Process(shell).children()[0]
+    descendants = [p.pid for p in stw.children(recursive=True)]
+    assert len(descendants) >= 3, descendants     # the resource tracker, the fork server, the solver
+    journals = list((state / "stw").glob("endless-*.stw"))
+    assert len(journals) == 1, journals
+    return base, name, stw.pid, descendants, journals[0]
+
+
+@needs_proc
+@pytest.mark.parametrize("how", ["kill -9", "SIGHUP", "terminal closed", "Ctrl+Q"])
+def test_a_tui_killed_or_hung_up_mid_solve_keeps_the_solve_and_leaves_no_process(tmp_path, how):
+    term = _tmux()
+    base, name, pid, descendants, journal = _solving_tui(term, tmp_path)
+    try:
+        killed = time.time()
+        if how == "kill -9":
+            os.kill(pid, signal.SIGKILL)
+        elif how == "SIGHUP":
+            os.kill(pid, signal.SIGHUP)
+        elif how == "Ctrl+Q":
+            term.tmux(*base, "send-keys", "-t", name, "C-q")
+        else:   # as a dropped SSH connection: the terminal goes, its processes get SIGHUP
+            term.tmux(*base, "kill-session", "-t", name)
+        gone = wait_gone([pid, *descendants], GONE_S)
+        if how in ("SIGHUP", "Ctrl+Q"):   # SIGHUP quits as Ctrl+Q does: the screen restored, the note on it
+            screen = term.wait_for(base, name, "EXITED")
+            code = 129 if how == "SIGHUP" else 0
+            assert f"EXITED {code}" in screen and "this session is kept in" in screen, screen
+    finally:
+        term.tmux(*base, "kill-server")
+    left = [p for p in [pid, *descendants] if p not in gone]
+    assert not left, f"{how}: still running after {GONE_S} s: {left}"
+    record = json.loads(midsolve.midsolve_path(journal).read_text())
+    lost = killed - record["time"]
+    when = f"{-lost:.3f} s after" if lost <= 0 else f"{lost:.3f} s before"
+    print(f"{how}: stw gone in {gone[pid]:.2f} s, its processes in {max(gone.values()):.2f} s; "
+          f"checkpoint of iteration {record['iteration']} written {when} the signal")
+    assert lost <= PROMISE_S and record["iteration"] > 1
+    assert journal.read_text().endswith("backend scipy max_step=1e-6\n"), journal.read_text()  # no `# failed`
+    resumed, _, _ = resume.resume(journal)
+    assert np.array_equal(resumed.scene.coefficient_vector(), np.array(record["coef"]["x"]))
+    assert journal.read_text().splitlines()[-1] == f"iterate {record['iteration']} adapt=0"
+
+
+@needs_proc
+def test_stw_resume_in_the_terminal_goes_on_from_the_killed_tuis_solve(tmp_path):
+    term = _tmux()
+    base, name, pid, descendants, journal = _solving_tui(term, tmp_path)
+    try:
+        os.kill(pid, signal.SIGKILL)
+        assert len(wait_gone([pid, *descendants], GONE_S)) == len(descendants) + 1
+    finally:
+        term.tmux(*base, "kill-server")
+    record = json.loads(midsolve.midsolve_path(journal).read_text())
+    name = f"stw-orphan-{uuid.uuid4().hex[:8]}"
+    base = term.start(name, f"env PYTHONPATH={ROOT} XDG_STATE_HOME={tmp_path / 'state'} {term.STW} --resume")
+    try:
+        expected = f"resumed from the running solve's last checkpoint: `iterate 1000000` at iteration " \
+                   f"{record['iteration']}"
+        screen = term.wait_for(base, name, "journalled as")
+        assert expected in " ".join(screen.split()), screen
+        term.tmux(*base, "send-keys", "-t", name, "C-q")
+    finally:
+        term.tmux(*base, "kill-server")
+    assert journal.read_text().splitlines()[-1] == f"iterate {record['iteration']} adapt=0"
 
 
 # --- headless `stw run` with a plugin held in C ------------------------------------------------
