@@ -35,9 +35,11 @@ import os
 import pickle
 import signal
 import sys
+import time
 from typing import Callable
 
-from stw_tui.sos.backend_calls import interrupted
+from stw_tui.sos import backend_calls
+from stw_tui.sos.backend_calls import HungBackend, interrupted
 from stw_tui.sym.errors import StwError
 from stw_tui.sym.language import classify_line
 
@@ -46,6 +48,9 @@ SOLVE_VERBS = frozenset({"iterate", "slide"})   # the commands that run in the s
 # Added to the solver process's niceness (see serve): where both want a core, the TUI (idle but
 # for keys) wins it; mild, so a solve is not starved by other busy processes of the user.
 CHILD_NICENESS = 5
+# Seconds past backend_calls.STOP_GRACE (when the child abandons a backend that ignores a stop)
+# that the child has to answer a stop before it is ended: one held in C cannot even abandon it.
+ANSWER_MARGIN = 1.0
 PR_SET_PDEATHSIG = 1   # <linux/prctl.h>: the signal a process gets when its parent ends
 PRELOAD = ["stw_tui.session.survey", "stw_tui.session.session", "stw_tui.session.interpreter", "stw_scipy"]
 
@@ -128,6 +133,10 @@ def runs_in_solver_process(text: str) -> bool:
     return classify_line(text).verb in SOLVE_VERBS
 
 
+class _Unanswered(Exception):
+    """The child did not answer a stop within STOP_GRACE + ANSWER_MARGIN seconds."""
+
+
 class NotPortable(Exception):
     """The session does not pickle, so it cannot be sent to the solver process."""
 
@@ -165,7 +174,9 @@ class SolverProcess:
         Raises:
             StwError: the child died; ``session`` is as it was.
             SolveError: Ctrl+C (headless) while the child ran: it is ended at once (SIGKILL, which
-                no interpreter lock held in C can delay); ``session`` is as it was.
+                no interpreter lock held in C can delay); ``session`` is as it was. A HungBackend
+                when the child has not answered a stop (F4) within STOP_GRACE + ANSWER_MARGIN s:
+                it is ended, the session as it was.
             NotPortable: the session cannot be copied to a process (the caller then runs the
                 command itself).
         """
@@ -182,17 +193,38 @@ class SolverProcess:
             self.close()
             backend = getattr(getattr(session, "scene", None), "backend", "?")
             raise interrupted(backend, f"iteration {done + 1}") from None
+        except _Unanswered:
+            done = self._progress.value if self._progress is not None else 0
+            self.close()
+            checkpoints = getattr(session, "checkpoints", None)
+            if checkpoints is not None:   # the abandoned solve's, which a resume must not bring back
+                checkpoints.midsolve.ended(force=True)
+            backend = getattr(getattr(session, "scene", None), "backend", "?")
+            raise HungBackend(f"backend {backend} hung: it ignored the stop for {backend_calls.STOP_GRACE:g} s "
+                              f"during iteration {done + 1} and its process was ended; "
+                              "the scene is unchanged") from None
+
+    def _ended_if_hung(self, error) -> None:
+        """A backend the child abandoned as hung may go on running in a thread there (busy for
+        ever): the child goes, and the next solve starts a new one."""
+        if isinstance(error, HungBackend):
+            self.close()
 
     def _execute(self, payload: bytes, text: str, line: int | None, on_report: Callable, cancelled: Callable[[], bool]):
         process, conn, cancel = self._ensure_started()
         cancel.value = False
         self._progress.value = 0
+        stop_asked = None
         try:
             conn.send_bytes(pickle.dumps((payload, text, line), protocol=pickle.HIGHEST_PROTOCOL))
             while True:
                 if not conn.poll(POLL_S):
                     if cancelled():
                         cancel.value = True
+                    if cancel.value:
+                        stop_asked = stop_asked or time.monotonic()
+                        if time.monotonic() - stop_asked > backend_calls.STOP_GRACE + ANSWER_MARGIN:
+                            raise _Unanswered
                     if not process.is_alive():
                         raise EOFError
                     continue
@@ -202,6 +234,7 @@ class SolverProcess:
                         cancel.value = True
                     continue
                 new_session, outcome, error = rest
+                self._ended_if_hung(error)
                 return new_session, outcome, error
         except (EOFError, OSError) as exc:   # it died, or close() (quitting) ended it
             code = self.close() if process is self._process else process.exitcode
