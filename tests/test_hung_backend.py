@@ -472,6 +472,49 @@ def test_ctrl_q_ends_the_tui_process_while_a_backend_hangs(tmp_path):
         term.tmux(*base, "kill-server")
 
 
+@pytest.mark.skipif(not Path("/proc/self/stat").exists(), reason="reads process states in /proc")
+def test_f4_ends_the_tuis_solver_process_when_its_backend_holds_the_interpreter_lock(tmp_path):
+    """Issue 54 item 8 in the TUI: F4 on a plugin held in C (it cannot even be abandoned inside
+    its process) showed "stopping…" for ever; the solver process is now ended once it has not
+    answered the stop within the grace and a second, the solve reported hung, the scene as it
+    was, and nothing of it left running. The next solve starts a new process."""
+    import shutil
+
+    import psutil
+
+    import test_app_tmux as term
+
+    if shutil.which("tmux") is None:
+        pytest.skip("needs tmux")
+    env = _install_hanging(tmp_path, LOCK_HOLDING_PLUGIN)
+    name = f"stw-hang-{uuid.uuid4().hex[:8]}"
+    command = f"env PYTHONPATH={env['PYTHONPATH']} STW_CACHE_DIR=off XDG_STATE_HOME={tmp_path / 'state'} " \
+              f"STW_TEST_STOP_GRACE={GRACE} {sys.executable} -m stw_tui.cli {tmp_path / 'hang.stw'}"
+    base = term.start(name, command)
+    try:
+        screen = term.wait_for(base, name, "iter 1")       # the first iteration is done: the second holds the lock
+        assert "solving" in screen, screen
+        pid = int(term.tmux(*base, "display-message", "-p", "-t", name, "#{pane_pid}").strip())
+        time.sleep(0.5)
+        # the solver process: the fork server's child (the server is stw's)
+        solver = [p for p in psutil.Process(pid).children(recursive=True) if p.ppid() != pid]
+        assert len(solver) == 1, solver
+        pressed = time.monotonic()
+        term.tmux(*base, "send-keys", "-t", name, "F4")
+        screen = term.wait_for(base, name, "process was ended", timeout=GRACE + 15)
+        took = time.monotonic() - pressed
+        said = " ".join(screen.split())
+        assert f"ignored the stop for {GRACE:g} s during iteration 2 and its process was ended" in said, screen
+        assert not term.running(solver[0].pid)
+        print(f"F4 to the end of a solver process held in C: {took:.2f} s (grace {GRACE:g} s)")
+        assert took < GRACE + 4
+        term.tmux(*base, "send-keys", "-t", name, "iterate 100", "Enter")   # a new process, held again
+        assert "holding" not in term.wait_for(base, name, "solving")
+        term.tmux(*base, "send-keys", "-t", name, "C-q")
+    finally:
+        term.tmux(*base, "kill-server")
+
+
 def test_a_run_takes_an_idle_thread_and_an_abandoned_one_is_never_reused(hanging, release):
     """Each run of iterations takes the thread an earlier run left idle (starting one cost 3% of a
     small `iterate`); a thread abandoned in a hung call never serves another run, even after

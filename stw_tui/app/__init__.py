@@ -27,7 +27,7 @@ def settings_file() -> Path:
 def create_app(session_path: str | Path | None = None, step: bool = False, session: "Session | None" = None,
                *, show_timing: bool = True, blink: bool = True, settings_path: str | Path | None = None,
                solver_process: bool = True, journal: str | Path | None = None,
-               notes: "list[str] | None" = None) -> StwApp:
+               notes: "list[str] | None" = None, quit_on_hangup: bool = False) -> StwApp:
     """A ready-to-run app.
 
     Args:
@@ -43,9 +43,11 @@ def create_app(session_path: str | Path | None = None, step: bool = False, sessi
             checkpointed beside it); the session is made, with the core's imports, off the UI
             thread once the app shows.
         notes: lines to show in the console when the app opens (what `stw --resume` restored).
+        quit_on_hangup: SIGHUP quits as Ctrl+Q does (`stw` itself; a test's app leaves it alone).
     """
     return StwApp(session=session, session_path=session_path, step=step, show_timing=show_timing, blink=blink,
-                  settings_path=settings_path, solver_process=solver_process, journal=journal, notes=notes)
+                  settings_path=settings_path, solver_process=solver_process, journal=journal, notes=notes,
+                  quit_on_hangup=quit_on_hangup)
 
 
 # Seconds a thread may hold the interpreter lock while another waits for it (Python's default is
@@ -79,15 +81,20 @@ def run_app(session_path: str | Path | None = None, step: bool = False,
     # Its Runner starts multiprocessing's helpers here, before Textual replaces stderr
     # (child_process.start_helpers).
     app = create_app(session_path, step=step, session=session, settings_path=settings_file(), journal=journal,
-                     notes=notes)
+                     notes=notes, quit_on_hangup=True)
     sys.setswitchinterval(SWITCH_INTERVAL)
     app.run()
     code = app.return_code or 0
     kept = session.journal.path if session is not None else journal
-    if kept is not None:   # the screen is restored: say it
-        from stw_tui.session.autosave import kept_note
+    try:
+        if kept is not None:   # the screen is restored: say it
+            from stw_tui.session.autosave import kept_note
 
-        print(kept_note(Path(kept)), file=sys.stderr)
+            print(kept_note(Path(kept)), file=sys.stderr)
+        sys.stdout.flush()
+        sys.stderr.flush()
+    except OSError:   # hung up: no terminal to say it on
+        pass
     if exit_process:
         # A survey's Dask workers are not killed here: each exits on its own once this process
         # is gone (Dask's AsyncProcess watches the parent), about 1.5 s later, busy or not.
@@ -96,8 +103,6 @@ def run_app(session_path: str | Path | None = None, step: bool = False,
         # the resource tracker: "leaked semaphore" and "No such file" over the shell, 1 run in
         # about 25 under load) or by starting new workers (12 semaphores left).
         _release_semaphores()
-        sys.stdout.flush()
-        sys.stderr.flush()
         os._exit(code)
     return code
 

@@ -6,8 +6,11 @@ Widgets post messages; the app turns each requested command into a :class:`Job` 
 
 from __future__ import annotations
 
+import asyncio
 import json
 import os
+import signal
+import threading
 from pathlib import Path
 from typing import TYPE_CHECKING, Iterable
 
@@ -31,7 +34,7 @@ from stw_tui.app.messages import (CommandFinished, CommandRequested, CommandStar
                        Origin, SurveyProgressed, TaskFinished)
 from stw_tui.app.panels import ConstantsPanel, DofPanel, EquationsPanel, OptimizationPanel, TimePanel, WindowsPanel
 from stw_tui.app.plots import ConvergencePlot, DofPlot, ExpressionPlot, FigurePlot, ScenePlot
-from stw_tui.app.runner import Runner, Script, changes_scene
+from stw_tui.app.runner import HANGUP_GRACE, Runner, Script, changes_scene
 from stw_tui.app.status import StatusLine
 from stw_tui.session.queries import SceneInfo
 from stw_tui.session.throttle import ThrottledCall
@@ -55,6 +58,8 @@ REPLAY_VIEW_INTERVAL = 0.5
 # at every iteration, 18.1 and 18.5 s with the status line alone, 16.7 and 15.8 s undrawn;
 # 20.0 and 14.5 s at this interval (headless, same minutes: 12.1 and 10.4 s).
 LIVE_INTERVAL = 0.5
+EXIT_HANGUP = 129     # 128 + SIGHUP, as a shell reports a process the signal ended
+HANGUP_EXIT_S = 5.0   # seconds a hung-up TUI has to quit (HANGUP_GRACE of them its solve's) before it ends itself
 
 class MainScreen(Screen):
     """The app's screen. A focus change repaints only what it restyles: Textual's Screen
@@ -82,6 +87,7 @@ class StwApp(App[int]):
         settings_path: a JSON file remembering the theme between runs (None: nothing is
             remembered, as in tests).
         notes: lines to show in the console when it opens (what `stw --resume` restored).
+        quit_on_hangup: SIGHUP quits as Ctrl+Q does (the real process, `stw`; not a test's app).
     """
 
     CSS_PATH = "app.tcss"
@@ -110,9 +116,11 @@ class StwApp(App[int]):
     def __init__(self, session: "Session | None" = None, session_path: str | Path | None = None,
                  step: bool = False, show_timing: bool = True, blink: bool = True,
                  settings_path: str | Path | None = None, solver_process: bool = True,
-                 journal: str | Path | None = None, notes: "list[str] | None" = None):
+                 journal: str | Path | None = None, notes: "list[str] | None" = None,
+                 quit_on_hangup: bool = False):
         super().__init__()
         self.notes = list(notes or ())
+        self.quit_on_hangup = quit_on_hangup
         if "TEXTUAL_ANIMATIONS" not in os.environ:
             # The tab underline slides for 0.3 s after F2/F3: ~18 frames of the whole screen's
             # compositor, UI time that keys typed meanwhile wait for (and, during a solve, that
@@ -228,6 +236,8 @@ class StwApp(App[int]):
         self.runner.abandon()
 
     def on_mount(self) -> None:
+        if self.quit_on_hangup and hasattr(signal, "SIGHUP"):
+            asyncio.get_running_loop().add_signal_handler(signal.SIGHUP, self._hung_up)
         self._load_settings()
         self._guard_size(self.size)
         self.repl.input.focus()
@@ -716,6 +726,17 @@ class StwApp(App[int]):
         and left behind (a daemon thread)."""
         self.runner.abandon()
         self.exit()
+
+    def _hung_up(self) -> None:
+        """SIGHUP (the terminal or the SSH connection closed): quit as Ctrl+Q does, the journal and
+        the solve's checkpoint kept, instead of the default abrupt end that left the solver process
+        to fail on a broken pipe. A terminal that is gone may keep Textual from finishing: the
+        process ends within HANGUP_EXIT_S regardless (the journal is on disk line by line)."""
+        timer = threading.Timer(HANGUP_EXIT_S, os._exit, (EXIT_HANGUP,))
+        timer.daemon = True
+        timer.start()
+        self.runner.abandon(grace=HANGUP_GRACE)
+        self.exit(return_code=EXIT_HANGUP)
 
 
 def _was_stopped(outcome) -> bool:

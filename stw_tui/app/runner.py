@@ -36,6 +36,15 @@ if TYPE_CHECKING:
     from stw_tui.sos.backend import StepReport
 
 
+# Seconds a quitting TUI gives its solver process to write the iterate it has reached (at its
+# next report: milliseconds on most scenes) before killing it: the periodic checkpoint, up to
+# 3 s old, is what a longer iteration keeps. Ctrl+Q must still end stw well within a second.
+QUIT_GRACE = 0.3
+# ... and when the terminal hung up: nobody waits for the screen, and the solver process is niced
+# (on a loaded machine it may not run at all for a few hundred ms).
+HANGUP_GRACE = 2.0
+
+
 def changes_scene(line: str) -> bool:
     """Whether a command line (that succeeded) may have changed the scene (or, as `save` and
     `export` do, writes what the scene is): any command but the queries (language.QUERIES)."""
@@ -144,14 +153,15 @@ class Runner:
         self.stop_requested.set()
         return True
 
-    def abandon(self) -> None:
-        """The app is quitting: end the solver process, ask a running job to stop and never start
-        the queued ones. The worker thread is not waited for (it is a daemon thread).
+    def abandon(self, grace: float = QUIT_GRACE) -> None:
+        """The app is quitting: end the solver process (a solve there first keeps the iterate it
+        has reached, if it gets to it within ``grace`` seconds), ask a running job to stop and
+        never start the queued ones. The worker thread is not waited for (it is a daemon thread).
         """
         self.queue.clear()
+        if self.solver is not None:   # before the stop: a solve stopped there would be journalled as
+            self.solver.close(grace=grace)   # a stopped one, which a resume solves again
         self.stop_requested.set()
-        if self.solver is not None:
-            self.solver.close()
 
     def finished(self) -> None:
         """The worker's job is done (its message was handled): start the next one."""

@@ -18,6 +18,13 @@ Headless, `stw run` solves there too when the backend is a plugin other than the
 that holds the interpreter lock in C would otherwise keep Ctrl+C's handler from ever running. The
 child ignores SIGINT (a terminal sends it to the whole process group); Ctrl+C in the waiting
 process ends the child at once (SIGKILL) and the command with an error.
+
+No solver process outlives its parent, and none takes its running solve with it. A parent that
+dies (kill -9, a hang-up) closes the pipe: at its next report the child writes the iterate its
+solve has reached as the running checkpoint (stw_tui/session/midsolve.py), journals nothing and
+ends, so `stw --resume` goes on from there. One held in C, which reports nothing, is ended by
+Linux (``PR_SET_PDEATHSIG``) when the fork server, its parent, ends with stw; it keeps the
+periodic checkpoint.
 """
 
 from __future__ import annotations
@@ -27,9 +34,12 @@ import multiprocessing
 import os
 import pickle
 import signal
+import sys
+import time
 from typing import Callable
 
-from stw_tui.sos.backend_calls import interrupted
+from stw_tui.sos import backend_calls
+from stw_tui.sos.backend_calls import HungBackend, interrupted
 from stw_tui.sym.errors import StwError
 from stw_tui.sym.language import classify_line
 
@@ -38,6 +48,10 @@ SOLVE_VERBS = frozenset({"iterate", "slide"})   # the commands that run in the s
 # Added to the solver process's niceness (see serve): where both want a core, the TUI (idle but
 # for keys) wins it; mild, so a solve is not starved by other busy processes of the user.
 CHILD_NICENESS = 5
+# Seconds past backend_calls.STOP_GRACE (when the child abandons a backend that ignores a stop)
+# that the child has to answer a stop before it is ended: one held in C cannot even abandon it.
+ANSWER_MARGIN = 1.0
+PR_SET_PDEATHSIG = 1   # <linux/prctl.h>: the signal a process gets when its parent ends
 PRELOAD = ["stw_tui.session.survey", "stw_tui.session.session", "stw_tui.session.interpreter", "stw_scipy"]
 
 
@@ -59,12 +73,20 @@ def start_helpers() -> None:
     with "bad value(s) in fds_to_keep". The fork server imports in the background meanwhile."""
     from multiprocessing import forkserver, resource_tracker
 
+    # Started ignoring SIGHUP, which they keep through exec (and the solver process through fork):
+    # a hang-up of the terminal's process group then leaves the TUI to end its solve (it keeps
+    # the last iterate); each helper still ends when stw does (its pipe from stw closes).
+    hangup = getattr(signal, "SIGHUP", None)
+    previous = signal.signal(hangup, signal.SIG_IGN) if hangup is not None else None
     try:
         resource_tracker.ensure_running()
         if process_context().get_start_method() == "forkserver":
             forkserver.ensure_running()
     except Exception:  # the first child then reports its own error; the TUI must start regardless
         pass
+    finally:
+        if hangup is not None:
+            signal.signal(hangup, previous)
 
 
 def quiet_child() -> None:
@@ -74,9 +96,45 @@ def quiet_child() -> None:
     os.dup2(devnull, 2)
 
 
+def die_with_parent() -> bool:
+    """Have Linux SIGKILL this process when its parent ends (a plugin's call held in C would
+    otherwise run on, orphaned, until it returns). False where that cannot be asked (not Linux).
+    Only for a child of a single-threaded parent, the fork server: the signal comes when the
+    *thread* that started the child ends."""
+    if not sys.platform.startswith("linux"):
+        return False
+    try:
+        libc = ctypes.CDLL(None, use_errno=True)
+        return libc.prctl(PR_SET_PDEATHSIG, int(signal.SIGKILL), 0, 0, 0) == 0
+    except (OSError, AttributeError):
+        return False
+
+
+def end_with_parent(orphan_kill: bool) -> None:
+    """In a child of the fork server (``orphan_kill``): be killed when the server ends, which it
+    does when stw does (die_with_parent, asked while this process holds the server open, so it
+    cannot have ended yet; then let go of it). A hang-up is then stw's to act on: it ends the
+    solve keeping its last iterate. Elsewhere a hang-up ends the process (the default)."""
+    dies = orphan_kill and die_with_parent()
+    if orphan_kill:
+        _leave_fork_server()
+    if hasattr(signal, "SIGHUP"):
+        signal.signal(signal.SIGHUP, signal.SIG_IGN if dies else signal.SIG_DFL)
+
+
+def pool_worker(orphan_kill: bool) -> None:
+    """The initializer of a survey's pool worker: quiet, and gone when stw goes (end_with_parent)."""
+    quiet_child()
+    end_with_parent(orphan_kill)
+
+
 def runs_in_solver_process(text: str) -> bool:
     """Whether the command line ``text`` is a solve that :class:`SolverProcess` runs."""
     return classify_line(text).verb in SOLVE_VERBS
+
+
+class _Unanswered(Exception):
+    """The child did not answer a stop within STOP_GRACE + ANSWER_MARGIN seconds."""
 
 
 class NotPortable(Exception):
@@ -116,7 +174,9 @@ class SolverProcess:
         Raises:
             StwError: the child died; ``session`` is as it was.
             SolveError: Ctrl+C (headless) while the child ran: it is ended at once (SIGKILL, which
-                no interpreter lock held in C can delay); ``session`` is as it was.
+                no interpreter lock held in C can delay); ``session`` is as it was. A HungBackend
+                when the child has not answered a stop (F4) within STOP_GRACE + ANSWER_MARGIN s:
+                it is ended, the session as it was.
             NotPortable: the session cannot be copied to a process (the caller then runs the
                 command itself).
         """
@@ -133,17 +193,38 @@ class SolverProcess:
             self.close()
             backend = getattr(getattr(session, "scene", None), "backend", "?")
             raise interrupted(backend, f"iteration {done + 1}") from None
+        except _Unanswered:
+            done = self._progress.value if self._progress is not None else 0
+            self.close()
+            checkpoints = getattr(session, "checkpoints", None)
+            if checkpoints is not None:   # the abandoned solve's, which a resume must not bring back
+                checkpoints.midsolve.ended(force=True)
+            backend = getattr(getattr(session, "scene", None), "backend", "?")
+            raise HungBackend(f"backend {backend} hung: it ignored the stop for {backend_calls.STOP_GRACE:g} s "
+                              f"during iteration {done + 1} and its process was ended; "
+                              "the scene is unchanged") from None
+
+    def _ended_if_hung(self, error) -> None:
+        """A backend the child abandoned as hung may go on running in a thread there (busy for
+        ever): the child goes, and the next solve starts a new one."""
+        if isinstance(error, HungBackend):
+            self.close()
 
     def _execute(self, payload: bytes, text: str, line: int | None, on_report: Callable, cancelled: Callable[[], bool]):
         process, conn, cancel = self._ensure_started()
         cancel.value = False
         self._progress.value = 0
+        stop_asked = None
         try:
             conn.send_bytes(pickle.dumps((payload, text, line), protocol=pickle.HIGHEST_PROTOCOL))
             while True:
                 if not conn.poll(POLL_S):
                     if cancelled():
                         cancel.value = True
+                    if cancel.value:
+                        stop_asked = stop_asked or time.monotonic()
+                        if time.monotonic() - stop_asked > backend_calls.STOP_GRACE + ANSWER_MARGIN:
+                            raise _Unanswered
                     if not process.is_alive():
                         raise EOFError
                     continue
@@ -153,6 +234,7 @@ class SolverProcess:
                         cancel.value = True
                     continue
                 new_session, outcome, error = rest
+                self._ended_if_hung(error)
                 return new_session, outcome, error
         except (EOFError, OSError) as exc:   # it died, or close() (quitting) ended it
             code = self.close() if process is self._process else process.exitcode
@@ -170,33 +252,43 @@ class SolverProcess:
         # os._exit with which the TUI quits, and the resource tracker warns about them after it.
         self._cancel = context.RawValue(ctypes.c_bool, False)
         self._progress = context.RawValue(ctypes.c_long, 0)   # the last iteration the child reported
-        self._process = context.Process(target=serve, args=(theirs, self._cancel, self.quiet, self._progress),
+        # From the fork server (single-threaded) the child may ask to die with its parent; a
+        # spawned one's parent is the thread that started it, which ends with its job.
+        orphan_kill = context.get_start_method() == "forkserver"
+        self._process = context.Process(target=serve, args=(theirs, self._cancel, self.quiet, self._progress,
+                                                            orphan_kill),
                                         name="stw-solver", daemon=True)
         self._process.start()
         theirs.close()
         self._conn = ours
         return self._process, self._conn, self._cancel
 
-    def close(self) -> int | None:
-        """End the child at once (a solve in it is abandoned: quitting must not wait for it);
-        returns its exit code."""
+    def close(self, grace: float = 0.0) -> int | None:
+        """End the child (a solve in it is abandoned: quitting must not wait for it); returns its
+        exit code. ``grace``: seconds the child has, once the pipe is closed, to write the iterate
+        its solve has reached and end (serve), before it is killed."""
         process, conn, self._process, self._conn = self._process, self._conn, None, None
+        if process is not None and conn is not None and grace > 0:
+            conn.close()   # tells the child its parent is gone
+            process.join(timeout=grace)
+        if process is not None and process.is_alive():
+            process.kill()   # before the pipe closes: no grace, no half-written checkpoint either
         if conn is not None:
             conn.close()
         if process is None:
             return None
-        if process.is_alive():
-            process.kill()
         process.join(timeout=1.0)
         return process.exitcode
 
 
-def serve(conn, cancel, quiet: bool = True, progress=None) -> None:
+def serve(conn, cancel, quiet: bool = True, progress=None, orphan_kill: bool = False) -> None:
     """The child: execute each (session, command) it is sent, streaming the reports, until the
     pipe closes. Ctrl+C is its parent's to act on (it ends this process). ``progress``: shared
     memory the child sets to each report's iteration before sending it, which the parent reads
-    when Ctrl+C ends the child."""
+    when Ctrl+C ends the child. ``orphan_kill``: ask to be killed when the parent (the fork
+    server) ends (:func:`die_with_parent`)."""
     signal.signal(signal.SIGINT, signal.SIG_IGN)
+    end_with_parent(orphan_kill)
     if quiet:
         quiet_child()
     parent = os.getppid()
@@ -207,7 +299,7 @@ def serve(conn, cancel, quiet: bool = True, progress=None) -> None:
     while True:
         try:
             payload, text, line = pickle.loads(conn.recv_bytes())
-        except EOFError:
+        except (EOFError, OSError):
             return
         session = pickle.loads(payload)
 
@@ -219,7 +311,10 @@ def serve(conn, cancel, quiet: bool = True, progress=None) -> None:
         def on_report(report) -> bool:
             if progress is not None:
                 progress.value = int(getattr(report, "iteration", progress.value))
-            conn.send_bytes(pickle.dumps(("report", report), protocol=pickle.HIGHEST_PROTOCOL))
+            try:
+                conn.send_bytes(pickle.dumps(("report", report), protocol=pickle.HIGHEST_PROTOCOL))
+            except OSError:   # the pipe is closed: the parent died or quit
+                _orphaned(session)
             return not cancelled()
         on_report.cancelled = cancelled   # polled inside one-call backends (IPOPT)
 
@@ -228,7 +323,38 @@ def serve(conn, cancel, quiet: bool = True, progress=None) -> None:
             outcome = session.execute(text, line=line, on_report=on_report)
         except Exception as exc:  # the caller shows it as it would show one raised in its process
             error = _portable(exc)
-        conn.send_bytes(pickle.dumps(("done", session, outcome, error), protocol=pickle.HIGHEST_PROTOCOL))
+        try:
+            conn.send_bytes(pickle.dumps(("done", session, outcome, error), protocol=pickle.HIGHEST_PROTOCOL))
+        except OSError:   # the parent is gone; the command is journalled here already
+            return
+
+
+def _leave_fork_server() -> None:
+    """Close this child's copy of the fork server's liveness pipe (each child gets one, to start
+    processes of its own through the server, which this one never does). The fork server ends when
+    the last copy closes: with this one open, it outlived a killed stw as long as this process
+    ran, and so did this process, whose end the kernel ties to the server's (die_with_parent)."""
+    from multiprocessing import forkserver
+
+    server = getattr(forkserver, "_forkserver", None)
+    fd = getattr(server, "_forkserver_alive_fd", None)
+    if fd is None:
+        return
+    server._forkserver_alive_fd = None
+    try:
+        os.close(fd)
+    except OSError:
+        pass
+
+
+def _orphaned(session) -> None:
+    """The parent is gone mid-solve: keep the iterate the solve has reached as its running
+    checkpoint, journal nothing (the solve never ended; `stw --resume` goes on from there) and end
+    at once. Journalling the broken pipe as the command's failure lost the solve."""
+    checkpoints = getattr(session, "checkpoints", None)
+    if checkpoints is not None:
+        checkpoints.midsolve.keep_latest()
+    os._exit(0)
 
 
 def _portable(exc: Exception) -> Exception:
@@ -240,4 +366,5 @@ def _portable(exc: Exception) -> Exception:
         return StwError(str(exc))
 
 
-__all__ = ["NotPortable", "SolverProcess", "process_context", "quiet_child", "start_helpers", "runs_in_solver_process"]
+__all__ = ["NotPortable", "SolverProcess", "die_with_parent", "end_with_parent", "pool_worker", "process_context",
+           "quiet_child", "start_helpers", "runs_in_solver_process"]

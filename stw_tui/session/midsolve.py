@@ -11,10 +11,12 @@ leaves the previous checkpoint or the new one, never half of one. It holds numbe
   journalled: ``iterate K adapt=0`` after the lines of the rounds (and `slide` positions) before it;
 - ``command`` and ``iteration``: what was running, to say what was restored.
 
-When the command ends (done, stopped or failed) its line is journalled and the file removed. If the
-process dies first, :func:`stw_tui.session.resume.restore` (called by its ``resume``) finds the file
-with the offset of the journal's end, journals ``text`` and puts the checkpoint's state in place,
-as if the solve had been stopped there. With `--resolve` the lines are solved again instead.
+When the command ends (done, stopped or failed) its line is journalled and the file removed. A
+solver process whose parent is gone (a killed or hung-up TUI) writes the iterate it has reached at
+once (:meth:`MidSolve.keep_latest`) and ends without journalling. If the process dies first,
+:func:`stw_tui.session.resume.restore` (called by its ``resume``) finds the file with the offset of
+the journal's end, journals ``text`` and puts the checkpoint's state in place, as if the solve had
+been stopped there. With `--resolve` the lines are solved again instead.
 """
 
 from __future__ import annotations
@@ -78,6 +80,11 @@ class MidSolve:
         self.every = _every() if every is None else every
         self.clock = clock
         self.written = False   # a checkpoint of the running command is on disk
+        self._unwritten: Callable[[], None] | None = None   # writes the last iterate not yet on disk
+
+    def __getstate__(self) -> dict:
+        # the pending write is a closure over a running solve: it neither pickles nor belongs elsewhere
+        return {**self.__dict__, "_unwritten": None}
 
     def hook(self, scene, problem, warm_of: Callable, trail: Trail) -> Callable:
         """The ``on_state`` of :func:`stw_tui.sos.backend.run_iterations` for one solve of ``problem``
@@ -91,12 +98,21 @@ class MidSolve:
         throttle.mark()   # the first checkpoint is due a period after the start
 
         def on_state(k: int, state) -> None:
-            if not throttle.due():
-                return
-            now = scene.copy()
-            now.with_coefficients(problem.scatter(state.s))
-            self.write(now, warm_of(state), offset, trail, k)
+            def write() -> None:
+                self._unwritten = None
+                now = scene.copy()
+                now.with_coefficients(problem.scatter(state.s))
+                self.write(now, warm_of(state), offset, trail, k)
+            self._unwritten = write   # a closure only: copying the scene each iteration would cost
+            if throttle.due():
+                write()
         return on_state
+
+    def keep_latest(self) -> None:
+        """Write the last iterate the running solve reached, if the periodic checkpoint has not
+        (the solver process's parent is gone: nothing more of this solve will be kept)."""
+        if self._unwritten is not None:
+            self._unwritten()
 
     def write(self, scene, warm, offset: int, trail: Trail, k: int) -> None:
         """Replace the checkpoint atomically. A failure costs only the checkpoint, not the solve."""
@@ -112,6 +128,7 @@ class MidSolve:
     def ended(self, force: bool = False) -> None:
         """The command is journalled: its running checkpoint is no longer needed (``force``: remove
         it even if this process did not write it)."""
+        self._unwritten = None
         if self.written or force:
             self.written = False
             try:

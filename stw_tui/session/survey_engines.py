@@ -32,7 +32,7 @@ from concurrent.futures import FIRST_COMPLETED, ProcessPoolExecutor, wait
 from concurrent.futures.process import BrokenProcessPool
 from typing import Callable
 
-from stw_tui.session.child_process import process_context, quiet_child
+from stw_tui.session.child_process import pool_worker, process_context, quiet_child
 from stw_tui.session.survey import (StartResult, StartTask, SurveyPlan, SurveyTable, plan_tasks, replay_base,
                                    solve_start)
 from stw_tui.sym.errors import StwError
@@ -91,7 +91,9 @@ class PoolEngine:
         attempts = dict.fromkeys(pending, 0)
         context = process_context()
         while pending and not cancelled():
-            pool = ProcessPoolExecutor(self.workers, mp_context=context, initializer=quiet_child)
+            # (a worker from the fork server ends with stw, even one held in C: child_process.end_with_parent)
+            pool = ProcessPoolExecutor(self.workers, mp_context=context, initializer=pool_worker,
+                                       initargs=(context.get_start_method() == "forkserver",))
             broken = self._drain(pool, pending, on_result, cancelled)
             pool.shutdown(wait=not cancelled(), cancel_futures=True)
             if not broken:
