@@ -49,7 +49,8 @@ class TorchBackend(SQPBackend):
         from .batch import TorchBatch
 
         config = cls(**dict(options or {})).config   # the options, validated and parsed (once)
-        return TorchBatch(size, _device(config["device"]), config)
+        device = _device(config["device"])
+        return TorchBatch(size, device, config, _linear(config["linear"], device), BatchMember)
 
     def algebra(self, problem):
         import torch
@@ -79,6 +80,24 @@ class TorchBackend(SQPBackend):
         inner = super().init(problem, state, settings)
         check_finite(inner.ev, problem)
         return inner
+
+
+class BatchMember(TorchBackend):
+    """The torch backend of one start of a batch (batch.TorchBatch): its evaluations and, with
+    the batch's ``linear=torch``, its KKT solves are computed in the batch's rounds."""
+
+    def __init__(self, batch, job: int, **options):
+        super().__init__(**options)
+        self.batch, self.job = batch, job
+
+    def algebra(self, problem):
+        self.device, self.linear = self.batch.device, self.batch.linear
+        if self.linear == "scipy":
+            return ScipyBackend.algebra(self, problem)
+        return self.batch.algebra(self.job)
+
+    def evaluator(self, problem, algebra):
+        return self.batch.evaluator(self.job, problem)
 
 
 def _linear(want: str, device) -> str:

@@ -15,11 +15,9 @@ Hessian of the Lagrangian. Per evaluation:
   list of contributions per nonzero: vectorized, and deterministic on every device (no atomics);
   on the CPU the same sums are one sparse product, which skips the padding (Pattern).
 
-A Python loop runs over terms (calls) only, never over instances or control points. On the CPU
-everything around the programs (gathers, scatters, the products on the patterns) runs in numpy on
-views of the same memory: a torch op there cost several microseconds whatever its size, and that
-glue cost more than the programs on the small sessions (particle_jet: torch/scipy per iteration
-1.39-1.42x before, 1.20-1.24x after; the same numbers, bit for bit).
+A Python loop runs over terms (calls) only, never over instances or control points. Every
+evaluation is one of a batch of starts of one structure (a solve of its own is a batch of one:
+:func:`evaluations_of`), their slot values a (B, slots) matrix; the same code on every device.
 """
 
 from __future__ import annotations
@@ -32,7 +30,7 @@ import scipy.sparse as sps
 import torch
 
 from stw_tui.sos.compressed import csr
-from stw_tui.sos.window import EQ, GE, OBJ, MeritValues, evaluate_condition_tree, numpy_filled
+from stw_tui.sos.window import EQ, GE, OBJ, MeritValues, evaluate_condition_tree
 from stw_tui.sym.errors import StwError
 
 from .calls import CallPlan
@@ -242,13 +240,14 @@ class Pattern:
         return int(self.operator.host.nnz) if self.operator is not None else int(self.coef_pad.numel())
 
     def values(self, source: torch.Tensor) -> torch.Tensor:
-        """The matrix's stored values (CSR order) for one vector of source values."""
+        """The matrix's stored values (CSR order) for a vector of source values, or (B, nnz) for
+        each row of a (B, n_src) matrix of them."""
         if self.operator is not None:
-            return self.operator @ source
-        ext = torch.cat([source, source.new_zeros(1)])
-        return (self.coef_pad * ext[self.src_pad]).sum(1)
+            return self.operator @ source if source.dim() == 1 else self.operator.rows(source)
+        ext = torch.cat([source, source.new_zeros(*source.shape[:-1], 1)], -1)
+        return (self.coef_pad * ext[..., self.src_pad]).sum(-1)
 
-    def values_past(self, tail, start: int):
+    def values_past(self, tail: torch.Tensor, start: int) -> torch.Tensor:
         """:meth:`values` of a source that is zero before entry ``start`` and ``tail`` from
         there. On the CPU the product leaves out the operator's columns before ``start``: each
         left-out term was coefficient x 0, so every sum adds the same terms in the same order
@@ -258,17 +257,14 @@ class Pattern:
         save (30 ms), which a first `iterate 1` would pay for one product."""
         self._asked[start] = asked = self._asked.get(start, 0) + 1
         if self.operator is None or (start not in self._tails and asked < TAIL_AFTER):
-            zeros = np.zeros(start) if isinstance(tail, np.ndarray) else tail.new_zeros(start)
-            cat = np.concatenate if isinstance(tail, np.ndarray) else torch.cat
-            return self.values(cat([zeros, tail]))
+            return self.values(torch.cat([tail.new_zeros(start), tail]))
         if start not in self._tails:
             self._tails[start] = SparseMatrix(self.operator.host[:, start:], torch.device("cpu"), copy=False)
         return self._tails[start] @ tail
 
     def scipy(self, values: torch.Tensor) -> sps.csr_array:
         """The matrix with these values as a scipy CSR array (for the scipy linear algebra)."""
-        values = values if isinstance(values, np.ndarray) else values.detach().cpu().numpy()
-        return csr(values, self.col_np, self.crow_np, self.shape)
+        return csr(values.detach().cpu().numpy(), self.col_np, self.crow_np, self.shape)
 
     def dense(self, values: torch.Tensor) -> torch.Tensor:
         """The matrix with these values as a dense tensor on the values' device."""
@@ -294,7 +290,7 @@ class _Group:
     pairs: tuple
     times: torch.Tensor
     weights: torch.Tensor
-    params: list
+    params: torch.Tensor   # (P,)
     condition: object = None
     leaves: list = field(default_factory=list)   # (relation node, LoweredTerm, slot offset, params)
 
@@ -385,14 +381,13 @@ class TorchProblem:
         self.groups: list[_Group] = []
         inst = 0
         for g in problem.groups:
-            params = [torch.as_tensor(float(p), **dev) for p in g.params]
+            params = torch.tensor([float(p) for p in g.params], **dev)
             lowered = _Group(g.label, g.kind, lower(g.term), g.n, g.slot_offset, g.row_offset, inst,
                              tuple(g.term.hessian_pairs), torch.as_tensor(g.times, **dev),
                              torch.as_tensor(g.weights, **dev), params, g.condition)
             if g.condition is not None:
                 lowered.leaves = [(node, lower(term), offset,
-                                   [torch.as_tensor(float(c), **dev)
-                                    for c in problem.term_parameters(term)])
+                                   torch.tensor([float(c) for c in problem.term_parameters(term)], **dev))
                                   for node, term, offset in g.condition.leaves]
             self.groups.append(lowered)
             inst += g.n
@@ -407,13 +402,9 @@ class TorchProblem:
         self._last: TorchEvaluation | None = None   # the latest evaluation (its Hessian used?)
         self._expect: bool | None = None   # whether the next evaluation's Hessian will be used
         self._build_patterns(Pf)
-        # On the CPU the glue around the programs runs in numpy (calls.py: CallPlan.local_host),
-        # on views of the same tensors.
-        self.host = device.type == "cpu"
-        self.host_arrays = {name: getattr(self, name).numpy() for name in _HOST_ARRAYS} if self.host else {}
 
     def with_problem(self, problem) -> "TorchProblem":
-        """This lowering for ``problem``, a window problem of the same structure (batch_evaluate's
+        """This lowering for ``problem``, a window problem of the same structure (lowerings'
         ``problem_key``) whose control points may differ: only the fixed ones' slot values change."""
         other = copy.copy(self)
         other.problem = problem
@@ -422,8 +413,6 @@ class TorchProblem:
         fixed = problem.coef0.copy()
         fixed[problem.free] = 0.0
         other.v_fixed = torch.as_tensor(sps.csr_array(problem.P) @ fixed, **self._dev)
-        if other.host:
-            other.host_arrays = {**self.host_arrays, "v_fixed": other.v_fixed.numpy()}
         return other
 
     def entries(self) -> int:
@@ -514,68 +503,32 @@ class TorchProblem:
         self.conditional = any(g.condition is not None for g in self.groups)
 
     # --- evaluation --------------------------------------------------------------------------
-    def slot_values(self, s: torch.Tensor) -> torch.Tensor:
-        """Every term input slot's value: the fixed part plus the free control points' share."""
-        return self.v_fixed + self.Pf @ s
-
-    def _block(self, v: torch.Tensor, g: _Group, k: int, offset: int) -> torch.Tensor:
-        return v[offset:offset + k * g.n].view(k, g.n)
-
-    def _conditions(self, ones, filled, leaf_value) -> dict:
-        """Each row's ``when`` mask: every group's condition tree over its leaves' values
-        (``leaf_value(group, term, slot offset, params)``), in torch or numpy as the three
-        functions make them; ``ones(rows)`` may add a leading axis of batched starts."""
-        masks = {kind: ones(self.row_counts[kind]) for kind in (EQ, GE)}
+    def _conditions(self, V: torch.Tensor) -> dict[str, torch.Tensor]:
+        """Each start's ``when`` masks at slot values V (B, slots): (B, rows) per kind, every
+        group's condition tree over its leaves' values, the starts' instances side by side."""
+        B = V.shape[0]
+        masks = {kind: torch.ones(B, self.row_counts[kind], dtype=torch.bool, device=self.device)
+                 for kind in (EQ, GE)}
         for g in self.groups:
             if g.condition is None:
                 continue
-            leaf = {node: leaf_value(g, term, offset, params) for node, term, offset, params in g.leaves}
-            rows = masks[g.kind][..., g.row:g.row + g.n]     # (n,), or (starts, n) for a batch
-            rows[...] = evaluate_condition_tree(g.condition.tree, leaf, filled(g.n)).reshape(rows.shape)
+            leaf = {node: term(_tile(V, offset, term.k, g.n), _repeat(g.times, B), params)
+                    for node, term, offset, params in g.leaves}
+            filled = lambda flag, n=g.n: torch.full((B * n,), flag, dtype=torch.bool, device=self.device)  # noqa: E731
+            masks[g.kind][:, g.row:g.row + g.n] = evaluate_condition_tree(g.condition.tree, leaf, filled).view(B, g.n)
         return masks
 
     def _rows(self, f: np.ndarray) -> tuple[float, dict]:
         """The objective and the weighted constraint rows from every instance's value, on the
         host: what the SQP reads is numpy anyway, and a numpy op on a few hundred numbers costs
-        a fifth of a torch op (cat_mouse's merit values: 0.48 ms against the core's 0.18)."""
+        a fifth of a torch op."""
         r = f[self.host_rows[OBJ]]
         objective = float(np.dot(self.host_weights[OBJ], r * r))
         return objective, {kind: self.host_weights[kind] * f[self.host_rows[kind]] for kind in (EQ, GE)}
 
-    def _masks(self, v) -> dict[str, np.ndarray]:
-        """The ``when`` masks at slot values ``v``: by the host programs for a numpy array on the
-        CPU, by the torch terms for a tensor."""
-        if not self.conditional:   # every row live at every s: the window problem's read-only pair
-            return self.problem.always_live
-        if self.host and isinstance(v, np.ndarray):     # the leaves' host programs on the CPU
-            def host_leaf(g, term, offset, params):
-                block = v[offset:offset + term.k * g.n].reshape(term.k, g.n)
-                return term.host_rows("value", block, g.times.numpy(), [p.numpy() for p in params])[0]
-            return self._conditions(lambda n: np.ones(n, bool), numpy_filled, host_leaf)
-        v = torch.from_numpy(v) if isinstance(v, np.ndarray) else v
-
-        def torch_leaf(g, term, offset, params):
-            return term(self._block(v, g, term.k, offset), g.times, params)
-
-        def torch_filled(n):
-            return lambda flag: torch.full((n,), flag, dtype=torch.bool, device=self.device)
-        with torch.no_grad():
-            masks = self._conditions(lambda n: torch.ones(n, dtype=torch.bool, device=self.device),
-                                     torch_filled, torch_leaf)
-        return {kind: m.cpu().numpy() for kind, m in masks.items()}
-
     def merit_values(self, s: np.ndarray) -> MeritValues:
         """Objective and weighted constraint values only (no derivatives), for the line search."""
-        if self.host:
-            v = self.host_arrays["v_fixed"] + self.Pf @ np.asarray(s, float)
-            objective, c = self._rows(self.plan.values_host(v))
-            masks = self._masks(v)
-            return MeritValues(objective, c[EQ], c[GE], masks[EQ], masks[GE])
-        with torch.no_grad():
-            v = self.slot_values(torch.as_tensor(s, **self._dev))
-            objective, c = self._rows(self.plan.values(v).cpu().numpy())
-            masks = self._masks(v)
-        return MeritValues(objective, c[EQ], c[GE], masks[EQ], masks[GE])
+        return merit_values_of([self], [s])[0]
 
     def expect_hessian(self, used: bool) -> None:
         """Say whether the next evaluation's Lagrangian Hessian will be used (the SQP knows, from
@@ -591,62 +544,19 @@ class TorchProblem:
         return self._last is None or self._last.hessian_used
 
     def evaluate(self, s: np.ndarray) -> TorchEvaluation:
-        """Values, gradients and local second derivatives (lowered programs) at ``s``."""
-        if self.host:
-            return self._evaluate_host(s)
-        t_s = torch.as_tensor(np.asarray(s, float), **self._dev)
-        with torch.no_grad():
-            v = self.slot_values(t_s)
-            # Second derivatives only where they will be used (the SQP's exact Hessian; far from
-            # feasibility it takes Gauss-Newton steps, which need none, and a program of values
-            # and gradients costs half of one with the Hessian too); when asked for anyway,
-            # hessian_values computes them then.
-            second = self._second()
-            f_all, g_slot, h_flat = self.plan.local(v, second=second)
-            objective, c = self._rows(f_all.cpu().numpy())
-            # ∇R = Pfᵀ u with u[slot] = 2 w f ∂f/∂slot on objective slots
-            w_f = self.w_inst * f_all
-            u = g_slot * torch.cat([torch.where(self.is_obj, 2.0 * w_f, 0.0), v.new_zeros(1)])[self.slot_owner]
-            gradient = self.PfT @ u
-            gw = g_slot * self.w_slot
-            J = {kind: self.jac[kind].values(gw) for kind in (EQ, GE)}
-            masks = self._masks(v)
-        ev = TorchEvaluation(
-            tp=self, s=np.asarray(s, float).copy(), objective=objective,
-            gradient=gradient.cpu().numpy(), c_eq=c[EQ], c_ge=c[GE],
-            active_eq=masks[EQ], active_ge=masks[GE], t_J=J,
-            t_local={"f": f_all, "g": g_slot, "h": h_flat, "v": v})
-        self._last = ev
-        return ev
+        """Values, gradients and local second derivatives (lowered programs) at ``s``. Second
+        derivatives only where they will be used (the SQP's exact Hessian; far from feasibility
+        it takes Gauss-Newton steps, which need none, and a program of values and gradients
+        costs half of one with the Hessian too); when asked for anyway, hessian_values
+        computes them then."""
+        return evaluations_of([self], [s], second=self._second())[0]
 
-    def _evaluate_host(self, s: np.ndarray) -> TorchEvaluation:
-        """:meth:`evaluate` on the CPU, its glue in numpy: the same operations, the same numbers."""
-        a = self.host_arrays
-        s = np.asarray(s, float)
-        v = a["v_fixed"] + self.Pf @ s
-        f_all, g_slot, h_flat = self.plan.local_host(v, second=self._second())
-        objective, c = self._rows(f_all)
-        w_f = a["w_inst"] * f_all
-        u = g_slot * np.concatenate([np.where(a["is_obj"], 2.0 * w_f, 0.0), np.zeros(1)])[a["slot_owner"]]
-        gw = g_slot * a["w_slot"]
-        masks = self._masks(v)
-        ev = TorchEvaluation(
-            tp=self, s=s.copy(), objective=objective, gradient=self.PfT @ u, c_eq=c[EQ], c_ge=c[GE],
-            active_eq=masks[EQ], active_ge=masks[GE],
-            t_J={kind: self._jacobian_values(kind, gw) for kind in (EQ, GE)},
-            t_local={"f": f_all, "g": g_slot, "h": h_flat, "v": v})
-        self._last = ev
-        return ev
-
-    def _jacobian_values(self, kind: str, gw: np.ndarray) -> np.ndarray:
-        """The ``kind`` Jacobian's values from the slots' weighted gradients ``gw`` (CPU); a
-        constant kind's are the solve's first, kept read-only."""
+    def _jacobian_values(self, kind: str, values: torch.Tensor) -> torch.Tensor:
+        """The ``kind`` Jacobian's values: a constant kind's are the solve's first, kept."""
         kept = self._kept_J.get(kind)
         if kept is not None:
             return kept[0]
-        values = self.jac[kind].values(gw)
-        if kind in self.constant_kinds and self.host_linear:   # (torch's algebra wants tensors of them)
-            values.flags.writeable = False
+        if kind in self.constant_kinds:
             self._kept_J[kind] = (values, self.jac[kind].scipy(values))
         return values
 
@@ -656,31 +566,13 @@ class TorchProblem:
         kept = self._kept_J.get(kind)
         return kept[1] if kept is not None and kept[0] is values else self.jac[kind].scipy(values)
 
-    def _hessian_values_host(self, ev: TorchEvaluation, lam_eq, lam_ge) -> np.ndarray:
-        """:meth:`hessian_values` on the CPU, in numpy (the same operations in the same order)."""
-        a, t = self.host_arrays, ev.t_local
-        f, g, h = t["f"], t["g"], t["h"]
-        if h is None and lam_eq is not None:
-            h = t["h"] = self.plan.local_host(t["v"])[2]
-        if "gn" not in t:
-            t["gn"] = a["gn_w2"] * g[a["gn_p"]] * g[a["gn_q"]]
-        if lam_eq is None:
-            return self.hess.values_past(t["gn"], a["h_src"].shape[0])
-        lam = np.concatenate([np.asarray(lam_eq, float), np.asarray(lam_ge, float), np.zeros(1)])
-        scale = a["w_inst"] * np.where(a["is_obj"], 2.0 * f, lam[a["lam_index"]])
-        second = h[a["h_src"]] * scale[a["h_scale"]]
-        return self.hess.values(np.concatenate([second, t["gn"]]))
-
     def hessian_values(self, ev: TorchEvaluation, lam_eq: np.ndarray, lam_ge: np.ndarray) -> torch.Tensor:
         """Values of ∇²R + Σλ∇²C on the fixed pattern ``self.hess``; without multipliers (None),
-        of the Gauss-Newton part 2 Jₒᵀ W Jₒ alone (numpy where the evaluation's are: evaluate's
-        on the CPU; a batch's evaluations hold tensors)."""
-        if isinstance(ev.t_local["g"], np.ndarray):
-            return self._hessian_values_host(ev, lam_eq, lam_ge)
+        of the Gauss-Newton part 2 Jₒᵀ W Jₒ alone."""
         f, g, h = ev.t_local["f"], ev.t_local["g"], ev.t_local["h"]
         if h is None and lam_eq is not None:
             with torch.no_grad():
-                h = ev.t_local["h"] = self.plan.local(ev.t_local["v"])[2]
+                h = ev.t_local["h"] = self.plan.local(ev.t_local["v"][None])[2][0]
         if "gn" not in ev.t_local:     # the Gauss-Newton products: the same for every multiplier
             ev.t_local["gn"] = self.gn_w2 * g[self.gn_p] * g[self.gn_q]
         gn = ev.t_local["gn"]
@@ -693,20 +585,79 @@ class TorchProblem:
         return self.hess.values(torch.cat([second, gn]))
 
 
-# TorchProblem's tensors the CPU glue reads as numpy views (TorchProblem.host_arrays)
-_HOST_ARRAYS = ("v_fixed", "w_inst", "is_obj", "slot_owner", "w_slot", "gn_w2", "gn_p", "gn_q",
-                "h_src", "h_scale", "lam_index")
+def _tile(V: torch.Tensor, offset: int, k: int, n: int) -> torch.Tensor:
+    """A block of k rows of n slots from ``offset`` of every start, side by side: (k, B·n)."""
+    B = V.shape[0]
+    return V[:, offset:offset + k * n].reshape(B, k, n).transpose(0, 1).reshape(k, B * n)
+
+
+def _repeat(times: torch.Tensor, B: int) -> torch.Tensor:
+    return times if B == 1 else times.repeat(B)
+
+
+def _slot_values(members: list[TorchProblem], points: list[np.ndarray]) -> torch.Tensor:
+    """(B, slots): each start's fixed slot values plus its free control points' share."""
+    tp = members[0]
+    S = torch.as_tensor(np.stack([np.asarray(p, float) for p in points]), **tp._dev)
+    fixed = tp.v_fixed[None] if len(members) == 1 else torch.stack([m.v_fixed for m in members])
+    return fixed + tp.Pf.rows(S)
+
+
+def merit_values_of(members: list[TorchProblem], points: list[np.ndarray]) -> list[MeritValues]:
+    """:meth:`TorchProblem.merit_values` of every (problem, point), the problems of one structure
+    (copies of one lowering, ``with_problem``): one call of each term's program for all."""
+    tp = members[0]
+    with torch.no_grad():
+        V = _slot_values(members, points)
+        f = tp.plan.values(V).cpu().numpy()
+        masks = {kind: m.cpu().numpy() for kind, m in tp._conditions(V).items()} if tp.conditional else None
+    out = []
+    for b in range(len(members)):
+        objective, c = tp._rows(f[b])
+        live = tp.problem.always_live if masks is None else {kind: masks[kind][b] for kind in (EQ, GE)}
+        out.append(MeritValues(objective, c[EQ], c[GE], live[EQ], live[GE]))
+    return out
+
+
+def evaluations_of(members: list[TorchProblem], points: list[np.ndarray], second: bool = True
+                   ) -> list[TorchEvaluation]:
+    """:meth:`TorchProblem.evaluate` of every (problem, point), the problems of one structure:
+    one call of each term's program for all, the starts' instances side by side (each still
+    depends on its own slots only); ``second``: with second derivatives."""
+    tp = members[0]
+    B = len(members)
+    with torch.no_grad():
+        V = _slot_values(members, points)
+        f_all, g_slot, h_flat = tp.plan.local(V, second=second)
+        # ∇R = Pfᵀ u with u[slot] = 2 w f ∂f/∂slot on objective slots
+        scale = torch.cat([torch.where(tp.is_obj, 2.0 * tp.w_inst * f_all, 0.0), V.new_zeros(B, 1)], 1)
+        gradient = tp.PfT.rows(g_slot * scale[:, tp.slot_owner]).cpu().numpy()
+        gw = g_slot * tp.w_slot
+        J = {kind: tp.jac[kind].values(gw) for kind in (EQ, GE)
+             if any(kind not in m._kept_J for m in members)}
+        masks = {kind: m.cpu().numpy() for kind, m in tp._conditions(V).items()} if tp.conditional else None
+    f_host = f_all.cpu().numpy()
+    out = []
+    for b, member in enumerate(members):
+        objective, c = tp._rows(f_host[b])
+        live = tp.problem.always_live if masks is None else {kind: masks[kind][b] for kind in (EQ, GE)}
+        ev = TorchEvaluation(
+            tp=member, s=np.asarray(points[b], float).copy(), objective=objective, gradient=gradient[b],
+            c_eq=c[EQ], c_ge=c[GE], active_eq=live[EQ], active_ge=live[GE],
+            t_J={kind: member._jacobian_values(kind, J[kind][b] if kind in J else None) for kind in (EQ, GE)},
+            t_local={"f": f_all[b], "g": g_slot[b], "h": None if h_flat is None else h_flat[b], "v": V[b]})
+        member._last = ev
+        out.append(ev)
+    return out
 
 
 def check_finite(ev: TorchEvaluation, problem) -> None:
     """Raise with the name of the first term group whose values are not finite."""
     if np.isfinite(ev.objective) and np.all(np.isfinite(ev.gradient)) \
             and np.all(np.isfinite(ev.c_eq)) and np.all(np.isfinite(ev.c_ge)) \
-            and all(bool(np.isfinite(values).all()) if isinstance(values, np.ndarray)
-                    else bool(torch.isfinite(values).all()) for values in ev.t_J.values()):
+            and all(bool(torch.isfinite(values).all()) for values in ev.t_J.values()):
         return
-    f = ev.t_local["f"]
-    f = f if isinstance(f, np.ndarray) else f.cpu().numpy()
+    f = ev.t_local["f"].cpu().numpy()
     for g in ev.tp.groups:
         if not np.all(np.isfinite(f[g.inst:g.inst + g.n])):
             raise StwError(f"'{g.label}' is not finite at the starting point (e.g. sqrt or log of a "
