@@ -630,7 +630,7 @@ def evaluations_of(members: list[TorchProblem], points: list[np.ndarray], second
         V = _slot_values(members, points)
         f_all, g_slot, h_flat = tp.plan.local(V, second=second)
         # ∇R = Pfᵀ u with u[slot] = 2 w f ∂f/∂slot on objective slots
-        scale = torch.cat([torch.where(tp.is_obj, 2.0 * tp.w_inst * f_all, 0.0), V.new_zeros(B, 1)], 1)
+        scale = torch.cat([torch.where(tp.is_obj, 2.0 * (tp.w_inst * f_all), 0.0), V.new_zeros(B, 1)], 1)
         gradient = tp.PfT.rows(g_slot * scale[:, tp.slot_owner]).cpu().numpy()
         gw = g_slot * tp.w_slot
         J = {kind: tp.jac[kind].values(gw) for kind in (EQ, GE)

@@ -47,6 +47,10 @@ _RELATIONS = {"StrictLessThan": "lt", "LessThan": "le", "Equality": "eq", "Unequ
               "StrictGreaterThan": "gt", "GreaterThan": "ge"}
 _FLIPPED = {"lt": "gt", "le": "ge", "eq": "eq", "ne": "ne", "gt": "lt", "ge": "le"}
 _BOOLEAN = {*_RELATIONS.values(), "logical_and", "logical_or", "logical_not"}
+# What gives each number the same bits on a (rows, n) block as on an (n,) row: correctly rounded
+# or exact. torch's other functions (sin, exp, general powers, ...) run vectorized in chunks and
+# element by element at a row's end, which may differ in the last bit: one row each.
+_EXACT = {"add", "sub", "mul", "div", "neg", "reciprocal", "sqrt", "abs", "floor", "ceil", "where", *_BOOLEAN}
 
 
 class _Graph:
@@ -61,6 +65,8 @@ class _Graph:
         self.inputs = len(names)
 
     def add(self, op: str, *operands, attr=None):
+        if op == "div" and not isinstance(operands[0], int):   # a number over a tensor: as
+            return self.add("mul", self.add("reciprocal", operands[1]), operands[0])   # TorchScript
         key = (op, attr, operands)
         found = self.operations.get(key)
         if found is None:
@@ -87,22 +93,14 @@ class _Graph:
         if name == "Add":              # a - b rather than a + (-1)*b: one op, not two
             out = None
             for term in args:
-                negative, magnitude = _signed(term)
-                x = self.of(magnitude)
+                negative, x = self._signed(term)
                 if out is None:
                     out = x if not negative else -x if isinstance(x, float) else self.add("neg", x)
                 else:
                     out = self.add("sub" if negative else "add", out, x)
             return out
-        if name == "Mul":              # negative integer powers as divisors: a/b, not a*b**-1
-            above = [f for f in args if not _divisor(f)]
-            out = self.of(above[0]) if above else 1.0
-            for f in above[1:]:
-                out = self.add("mul", out, self.of(f))
-            for f in args:
-                if _divisor(f):
-                    out = self.add("div", out, self.of(f.args[0] ** -int(f.args[1])))
-            return out
+        if name == "Mul":
+            return self._product(args)
         if name == "Pow":
             base, exponent = args
             if not base.free_symbols and float(base) == math.e:
@@ -128,20 +126,44 @@ class _Graph:
         op = _RELATIONS.get(name) or {"Not": "logical_not", "atan2": "atan2"}.get(name) or _FUNCTIONS[name]
         return self.add(op, *map(self.of, args))
 
+    def _product(self, factors):
+        """A product left to right, its factors of negative integer powers as divisors after it
+        (a/b: one op, not two)."""
+        above = [f for f in factors if not _divisor(f)]
+        out = self.of(above[0]) if above else 1.0
+        for f in above[1:]:
+            out = self.add("mul", out, self.of(f))
+        for f in factors:
+            if _divisor(f):
+                out = self.add("div", out, self.of(f.args[0] ** -int(f.args[1])))
+        return out
+
+    def _signed(self, term) -> tuple[bool, object]:
+        """(whether negative, the operand of the term without its sign) of one term of a sum."""
+        if not term.free_symbols:
+            value = float(term)
+            return value < 0, abs(value)
+        if type(term).__name__ == "Mul" and not term.args[0].free_symbols and float(term.args[0]) < 0:
+            coefficient, rest = -float(term.args[0]), term.args[1:]
+            return True, self._product(rest if coefficient == 1.0 else (se.RealDouble(coefficient), *rest))
+        return False, self.of(term)
+
 
 def _divisor(f) -> bool:
     return type(f).__name__ == "Pow" and f.args[1].is_Integer and int(f.args[1]) < 0
 
 
-def _signed(term) -> tuple[bool, object]:
-    """(whether negative, the term without its sign) of one term of a sum."""
-    if not term.free_symbols:
-        value = float(term)
-        return value < 0, se.RealDouble(abs(value))
-    if type(term).__name__ == "Mul" and not term.args[0].free_symbols and float(term.args[0]) < 0:
-        coefficient, rest = -float(term.args[0]), term.args[1:]
-        return True, se.Mul(*rest) if coefficient == 1.0 else se.Mul(se.RealDouble(coefficient), *rest)
-    return False, term
+def _numbers_inlined(replacements, reduced):
+    """cse's output without its subexpressions that are numbers (tanh(1/3) shared by two
+    terms): each goes back where it was used, and becomes the float it computes there."""
+    numbers, kept = {}, []
+    for name, sub in replacements:
+        sub = sub.xreplace(numbers) if numbers else sub
+        if sub.free_symbols:
+            kept.append((name, sub))
+        else:
+            numbers[name] = sub
+    return kept, [e.xreplace(numbers) for e in reduced] if numbers else reduced
 
 
 _OPERATORS = {"add": "+", "sub": "-", "mul": "*", "div": "/"}
@@ -164,14 +186,13 @@ class _Source:
         self.arrays.append(np.asarray(values, dtype=dtype))
         return f"A[{len(self.arrays) - 1}]"
 
-    def number(self, values: list[float], op: str, rows: int, first: bool = False) -> str:
-        """Numbers as an operand: a float, or a (rows, 1) column where they differ or torch
-        takes tensors only (where, atan2 and pow of a number; ``first``: the first operand of
-        an op of a levelled program, which has no form with a number there)."""
-        if len(set(values)) == 1 and op not in ("where", "atan2", "pow") and not (first and rows):
+    def number(self, values: list[float], op: str, first: bool = False, column: bool = False) -> str:
+        """Numbers as an operand: a float, or a (1, 1) or (rows, 1) tensor where they differ
+        or torch takes tensors only (where, atan2; ``first``: the first operand of an op with
+        ``out=``, which has no form with a number there, but for pow)."""
+        if len(set(values)) == 1 and op not in ("where", "atan2") and (not first or op == "pow"):
             return repr(float(values[0]))
-        return self.array(np.asarray(values if len(set(values)) > 1 else values[:1]).reshape(-1, 1)
-                          if rows else [values[0]])
+        return self.array(np.reshape(values if len(set(values)) > 1 else values[:1], (-1, 1) if column else (-1,)))
 
 
 def _straight(graph: _Graph, roots: list, k: int, params: int) -> tuple[_Source, int]:
@@ -181,7 +202,10 @@ def _straight(graph: _Graph, roots: list, k: int, params: int) -> tuple[_Source,
     name[k] = "t"
     for i in range(graph.inputs, len(graph.nodes)):
         op, attr, operands, _ = graph.nodes[i]
-        args = [name[o] if isinstance(o, int) else src.number([o], op, 0) for o in operands]
+        # a number beside atan2's tensor is filled like it, as the programs before these did
+        args = [name[o] if isinstance(o, int) else src.number([o], op) if op != "atan2" else
+                f"torch.full_like({name[next(a for a in operands if isinstance(a, int))]}, {o!r})"
+                for o in operands]
         src.lines.append(f"    x{i} = {_render(op, attr, args)}")
     out = [name[o] if isinstance(o, int) else f"torch.full_like(t, {o!r})" for o in roots]
     src.lines.insert(0, f"    {''.join(f'x{i}, ' for i in range(k))}= X.unbind(0)")
@@ -211,14 +235,15 @@ def _levelled(graph: _Graph, roots: list, k: int, params: int, differentiable: b
     for i in range(graph.inputs, len(nodes)):
         op, attr, operands, depth = nodes[i]
         kinds = tuple(boolean[o] if isinstance(o, int) else None for o in operands)
-        levels.setdefault((depth, op, repr(attr), kinds), []).append(i)
-    for (_, op, _, kinds), members in sorted(levels.items(), key=lambda item: item[0][0]):
+        exact = op in _EXACT or (op == "pow" and attr in (2, 3))   # else one op per row (see _EXACT)
+        levels.setdefault((depth, op, repr(attr), kinds, None if exact else i), []).append(i)
+    for (_, op, _, kinds, _), members in sorted(levels.items(), key=lambda item: item[0][0]):
         members.sort(key=lambda i: [row[o] if isinstance(o, int) else -1 for o in nodes[i][2]])
         args = []
         for j, kind in enumerate(kinds):
             column = [nodes[i][2][j] for i in members]
             if kind is None:
-                args.append(src.number(column, op, len(members), first=j == 0))
+                args.append(src.number(column, op, first=j == 0, column=True))
                 ops += 1
                 continue
             matrix, rows = "Q" if kind else "R", [row[o] for o in column]
@@ -266,7 +291,10 @@ def _compile(names: list[str], k: int, outputs: list, differentiable: bool = Fal
     (k variables, time, parameters) and its arrays A: X (k, n), t (n,), p (P,) give the
     (len(outputs), n) rows. The cheaper of its two forms (straight-line or levelled)."""
     graph = _Graph(names)
-    roots = [graph.of(e) for e in outputs]
+    replacements, reduced = _numbers_inlined(*se.cse(outputs))
+    for symbol, sub in replacements:     # common subexpressions as symengine shares them: the
+        graph.index[symbol] = graph.of(sub)   # same association, so the same numbers, as before
+    roots = [graph.of(e) for e in reduced]
     params = len(names) - k - 1
     src, _ = min(_straight(graph, roots, k, params), _levelled(graph, roots, k, params, differentiable),
                  key=lambda pair: pair[1])
@@ -283,17 +311,20 @@ class Program:
     arrays: list
     on: dict = field(default_factory=dict)   # device -> the arrays there
 
+    def arrays_on(self, device: torch.device) -> list[torch.Tensor]:
+        """Its arrays as tensors on ``device`` (made once)."""
+        if device not in self.on:
+            self.on[device] = [torch.as_tensor(a, device=device) for a in self.arrays]
+        return self.on[device]
+
     def __call__(self, X: torch.Tensor, times: torch.Tensor, params: torch.Tensor) -> torch.Tensor:
         """The (rows, n) outputs. Run inside :func:`unoptimized` (once for many calls)."""
-        arrays = self.on.get(X.device)
-        if arrays is None:
-            arrays = self.on[X.device] = [torch.as_tensor(a, device=X.device) for a in self.arrays]
-        return self.fn(X, times, params, arrays)
+        return self.fn(X, times, params, self.arrays_on(X.device))
 
 
 # The version of the programs in the disk cache: raise it when what a program computes, or how
 # it is written, changes (a cached program is then written afresh).
-PRINTING = 4
+PRINTING = 5
 
 
 @dataclass(eq=False)
