@@ -374,21 +374,10 @@ def test_a_solve_with_autograd_derivatives_reaches_scipys_motion(registered):
     assert np.abs(got.scene.coefficient_vector() - ref.scene.coefficient_vector()).max() <= 1e-6
 
 
-def test_runs_of_a_sorted_array_are_what_np_unique_gives():
-    from stw_torch.evaluate import _runs
-
-    rng = np.random.default_rng(5)
-    for ordered in (np.sort(rng.integers(0, 50, 1000)), np.arange(7), np.zeros(5, np.int64),
-                    np.array([3], np.int64), np.zeros(0, np.int64)):
-        got = _runs(ordered)
-        want = np.unique(ordered, return_index=True, return_counts=True)
-        assert all(np.array_equal(a, b) for a, b in zip(got, want))
-
-
 def test_pattern_operators_are_the_arrays_scipy_builds_from_pairs():
     import scipy.sparse as sps
 
-    from stw_torch.evaluate import _operator, _runs
+    from stw_torch.evaluate import _operator
 
     rng = np.random.default_rng(3)
     for duplicates in (False, True):
@@ -397,7 +386,7 @@ def test_pattern_operators_are_the_arrays_scipy_builds_from_pairs():
         nonzero = np.concatenate([rng.choice(25, 6, replace=duplicates) for _ in range(40)])
         coef = rng.standard_normal(src.size)
         order = np.argsort(nonzero, kind="stable")
-        _, start, counts = _runs(nonzero[order])
+        _, start, counts = np.unique(nonzero[order], return_index=True, return_counts=True)
         got = _operator(coef[order], src[order], start, counts, 40)
         rows = np.unique(nonzero, return_inverse=True)[1]
         want = sps.csr_array((coef, (rows, src)), shape=(counts.size, 40))
@@ -474,16 +463,15 @@ def test_an_adaptive_iterate_again_finds_every_rounds_lowering(registered, monke
     assert len(kept) == 1 and len(built) == 2 * rounds        # over the budget: the last one only
 
 
-@pytest.mark.parametrize("space_max", [0, 10**6], ids=["argsort", "counting"])
-def test_hessian_pattern_of_pair_products_is_the_pattern_of_its_listed_contributions(monkeypatch, space_max):
-    """The Hessian's pattern from C (pair, key) equals, array for array, Pattern.build of the
-    contributions listed pair by pair (the route it replaces), chunked or not."""
+def test_hessian_pattern_of_pair_products_sums_what_it_should(monkeypatch):
+    """The Hessian's pattern from C (pair, key), its keys placed directly or through np.unique
+    (a large key space), chunked or not: the same arrays, and the sums of a from-scratch H on
+    the CPU's operator and on a device's padded arrays alike."""
     import scipy.sparse as sps
     import torch
 
     import stw_torch.evaluate as evaluate
 
-    monkeypatch.setattr(evaluate, "COUNTING_SORT_MAX", space_max)
     monkeypatch.setattr(evaluate, "PAIRS_CHUNK", 7)          # several chunks, the last one short
     rng = np.random.default_rng(11)
     n_slots, n_free = 60, 30
@@ -491,14 +479,11 @@ def test_hessian_pattern_of_pair_products_is_the_pattern_of_its_listed_contribut
     Pf = sps.csr_array((rng.standard_normal(sum(map(len, rows))), np.concatenate(rows),
                         np.concatenate([[0], np.cumsum([len(r) for r in rows])])), shape=(n_slots, n_free))
     p, q = rng.integers(0, n_slots, 45), rng.integers(0, n_slots, 45)
-    left_owner, left_pos = evaluate._row_entries(Pf.indptr, p)
-    right_owner, right_pos = evaluate._row_entries(Pf.indptr, q[left_owner])
-    left = left_pos[right_owner]
     cpu = torch.device("cpu")
-    want = evaluate.Pattern.build(Pf.indices[left], Pf.indices[right_pos], Pf.data[left] * Pf.data[right_pos],
-                                  left_owner[right_owner], p.size, (n_free, n_free), cpu)
-    got = evaluate.Pattern.of_products(
-        evaluate._pair_products(Pf.indptr, Pf.indices, Pf.data, p, q, n_free), (n_free, n_free), cpu)
+    C = evaluate._pair_products(Pf.indptr, Pf.indices, Pf.data, p, q, n_free)
+    got = evaluate.Pattern.of(C, (n_free, n_free), cpu)
+    monkeypatch.setattr(evaluate, "COUNTING_SORT_MAX", 0)
+    want = evaluate.Pattern.of(C, (n_free, n_free), cpu)
     for a, b in [(got.crow_np, want.crow_np), (got.col_np, want.col_np),
                  (got.operator.host.indptr, want.operator.host.indptr),
                  (got.operator.host.indices, want.operator.host.indices),
@@ -514,20 +499,6 @@ def test_hessian_pattern_of_pair_products_is_the_pattern_of_its_listed_contribut
     coef_pad, src_pad = evaluate._padded(op.indptr[:-1], np.diff(op.indptr), op.data, op.indices, p.size)
     padded = (coef_pad * np.append(D, 0.0)[src_pad]).sum(1)
     np.testing.assert_allclose(got.dense(torch.as_tensor(padded)).numpy(), H, rtol=0, atol=1e-12)
-
-
-@pytest.mark.parametrize("space_max", [0, 10**6], ids=["argsort", "counting"])
-def test_grouped_keys_are_a_stable_sort_and_its_runs(monkeypatch, space_max):
-    import stw_torch.evaluate as evaluate
-
-    monkeypatch.setattr(evaluate, "COUNTING_SORT_MAX", space_max)
-    rng = np.random.default_rng(8)
-    for keys in (rng.integers(0, 900, 5000), np.arange(7)[::-1].copy(), np.zeros(4, np.int64),
-                 np.zeros(0, np.int64)):
-        order, uniq, start, counts = evaluate._grouped(keys, 900)
-        assert np.array_equal(order, np.argsort(keys, kind="stable"))
-        want = np.unique(keys[order], return_index=True, return_counts=True)   # starts when sorted
-        assert all(np.array_equal(a, b) for a, b in zip((uniq, start, counts), want))
 
 
 def test_programs_are_kept_on_disk_and_compute_the_same_numbers(tmp_path, monkeypatch):

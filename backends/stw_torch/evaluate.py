@@ -53,40 +53,6 @@ def _row_entries(indptr: np.ndarray, rows: np.ndarray) -> tuple[np.ndarray, np.n
     return owner, first + np.arange(total, dtype=index)
 
 
-def _runs(ordered: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """``np.unique(ordered, return_index=True, return_counts=True)`` of a sorted array, in one
-    pass: np.unique sorts again (basketball's Hessian: 4.7 million contributions, 0.36 s)."""
-    new = np.empty(ordered.size, bool)
-    new[:1] = True
-    np.not_equal(ordered[1:], ordered[:-1], out=new[1:])
-    start = np.flatnonzero(new)
-    return ordered[start], start, np.diff(np.append(start, ordered.size))
-
-
-COUNTING_SORT_MAX = 2**22   # key spaces (n_free² of a Hessian) sorted by counting, not comparing
-
-
-def _grouped(keys: np.ndarray, space: int) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
-    """A stable sort of ``keys`` (in range(space)), and its distinct keys with where each begins
-    and how many there are: what ``np.argsort(keys, kind="stable")`` and :func:`_runs` give.
-
-    For a space of at most COUNTING_SORT_MAX keys, by counting: scipy's conversion of the
-    (key, position) pairs from COO to CSR places them key by key in the order given, in one
-    pass (basketball's Hessian, 4.7 million contributions: 0.06-0.12 s, against 0.17-0.22 s
-    for the argsort and 0.11 s more for its runs).
-    """
-    if not keys.size or space > COUNTING_SORT_MAX:
-        order = np.argsort(keys, kind="stable")
-        return (order, *_runs(keys[order]))
-    index = _index_dtype(keys.size)   # scipy's own choice: no conversion
-    by_key = sps.coo_array((np.ones(keys.size, np.int8), (keys.astype(index, copy=False),
-                                                           np.arange(keys.size, dtype=index))),
-                           shape=(space, keys.size)).tocsr()   # positions unique: nothing summed
-    sizes = np.diff(by_key.indptr)
-    uniq = np.flatnonzero(sizes)
-    return by_key.indices, uniq, by_key.indptr[uniq].astype(np.int64), sizes[uniq].astype(np.int64)
-
-
 def _operator(coef, src, start, counts, n_src) -> sps.csr_array:
     """The CSR matrix (nonzero, source) of the contributions ``coef`` of sources ``src``, listed
     nonzero after nonzero (``counts`` of each from ``start``), duplicate (nonzero, source) pairs
@@ -117,6 +83,18 @@ def _operator(coef, src, start, counts, n_src) -> sps.csr_array:
 
 
 PAIRS_CHUNK = 1 << 16   # slot pairs whose products are worked out at a time (_pair_products)
+COUNTING_SORT_MAX = 2**22   # key spaces (n_free² of a Hessian) Pattern.of places entries in directly
+
+
+def _slot_products(Pf: sps.csr_array, row_of: np.ndarray, shape: tuple[int, int]) -> sps.csr_array:
+    """The contributions of slots p to a Jacobian J[r, j] = Σ_p G[r, p] Pf[p, j] (``shape``) as
+    a CSR matrix C (slot p, key r * n_cols + j) of the entries Pf[p, j], r = row_of[p] the row
+    that slot p serves (-1: none)."""
+    owner = np.repeat(np.arange(row_of.size), np.diff(Pf.indptr))
+    keep = row_of[owner] >= 0
+    indptr = np.append(0, np.cumsum(np.diff(Pf.indptr) * (row_of >= 0)))
+    return sps.csr_array((Pf.data[keep], row_of[owner[keep]] * shape[1] + Pf.indices[keep], indptr),
+                         shape=(row_of.size, max(1, shape[0] * shape[1])))
 
 
 def _pair_products(indptr, indices, data, p, q, n_cols) -> sps.csr_array:
@@ -195,31 +173,21 @@ class Pattern:
             self.crow_np, self.col_np = self.crow_np.astype(np.int32), self.col_np.astype(np.int32)
 
     @classmethod
-    def build(cls, rows, cols, coef, src, n_src, shape, device) -> "Pattern":
-        """The pattern of a sparse matrix whose entries are sums of coef * source[src] at (rows, cols)."""
-        space = shape[0] * shape[1]
-        index = _index_dtype(space)   # the keys' (n_free² of a Hessian)
-        keys = np.asarray(rows, index) * shape[1] + np.asarray(cols, index)
-        order, uniq, start, counts = _grouped(keys, space)
-        return cls._placed(uniq, start, counts, np.asarray(coef, float)[order], np.asarray(src)[order],
-                           n_src, shape, device)
-
-    @classmethod
-    def of_products(cls, C: sps.csr_array, shape, device) -> "Pattern":
-        """:meth:`build` of the contributions C (source, key) of :func:`_pair_products`, the
-        same pattern bit for bit: where the key space is small, C's transpose is the sorted
-        listing already (scipy's CSR-to-CSC conversion places the entries key by key, sources
-        ascending), without the sort order and the gathers through it."""
-        space = shape[0] * shape[1]
-        if space > COUNTING_SORT_MAX:
-            src = np.repeat(np.arange(C.shape[0]), np.diff(C.indptr))
-            return cls.build(C.indices // shape[1], C.indices % shape[1], C.data, src, C.shape[0],
-                             shape, device)
+    def of(cls, C: sps.csr_array, shape, device) -> "Pattern":
+        """The pattern of a matrix (``shape``) whose entry at key i * n_cols + j sums its
+        contributions C[source, key] times source values (:func:`_slot_products`,
+        :func:`_pair_products`). Each key's contributions are listed sources ascending, as
+        scipy's CSR-to-CSC conversion places them: over the keys that occur where the key
+        space is large (np.unique's sort), over all of them, in one pass, where it is small."""
+        keys = None
+        if shape[0] * shape[1] > COUNTING_SORT_MAX:
+            keys, inverse = np.unique(C.indices, return_inverse=True)
+            C = sps.csr_array((C.data, inverse.reshape(-1), C.indptr), shape=(C.shape[0], max(1, keys.size)))
         by_key = C.tocsc()
         sizes = np.diff(by_key.indptr)
-        uniq = np.flatnonzero(sizes)
-        return cls._placed(uniq, by_key.indptr[uniq].astype(np.int64), sizes[uniq].astype(np.int64),
-                           by_key.data, by_key.indices, C.shape[0], shape, device)
+        nonzero = np.flatnonzero(sizes)
+        return cls._placed(nonzero if keys is None else keys[nonzero], by_key.indptr[nonzero].astype(np.int64),
+                           sizes[nonzero].astype(np.int64), by_key.data, by_key.indices, C.shape[0], shape, device)
 
     @classmethod
     def _placed(cls, uniq, start, counts, coef, src, n_src, shape, device) -> "Pattern":
@@ -468,10 +436,10 @@ class TorchProblem:
         # Jacobians: J[r, j] = Σ_p G[r, p] Pf[p, j] over the group's slots p of row r.
         self.jac = {}
         for kind, (rows, slots) in jac.items():
-            rows, slots = cat(rows), cat(slots)
-            owner, pos = _row_entries(indptr, slots)
-            self.jac[kind] = Pattern.build(rows[owner], indices[pos], data[pos], slots[owner], self.n_slots,
-                                           (self.row_counts[kind], self.n_free), self.device)
+            row_of = np.full(self.n_slots, -1, np.int64)
+            row_of[cat(slots)] = cat(rows)
+            shape = (self.row_counts[kind], self.n_free)
+            self.jac[kind] = Pattern.of(_slot_products(Pf, row_of, shape), shape, self.device)
 
         # Hessian: H[i, j] = Σ_e D_e Pf[p_e, i] Pf[q_e, j] over entries e = (p_e, q_e) of the local
         # second derivatives, the Gauss-Newton products of objective groups, and nothing else.
@@ -482,7 +450,7 @@ class TorchProblem:
         # each Gauss-Newton product 2 w g_p g_q is (2 w) g_p g_q: its first factor made once
         self.gn_w2 = 2.0 * self.w_inst[torch.as_tensor(cat(gn_i), device=self.device)]
         p, q = np.concatenate([cat(d_p), cat(gn_p)]), np.concatenate([cat(d_q), cat(gn_q)])
-        self.hess = Pattern.of_products(_pair_products(indptr, indices, data, p, q, self.n_free),
+        self.hess = Pattern.of(_pair_products(indptr, indices, data, p, q, self.n_free),
                                         (self.n_free, self.n_free), self.device)
         # Slot -> owning instance (condition slots own the padding instance n_inst).
         owner = np.full(self.n_slots, self.n_inst, np.int64)
