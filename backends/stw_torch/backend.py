@@ -1,16 +1,9 @@
-"""The torch backend: the shared SQP (stw_tui.sos.sqp) with values and derivatives computed by torch.
-
-The SQP itself — the QP of each step, its elastic mode, the step limit, the merit acceptance test
-and the convergence tests — is the core's, so this backend and ``stw_scipy`` take the same steps.
-What differs is where the numbers come from: every term's sympy expression and its first and
-second derivatives are lowered to one torch program here (lower.py), called once per term over
-all its instances (calls.py), and the gradient, Jacobians and Hessian of the Lagrangian are
-assembled on fixed sparse patterns (evaluate.py). With ``linear=torch`` the KKT systems are solved on the device
-too (dense LU, linalg.py); with ``linear=scipy`` by stw_scipy's sparse solvers on the host.
-
-torch is imported when a solve starts, not when the class is loaded: listing the backend's
-options (``help``, the TUI's backend panel) costs nothing.
-"""
+"""The torch backend: the shared SQP (stw_tui.sos.sqp: the same steps as ``stw_scipy``) with its
+numbers from torch: each term and its derivatives lowered to TorchScript programs (lower.py), one
+call per term over all its instances (calls.py), the gradient, Jacobians and Hessian assembled on
+fixed sparse patterns (evaluate.py). KKT systems: dense LU on the device with ``linear=torch``
+(linalg.py), stw_scipy's sparse solvers on the host with ``linear=scipy``. torch is imported when a
+solve starts, not when the class is loaded: listing the backend's options costs nothing."""
 
 from __future__ import annotations
 

@@ -2,27 +2,19 @@
 :class:`~stw_tui.sos.batch.BatchSolver`.
 
 Each start (a job: replay, shake, `iterate`, dense check) runs the shared SQP on a thread of its
-own, with a member backend (:class:`BatchMember`) whose heavy numerical work is not done on that
-thread but requested from the batch: evaluations of the window problem (values, gradients,
-Jacobians and Hessian terms by the lowered term programs), merit values of the line search and, with
-``linear=torch`` (the default on cuda), LU factorizations and solves of KKT systems and the
-Cholesky tests of the curvature control. The calling thread serves the requests in rounds, in
-lockstep: it waits until every running start is blocked on a request, then computes each kind of
-request for all of them at once — evaluations through one pass over the term groups
-(evaluate.evaluations_of), factorizations as ``torch.linalg.lu_factor_ex`` on a (B, n, n) stack — and
-wakes them all. On the CPU (``linear=scipy`` by default) each start factorizes its sparse KKT
-systems itself: measured on 2 cores, dense batched LU cost more than SuperLU's banded solves
-(arm throw, 4 starts: 36 s against 23 s), while batched evaluations still pay.
+own, with a member backend (backend.BatchMember) that requests its heavy numerical work from the
+batch: evaluations (evaluate.evaluations_of), merit values and, with ``linear=torch`` (the default
+on cuda), LU factorizations and solves of KKT systems and the curvature control's Cholesky tests.
+The calling thread serves the requests in lockstep rounds: once every running start waits on one,
+it computes each kind for all of them at once (one call of each term's program; LU on a (B, n, n)
+stack) and wakes them. On the CPU (``linear=scipy``) each start factorizes its own sparse KKT
+systems: dense batched LU cost more than SuperLU's banded solves (arm throw, 4 starts: 36 s
+against 23 s). Not one SQP vectorized over starts: its control flow differs per start; here each
+takes exactly a serial solve's steps.
 
-Why not one SQP vectorized over starts: the SQP's control flow (retries, elastic mode, the
-interior-point QP's iteration counts, the curvature shift) differs per start; here every start
-takes exactly the steps a serial solve takes, and only where its numbers are computed changes.
-
-Determinism: a round holds exactly one request of every running start, starts join only between
-rounds, and requests are served in start order, so the batches (and their rounding) do not depend
-on thread timing. Isolation: a batched computation that raises is redone request by request, so
-an error belongs to its start alone; a start whose numbers diverge fails in the driver's
-non-finite check like a serial solve, and the others go on.
+Determinism: a round holds one request of every running start, starts join only between rounds,
+and requests are served in start order, so the batches do not depend on thread timing. Isolation:
+a batched computation that raises is redone request by request, so an error is its start's alone.
 """
 
 from __future__ import annotations

@@ -1,15 +1,9 @@
 """Term groups merged into calls: all the groups of one lowered term (with the same constants)
-are evaluated by one call of its torch program, over all their instances side by side.
-
-A window problem often evaluates one term in several groups: a linkage's torque both as an
-objective and as a flight constraint, a contact's expressions over several intervals. A torch op
-on the CPU costs microseconds whatever its length, so one call over all of a term's instances
-costs what one group's did (acrobat: tau_FOOT in two groups, 13 groups in 8 calls).
-
-Every call's inputs are gathered from the slot values at once (``inputs``: slot indices, call
-after call, each call's (k, N) block row-major), and the calls' outputs are put back in the
-layout of the groups (values per instance, gradients per slot, second derivatives per group and
-pair) by fixed index arrays: a few ops per evaluation whatever the number of groups.
+are evaluated by one call of its program over all their instances side by side (a linkage's
+torque as an objective and as a flight constraint; acrobat: 13 groups in 8 calls), and one
+TorchScript driver per plan makes every call: it gathers the inputs from the slot values and
+puts the outputs back in the groups' layout (values per instance, gradients per slot, second
+derivatives per group and pair) by fixed index arrays.
 """
 
 from __future__ import annotations
@@ -47,9 +41,8 @@ class CallPlan:
     f_order: torch.Tensor   # instance -> its value's place among the calls' values
     h_order: torch.Tensor   # (group, pair, instance) entry -> its place among the calls' pairs
     n_slots: int
-    autograd: bool = False  # derivatives by torch's autograd on the value programs (local())
-    drivers: dict = field(default_factory=dict)    # program kind -> its driver (_driver)
-    arguments: dict = field(default_factory=dict)  # (kind, device) -> the driver's fixed arguments
+    autograd: tuple | None = None   # derivatives=autograd: masks and index arrays (local())
+    drivers: dict = field(default_factory=dict)    # (kind, device) -> driver, fixed arguments
 
     @classmethod
     def build(cls, groups, n_slots: int, device: torch.device, autograd: bool = False) -> "CallPlan":
@@ -58,10 +51,16 @@ class CallPlan:
         for g in groups:
             by_key.setdefault((id(g.term), tuple(g.params.tolist())), []).append(g)
         calls, inputs, f_dest, h_dest = [], [], [], []
-        h_offsets, offset = {}, 0
+        h_offsets, offset, h_a, h_b = {}, 0, [], []
+        masks = np.zeros((max([g.term.k for g in groups], default=0), n_slots))
         for g in groups:                      # the groups' own layout of second derivatives
             h_offsets[id(g)] = offset
             offset += len(g.pairs) * g.n
+            for a in range(g.term.k):         # the slots of each instance's a-th variable
+                masks[a, g.slot + a * g.n:g.slot + (a + 1) * g.n] = 1.0
+            for a, b in g.pairs:              # second derivative (a, b): at the b-th slot
+                h_a += [a] * g.n
+                h_b.append(g.slot + b * g.n + np.arange(g.n))
         start = 0
         for members in by_key.values():
             first = members[0]
@@ -76,16 +75,15 @@ class CallPlan:
             start += k * n
         cat = lambda parts: np.concatenate(parts) if parts else np.zeros(0, np.int64)  # noqa: E731
         as_t = lambda a: torch.as_tensor(a, dtype=torch.int64, device=device)  # noqa: E731
+        derived = (torch.as_tensor(masks, dtype=torch.float64, device=device), as_t(h_a), as_t(cat(h_b)))
         return cls(calls, as_t(cat(inputs)), as_t(np.argsort(cat(f_dest), kind="stable")),
-                   as_t(np.argsort(cat(h_dest), kind="stable")), n_slots, autograd)
+                   as_t(np.argsort(cat(h_dest), kind="stable")), n_slots, derived if autograd else None)
 
     def _driver(self, kind: str, device: torch.device):
-        """A TorchScript function of V (B, slots) that runs every call's program ``kind`` and
-        puts its outputs in place, and its fixed arguments on ``device``: one call from Python
-        per evaluation instead of one per term (a call from Python cost 15-19 µs, one from
-        TorchScript 2-3; cat_mouse's 8 programs: 0.47 -> 0.30 ms). Written and compiled once
-        per plan and kind (3-20 ms)."""
-        if kind not in self.drivers:
+        """A TorchScript function of V (B, slots) that runs every call's program ``kind`` and puts
+        its outputs in place, and its fixed arguments on ``device``, written and compiled once
+        (3-20 ms): one call from Python per evaluation, not one per term (15-19 µs each)."""
+        if (kind, device) not in self.drivers:
             programs = {f"p{i}": c.term.program(kind) for i, c in enumerate(self.calls)}
             lines = ["def plan(V: torch.Tensor, inputs: torch.Tensor, T: List[torch.Tensor], P: List[torch.Tensor], "
                      "A: List[List[torch.Tensor]], f_order: torch.Tensor, h_order: torch.Tensor, n_slots: int):",
@@ -103,12 +101,10 @@ class CallPlan:
                       "    H = torch.cat(h, 1)[:, h_order] if len(h) else V.new_zeros([B, 0])", "    return F, G, H"]
             unit = torch.jit.CompilationUnit()
             unit.define("\n".join(lines) + "\n", rcb=lambda name: programs[name].fn if name in programs else torch)
-            self.drivers[kind] = unit.plan
-        if (kind, device) not in self.arguments:
-            self.arguments[(kind, device)] = (
+            self.drivers[(kind, device)] = unit.plan, (
                 self.inputs, [c.times for c in self.calls], [c.params for c in self.calls],
                 [c.term.program(kind).arrays_on(device) for c in self.calls], self.f_order, self.h_order, self.n_slots)
-        return self.drivers[kind], self.arguments[(kind, device)]
+        return self.drivers[(kind, device)]
 
     def _run(self, kind: str, V: torch.Tensor):
         """The driver of ``kind`` at slot values V: values, gradients per slot, second derivatives."""
@@ -125,52 +121,25 @@ class CallPlan:
     def local(self, V: torch.Tensor, second: bool = True):
         """Values (B, instances), gradients per slot (B, slots) and, with ``second``, second
         derivatives (B, entries) at slot values V (B, slots), in the groups' layout (else None)."""
-        if not self.autograd:
+        if self.autograd is None:
             f, g, h = self._run("full" if second else "first", V)
             return f, g, h if second else None
-        B = V.shape[0]
-        X = V[:, self.inputs]
-        f, g, h = [], [], []
-        for c in self.calls:
-            block = X[:, c.start:c.start + c.k * c.n].reshape(B, c.k, c.n).transpose(0, 1).reshape(c.k, B * c.n)
-            rows = autograd_rows(c.term, block, c.times.repeat(B), c.params, second)
-            rows = rows.reshape(-1, B, c.n).transpose(0, 1)        # (B, 1 + k + pairs, N)
-            f.append(rows[:, 0])
-            g.append(rows[:, 1:1 + c.k].reshape(B, -1))
-            h.append(rows[:, 1 + c.k:].reshape(B, -1))
-        empty = V.new_zeros(B, 0)
-        g_slot = V.new_zeros(B, self.n_slots)
-        if g:
-            g_slot[:, self.inputs] = torch.cat(g, 1)
-        return (torch.cat(f, 1)[:, self.f_order] if f else empty, g_slot,
-                (torch.cat(h, 1)[:, self.h_order] if h else empty) if second else None)
-
-
-def autograd_rows(term: LoweredTerm, X: torch.Tensor, times: torch.Tensor, params: torch.Tensor,
-                  second: bool) -> torch.Tensor:
-    """What the term's program "full" (``second``) or "first" gives, by torch's autograd on the
-    term's value program alone (``derivatives=autograd``): derivatives found independently of
-    the symbolic ones, to hold them against. An instance's value depends on its own column of
-    X only, so the gradient of the sum is every instance's gradient; each first derivative that
-    a Hessian pair needs takes one more backward pass."""
-    k, n = X.shape
-    with torch.enable_grad():
-        X = X.detach().requires_grad_(True)
-        with unoptimized():
-            f = term.program("value")(X, times, params)[0]
-        grad = None
-        if f.requires_grad:             # else the value is constant: its gradient is zero
-            (grad,) = torch.autograd.grad(f.sum(), X, create_graph=second, allow_unused=True)
-        grad = X.new_zeros(k, n) if grad is None else grad
-        rows = [f.detach(), *grad.detach().unbind(0)]
-        if second:
-            of_a = {}
-            for a, _ in term.term.hessian_pairs:
-                if a not in of_a:
-                    found = None
-                    if grad[a].requires_grad:
-                        (found,) = torch.autograd.grad(grad[a].sum(), X, retain_graph=True,
-                                                       allow_unused=True)
-                    of_a[a] = X.new_zeros(k, n) if found is None else found.detach()
-            rows += [of_a[a][b] for a, b in term.term.hessian_pairs]
-    return torch.stack(rows)
+        # derivatives=autograd: torch's autograd on the value programs alone, independent of the
+        # symbolic derivatives. An instance's value depends on its own slots only, so the gradient
+        # of the values' sum is each instance's gradient at its slots; one more backward pass from
+        # the gradient at the slots of every instance's a-th variable gives each ∂²f/∂v_a∂v_b at
+        # the instance's b-th slot.
+        masks, h_a, h_b = self.autograd
+        with torch.enable_grad():
+            V = V.detach().requires_grad_(True)
+            f = self._run("value", V)[0]
+            grad = torch.autograd.grad(f.sum(), V, create_graph=second, allow_unused=True)[0] if f.requires_grad else None
+            g = V.new_zeros(V.shape) if grad is None else grad
+            if not second:
+                return f.detach(), g.detach(), None
+            if not h_a.numel():
+                return f.detach(), g.detach(), V.new_zeros(V.shape[0], 0)
+            rows = [torch.autograd.grad((g * mask).sum(), V, retain_graph=True, allow_unused=True)[0]
+                    if g.requires_grad else None for mask in masks]
+        H = torch.stack([V.new_zeros(V.shape) if r is None else r.detach() for r in rows])
+        return f.detach(), g.detach(), H[h_a, :, h_b].T

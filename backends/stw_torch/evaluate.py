@@ -1,23 +1,17 @@
 """The window problem on torch: values and local derivatives by lowered term programs.
 
 Everything fixed during an `iterate` is built once, as tensors on the chosen device: the slot
-matrix ``Pf`` (sparse CSR) and the slot values of the fixed control points, instance times,
-weights and parameters of every term group, and the sparsity patterns of the Jacobians and of the
-Hessian of the Lagrangian. Per evaluation:
+matrix ``Pf``, the slot values of the fixed control points, every term group's instance times,
+weights and parameters, and the sparsity patterns of the Jacobians and of the Hessian of the
+Lagrangian. An evaluation is one of a batch of starts of one structure (a solve of its own is a
+batch of one: :func:`evaluations_of`), the same code on every device:
 
-- slot values are one sparse product ``v = v_fixed + Pf @ s`` (sparse.py: scipy's on the CPU);
-- the values, local gradients (k, n) and local second derivatives of all the groups of one term
-  come from one call of its lowered torch program (lower.py, calls.py) on their (k, N) inputs
-  gathered from ``v`` (an instance depends on its own slots only); second derivatives only where
-  the previous evaluation's Hessian was used, else when asked for;
-- Jacobians ``G @ Pf`` and the Hessian ``Pfᵀ D Pf + Jₒᵀ W Jₒ`` are assembled on fixed patterns
-  by gathering products of ``Pf`` entries with local derivatives and summing a fixed, padded
-  list of contributions per nonzero: vectorized, and deterministic on every device (no atomics);
-  on the CPU the same sums are one sparse product, which skips the padding (Pattern).
-
-A Python loop runs over terms (calls) only, never over instances or control points. Every
-evaluation is one of a batch of starts of one structure (a solve of its own is a batch of one:
-:func:`evaluations_of`), their slot values a (B, slots) matrix; the same code on every device.
+- slot values are one sparse product ``V = V_fixed + S Pfᵀ`` (sparse.py: scipy's on the CPU);
+- every term's values, local gradients and (where they will be used) local second derivatives
+  come from one call of its program on its inputs gathered from V (calls.py);
+- Jacobians ``G @ Pf`` and the Hessian ``Pfᵀ D Pf + Jₒᵀ W Jₒ`` are sums of fixed contributions
+  per nonzero (Pattern): a sparse product on the CPU, padded gathers on a device (deterministic,
+  no atomics).
 """
 
 from __future__ import annotations
@@ -55,15 +49,9 @@ def _row_entries(indptr: np.ndarray, rows: np.ndarray) -> tuple[np.ndarray, np.n
 
 def _operator(coef, src, start, counts, n_src) -> sps.csr_array:
     """The CSR matrix (nonzero, source) of the contributions ``coef`` of sources ``src``, listed
-    nonzero after nonzero (``counts`` of each from ``start``), duplicate (nonzero, source) pairs
-    summed and each row's sources ascending.
-
-    The contributions of a Jacobian or Hessian are listed source by source and sorted stably by
-    nonzero, and one source adds to one nonzero once (a row of Pf holds a column once): each row
-    is then in ascending source order already, without duplicates, and the arrays are the CSR
-    arrays as they are; scipy's construction from (row, column) pairs (a COO sort and a sum of
-    duplicates, basketball's Hessian: 4.7 million contributions, 0.44 s) is left for anything else.
-    """
+    nonzero after nonzero (``counts`` of each from ``start``), duplicate pairs summed and each
+    row's sources ascending: the listing's own arrays where it is so already (a Jacobian's or
+    Hessian's; scipy's construction from pairs took basketball's Hessian 0.44 s)."""
     # int32 indices where they fit, as scipy's own construction makes them: an int64 indptr
     # beside int32 indices had scipy convert the indices (basketball: 0.1 s, 19 MB more)
     index = _index_dtype(np.size(src), n_src)
@@ -144,14 +132,10 @@ TAIL_AFTER = 3   # Pattern.values_past's calls before it copies the columns it n
 
 @dataclass
 class Pattern:
-    """A fixed CSR pattern whose values are sums of gathered products.
-
-    ``values = (coef_pad * source[src_pad]).sum(1)``: row u of the padded (nnz, m) arrays lists
-    the contributions to nonzero u; padding has coefficient 0 and points past the source's end.
-    On the CPU the same sums are one sparse product ``operator @ source`` instead (row by row, so
-    deterministic too): it skips the padding, which is most of an arm's Hessian (3595 nonzeros of
-    up to 696 contributions, 29% of them real): 65 ms per Hessian padded, 1.5 ms as a product.
-    """
+    """A fixed CSR pattern whose values are sums of gathered products: on a device
+    ``(coef_pad * source[src_pad]).sum(1)``, row u of the padded arrays listing nonzero u's
+    contributions (padding: coefficient 0, past the source's end); on the CPU one sparse product
+    ``operator @ source``, which skips the padding (an arm's Hessian: 65 ms padded, 1.5 ms)."""
 
     shape: tuple[int, int]
     crow: torch.Tensor
@@ -216,13 +200,10 @@ class Pattern:
         return (self.coef_pad * ext[..., self.src_pad]).sum(-1)
 
     def values_past(self, tail: torch.Tensor, start: int) -> torch.Tensor:
-        """:meth:`values` of a source that is zero before entry ``start`` and ``tail`` from
-        there. On the CPU the product leaves out the operator's columns before ``start``: each
-        left-out term was coefficient x 0, so every sum adds the same terms in the same order
-        (a Gauss-Newton Hessian without the second derivatives' columns: a third of
-        basketball's 4.7 million entries, luxo's 287k of 783k). Those columns are copied out at
-        the TAIL_AFTER-th call, not before: the copy costs what some 50 of basketball's products
-        save (30 ms), which a first `iterate 1` would pay for one product."""
+        """:meth:`values` of a source that is zero before entry ``start`` and ``tail`` from there
+        (a Gauss-Newton Hessian): on the CPU from the TAIL_AFTER-th call on without the operator's
+        columns before ``start`` (x 0: the same sums; a third of basketball's 4.7 million
+        entries), copied out then (30 ms for basketball, some 50 of its products' savings)."""
         self._asked[start] = asked = self._asked.get(start, 0) + 1
         if self.operator is None or (start not in self._tails and asked < TAIL_AFTER):
             return self.values(torch.cat([tail.new_zeros(start), tail]))
@@ -265,8 +246,8 @@ class _Group:
 
 @dataclass(eq=False)
 class TorchEvaluation:
-    """What one SQP iteration needs at ``s``: the numpy arrays the SQP reads, and the values its
-    Jacobians and Hessians are made of (tensors on a device, numpy arrays on the CPU)."""
+    """What one SQP iteration needs at ``s``: the numpy arrays the SQP reads, and the tensors its
+    Jacobians and Hessians are made of."""
 
     tp: "TorchProblem"
     s: np.ndarray
@@ -389,31 +370,30 @@ class TorchProblem:
 
     # --- fixed patterns ----------------------------------------------------------------------
     def _build_patterns(self, Pf: sps.csr_array) -> None:
-        indptr, indices, data = Pf.indptr.astype(np.int64), Pf.indices, Pf.data
         dev = self._dev
-        # Per-slot weight (constraint rows are weight * f) and per-instance data.
-        w_slot = np.zeros(self.n_slots)
-        w_inst = np.zeros(self.n_inst)
+        # Per-slot weight (constraint rows are weight * f), owning instance (condition slots own
+        # the padding instance n_inst) and Jacobian row; per-instance weight and multiplier.
+        w_slot, w_inst = np.zeros(self.n_slots), np.zeros(self.n_inst)
+        owner = np.full(self.n_slots, self.n_inst, np.int64)
+        row_of = {kind: np.full(self.n_slots, -1, np.int64) for kind in (EQ, GE)}
         is_obj = np.zeros(self.n_inst, bool)
         lam_index = np.full(self.n_inst, self.row_counts[EQ] + self.row_counts[GE], np.int64)
-        jac = {kind: ([], []) for kind in (EQ, GE)}
+        self.host_rows = {kind: np.zeros(self.row_counts[kind], np.int64) for kind in (EQ, GE, OBJ)}
         d_p, d_q = [], []                 # second-derivative entries of D: slot pairs
         gn_p, gn_q, gn_i = [], [], []     # Gauss-Newton entries of objective groups
         h_offset = 0
         h_src, h_scale = [], []
         for g in self.groups:
-            inst = np.arange(g.n)
-            weights = g.weights.cpu().numpy()
-            w_inst[g.inst:g.inst + g.n] = weights
+            inst, block = np.arange(g.n), slice(g.slot, g.slot + g.term.k * g.n)   # slot a·n + i
+            w_inst[g.inst:g.inst + g.n] = weights = g.weights.cpu().numpy()
+            owner[block] = g.inst + np.tile(inst, g.term.k)
+            self.host_rows[g.kind][g.row:g.row + g.n] = g.inst + inst
             if g.kind == OBJ:
                 is_obj[g.inst:g.inst + g.n] = True
             else:
-                w_slot[g.slot:g.slot + g.term.k * g.n] = np.tile(weights, g.term.k)
+                w_slot[block] = np.tile(weights, g.term.k)
                 lam_index[g.inst:g.inst + g.n] = g.row + inst + (self.row_counts[EQ] if g.kind == GE else 0)
-                rows, slots = jac[g.kind]
-                for a in range(g.term.k):
-                    rows.append(g.row + inst)
-                    slots.append(g.slot + a * g.n + inst)
+                row_of[g.kind][block] = np.tile(g.row + inst, g.term.k)
             for p, (a, b) in enumerate(g.pairs):
                 for x, y in ((a, b), (b, a)) if a != b else ((a, b),):
                     d_p.append(g.slot + x * g.n + inst)
@@ -428,47 +408,25 @@ class TorchProblem:
                         gn_q.append(g.slot + b * g.n + inst)
                         gn_i.append(g.inst + inst)
         cat = lambda parts: np.concatenate(parts) if parts else np.zeros(0, np.int64)  # noqa: E731
-        self.w_slot = torch.as_tensor(w_slot, **dev)
-        self.w_inst = torch.as_tensor(w_inst, **dev)
+        index = lambda parts: torch.as_tensor(cat(parts), device=self.device)  # noqa: E731
+        self.w_slot, self.w_inst = torch.as_tensor(w_slot, **dev), torch.as_tensor(w_inst, **dev)
         self.is_obj = torch.as_tensor(is_obj, device=self.device)
         self.lam_index = torch.as_tensor(lam_index, device=self.device)
-
+        self.slot_owner = torch.as_tensor(owner, device=self.device)
+        self.host_weights = {kind: w_inst[rows] for kind, rows in self.host_rows.items()}
+        self.conditional = any(g.condition is not None for g in self.groups)
         # Jacobians: J[r, j] = Σ_p G[r, p] Pf[p, j] over the group's slots p of row r.
-        self.jac = {}
-        for kind, (rows, slots) in jac.items():
-            row_of = np.full(self.n_slots, -1, np.int64)
-            row_of[cat(slots)] = cat(rows)
-            shape = (self.row_counts[kind], self.n_free)
-            self.jac[kind] = Pattern.of(_slot_products(Pf, row_of, shape), shape, self.device)
-
+        self.jac = {kind: Pattern.of(_slot_products(Pf, row_of[kind], (self.row_counts[kind], self.n_free)),
+                                     (self.row_counts[kind], self.n_free), self.device) for kind in (EQ, GE)}
         # Hessian: H[i, j] = Σ_e D_e Pf[p_e, i] Pf[q_e, j] over entries e = (p_e, q_e) of the local
         # second derivatives, the Gauss-Newton products of objective groups, and nothing else.
-        self.h_src = torch.as_tensor(cat(h_src), device=self.device)
-        self.h_scale = torch.as_tensor(cat(h_scale), device=self.device)
-        self.gn_p = torch.as_tensor(cat(gn_p), device=self.device)
-        self.gn_q = torch.as_tensor(cat(gn_q), device=self.device)
+        self.h_src, self.h_scale = index(h_src), index(h_scale)
+        self.gn_p, self.gn_q = index(gn_p), index(gn_q)
         # each Gauss-Newton product 2 w g_p g_q is (2 w) g_p g_q: its first factor made once
-        self.gn_w2 = 2.0 * self.w_inst[torch.as_tensor(cat(gn_i), device=self.device)]
+        self.gn_w2 = 2.0 * self.w_inst[index(gn_i)]
         p, q = np.concatenate([cat(d_p), cat(gn_p)]), np.concatenate([cat(d_q), cat(gn_q)])
-        self.hess = Pattern.of(_pair_products(indptr, indices, data, p, q, self.n_free),
-                                        (self.n_free, self.n_free), self.device)
-        # Slot -> owning instance (condition slots own the padding instance n_inst).
-        owner = np.full(self.n_slots, self.n_inst, np.int64)
-        for g in self.groups:
-            owner[g.slot:g.slot + g.term.k * g.n] = g.inst + np.tile(np.arange(g.n), g.term.k)
-        self.slot_owner = torch.as_tensor(owner, device=self.device)
-        # Rows of each kind -> their instance and weight; the objective's instances and weights.
-        self.row_inst, self.row_weight = {}, {}
-        for kind in (EQ, GE, OBJ):
-            rows = np.zeros(self.row_counts[kind], np.int64)
-            for g in self.groups:
-                if g.kind == kind:
-                    rows[g.row:g.row + g.n] = g.inst + np.arange(g.n)
-            self.row_inst[kind] = torch.as_tensor(rows, device=self.device)
-            self.row_weight[kind] = self.w_inst[self.row_inst[kind]]
-        self.host_rows = {kind: rows.cpu().numpy() for kind, rows in self.row_inst.items()}
-        self.host_weights = {kind: w.cpu().numpy() for kind, w in self.row_weight.items()}
-        self.conditional = any(g.condition is not None for g in self.groups)
+        self.hess = Pattern.of(_pair_products(Pf.indptr.astype(np.int64), Pf.indices, Pf.data, p, q, self.n_free),
+                               (self.n_free, self.n_free), self.device)
 
     # --- evaluation --------------------------------------------------------------------------
     def _conditions(self, V: torch.Tensor) -> dict[str, torch.Tensor]:
@@ -621,8 +579,7 @@ def evaluations_of(members: list[TorchProblem], points: list[np.ndarray], second
 
 def check_finite(ev: TorchEvaluation, problem) -> None:
     """Raise with the name of the first term group whose values are not finite."""
-    if np.isfinite(ev.objective) and np.all(np.isfinite(ev.gradient)) \
-            and np.all(np.isfinite(ev.c_eq)) and np.all(np.isfinite(ev.c_ge)) \
+    if all(np.isfinite(a).all() for a in (ev.objective, ev.gradient, ev.c_eq, ev.c_ge)) \
             and all(bool(torch.isfinite(values).all()) for values in ev.t_J.values()):
         return
     f = ev.t_local["f"].cpu().numpy()

@@ -1,10 +1,6 @@
 """Dense torch linear algebra for the shared SQP: KKT systems factorized by torch.linalg (LU with
-pivoting), on the device that holds the problem.
-
-Window problems are small (tens to a few thousand free control points), where a dense
-factorization on a GPU beats moving sparse matrices to the host; on a CPU the sparse
-``linear=scipy`` path (stw_scipy.linear) scales better.
-"""
+pivoting) on the device that holds the problem, where a dense factorization of a window's tens to
+thousands of rows beats moving sparse matrices to the host (on a CPU, ``linear=scipy`` scales better)."""
 
 from __future__ import annotations
 

@@ -1,28 +1,21 @@
 """Lowering of compiled terms to torch: our own sympy expressions become TorchScript programs.
 
-The core hands every term over as a sympy expression (``CompiledTerm.expr``) in DOF symbols
-(``x``, ``x'``, ``x''``), time ``t`` and constant symbols. It was built from parsed trees, never
-from user text. Each term gets up to three programs, each built on first use: its value alone
-(line searches, `when` conditions), its value and gradient (Gauss-Newton steps) and its value,
-gradient and the second derivatives of ``CompiledTerm.hessian_pairs``. The derivatives are taken
-by symengine (min, max and abs as Piecewise), once per term; the programs' source is kept in the
-terms' disk cache, so a new process compiles it without the symbolic work.
-
-A program is written from a graph of the outputs' operations, common subexpressions shared, in
-one of two forms, whichever costs fewer torch ops (each costs about half a microsecond on the
-CPU, and a kernel launch on a GPU, whatever it computes on a few hundred numbers):
+The core hands every term over as a sympy expression (``CompiledTerm.expr``), built from parsed
+trees, never from user text. Each term gets up to three programs, each built on first use: its
+value alone, its value and gradient, and its value, gradient and the second derivatives of
+``CompiledTerm.hessian_pairs``, differentiated by symengine once; their source is kept in the
+terms' disk cache. A program is written from a graph of the operations (symengine's common
+subexpressions shared, associated as the former printed programs were: the same numbers, bit
+for bit) in whichever of two forms runs fewer torch ops, each of which costs about a microsecond
+on the CPU (a kernel launch on a GPU) whatever it computes on a few hundred numbers:
 
 - straight-line: one op per operation, on (n,) rows;
-- levelled: the operations of one depth and kind run as one op on the rows of a register matrix
-  R (rows, n), their operands gathered by ``index_select`` or sliced where they lie in order.
-  An arm's torques with their Hessian pairs (1297 operations) run as 126 ops: 0.56 ms against
-  1.07 for 36 instances, and a tenth of the kernel launches on a GPU.
+- levelled: the operations of one depth and kind as one op on rows of a register matrix R, their
+  operands gathered or sliced (a basketball thrower's torque with its Hessian pairs, 36
+  instances: 3022 operations, 2.4 ms straight-line, 0.8 ms levelled).
 
-Both are compiled by TorchScript and run without its graph executor's optimizations (its
-profiling runs cost more than they save on straight-line programs of small tensors); every
-elementwise op is torch's own, so the numbers are those of the operations in the graph.
-``torch.compile`` (Inductor) was measured on such programs: it fuses them into one loop, but took
-10-40 s to compile each (basketball's: 197 s), more than any bundled session's whole solve.
+``torch.compile`` (Inductor) fused such programs into one loop but took 10-40 s to compile each
+(basketball's: 197 s), more than any bundled session's whole solve.
 """
 
 from __future__ import annotations
@@ -170,7 +163,7 @@ _OPERATORS = {"add": "+", "sub": "-", "mul": "*", "div": "/"}
 
 
 def _render(op: str, attr, args: list[str]) -> str:
-    if op in _OPERATORS and len(args) == 2:
+    if op in _OPERATORS:
         return f"({args[0]} {_OPERATORS[op]} {args[1]})"
     return f"torch.{op}({', '.join([*args, *([repr(attr)] if attr is not None else [])])})"
 
@@ -216,10 +209,9 @@ def _straight(graph: _Graph, roots: list, k: int, params: int) -> tuple[_Source,
     return src, len(graph.nodes) - graph.inputs + 2 + sum(not isinstance(o, int) for o in roots)
 
 
-def _levelled(graph: _Graph, roots: list, k: int, params: int, differentiable: bool) -> tuple[_Source, int]:
-    """The levelled program of ``roots`` and the torch ops it runs. ``differentiable``: results
-    are copied into R, not written there by ``out=``, and operands always gathered, so that
-    autograd can go back through it."""
+def _levelled(graph: _Graph, roots: list, k: int, params: int) -> tuple[_Source, int]:
+    """The levelled program of ``roots`` and the torch ops it runs (results written by ``out=``:
+    not one autograd goes back through)."""
     src = _Source()
     nodes = graph.nodes
     boolean = [n[0] in _BOOLEAN for n in nodes]
@@ -247,10 +239,8 @@ def _levelled(graph: _Graph, roots: list, k: int, params: int, differentiable: b
                 ops += 1
                 continue
             matrix, rows = "Q" if kind else "R", [row[o] for o in column]
-            if not differentiable and rows == list(range(rows[0], rows[0] + len(rows))):
-                args.append(f"{matrix}[{rows[0]}:{rows[-1] + 1}]")
-            elif not differentiable and len(set(rows)) == 1:
-                args.append(f"{matrix}[{rows[0]}:{rows[0] + 1}]")
+            if len(set(rows)) == 1 or rows == list(range(rows[0], rows[0] + len(rows))):   # a slice
+                args.append(f"{matrix}[{rows[0]}:{rows[0] + len(set(rows))}]")
             else:
                 args.append(f"torch.index_select({matrix}, 0, {src.array(rows, np.int64)})")
                 ops += 1
@@ -260,12 +250,8 @@ def _levelled(graph: _Graph, roots: list, k: int, params: int, differentiable: b
         row.update((i, start + m) for m, i in enumerate(members))
         used[flag] += len(members)
         target = f"{'Q' if flag else 'R'}[{start}:{start + len(members)}]"
-        call = _render(op, nodes[members[0]][1], args)
-        if differentiable:
-            src.lines.append(f"    {target} = {call}")
-        else:
-            src.lines.append(f"    {call[:-1]}, out={target})" if call.startswith("torch.")
-                             else f"    torch.{op}({', '.join(args)}, out={target})")
+        attr = nodes[members[0]][1]
+        src.lines.append(f"    torch.{op}({', '.join([*args, *([repr(attr)] if attr is not None else [])])}, out={target})")
         ops += 3
     out = [row[o] if isinstance(o, int) else next(number_rows) for o in roots]
     src.lines.append(f"    return torch.index_select(R, 0, {src.array(out, np.int64)})")
@@ -286,18 +272,18 @@ def _script(source: str):
         return torch.jit.CompilationUnit(source).program
 
 
-def _compile(names: list[str], k: int, outputs: list, differentiable: bool = False) -> tuple[str, list]:
+def _compile(names: list[str], k: int, outputs: list, levelled: bool = True) -> tuple[str, list]:
     """The source of ``program(X, t, p, A)`` computing symengine ``outputs`` in ``names``
     (k variables, time, parameters) and its arrays A: X (k, n), t (n,), p (P,) give the
-    (len(outputs), n) rows. The cheaper of its two forms (straight-line or levelled)."""
+    (len(outputs), n) rows. The cheaper of its two forms (straight-line only: not ``levelled``)."""
     graph = _Graph(names)
     replacements, reduced = _numbers_inlined(*se.cse(outputs))
     for symbol, sub in replacements:     # common subexpressions as symengine shares them: the
         graph.index[symbol] = graph.of(sub)   # same association, so the same numbers, as before
     roots = [graph.of(e) for e in reduced]
     params = len(names) - k - 1
-    src, _ = min(_straight(graph, roots, k, params), _levelled(graph, roots, k, params, differentiable),
-                 key=lambda pair: pair[1])
+    forms = [_straight(graph, roots, k, params), *([_levelled(graph, roots, k, params)] if levelled else [])]
+    src, _ = min(forms, key=lambda pair: pair[1])
     head = "def program(X: torch.Tensor, t: torch.Tensor, p: torch.Tensor, A: List[torch.Tensor]):\n"
     return head + "".join(line + "\n" for line in src.lines), src.arrays
 
@@ -329,18 +315,13 @@ PRINTING = 5
 
 @dataclass(eq=False)
 class LoweredTerm:
-    """A term as torch programs of (k, n) variable values, (n,) times and (P,) parameters.
-
-    Each program's source is kept in the terms' disk cache under the term's ``cache_key``
-    (stw_tui.sym.compiler.cached_entry): a new process compiles it from there, without taking
-    derivatives (basketball: 0.5 s of its first torch iterate), and without ``expr`` at all.
-    """
+    """A term as torch programs of (k, n) variable values, (n,) times and (P,) parameters, kept
+    in the terms' disk cache under its ``cache_key``: a new process compiles them from there,
+    without derivatives (basketball: 0.5 s of its first torch iterate) and without ``expr``."""
 
     term: CompiledTerm
     names: tuple             # the renamed symbols: variables, time, parameters
-    # kind -> Program, each built on first use: "value" (the value alone), "first" (value and
-    # gradient) or "full" (value, gradient and Hessian pairs)
-    programs: dict = field(default_factory=dict)
+    programs: dict = field(default_factory=dict)   # kind ("value", "first", "full") -> Program
     _expr: object = None
 
     @property
@@ -363,8 +344,8 @@ class LoweredTerm:
             key = f"{PRINTING}|{torch.__version__}|{name}|{self.term.cache_key}" if self.term.cache_key else ""
             entry = cached_entry("torch", key)
             if entry is None:
-                # the value program is the one autograd differentiates (derivatives=autograd)
-                entry = _compile(list(self.names), self.k, self._outputs(kind), differentiable=kind == "value")
+                # straight-line values: derivatives=autograd differentiates them
+                entry = _compile(list(self.names), self.k, self._outputs(kind), levelled=kind != "value")
                 store_entry("torch", key, entry)
             found = self.programs[kind] = Program(_script(entry[0]), entry[1])
         return found
@@ -392,8 +373,7 @@ class LoweredTerm:
 
 
 def unoptimized():
-    """Programs run without the TorchScript graph executor's optimization passes: its profiling
-    runs and guards cost more than they save on straight-line programs of small tensors."""
+    """Programs run without TorchScript's optimizing: its profiling runs cost more than they save."""
     return torch.jit.optimized_execution(False)
 
 
@@ -407,11 +387,8 @@ def _names(term: CompiledTerm) -> tuple[str, ...]:
 
 def _fold_numbers(expr: sp.Expr) -> sp.Expr:
     """Replace function calls of numbers (``sin(2)``, ``sqrt(2)``) by floats."""
-    def numeric_call(e) -> bool:
-        return (isinstance(e, (sp.Function, sp.Pow)) and not e.free_symbols and e.is_number
-                and not e.is_Atom)
-
-    return expr.replace(numeric_call, lambda e: sp.Float(e.evalf(20), 20))
+    return expr.replace(lambda e: isinstance(e, (sp.Function, sp.Pow)) and not e.free_symbols and e.is_number
+                        and not e.is_Atom, lambda e: sp.Float(e.evalf(20), 20))
 
 
 def _renamed(term: CompiledTerm, names: tuple[str, ...]):

@@ -41,10 +41,9 @@ def problem_key(problem, device: torch.device, host_linear: bool) -> str:
     return h.hexdigest()
 
 
-# The lowerings kept: a user's `iterate`s of one window in a row find theirs (basketball: 2 s of
-# lowering and patterns once, not at every solve), and so do the rounds of an adaptive `iterate`,
-# each a structure of its own (point_mass_2d's 4: with 2 kept, every `iterate` lowered them
-# again, 17.8 against 10.6 ms), and the starts of a survey.
+# The lowerings kept: a user's `iterate`s of one window in a row find theirs, and so do the rounds
+# of an adaptive `iterate`, each a structure of its own (point_mass_2d's 4: with 2 kept, every
+# `iterate` lowered them again, 17.8 against 10.6 ms), and the starts of a survey.
 KEPT = 8
 # What the kept lowerings may hold together, in stored entries of their Jacobian and Hessian
 # patterns (values and indices: about 12 bytes each): basketball's is 4.7 million, the other

@@ -1,10 +1,6 @@
 """A fixed sparse matrix applied to torch tensors: torch's sparse CSR product on a CUDA device,
-scipy's on the CPU.
-
-On the CPU the tensors share their memory with numpy arrays, and scipy's product of a window
-problem's matrices (a few hundred rows) cost ~0.02 ms where torch's sparse CSR product cost
-~0.25 ms (2 cores; five products an evaluation). Both sum each row's products in order.
-"""
+scipy's on the CPU, on the tensors' memory (a window's matrices: ~0.02 ms where torch's sparse
+CSR product cost ~0.25). Both sum each row's products in order."""
 
 from __future__ import annotations
 
