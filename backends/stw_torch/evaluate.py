@@ -312,8 +312,7 @@ class TorchProblem:
         self.host_linear = host_linear
         self.n_free = problem.n_free
         self.row_counts = dict(problem.row_counts)
-        dev = dict(dtype=torch.float64, device=device)
-        self._dev = dev
+        self._dev = dev = dict(dtype=torch.float64, device=device)
 
         Pf = sps.csr_array(problem.Pf, copy=True)
         Pf.eliminate_zeros()
@@ -322,10 +321,9 @@ class TorchProblem:
         self.PfT = SparseMatrix(sps.csr_array(Pf.T), device)
         fixed = problem.coef0.copy()
         fixed[problem.free] = 0.0
-        P = problem.P.tocsr()
-        P_t = SparseMatrix(P, device)
-        self.v_fixed = P_t @ torch.as_tensor(fixed, **dev)   # slot values of the fixed coefficients
-        self.n_slots = P.shape[0]
+        # slot values of the fixed coefficients
+        self.v_fixed = SparseMatrix(problem.P.tocsr(), device) @ torch.as_tensor(fixed, **dev)
+        self.n_slots = problem.P.shape[0]
 
         self.groups: list[_Group] = []
         inst = 0
