@@ -79,38 +79,40 @@ class CallPlan:
         return cls(calls, as_t(cat(inputs)), as_t(np.argsort(cat(f_dest), kind="stable")),
                    as_t(np.argsort(cat(h_dest), kind="stable")), n_slots, derived if autograd else None)
 
-    def _driver(self, kind: str, device: torch.device):
-        """A TorchScript function of V (B, slots) that runs every call's program ``kind`` and puts
-        its outputs in place, and its fixed arguments on ``device``, written and compiled once
-        (3-20 ms): one call from Python per evaluation, not one per term (15-19 µs each)."""
-        if (kind, device) not in self.drivers:
+    def _driver(self, kind: str, device: torch.device, one: bool):
+        """A TorchScript function of V (B, slots; ``one``: B = 1) that runs every call's program
+        ``kind`` and puts its outputs in place, and its fixed arguments on ``device``, compiled
+        once (3-20 ms): one call from Python per evaluation, not one per term (15-19 µs each)."""
+        if (kind, device, one) not in self.drivers:
             programs = {f"p{i}": c.term.program(kind) for i, c in enumerate(self.calls)}
             lines = ["def plan(V: torch.Tensor, inputs: torch.Tensor, T: List[torch.Tensor], P: List[torch.Tensor], "
                      "A: List[List[torch.Tensor]], f_order: torch.Tensor, h_order: torch.Tensor, n_slots: int):",
                      "    B = V.shape[0]", "    X = torch.index_select(V, 1, inputs)",
                      "    f: List[torch.Tensor] = []", "    g: List[torch.Tensor] = []", "    h: List[torch.Tensor] = []"]
             for i, c in enumerate(self.calls):    # a call's (k, B·N) inputs, start-major, and its rows
-                pairs = len(c.term.term.hessian_pairs) if kind == "full" else 0
-                lines += [f"    r = p{i}(X[:, {c.start}:{c.start + c.k * c.n}].reshape(B, {c.k}, {c.n}).transpose(0, 1)"
-                          f".reshape({c.k}, B * {c.n}), T[{i}].repeat([B]), P[{i}], A[{i}]).reshape(-1, B, {c.n}).transpose(0, 1)",
-                          "    f.append(r[:, 0])"]
-                lines += [f"    g.append(r[:, 1:{1 + c.k}].reshape(B, {c.k * c.n}))"] if kind != "value" else []
-                lines += [f"    h.append(r[:, {1 + c.k}:].reshape(B, {pairs * c.n}))"] if pairs else []
+                pairs, block, r = len(c.term.term.hessian_pairs) if kind == "full" else 0, f"{c.start}:{c.start + c.k * c.n}", "r[:, "
+                lines.append(f"    r = p{i}(X[0, {block}].view({c.k}, {c.n}), T[{i}], P[{i}], A[{i}])" if one else
+                             f"    r = p{i}(X[:, {block}].reshape(B, {c.k}, {c.n}).transpose(0, 1).reshape({c.k}, B * {c.n}), "
+                             f"T[{i}].repeat([B]), P[{i}], A[{i}]).reshape(-1, B, {c.n}).transpose(0, 1)")
+                r = "r[" if one else r
+                lines += [f"    f.append({r}0:1].reshape(B, {c.n}))"]
+                lines += [f"    g.append({r}1:{1 + c.k}].reshape(B, {c.k * c.n}))"] if kind != "value" else []
+                lines += [f"    h.append({r}{1 + c.k}:].reshape(B, {pairs * c.n}))"] if pairs else []
             lines += ["    F = torch.cat(f, 1)[:, f_order]", "    G = V.new_zeros([B, n_slots])",
                       "    if len(g):", "        G[:, inputs] = torch.cat(g, 1)",
                       "    H = torch.cat(h, 1)[:, h_order] if len(h) else V.new_zeros([B, 0])", "    return F, G, H"]
             unit = torch.jit.CompilationUnit()
             unit.define("\n".join(lines) + "\n", rcb=lambda name: programs[name].fn if name in programs else torch)
-            self.drivers[(kind, device)] = unit.plan, (
+            self.drivers[(kind, device, one)] = unit.plan, (
                 self.inputs, [c.times for c in self.calls], [c.params for c in self.calls],
                 [c.term.program(kind).arrays_on(device) for c in self.calls], self.f_order, self.h_order, self.n_slots)
-        return self.drivers[(kind, device)]
+        return self.drivers[(kind, device, one)]
 
     def _run(self, kind: str, V: torch.Tensor):
         """The driver of ``kind`` at slot values V: values, gradients per slot, second derivatives."""
         if not self.calls:
             return V.new_zeros(V.shape[0], 0), V.new_zeros(V.shape[0], self.n_slots), V.new_zeros(V.shape[0], 0)
-        driver, arguments = self._driver(kind, V.device)
+        driver, arguments = self._driver(kind, V.device, V.shape[0] == 1)
         with unoptimized():   # the graph executor's optimizing took 0.5 s for the arm's plan, and saved nothing
             return driver(V, *arguments)
 

@@ -468,11 +468,8 @@ class TorchProblem:
         return self._last is None or self._last.hessian_used
 
     def evaluate(self, s: np.ndarray) -> TorchEvaluation:
-        """Values, gradients and local second derivatives (lowered programs) at ``s``. Second
-        derivatives only where they will be used (the SQP's exact Hessian; far from feasibility
-        it takes Gauss-Newton steps, which need none, and a program of values and gradients
-        costs half of one with the Hessian too); when asked for anyway, hessian_values
-        computes them then."""
+        """Values, gradients and local second derivatives at ``s``; the second only where they
+        will be used (Gauss-Newton steps need none), else hessian_values computes them if asked."""
         return evaluations_of([self], [s], second=self._second())[0]
 
     def _jacobian_values(self, kind: str, values: torch.Tensor) -> torch.Tensor:
