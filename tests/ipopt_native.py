@@ -1,7 +1,7 @@
 """A hand-written CasADi/IPOPT reference for the ipopt backend (issue 51, item 3).
 
-:func:`native_pendulum` is `stw bench --anchors`' statement of the pendulum swing-up directly in
-CasADi (stw_tui.cli.bench_targets.native_ipopt_nlp), as a user of CasADi would write it: control
+`native_pendulum` is `stw bench --anchors`' statement of the pendulum swing-up directly in
+CasADi (stw_ipopt.anchor.pendulum_nlp), as a user of CasADi would write it: control
 points as one SX vector, the basis matrices from scipy's BSpline at Gauss-Legendre nodes, the
 objective ``Σ w (θ'' + g sin θ)²`` and the four boundary conditions, ``nlpsol`` with IPOPT's exact
 Hessian. Nothing of stw's compiler or window is used, so it is an independent check of the
@@ -34,9 +34,9 @@ objective effort: th'' + g*sin(th)
 def native_pendulum(spans: int, quadrature: int = 4, t1: float = 2.0):
     """(solver, lbg, ubg) of the swing-up over ``spans`` uniform knot spans on [0, t1]: `stw bench
     --anchors`' own CasADi statement of it (bench_targets.native_ipopt_nlp)."""
-    from stw_tui.cli.bench_targets import native_ipopt_nlp
+    from stw_ipopt.anchor import pendulum_nlp
 
-    solver, target = native_ipopt_nlp(spans, quadrature, G, t1)
+    solver, target = pendulum_nlp(spans, quadrature, G, t1)
     return solver, target, target
 
 

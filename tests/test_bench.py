@@ -7,6 +7,7 @@ import pytest
 from conftest import SESSIONS
 from stw_tui.session import bench
 from stw_tui.sos.window import WindowProblem
+from stw_tui.sym.errors import StwError
 
 
 def _number(text: str) -> float:
@@ -195,7 +196,9 @@ def test_without_crocoddyl_the_fddp_figure_says_so(monkeypatch):
     import sys
 
     monkeypatch.setitem(sys.modules, "crocoddyl", None)    # an import of it fails
-    monkeypatch.setitem(sys.modules, "casadi", None)       # and of casadi (the ipopt extra)
+    def no_ipopt(name):   # as when the ipopt extra (casadi) is not installed
+        raise StwError(f"backend '{name}' failed to load: ModuleNotFoundError: No module named 'casadi'")
+    monkeypatch.setattr(targets, "load_backend", no_ipopt)
     case = bench.prepare("pendulum", targets.PENDULUM)
     monkeypatch.setattr(targets, "prepare", lambda name, text: case)
     figures = targets.pendulum_figures(3, anchors=True)

@@ -28,15 +28,16 @@ def test_a_replay_and_solve_import_only_what_they_use():
     assert out.stdout.strip() == "[]"
 
 
-def _imports_of(path, package: str, modules: set[str]) -> set[str]:
-    """The stw_tui modules a module imports anywhere (inside functions too), except under
-    ``if TYPE_CHECKING:`` (annotations only: nothing is imported when the program runs)."""
+def _imports_of(path, package: str, modules: set[str], typing_too: bool = False) -> set[str]:
+    """The modules among ``modules`` that a module imports anywhere (inside functions too),
+    relative imports from ``package``; except under ``if TYPE_CHECKING:`` (annotations only:
+    nothing is imported when the program runs) unless ``typing_too``."""
     import ast
 
     tree = ast.parse(path.read_text(encoding="utf-8"))
-    typing_only = {id(node) for block in ast.walk(tree)
-                   if isinstance(block, ast.If) and "TYPE_CHECKING" in ast.unparse(block.test)
-                   for node in ast.walk(block)}
+    typing_only = set() if typing_too else {
+        id(node) for block in ast.walk(tree)
+        if isinstance(block, ast.If) and "TYPE_CHECKING" in ast.unparse(block.test) for node in ast.walk(block)}
     found = set()
     for node in ast.walk(tree):
         if id(node) in typing_only:
@@ -177,26 +178,32 @@ def test_the_architecture_note_names_every_module():
     assert present - named == set(), "in the tree but not in ARCHITECTURE.md"
 
 
+def _backend_modules() -> dict:
+    """Dotted module name -> file, for every module of the backend packages (stw_scipy.dense …)."""
+    from pathlib import Path
+
+    root = Path(__file__).resolve().parent.parent / "backends"
+    paths = {}
+    for path in root.rglob("*.py"):
+        rel = path.relative_to(root).with_suffix("")
+        parts = rel.parts[:-1] if rel.name == "__init__" else rel.parts
+        paths[".".join(parts)] = path
+    return paths
+
+
 def test_no_import_cycle_of_any_length():
-    """No chain of imports leads from a module back to itself, counting imports inside functions
-    and under TYPE_CHECKING: every module has a place above all it imports (ARCHITECTURE.md)."""
-    paths = _core_modules()
+    """No chain of imports leads from a module back to itself, in the core or the backends (the
+    torch backend's batch and backend modules once imported each other), counting imports inside
+    functions and under TYPE_CHECKING: every module has a place above all it imports
+    (ARCHITECTURE.md)."""
+    paths = {**_core_modules(), **_backend_modules()}
+    assert "stw_torch.batch" in paths and "stw_scipy.dense" in paths
     packages = {name for name, path in paths.items() if path.name == "__init__.py"}
     edges = {}
     for name, path in paths.items():
-        targets = set()
-        for imported in _all_imports(path):
-            # `from stw_tui.session import autosave` names the module, not the package
-            while imported and imported not in paths:
-                imported = imported.rpartition(".")[0]
-            if imported and imported != name and imported not in packages:
-                targets.add(imported)
-        edges[name] = targets
-    for name, path in paths.items():          # `from PACKAGE import module` lines
-        import ast
-        for node in ast.walk(ast.parse(path.read_text(encoding="utf-8"))):
-            if isinstance(node, ast.ImportFrom) and node.level == 0 and node.module in packages:
-                edges[name] |= {f"{node.module}.{a.name}" for a in node.names} & set(paths)
+        package = name if path.name == "__init__.py" else name.rpartition(".")[0]
+        # `from stw_tui.session import autosave` names the module, not the package
+        edges[name] = {m for m in _imports_of(path, package, set(paths), typing_too=True) if m != name and m not in packages}
     state, stack, cycles = {}, [], []
 
     def visit(node):

@@ -112,7 +112,7 @@ def test_a_request_that_raises_fails_its_own_job_only(monkeypatch):
         return [x / 2 for x in items]
 
     monkeypatch.setitem(torch_batch._KINDS, "halve", halve)
-    solver = TorchBatch(3, torch.device("cpu"))
+    solver = TorchBatch(3, torch.device("cpu"), {}, "scipy", None)
 
     def job(i):
         def run():
@@ -158,8 +158,8 @@ def test_console_set_scheduler_batch():
 def test_batched_evaluations_are_each_starts_own():
     """Two starts of a window that frees x only: their fixed y control points differ, yet they
     share one lowering and one batched evaluation, which gives each start its own numbers."""
-    from stw_torch.batch_evaluate import evaluate_batch, merit_values_batch, problem_key
-    from stw_torch.evaluate import TorchProblem
+    from stw_torch.evaluate import TorchProblem, evaluations_of, merit_values_of
+    from stw_torch.lowerings import problem_key
 
     from stw_tui.sos.window import WindowProblem
 
@@ -176,8 +176,8 @@ def test_batched_evaluations_are_each_starts_own():
     members = [template.with_problem(p) for p in problems]
     points = [p.initial() + 0.01 * k for k, p in enumerate(problems)]
     lam_eq, lam_ge = [np.linspace(-1, 1, problems[0].row_counts[kind]) for kind in ("eq", "ge")]
-    for problem, point, ev, merit in zip(problems, points, evaluate_batch(members, points),
-                                         merit_values_batch(members, points)):
+    for problem, point, ev, merit in zip(problems, points, evaluations_of(members, points),
+                                         merit_values_of(members, points)):
         own = TorchProblem(problem, cpu, host_linear=False).evaluate(point)
         assert ev.objective == pytest.approx(own.objective, rel=1e-12)
         assert merit.objective == pytest.approx(own.objective, rel=1e-12)
@@ -199,7 +199,7 @@ def test_a_cancelled_batch_reports_nothing_more_and_ends_its_threads(monkeypatch
     import threading
 
     monkeypatch.setitem(torch_batch._KINDS, "echo", lambda items: list(items))
-    solver = TorchBatch(3, torch.device("cpu"))
+    solver = TorchBatch(3, torch.device("cpu"), {}, "scipy", None)
     stop = {"asked": False}
 
     def job(i, n):

@@ -61,6 +61,7 @@ from stw_tui.sos.backend import CANCELLED, ITERATION_BUDGET, Backend, BackendOpt
 from stw_tui.sos.sqp.termination import PROJECTION_EPS, is_converged, kkt_residual
 from stw_tui.sym.errors import StwError
 
+from .anchor import pendulum_nlp
 from .native import NativeNLP, Unsupported, fixed_slot_values, forget_local_derivatives, instructions
 
 
@@ -340,6 +341,9 @@ def _jit_options() -> dict:
 
 class IpoptBackend(Backend):
     """Interior-point NLP solve (IPOPT via CasADi), on CasADi expressions of the problem's terms."""
+
+    # `stw bench --anchors`' reference: the pendulum swing-up stated in CasADi apart from stw
+    pendulum_reference = staticmethod(pendulum_nlp)
 
     name = "ipopt"
     options = (

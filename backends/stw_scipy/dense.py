@@ -13,7 +13,7 @@ import numpy as np
 import scipy.sparse as sps
 from scipy.linalg import lapack
 
-from stw_tui.sos.sqp.algebra import KKTSystem, SingularSystem
+from stw_tui.sos.sqp.algebra import DenseMatrices, KKTSystem, SingularSystem
 from stw_tui.sym.kinds import TermKind
 from stw_scipy.vectors import NumpyVectors
 
@@ -32,7 +32,11 @@ def window_rows(problem) -> int:
 
 
 class DenseKKT(KKTSystem):
-    """An LU factorization of K = [[H, Aᵀ], [A, -diag(e)]] that solves for any right-hand side."""
+    """An LU factorization of K = [[H, Aᵀ], [A, -diag(e)]] that solves for any right-hand side.
+
+    stw_torch.linalg has its own: the same block layout, assembled and factorized there by
+    torch on the device that holds the problem; here in LAPACK's Fortran order, K's (2,2)
+    diagonal written through a strided view, and dgetrf without a copy (numpy only)."""
 
     def __init__(self, H: np.ndarray, A: np.ndarray, e):
         n, m = H.shape[0], A.shape[0]
@@ -55,7 +59,7 @@ class DenseKKT(KKTSystem):
         return x
 
 
-class NumpyDenseAlgebra(NumpyVectors):
+class NumpyDenseAlgebra(DenseMatrices, NumpyVectors):
     """numpy vectors and dense 2-D arrays; LAPACK's LU and Cholesky. One per solve."""
 
     def __init__(self):
@@ -87,18 +91,6 @@ class NumpyDenseAlgebra(NumpyVectors):
 
     def stack_rows(self, parts):
         return np.vstack(parts)
-
-    def matvec(self, m, x):
-        return m @ x
-
-    def rmatvec(self, m, x):
-        return m.T @ x
-
-    def add(self, a, b):
-        return a + b
-
-    def gram(self, a, w):
-        return a.T @ (np.asarray(w, dtype=float)[:, None] * a)
 
     def max_abs_diagonal(self, m):
         return float(np.abs(m.diagonal()).max(initial=0.0))

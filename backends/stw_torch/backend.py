@@ -1,16 +1,9 @@
-"""The torch backend: the shared SQP (stw_tui.sos.sqp) with values and derivatives computed by torch.
-
-The SQP itself — the QP of each step, its elastic mode, the step limit, the merit acceptance test
-and the convergence tests — is the core's, so this backend and ``stw_scipy`` take the same steps.
-What differs is where the numbers come from: every term's sympy expression and its first and
-second derivatives are lowered to one torch program here (lower.py), called once per term over
-all its instances (calls.py), and the gradient, Jacobians and Hessian of the Lagrangian are
-assembled on fixed sparse patterns (evaluate.py). With ``linear=torch`` the KKT systems are solved on the device
-too (dense LU, linalg.py); with ``linear=scipy`` by stw_scipy's sparse solvers on the host.
-
-torch is imported when a solve starts, not when the class is loaded: listing the backend's
-options (``help``, the TUI's backend panel) costs nothing.
-"""
+"""The torch backend: the shared SQP (stw_tui.sos.sqp: the same steps as ``stw_scipy``) with its
+numbers from torch: each term and its derivatives lowered to TorchScript programs (lower.py), one
+call per term over all its instances (calls.py), the gradient, Jacobians and Hessian assembled on
+fixed sparse patterns (evaluate.py). KKT systems: dense LU on the device with ``linear=torch``
+(linalg.py), stw_scipy's sparse solvers on the host with ``linear=scipy``. torch is imported when a
+solve starts, not when the class is loaded: listing the backend's options costs nothing."""
 
 from __future__ import annotations
 
@@ -49,7 +42,8 @@ class TorchBackend(SQPBackend):
         from .batch import TorchBatch
 
         config = cls(**dict(options or {})).config   # the options, validated and parsed (once)
-        return TorchBatch(size, _device(config["device"]), config)
+        device = _device(config["device"])
+        return TorchBatch(size, device, config, _linear(config["linear"], device), BatchMember)
 
     def algebra(self, problem):
         import torch
@@ -82,6 +76,24 @@ class TorchBackend(SQPBackend):
         inner = super().init(problem, state, settings)
         check_finite(inner.ev, problem)
         return inner
+
+
+class BatchMember(TorchBackend):
+    """The torch backend of one start of a batch (batch.TorchBatch): its evaluations and, with
+    the batch's ``linear=torch``, its KKT solves are computed in the batch's rounds."""
+
+    def __init__(self, batch, job: int, **options):
+        super().__init__(**options)
+        self.batch, self.job = batch, job
+
+    def algebra(self, problem):
+        self.device, self.linear = self.batch.device, self.batch.linear
+        if self.linear == "scipy":
+            return ScipyBackend.algebra(self, problem)
+        return self.batch.algebra(self.job)
+
+    def evaluator(self, problem, algebra):
+        return self.batch.evaluator(self.job, problem)
 
 
 def _linear(want: str, device) -> str:

@@ -2,27 +2,19 @@
 :class:`~stw_tui.sos.batch.BatchSolver`.
 
 Each start (a job: replay, shake, `iterate`, dense check) runs the shared SQP on a thread of its
-own, with a member backend (:class:`BatchMember`) whose heavy numerical work is not done on that
-thread but requested from the batch: evaluations of the window problem (values, gradients,
-Jacobians and Hessian terms by the lowered term programs), merit values of the line search and, with
-``linear=torch`` (the default on cuda), LU factorizations and solves of KKT systems and the
-Cholesky tests of the curvature control. The calling thread serves the requests in rounds, in
-lockstep: it waits until every running start is blocked on a request, then computes each kind of
-request for all of them at once — evaluations through one pass over the term groups
-(batch_evaluate.py), factorizations as ``torch.linalg.lu_factor_ex`` on a (B, n, n) stack — and
-wakes them all. On the CPU (``linear=scipy`` by default) each start factorizes its sparse KKT
-systems itself: measured on 2 cores, dense batched LU cost more than SuperLU's banded solves
-(arm throw, 4 starts: 36 s against 23 s), while batched evaluations still pay.
+own, with a member backend (backend.BatchMember) that requests its heavy numerical work from the
+batch: evaluations (evaluate.evaluations_of), merit values and, with ``linear=torch`` (the default
+on cuda), LU factorizations and solves of KKT systems and the curvature control's Cholesky tests.
+The calling thread serves the requests in lockstep rounds: once every running start waits on one,
+it computes each kind for all of them at once (one call of each term's program; LU on a (B, n, n)
+stack) and wakes them. On the CPU (``linear=scipy``) each start factorizes its own sparse KKT
+systems: dense batched LU cost more than SuperLU's banded solves (arm throw, 4 starts: 36 s
+against 23 s). Not one SQP vectorized over starts: its control flow differs per start; here each
+takes exactly a serial solve's steps.
 
-Why not one SQP vectorized over starts: the SQP's control flow (retries, elastic mode, the
-interior-point QP's iteration counts, the curvature shift) differs per start; here every start
-takes exactly the steps a serial solve takes, and only where its numbers are computed changes.
-
-Determinism: a round holds exactly one request of every running start, starts join only between
-rounds, and requests are served in start order, so the batches (and their rounding) do not depend
-on thread timing. Isolation: a batched computation that raises is redone request by request, so
-an error belongs to its start alone; a start whose numbers diverge fails in the driver's
-non-finite check like a serial solve, and the others go on.
+Determinism: a round holds one request of every running start, starts join only between rounds,
+and requests are served in start order, so the batches do not depend on thread timing. Isolation:
+a batched computation that raises is redone request by request, so an error is its start's alone.
 """
 
 from __future__ import annotations
@@ -32,17 +24,13 @@ from typing import Any, Callable, Sequence
 
 import torch
 
-from stw_scipy.sqp import ScipyBackend
 from stw_tui.sos.batch import BatchSolver, join_batch, leave_batch
 from stw_tui.sos.sqp.algebra import KKTSystem, SingularSystem
 from stw_tui.sym.errors import StwError
 
-from .backend import TorchBackend, _linear
-from .batch_evaluate import evaluate_batch, merit_values_batch
-from .evaluate import TorchProblem
+from .evaluate import TorchProblem, evaluations_of, merit_values_of
 from .linalg import DenseAlgebra, kkt_matrix
 from .lowerings import Lowerings
-
 
 
 class Cancelled(StwError):
@@ -78,8 +66,8 @@ def _positive_definite(Ms: list[torch.Tensor]) -> list[bool]:
 
 # kind -> (the batched computation of a list of payloads, the payload's batching key)
 _KINDS: dict[str, Callable[[list], list]] = {
-    "evaluate": lambda items: evaluate_batch([tp for tp, _ in items], [s for _, s in items]),
-    "merit": lambda items: merit_values_batch([tp for tp, _ in items], [s for _, s in items]),
+    "evaluate": lambda items: evaluations_of([tp for tp, _ in items], [s for _, s in items]),
+    "merit": lambda items: merit_values_of([tp for tp, _ in items], [s for _, s in items]),
     "factor": _factor,
     "solve": _solve,
     "cholesky": _positive_definite,
@@ -87,16 +75,21 @@ _KINDS: dict[str, Callable[[list], list]] = {
 
 
 class TorchBatch(BatchSolver):
-    """Up to ``size`` jobs at once, their numbers computed in lockstep rounds on ``device``."""
+    """Up to ``size`` jobs at once, their numbers computed in lockstep rounds on ``device``.
 
-    def __init__(self, size: int, device: torch.device, options: dict[str, Any] | None = None):
+    ``member(batch, job, **options)`` makes the backend of a start (the torch backend's
+    BatchMember), which asks the batch for its :meth:`algebra` and :meth:`evaluator`; ``linear``
+    says where KKT systems are solved: dense LU on the device, batched over starts ("torch", the
+    default on cuda), or each start's own sparse factorization on the host ("scipy", the default
+    on the CPU, where it measured faster: banded KKT systems of a few hundred rows)."""
+
+    def __init__(self, size: int, device: torch.device, options: dict[str, Any], linear: str,
+                 member: Callable[..., Any]):
         self.size = max(1, int(size))
         self.device = device
-        self.options = dict(options or {})
-        # KKT systems: dense LU on the device, batched over starts (linear=torch, the default on
-        # cuda), or each start's own sparse factorization on the host (linear=scipy, the default
-        # on the CPU, where it measured faster: banded KKT systems of a few hundred rows).
-        self.linear = _linear(self.options.get("linear", "auto"), device)
+        self.options = dict(options)
+        self.linear = linear
+        self._member = member
         self.rounds = 0            # rounds served in the last run (the benchmark shows it)
         self._cond = threading.Condition()
         self._pending: dict[int, _Request] = {}
@@ -125,18 +118,24 @@ class TorchBatch(BatchSolver):
             raise request.error
         return request.result
 
-    def member(self, job: int) -> Callable[[str, dict], "BatchMember"]:
+    def member(self, job: int) -> Callable[[str, dict], Any]:
         """The backend factory of job ``job``: the scene's SQP options, solved in this batch."""
-        def make(name: str, options: dict) -> BatchMember:
-            known = {o.name for o in BatchMember.options} - {"device", "linear"}
+        def make(name: str, options: dict):
+            known = {o.name for o in self._member.options} - {"device", "linear"}
             chosen = {k: v for k, v in {**self.options, **options}.items() if k in known}
-            return BatchMember(self, job, **chosen)
+            return self._member(self, job, **chosen)
         return make
 
-    def lowering(self, problem, host_linear: bool) -> tuple[TorchProblem, str]:
-        """``problem`` lowered to torch, and its batching key. Starts whose problems have the
-        same structure share one lowering (building an arm's took 0.45 s, per start and solve)."""
-        return self._lowerings.get(problem, self.device, host_linear)
+    def algebra(self, job: int) -> "BatchAlgebra":
+        """Job ``job``'s dense algebra on the device (linear=torch), its solves in the rounds."""
+        return BatchAlgebra(self, job)
+
+    def evaluator(self, job: int, problem) -> "BatchEvaluator":
+        """Job ``job``'s evaluator of ``problem``, its evaluations in the rounds. Starts whose
+        problems have the same structure share one lowering (building an arm's took 0.45 s, per
+        start and solve) and batch together."""
+        tp, key = self._lowerings.get(problem, self.device, self.linear == "scipy")
+        return BatchEvaluator(self, job, tp, key)
 
     def _job(self, index: int, job: Callable[[], Any]) -> None:
         token = join_batch(self.member(index))
@@ -277,27 +276,10 @@ class BatchEvaluator:
         self.damping = tp.damping
 
     def evaluate(self, s):
-        """:meth:`TorchProblem.evaluate`, batched with the other starts'."""
+        """:meth:`TorchProblem.evaluate`, batched with the other starts' (second derivatives
+        always: the starts of a round disagree on whether they will use them)."""
         return self.batch.request(self.job, "evaluate", ("evaluate", self.key), (self.tp, s))
 
     def merit_values(self, s):
         """:meth:`TorchProblem.merit_values`, batched with the other starts'."""
         return self.batch.request(self.job, "merit", ("merit", self.key), (self.tp, s))
-
-
-class BatchMember(TorchBackend):
-    """The torch backend of one start of a batch (its KKT solves as the batch's ``linear`` says)."""
-
-    def __init__(self, batch: TorchBatch, job: int, **options: Any):
-        super().__init__(**options)
-        self.batch, self.job = batch, job
-
-    def algebra(self, problem):
-        self.device, self.linear = self.batch.device, self.batch.linear
-        if self.linear == "scipy":
-            return ScipyBackend.algebra(self, problem)
-        return BatchAlgebra(self.batch, self.job)
-
-    def evaluator(self, problem, algebra):
-        tp, key = self.batch.lowering(problem, host_linear=self.linear == "scipy")
-        return BatchEvaluator(self.batch, self.job, tp, key)

@@ -1,25 +1,17 @@
 """The window problem on torch: values and local derivatives by lowered term programs.
 
 Everything fixed during an `iterate` is built once, as tensors on the chosen device: the slot
-matrix ``Pf`` (sparse CSR) and the slot values of the fixed control points, instance times,
-weights and parameters of every term group, and the sparsity patterns of the Jacobians and of the
-Hessian of the Lagrangian. Per evaluation:
+matrix ``Pf``, the slot values of the fixed control points, every term group's instance times,
+weights and parameters, and the sparsity patterns of the Jacobians and of the Hessian of the
+Lagrangian. An evaluation is one of a batch of starts of one structure (a solve of its own is a
+batch of one: :func:`evaluations_of`), the same code on every device:
 
-- slot values are one sparse product ``v = v_fixed + Pf @ s`` (sparse.py: scipy's on the CPU);
-- the values, local gradients (k, n) and local second derivatives of all the groups of one term
-  come from one call of its lowered torch program (lower.py, calls.py) on their (k, N) inputs
-  gathered from ``v`` (an instance depends on its own slots only); second derivatives only where
-  the previous evaluation's Hessian was used, else when asked for;
-- Jacobians ``G @ Pf`` and the Hessian ``Pfᵀ D Pf + Jₒᵀ W Jₒ`` are assembled on fixed patterns
-  by gathering products of ``Pf`` entries with local derivatives and summing a fixed, padded
-  list of contributions per nonzero: vectorized, and deterministic on every device (no atomics);
-  on the CPU the same sums are one sparse product, which skips the padding (Pattern).
-
-A Python loop runs over terms (calls) only, never over instances or control points. On the CPU
-everything around the programs (gathers, scatters, the products on the patterns) runs in numpy on
-views of the same memory: a torch op there cost several microseconds whatever its size, and that
-glue cost more than the programs on the small sessions (particle_jet: torch/scipy per iteration
-1.39-1.42x before, 1.20-1.24x after; the same numbers, bit for bit).
+- slot values are one sparse product ``V = V_fixed + S Pfᵀ`` (sparse.py: scipy's on the CPU);
+- every term's values, local gradients and (where they will be used) local second derivatives
+  come from one call of its program on its inputs gathered from V (calls.py);
+- Jacobians ``G @ Pf`` and the Hessian ``Pfᵀ D Pf + Jₒᵀ W Jₒ`` are sums of fixed contributions
+  per nonzero (Pattern): a sparse product on the CPU, padded gathers on a device (deterministic,
+  no atomics).
 """
 
 from __future__ import annotations
@@ -32,7 +24,7 @@ import scipy.sparse as sps
 import torch
 
 from stw_tui.sos.compressed import csr
-from stw_tui.sos.window import EQ, GE, OBJ, MeritValues, evaluate_condition_tree, numpy_filled
+from stw_tui.sos.window import EQ, GE, OBJ, MeritValues, evaluate_condition_tree
 from stw_tui.sym.errors import StwError
 
 from .calls import CallPlan
@@ -55,51 +47,11 @@ def _row_entries(indptr: np.ndarray, rows: np.ndarray) -> tuple[np.ndarray, np.n
     return owner, first + np.arange(total, dtype=index)
 
 
-def _runs(ordered: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """``np.unique(ordered, return_index=True, return_counts=True)`` of a sorted array, in one
-    pass: np.unique sorts again (basketball's Hessian: 4.7 million contributions, 0.36 s)."""
-    new = np.empty(ordered.size, bool)
-    new[:1] = True
-    np.not_equal(ordered[1:], ordered[:-1], out=new[1:])
-    start = np.flatnonzero(new)
-    return ordered[start], start, np.diff(np.append(start, ordered.size))
-
-
-COUNTING_SORT_MAX = 2**22   # key spaces (n_free² of a Hessian) sorted by counting, not comparing
-
-
-def _grouped(keys: np.ndarray, space: int) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
-    """A stable sort of ``keys`` (in range(space)), and its distinct keys with where each begins
-    and how many there are: what ``np.argsort(keys, kind="stable")`` and :func:`_runs` give.
-
-    For a space of at most COUNTING_SORT_MAX keys, by counting: scipy's conversion of the
-    (key, position) pairs from COO to CSR places them key by key in the order given, in one
-    pass (basketball's Hessian, 4.7 million contributions: 0.06-0.12 s, against 0.17-0.22 s
-    for the argsort and 0.11 s more for its runs).
-    """
-    if not keys.size or space > COUNTING_SORT_MAX:
-        order = np.argsort(keys, kind="stable")
-        return (order, *_runs(keys[order]))
-    index = _index_dtype(keys.size)   # scipy's own choice: no conversion
-    by_key = sps.coo_array((np.ones(keys.size, np.int8), (keys.astype(index, copy=False),
-                                                           np.arange(keys.size, dtype=index))),
-                           shape=(space, keys.size)).tocsr()   # positions unique: nothing summed
-    sizes = np.diff(by_key.indptr)
-    uniq = np.flatnonzero(sizes)
-    return by_key.indices, uniq, by_key.indptr[uniq].astype(np.int64), sizes[uniq].astype(np.int64)
-
-
 def _operator(coef, src, start, counts, n_src) -> sps.csr_array:
     """The CSR matrix (nonzero, source) of the contributions ``coef`` of sources ``src``, listed
-    nonzero after nonzero (``counts`` of each from ``start``), duplicate (nonzero, source) pairs
-    summed and each row's sources ascending.
-
-    The contributions of a Jacobian or Hessian are listed source by source and sorted stably by
-    nonzero, and one source adds to one nonzero once (a row of Pf holds a column once): each row
-    is then in ascending source order already, without duplicates, and the arrays are the CSR
-    arrays as they are; scipy's construction from (row, column) pairs (a COO sort and a sum of
-    duplicates, basketball's Hessian: 4.7 million contributions, 0.44 s) is left for anything else.
-    """
+    nonzero after nonzero (``counts`` of each from ``start``), duplicate pairs summed and each
+    row's sources ascending: the listing's own arrays where it is so already (a Jacobian's or
+    Hessian's; scipy's construction from pairs took basketball's Hessian 0.44 s)."""
     # int32 indices where they fit, as scipy's own construction makes them: an int64 indptr
     # beside int32 indices had scipy convert the indices (basketball: 0.1 s, 19 MB more)
     index = _index_dtype(np.size(src), n_src)
@@ -119,6 +71,18 @@ def _operator(coef, src, start, counts, n_src) -> sps.csr_array:
 
 
 PAIRS_CHUNK = 1 << 16   # slot pairs whose products are worked out at a time (_pair_products)
+COUNTING_SORT_MAX = 2**22   # key spaces (n_free² of a Hessian) Pattern.of places entries in directly
+
+
+def _slot_products(Pf: sps.csr_array, row_of: np.ndarray, shape: tuple[int, int]) -> sps.csr_array:
+    """The contributions of slots p to a Jacobian J[r, j] = Σ_p G[r, p] Pf[p, j] (``shape``) as
+    a CSR matrix C (slot p, key r * n_cols + j) of the entries Pf[p, j], r = row_of[p] the row
+    that slot p serves (-1: none)."""
+    owner = np.repeat(np.arange(row_of.size), np.diff(Pf.indptr))
+    keep = row_of[owner] >= 0
+    indptr = np.append(0, np.cumsum(np.diff(Pf.indptr) * (row_of >= 0)))
+    return sps.csr_array((Pf.data[keep], row_of[owner[keep]] * shape[1] + Pf.indices[keep], indptr),
+                         shape=(row_of.size, max(1, shape[0] * shape[1])))
 
 
 def _pair_products(indptr, indices, data, p, q, n_cols) -> sps.csr_array:
@@ -168,14 +132,10 @@ TAIL_AFTER = 3   # Pattern.values_past's calls before it copies the columns it n
 
 @dataclass
 class Pattern:
-    """A fixed CSR pattern whose values are sums of gathered products.
-
-    ``values = (coef_pad * source[src_pad]).sum(1)``: row u of the padded (nnz, m) arrays lists
-    the contributions to nonzero u; padding has coefficient 0 and points past the source's end.
-    On the CPU the same sums are one sparse product ``operator @ source`` instead (row by row, so
-    deterministic too): it skips the padding, which is most of an arm's Hessian (3595 nonzeros of
-    up to 696 contributions, 29% of them real): 65 ms per Hessian padded, 1.5 ms as a product.
-    """
+    """A fixed CSR pattern whose values are sums of gathered products: on a device
+    ``(coef_pad * source[src_pad]).sum(1)``, row u of the padded arrays listing nonzero u's
+    contributions (padding: coefficient 0, past the source's end); on the CPU one sparse product
+    ``operator @ source``, which skips the padding (an arm's Hessian: 65 ms padded, 1.5 ms)."""
 
     shape: tuple[int, int]
     crow: torch.Tensor
@@ -197,31 +157,21 @@ class Pattern:
             self.crow_np, self.col_np = self.crow_np.astype(np.int32), self.col_np.astype(np.int32)
 
     @classmethod
-    def build(cls, rows, cols, coef, src, n_src, shape, device) -> "Pattern":
-        """The pattern of a sparse matrix whose entries are sums of coef * source[src] at (rows, cols)."""
-        space = shape[0] * shape[1]
-        index = _index_dtype(space)   # the keys' (n_free² of a Hessian)
-        keys = np.asarray(rows, index) * shape[1] + np.asarray(cols, index)
-        order, uniq, start, counts = _grouped(keys, space)
-        return cls._placed(uniq, start, counts, np.asarray(coef, float)[order], np.asarray(src)[order],
-                           n_src, shape, device)
-
-    @classmethod
-    def of_products(cls, C: sps.csr_array, shape, device) -> "Pattern":
-        """:meth:`build` of the contributions C (source, key) of :func:`_pair_products`, the
-        same pattern bit for bit: where the key space is small, C's transpose is the sorted
-        listing already (scipy's CSR-to-CSC conversion places the entries key by key, sources
-        ascending), without the sort order and the gathers through it."""
-        space = shape[0] * shape[1]
-        if space > COUNTING_SORT_MAX:
-            src = np.repeat(np.arange(C.shape[0]), np.diff(C.indptr))
-            return cls.build(C.indices // shape[1], C.indices % shape[1], C.data, src, C.shape[0],
-                             shape, device)
+    def of(cls, C: sps.csr_array, shape, device) -> "Pattern":
+        """The pattern of a matrix (``shape``) whose entry at key i * n_cols + j sums its
+        contributions C[source, key] times source values (:func:`_slot_products`,
+        :func:`_pair_products`). Each key's contributions are listed sources ascending, as
+        scipy's CSR-to-CSC conversion places them: over the keys that occur where the key
+        space is large (np.unique's sort), over all of them, in one pass, where it is small."""
+        keys = None
+        if shape[0] * shape[1] > COUNTING_SORT_MAX:
+            keys, inverse = np.unique(C.indices, return_inverse=True)
+            C = sps.csr_array((C.data, inverse.reshape(-1), C.indptr), shape=(C.shape[0], max(1, keys.size)))
         by_key = C.tocsc()
         sizes = np.diff(by_key.indptr)
-        uniq = np.flatnonzero(sizes)
-        return cls._placed(uniq, by_key.indptr[uniq].astype(np.int64), sizes[uniq].astype(np.int64),
-                           by_key.data, by_key.indices, C.shape[0], shape, device)
+        nonzero = np.flatnonzero(sizes)
+        return cls._placed(nonzero if keys is None else keys[nonzero], by_key.indptr[nonzero].astype(np.int64),
+                           sizes[nonzero].astype(np.int64), by_key.data, by_key.indices, C.shape[0], shape, device)
 
     @classmethod
     def _placed(cls, uniq, start, counts, coef, src, n_src, shape, device) -> "Pattern":
@@ -242,33 +192,28 @@ class Pattern:
         return int(self.operator.host.nnz) if self.operator is not None else int(self.coef_pad.numel())
 
     def values(self, source: torch.Tensor) -> torch.Tensor:
-        """The matrix's stored values (CSR order) for one vector of source values."""
+        """The matrix's stored values (CSR order) for a vector of source values, or (B, nnz) for
+        each row of a (B, n_src) matrix of them."""
         if self.operator is not None:
-            return self.operator @ source
-        ext = torch.cat([source, source.new_zeros(1)])
-        return (self.coef_pad * ext[self.src_pad]).sum(1)
+            return self.operator @ source if source.dim() == 1 else self.operator.rows(source)
+        ext = torch.cat([source, source.new_zeros(*source.shape[:-1], 1)], -1)
+        return (self.coef_pad * ext[..., self.src_pad]).sum(-1)
 
-    def values_past(self, tail, start: int):
-        """:meth:`values` of a source that is zero before entry ``start`` and ``tail`` from
-        there. On the CPU the product leaves out the operator's columns before ``start``: each
-        left-out term was coefficient x 0, so every sum adds the same terms in the same order
-        (a Gauss-Newton Hessian without the second derivatives' columns: a third of
-        basketball's 4.7 million entries, luxo's 287k of 783k). Those columns are copied out at
-        the TAIL_AFTER-th call, not before: the copy costs what some 50 of basketball's products
-        save (30 ms), which a first `iterate 1` would pay for one product."""
+    def values_past(self, tail: torch.Tensor, start: int) -> torch.Tensor:
+        """:meth:`values` of a source that is zero before entry ``start`` and ``tail`` from there
+        (a Gauss-Newton Hessian): on the CPU from the TAIL_AFTER-th call on without the operator's
+        columns before ``start`` (x 0: the same sums; a third of basketball's 4.7 million
+        entries), copied out then (30 ms for basketball, some 50 of its products' savings)."""
         self._asked[start] = asked = self._asked.get(start, 0) + 1
         if self.operator is None or (start not in self._tails and asked < TAIL_AFTER):
-            zeros = np.zeros(start) if isinstance(tail, np.ndarray) else tail.new_zeros(start)
-            cat = np.concatenate if isinstance(tail, np.ndarray) else torch.cat
-            return self.values(cat([zeros, tail]))
+            return self.values(torch.cat([tail.new_zeros(start), tail]))
         if start not in self._tails:
             self._tails[start] = SparseMatrix(self.operator.host[:, start:], torch.device("cpu"), copy=False)
         return self._tails[start] @ tail
 
     def scipy(self, values: torch.Tensor) -> sps.csr_array:
         """The matrix with these values as a scipy CSR array (for the scipy linear algebra)."""
-        values = values if isinstance(values, np.ndarray) else values.detach().cpu().numpy()
-        return csr(values, self.col_np, self.crow_np, self.shape)
+        return csr(values.detach().cpu().numpy(), self.col_np, self.crow_np, self.shape)
 
     def dense(self, values: torch.Tensor) -> torch.Tensor:
         """The matrix with these values as a dense tensor on the values' device."""
@@ -294,15 +239,15 @@ class _Group:
     pairs: tuple
     times: torch.Tensor
     weights: torch.Tensor
-    params: list
+    params: torch.Tensor   # (P,)
     condition: object = None
     leaves: list = field(default_factory=list)   # (relation node, LoweredTerm, slot offset, params)
 
 
 @dataclass(eq=False)
 class TorchEvaluation:
-    """What one SQP iteration needs at ``s``: the numpy arrays the SQP reads, and the values its
-    Jacobians and Hessians are made of (tensors on a device, numpy arrays on the CPU)."""
+    """What one SQP iteration needs at ``s``: the numpy arrays the SQP reads, and the tensors its
+    Jacobians and Hessians are made of."""
 
     tp: "TorchProblem"
     s: np.ndarray
@@ -367,8 +312,7 @@ class TorchProblem:
         self.host_linear = host_linear
         self.n_free = problem.n_free
         self.row_counts = dict(problem.row_counts)
-        dev = dict(dtype=torch.float64, device=device)
-        self._dev = dev
+        self._dev = dev = dict(dtype=torch.float64, device=device)
 
         Pf = sps.csr_array(problem.Pf, copy=True)
         Pf.eliminate_zeros()
@@ -377,22 +321,20 @@ class TorchProblem:
         self.PfT = SparseMatrix(sps.csr_array(Pf.T), device)
         fixed = problem.coef0.copy()
         fixed[problem.free] = 0.0
-        P = problem.P.tocsr()
-        P_t = SparseMatrix(P, device)
-        self.v_fixed = P_t @ torch.as_tensor(fixed, **dev)   # slot values of the fixed coefficients
-        self.n_slots = P.shape[0]
+        # slot values of the fixed coefficients
+        self.v_fixed = SparseMatrix(problem.P.tocsr(), device) @ torch.as_tensor(fixed, **dev)
+        self.n_slots = problem.P.shape[0]
 
         self.groups: list[_Group] = []
         inst = 0
         for g in problem.groups:
-            params = [torch.as_tensor(float(p), **dev) for p in g.params]
+            params = torch.tensor([float(p) for p in g.params], **dev)
             lowered = _Group(g.label, g.kind, lower(g.term), g.n, g.slot_offset, g.row_offset, inst,
                              tuple(g.term.hessian_pairs), torch.as_tensor(g.times, **dev),
                              torch.as_tensor(g.weights, **dev), params, g.condition)
             if g.condition is not None:
                 lowered.leaves = [(node, lower(term), offset,
-                                   [torch.as_tensor(float(c), **dev)
-                                    for c in problem.term_parameters(term)])
+                                   torch.tensor([float(c) for c in problem.term_parameters(term)], **dev))
                                   for node, term, offset in g.condition.leaves]
             self.groups.append(lowered)
             inst += g.n
@@ -407,13 +349,9 @@ class TorchProblem:
         self._last: TorchEvaluation | None = None   # the latest evaluation (its Hessian used?)
         self._expect: bool | None = None   # whether the next evaluation's Hessian will be used
         self._build_patterns(Pf)
-        # On the CPU the glue around the programs runs in numpy (calls.py: CallPlan.local_host),
-        # on views of the same tensors.
-        self.host = device.type == "cpu"
-        self.host_arrays = {name: getattr(self, name).numpy() for name in _HOST_ARRAYS} if self.host else {}
 
     def with_problem(self, problem) -> "TorchProblem":
-        """This lowering for ``problem``, a window problem of the same structure (batch_evaluate's
+        """This lowering for ``problem``, a window problem of the same structure (lowerings'
         ``problem_key``) whose control points may differ: only the fixed ones' slot values change."""
         other = copy.copy(self)
         other.problem = problem
@@ -422,8 +360,6 @@ class TorchProblem:
         fixed = problem.coef0.copy()
         fixed[problem.free] = 0.0
         other.v_fixed = torch.as_tensor(sps.csr_array(problem.P) @ fixed, **self._dev)
-        if other.host:
-            other.host_arrays = {**self.host_arrays, "v_fixed": other.v_fixed.numpy()}
         return other
 
     def entries(self) -> int:
@@ -432,31 +368,30 @@ class TorchProblem:
 
     # --- fixed patterns ----------------------------------------------------------------------
     def _build_patterns(self, Pf: sps.csr_array) -> None:
-        indptr, indices, data = Pf.indptr.astype(np.int64), Pf.indices, Pf.data
         dev = self._dev
-        # Per-slot weight (constraint rows are weight * f) and per-instance data.
-        w_slot = np.zeros(self.n_slots)
-        w_inst = np.zeros(self.n_inst)
+        # Per-slot weight (constraint rows are weight * f), owning instance (condition slots own
+        # the padding instance n_inst) and Jacobian row; per-instance weight and multiplier.
+        w_slot, w_inst = np.zeros(self.n_slots), np.zeros(self.n_inst)
+        owner = np.full(self.n_slots, self.n_inst, np.int64)
+        row_of = {kind: np.full(self.n_slots, -1, np.int64) for kind in (EQ, GE)}
         is_obj = np.zeros(self.n_inst, bool)
         lam_index = np.full(self.n_inst, self.row_counts[EQ] + self.row_counts[GE], np.int64)
-        jac = {kind: ([], []) for kind in (EQ, GE)}
+        self.host_rows = {kind: np.zeros(self.row_counts[kind], np.int64) for kind in (EQ, GE, OBJ)}
         d_p, d_q = [], []                 # second-derivative entries of D: slot pairs
         gn_p, gn_q, gn_i = [], [], []     # Gauss-Newton entries of objective groups
         h_offset = 0
         h_src, h_scale = [], []
         for g in self.groups:
-            inst = np.arange(g.n)
-            weights = g.weights.cpu().numpy()
-            w_inst[g.inst:g.inst + g.n] = weights
+            inst, block = np.arange(g.n), slice(g.slot, g.slot + g.term.k * g.n)   # slot a·n + i
+            w_inst[g.inst:g.inst + g.n] = weights = g.weights.cpu().numpy()
+            owner[block] = g.inst + np.tile(inst, g.term.k)
+            self.host_rows[g.kind][g.row:g.row + g.n] = g.inst + inst
             if g.kind == OBJ:
                 is_obj[g.inst:g.inst + g.n] = True
             else:
-                w_slot[g.slot:g.slot + g.term.k * g.n] = np.tile(weights, g.term.k)
+                w_slot[block] = np.tile(weights, g.term.k)
                 lam_index[g.inst:g.inst + g.n] = g.row + inst + (self.row_counts[EQ] if g.kind == GE else 0)
-                rows, slots = jac[g.kind]
-                for a in range(g.term.k):
-                    rows.append(g.row + inst)
-                    slots.append(g.slot + a * g.n + inst)
+                row_of[g.kind][block] = np.tile(g.row + inst, g.term.k)
             for p, (a, b) in enumerate(g.pairs):
                 for x, y in ((a, b), (b, a)) if a != b else ((a, b),):
                     d_p.append(g.slot + x * g.n + inst)
@@ -471,111 +406,53 @@ class TorchProblem:
                         gn_q.append(g.slot + b * g.n + inst)
                         gn_i.append(g.inst + inst)
         cat = lambda parts: np.concatenate(parts) if parts else np.zeros(0, np.int64)  # noqa: E731
-        self.w_slot = torch.as_tensor(w_slot, **dev)
-        self.w_inst = torch.as_tensor(w_inst, **dev)
+        index = lambda parts: torch.as_tensor(cat(parts), device=self.device)  # noqa: E731
+        self.w_slot, self.w_inst = torch.as_tensor(w_slot, **dev), torch.as_tensor(w_inst, **dev)
         self.is_obj = torch.as_tensor(is_obj, device=self.device)
         self.lam_index = torch.as_tensor(lam_index, device=self.device)
-
+        self.slot_owner = torch.as_tensor(owner, device=self.device)
+        self.host_weights = {kind: w_inst[rows] for kind, rows in self.host_rows.items()}
+        self.conditional = any(g.condition is not None for g in self.groups)
         # Jacobians: J[r, j] = Σ_p G[r, p] Pf[p, j] over the group's slots p of row r.
-        self.jac = {}
-        for kind, (rows, slots) in jac.items():
-            rows, slots = cat(rows), cat(slots)
-            owner, pos = _row_entries(indptr, slots)
-            self.jac[kind] = Pattern.build(rows[owner], indices[pos], data[pos], slots[owner], self.n_slots,
-                                           (self.row_counts[kind], self.n_free), self.device)
-
+        self.jac = {kind: Pattern.of(_slot_products(Pf, row_of[kind], (self.row_counts[kind], self.n_free)),
+                                     (self.row_counts[kind], self.n_free), self.device) for kind in (EQ, GE)}
         # Hessian: H[i, j] = Σ_e D_e Pf[p_e, i] Pf[q_e, j] over entries e = (p_e, q_e) of the local
         # second derivatives, the Gauss-Newton products of objective groups, and nothing else.
-        self.h_src = torch.as_tensor(cat(h_src), device=self.device)
-        self.h_scale = torch.as_tensor(cat(h_scale), device=self.device)
-        self.gn_p = torch.as_tensor(cat(gn_p), device=self.device)
-        self.gn_q = torch.as_tensor(cat(gn_q), device=self.device)
+        self.h_src, self.h_scale = index(h_src), index(h_scale)
+        self.gn_p, self.gn_q = index(gn_p), index(gn_q)
         # each Gauss-Newton product 2 w g_p g_q is (2 w) g_p g_q: its first factor made once
-        self.gn_w2 = 2.0 * self.w_inst[torch.as_tensor(cat(gn_i), device=self.device)]
+        self.gn_w2 = 2.0 * self.w_inst[index(gn_i)]
         p, q = np.concatenate([cat(d_p), cat(gn_p)]), np.concatenate([cat(d_q), cat(gn_q)])
-        self.hess = Pattern.of_products(_pair_products(indptr, indices, data, p, q, self.n_free),
-                                        (self.n_free, self.n_free), self.device)
-        # Slot -> owning instance (condition slots own the padding instance n_inst).
-        owner = np.full(self.n_slots, self.n_inst, np.int64)
-        for g in self.groups:
-            owner[g.slot:g.slot + g.term.k * g.n] = g.inst + np.tile(np.arange(g.n), g.term.k)
-        self.slot_owner = torch.as_tensor(owner, device=self.device)
-        # Rows of each kind -> their instance and weight; the objective's instances and weights.
-        self.row_inst, self.row_weight = {}, {}
-        for kind in (EQ, GE, OBJ):
-            rows = np.zeros(self.row_counts[kind], np.int64)
-            for g in self.groups:
-                if g.kind == kind:
-                    rows[g.row:g.row + g.n] = g.inst + np.arange(g.n)
-            self.row_inst[kind] = torch.as_tensor(rows, device=self.device)
-            self.row_weight[kind] = self.w_inst[self.row_inst[kind]]
-        self.host_rows = {kind: rows.cpu().numpy() for kind, rows in self.row_inst.items()}
-        self.host_weights = {kind: w.cpu().numpy() for kind, w in self.row_weight.items()}
-        self.conditional = any(g.condition is not None for g in self.groups)
+        self.hess = Pattern.of(_pair_products(Pf.indptr.astype(np.int64), Pf.indices, Pf.data, p, q, self.n_free),
+                               (self.n_free, self.n_free), self.device)
 
     # --- evaluation --------------------------------------------------------------------------
-    def slot_values(self, s: torch.Tensor) -> torch.Tensor:
-        """Every term input slot's value: the fixed part plus the free control points' share."""
-        return self.v_fixed + self.Pf @ s
-
-    def _block(self, v: torch.Tensor, g: _Group, k: int, offset: int) -> torch.Tensor:
-        return v[offset:offset + k * g.n].view(k, g.n)
-
-    def _conditions(self, ones, filled, leaf_value) -> dict:
-        """Each row's ``when`` mask: every group's condition tree over its leaves' values
-        (``leaf_value(group, term, slot offset, params)``), in torch or numpy as the three
-        functions make them; ``ones(rows)`` may add a leading axis of batched starts."""
-        masks = {kind: ones(self.row_counts[kind]) for kind in (EQ, GE)}
+    def _conditions(self, V: torch.Tensor) -> dict[str, torch.Tensor]:
+        """Each start's ``when`` masks at slot values V (B, slots): (B, rows) per kind, every
+        group's condition tree over its leaves' values, the starts' instances side by side."""
+        B = V.shape[0]
+        masks = {kind: torch.ones(B, self.row_counts[kind], dtype=torch.bool, device=self.device)
+                 for kind in (EQ, GE)}
         for g in self.groups:
             if g.condition is None:
                 continue
-            leaf = {node: leaf_value(g, term, offset, params) for node, term, offset, params in g.leaves}
-            rows = masks[g.kind][..., g.row:g.row + g.n]     # (n,), or (starts, n) for a batch
-            rows[...] = evaluate_condition_tree(g.condition.tree, leaf, filled(g.n)).reshape(rows.shape)
+            leaf = {node: term(_tile(V, offset, term.k, g.n), _repeat(g.times, B), params)
+                    for node, term, offset, params in g.leaves}
+            filled = lambda flag, n=g.n: torch.full((B * n,), flag, dtype=torch.bool, device=self.device)  # noqa: E731
+            masks[g.kind][:, g.row:g.row + g.n] = evaluate_condition_tree(g.condition.tree, leaf, filled).view(B, g.n)
         return masks
 
     def _rows(self, f: np.ndarray) -> tuple[float, dict]:
         """The objective and the weighted constraint rows from every instance's value, on the
         host: what the SQP reads is numpy anyway, and a numpy op on a few hundred numbers costs
-        a fifth of a torch op (cat_mouse's merit values: 0.48 ms against the core's 0.18)."""
+        a fifth of a torch op."""
         r = f[self.host_rows[OBJ]]
         objective = float(np.dot(self.host_weights[OBJ], r * r))
         return objective, {kind: self.host_weights[kind] * f[self.host_rows[kind]] for kind in (EQ, GE)}
 
-    def _masks(self, v) -> dict[str, np.ndarray]:
-        """The ``when`` masks at slot values ``v``: by the host programs for a numpy array on the
-        CPU, by the torch terms for a tensor."""
-        if not self.conditional:   # every row live at every s: the window problem's read-only pair
-            return self.problem.always_live
-        if self.host and isinstance(v, np.ndarray):     # the leaves' host programs on the CPU
-            def host_leaf(g, term, offset, params):
-                block = v[offset:offset + term.k * g.n].reshape(term.k, g.n)
-                return term.host_rows("value", block, g.times.numpy(), [p.numpy() for p in params])[0]
-            return self._conditions(lambda n: np.ones(n, bool), numpy_filled, host_leaf)
-        v = torch.from_numpy(v) if isinstance(v, np.ndarray) else v
-
-        def torch_leaf(g, term, offset, params):
-            return term(self._block(v, g, term.k, offset), g.times, params)
-
-        def torch_filled(n):
-            return lambda flag: torch.full((n,), flag, dtype=torch.bool, device=self.device)
-        with torch.no_grad():
-            masks = self._conditions(lambda n: torch.ones(n, dtype=torch.bool, device=self.device),
-                                     torch_filled, torch_leaf)
-        return {kind: m.cpu().numpy() for kind, m in masks.items()}
-
     def merit_values(self, s: np.ndarray) -> MeritValues:
         """Objective and weighted constraint values only (no derivatives), for the line search."""
-        if self.host:
-            v = self.host_arrays["v_fixed"] + self.Pf @ np.asarray(s, float)
-            objective, c = self._rows(self.plan.values_host(v))
-            masks = self._masks(v)
-            return MeritValues(objective, c[EQ], c[GE], masks[EQ], masks[GE])
-        with torch.no_grad():
-            v = self.slot_values(torch.as_tensor(s, **self._dev))
-            objective, c = self._rows(self.plan.values(v).cpu().numpy())
-            masks = self._masks(v)
-        return MeritValues(objective, c[EQ], c[GE], masks[EQ], masks[GE])
+        return merit_values_of([self], [s])[0]
 
     def expect_hessian(self, used: bool) -> None:
         """Say whether the next evaluation's Lagrangian Hessian will be used (the SQP knows, from
@@ -591,62 +468,16 @@ class TorchProblem:
         return self._last is None or self._last.hessian_used
 
     def evaluate(self, s: np.ndarray) -> TorchEvaluation:
-        """Values, gradients and local second derivatives (lowered programs) at ``s``."""
-        if self.host:
-            return self._evaluate_host(s)
-        t_s = torch.as_tensor(np.asarray(s, float), **self._dev)
-        with torch.no_grad():
-            v = self.slot_values(t_s)
-            # Second derivatives only where they will be used (the SQP's exact Hessian; far from
-            # feasibility it takes Gauss-Newton steps, which need none, and a program of values
-            # and gradients costs half of one with the Hessian too); when asked for anyway,
-            # hessian_values computes them then.
-            second = self._second()
-            f_all, g_slot, h_flat = self.plan.local(v, second=second)
-            objective, c = self._rows(f_all.cpu().numpy())
-            # ∇R = Pfᵀ u with u[slot] = 2 w f ∂f/∂slot on objective slots
-            w_f = self.w_inst * f_all
-            u = g_slot * torch.cat([torch.where(self.is_obj, 2.0 * w_f, 0.0), v.new_zeros(1)])[self.slot_owner]
-            gradient = self.PfT @ u
-            gw = g_slot * self.w_slot
-            J = {kind: self.jac[kind].values(gw) for kind in (EQ, GE)}
-            masks = self._masks(v)
-        ev = TorchEvaluation(
-            tp=self, s=np.asarray(s, float).copy(), objective=objective,
-            gradient=gradient.cpu().numpy(), c_eq=c[EQ], c_ge=c[GE],
-            active_eq=masks[EQ], active_ge=masks[GE], t_J=J,
-            t_local={"f": f_all, "g": g_slot, "h": h_flat, "v": v})
-        self._last = ev
-        return ev
+        """Values, gradients and local second derivatives at ``s``; the second only where they
+        will be used (Gauss-Newton steps need none), else hessian_values computes them if asked."""
+        return evaluations_of([self], [s], second=self._second())[0]
 
-    def _evaluate_host(self, s: np.ndarray) -> TorchEvaluation:
-        """:meth:`evaluate` on the CPU, its glue in numpy: the same operations, the same numbers."""
-        a = self.host_arrays
-        s = np.asarray(s, float)
-        v = a["v_fixed"] + self.Pf @ s
-        f_all, g_slot, h_flat = self.plan.local_host(v, second=self._second())
-        objective, c = self._rows(f_all)
-        w_f = a["w_inst"] * f_all
-        u = g_slot * np.concatenate([np.where(a["is_obj"], 2.0 * w_f, 0.0), np.zeros(1)])[a["slot_owner"]]
-        gw = g_slot * a["w_slot"]
-        masks = self._masks(v)
-        ev = TorchEvaluation(
-            tp=self, s=s.copy(), objective=objective, gradient=self.PfT @ u, c_eq=c[EQ], c_ge=c[GE],
-            active_eq=masks[EQ], active_ge=masks[GE],
-            t_J={kind: self._jacobian_values(kind, gw) for kind in (EQ, GE)},
-            t_local={"f": f_all, "g": g_slot, "h": h_flat, "v": v})
-        self._last = ev
-        return ev
-
-    def _jacobian_values(self, kind: str, gw: np.ndarray) -> np.ndarray:
-        """The ``kind`` Jacobian's values from the slots' weighted gradients ``gw`` (CPU); a
-        constant kind's are the solve's first, kept read-only."""
+    def _jacobian_values(self, kind: str, values: torch.Tensor) -> torch.Tensor:
+        """The ``kind`` Jacobian's values: a constant kind's are the solve's first, kept."""
         kept = self._kept_J.get(kind)
         if kept is not None:
             return kept[0]
-        values = self.jac[kind].values(gw)
-        if kind in self.constant_kinds and self.host_linear:   # (torch's algebra wants tensors of them)
-            values.flags.writeable = False
+        if kind in self.constant_kinds:
             self._kept_J[kind] = (values, self.jac[kind].scipy(values))
         return values
 
@@ -656,31 +487,13 @@ class TorchProblem:
         kept = self._kept_J.get(kind)
         return kept[1] if kept is not None and kept[0] is values else self.jac[kind].scipy(values)
 
-    def _hessian_values_host(self, ev: TorchEvaluation, lam_eq, lam_ge) -> np.ndarray:
-        """:meth:`hessian_values` on the CPU, in numpy (the same operations in the same order)."""
-        a, t = self.host_arrays, ev.t_local
-        f, g, h = t["f"], t["g"], t["h"]
-        if h is None and lam_eq is not None:
-            h = t["h"] = self.plan.local_host(t["v"])[2]
-        if "gn" not in t:
-            t["gn"] = a["gn_w2"] * g[a["gn_p"]] * g[a["gn_q"]]
-        if lam_eq is None:
-            return self.hess.values_past(t["gn"], a["h_src"].shape[0])
-        lam = np.concatenate([np.asarray(lam_eq, float), np.asarray(lam_ge, float), np.zeros(1)])
-        scale = a["w_inst"] * np.where(a["is_obj"], 2.0 * f, lam[a["lam_index"]])
-        second = h[a["h_src"]] * scale[a["h_scale"]]
-        return self.hess.values(np.concatenate([second, t["gn"]]))
-
     def hessian_values(self, ev: TorchEvaluation, lam_eq: np.ndarray, lam_ge: np.ndarray) -> torch.Tensor:
         """Values of ∇²R + Σλ∇²C on the fixed pattern ``self.hess``; without multipliers (None),
-        of the Gauss-Newton part 2 Jₒᵀ W Jₒ alone (numpy where the evaluation's are: evaluate's
-        on the CPU; a batch's evaluations hold tensors)."""
-        if isinstance(ev.t_local["g"], np.ndarray):
-            return self._hessian_values_host(ev, lam_eq, lam_ge)
+        of the Gauss-Newton part 2 Jₒᵀ W Jₒ alone."""
         f, g, h = ev.t_local["f"], ev.t_local["g"], ev.t_local["h"]
         if h is None and lam_eq is not None:
             with torch.no_grad():
-                h = ev.t_local["h"] = self.plan.local(ev.t_local["v"])[2]
+                h = ev.t_local["h"] = self.plan.local(ev.t_local["v"][None])[2][0]
         if "gn" not in ev.t_local:     # the Gauss-Newton products: the same for every multiplier
             ev.t_local["gn"] = self.gn_w2 * g[self.gn_p] * g[self.gn_q]
         gn = ev.t_local["gn"]
@@ -693,20 +506,78 @@ class TorchProblem:
         return self.hess.values(torch.cat([second, gn]))
 
 
-# TorchProblem's tensors the CPU glue reads as numpy views (TorchProblem.host_arrays)
-_HOST_ARRAYS = ("v_fixed", "w_inst", "is_obj", "slot_owner", "w_slot", "gn_w2", "gn_p", "gn_q",
-                "h_src", "h_scale", "lam_index")
+def _tile(V: torch.Tensor, offset: int, k: int, n: int) -> torch.Tensor:
+    """A block of k rows of n slots from ``offset`` of every start, side by side: (k, B·n)."""
+    B = V.shape[0]
+    return V[:, offset:offset + k * n].reshape(B, k, n).transpose(0, 1).reshape(k, B * n)
+
+
+def _repeat(times: torch.Tensor, B: int) -> torch.Tensor:
+    return times if B == 1 else times.repeat(B)
+
+
+def _slot_values(members: list[TorchProblem], points: list[np.ndarray]) -> torch.Tensor:
+    """(B, slots): each start's fixed slot values plus its free control points' share."""
+    tp = members[0]
+    S = torch.as_tensor(np.stack([np.asarray(p, float) for p in points]), **tp._dev)
+    fixed = tp.v_fixed[None] if len(members) == 1 else torch.stack([m.v_fixed for m in members])
+    return fixed + tp.Pf.rows(S)
+
+
+def merit_values_of(members: list[TorchProblem], points: list[np.ndarray]) -> list[MeritValues]:
+    """:meth:`TorchProblem.merit_values` of every (problem, point), the problems of one structure
+    (copies of one lowering, ``with_problem``): one call of each term's program for all."""
+    tp = members[0]
+    with torch.no_grad():
+        V = _slot_values(members, points)
+        f = tp.plan.values(V).cpu().numpy()
+        masks = {kind: m.cpu().numpy() for kind, m in tp._conditions(V).items()} if tp.conditional else None
+    out = []
+    for b in range(len(members)):
+        objective, c = tp._rows(f[b])
+        live = tp.problem.always_live if masks is None else {kind: masks[kind][b] for kind in (EQ, GE)}
+        out.append(MeritValues(objective, c[EQ], c[GE], live[EQ], live[GE]))
+    return out
+
+
+def evaluations_of(members: list[TorchProblem], points: list[np.ndarray], second: bool = True
+                   ) -> list[TorchEvaluation]:
+    """:meth:`TorchProblem.evaluate` of every (problem, point), the problems of one structure:
+    one call of each term's program for all, the starts' instances side by side (each still
+    depends on its own slots only); ``second``: with second derivatives."""
+    tp = members[0]
+    B = len(members)
+    with torch.no_grad():
+        V = _slot_values(members, points)
+        f_all, g_slot, h_flat = tp.plan.local(V, second=second)
+        # ∇R = Pfᵀ u with u[slot] = 2 w f ∂f/∂slot on objective slots
+        scale = torch.cat([torch.where(tp.is_obj, 2.0 * (tp.w_inst * f_all), 0.0), V.new_zeros(B, 1)], 1)
+        gradient = tp.PfT.rows(g_slot * scale[:, tp.slot_owner]).cpu().numpy()
+        gw = g_slot * tp.w_slot
+        J = {kind: tp.jac[kind].values(gw) for kind in (EQ, GE)
+             if any(kind not in m._kept_J for m in members)}
+        masks = {kind: m.cpu().numpy() for kind, m in tp._conditions(V).items()} if tp.conditional else None
+    f_host = f_all.cpu().numpy()
+    out = []
+    for b, member in enumerate(members):
+        objective, c = tp._rows(f_host[b])
+        live = tp.problem.always_live if masks is None else {kind: masks[kind][b] for kind in (EQ, GE)}
+        ev = TorchEvaluation(
+            tp=member, s=np.asarray(points[b], float).copy(), objective=objective, gradient=gradient[b],
+            c_eq=c[EQ], c_ge=c[GE], active_eq=live[EQ], active_ge=live[GE],
+            t_J={kind: member._jacobian_values(kind, J[kind][b] if kind in J else None) for kind in (EQ, GE)},
+            t_local={"f": f_all[b], "g": g_slot[b], "h": None if h_flat is None else h_flat[b], "v": V[b]})
+        member._last = ev
+        out.append(ev)
+    return out
 
 
 def check_finite(ev: TorchEvaluation, problem) -> None:
     """Raise with the name of the first term group whose values are not finite."""
-    if np.isfinite(ev.objective) and np.all(np.isfinite(ev.gradient)) \
-            and np.all(np.isfinite(ev.c_eq)) and np.all(np.isfinite(ev.c_ge)) \
-            and all(bool(np.isfinite(values).all()) if isinstance(values, np.ndarray)
-                    else bool(torch.isfinite(values).all()) for values in ev.t_J.values()):
+    if all(np.isfinite(a).all() for a in (ev.objective, ev.gradient, ev.c_eq, ev.c_ge)) \
+            and all(bool(torch.isfinite(values).all()) for values in ev.t_J.values()):
         return
-    f = ev.t_local["f"]
-    f = f if isinstance(f, np.ndarray) else f.cpu().numpy()
+    f = ev.t_local["f"].cpu().numpy()
     for g in ev.tp.groups:
         if not np.all(np.isfinite(f[g.inst:g.inst + g.n])):
             raise StwError(f"'{g.label}' is not finite at the starting point (e.g. sqrt or log of a "

@@ -1,10 +1,6 @@
 """Dense torch linear algebra for the shared SQP: KKT systems factorized by torch.linalg (LU with
-pivoting), on the device that holds the problem.
-
-Window problems are small (tens to a few thousand free control points), where a dense
-factorization on a GPU beats moving sparse matrices to the host; on a CPU the sparse
-``linear=scipy`` path (stw_scipy.linear) scales better.
-"""
+pivoting) on the device that holds the problem, where a dense factorization of a window's tens to
+thousands of rows beats moving sparse matrices to the host (on a CPU, ``linear=scipy`` scales better)."""
 
 from __future__ import annotations
 
@@ -12,7 +8,7 @@ import numpy as np
 import scipy.sparse as sps
 import torch
 
-from stw_tui.sos.sqp.algebra import KKTSystem, LinearAlgebra, SingularSystem
+from stw_tui.sos.sqp.algebra import DenseMatrices, KKTSystem, LinearAlgebra, SingularSystem
 
 
 def kkt_matrix(H: torch.Tensor, A: torch.Tensor, e) -> torch.Tensor:
@@ -25,7 +21,8 @@ def kkt_matrix(H: torch.Tensor, A: torch.Tensor, e) -> torch.Tensor:
 
 
 class DenseKKT(KKTSystem):
-    """An LU factorization of K = [[H, Aᵀ], [A, -diag(e)]] that solves for any right-hand side."""
+    """An LU factorization of K = [[H, Aᵀ], [A, -diag(e)]] that solves for any right-hand side,
+    by torch on the device (stw_scipy.dense's, the same layout, is LAPACK's on numpy arrays)."""
 
     def __init__(self, H: torch.Tensor, A: torch.Tensor, e):
         K = kkt_matrix(H, A, e)
@@ -38,7 +35,7 @@ class DenseKKT(KKTSystem):
         return torch.linalg.lu_solve(self.LU, self.pivots, rhs.unsqueeze(1)).squeeze(1)
 
 
-class DenseAlgebra(LinearAlgebra):
+class DenseAlgebra(DenseMatrices, LinearAlgebra):
     """float64 tensors and dense matrices on one device."""
 
     def __init__(self, device: torch.device):
@@ -76,18 +73,6 @@ class DenseAlgebra(LinearAlgebra):
 
     def stack_rows(self, parts):
         return torch.cat(list(parts), 0)
-
-    def matvec(self, m, x):
-        return m @ x
-
-    def rmatvec(self, m, x):
-        return m.T @ x
-
-    def add(self, a, b):
-        return a + b
-
-    def gram(self, a, w):
-        return a.T @ (w[:, None] * a)
 
     def max_abs_diagonal(self, m):
         return float(m.diagonal().abs().max()) if m.numel() else 0.0

@@ -1,43 +1,21 @@
-"""Lowering of compiled terms to torch: our own sympy expressions become torch programs.
+"""Lowering of compiled terms to torch: our own sympy expressions become TorchScript programs.
 
-The core hands every term over as a sympy expression (``CompiledTerm.expr``) in DOF symbols
-(``x``, ``x'``, ``x''``), time ``t`` and constant symbols. It was built from parsed trees, never
-from user text, so it may be printed to Python source and compiled, as ``sympy.lambdify`` does.
-Symbols are renamed to plain identifiers first (``x''`` is not one) and numeric function calls
-such as ``sin(2)`` are folded to floats (torch functions take tensors only).
+The core hands every term over as a sympy expression (``CompiledTerm.expr``), built from parsed
+trees, never from user text. Each term gets up to three programs, each built on first use: its
+value alone, its value and gradient, and its value, gradient and the second derivatives of
+``CompiledTerm.hessian_pairs``, differentiated by symengine once; their source is kept in the
+terms' disk cache. A program is written from a graph of the operations (symengine's common
+subexpressions shared, associated as the former printed programs were: the same numbers, bit
+for bit) in whichever of two forms runs fewer torch ops, each of which costs about a microsecond
+on the CPU (a kernel launch on a GPU) whatever it computes on a few hundred numbers:
 
-Each term gets up to three straight-line programs, each built on first use (for tensors, and on
-the CPU for numpy arrays): its value alone (line searches, `when` conditions), its value and
-gradient (:meth:`LoweredTerm.first_rows`, for Gauss-Newton steps), and its value, gradient and
-the second derivatives of ``CompiledTerm.hessian_pairs`` (:meth:`LoweredTerm.rows`), their
-common subexpressions shared within each program. The derivatives are taken symbolically, by
-symengine after the core's own conversion (min, max and abs become Piecewise), once per term;
-the printed source is kept in the terms' disk cache (LoweredTerm), so a new process compiles it
-without the symbolic work. Measured on 2 cores (acrobat, 41 ms per iteration): a torch op on a few hundred
-numbers costs microseconds whatever it computes, and autograd's backward and batched
-double-backward passes ran several times the ops of the program plus the tape (31 ms of
-evaluation against 4 ms for the program of the largest term).
+- straight-line: one op per operation, on (n,) rows;
+- levelled: the operations of one depth and kind as one op on rows of a register matrix R, their
+  operands gathered or sliced (a basketball thrower's torque with its Hessian pairs, 36
+  instances: 3022 operations, 2.4 ms straight-line, 0.8 ms levelled).
 
-A program is compiled by TorchScript where it can be (~2.5x fewer microseconds per op than
-Python calling torch; the same aten kernels, so the same numbers), run without the graph
-executor's optimizations (its profiling runs cost more than they save here), and as plain
-Python otherwise. On the CPU the same TorchScript source runs over numpy arrays instead, its
-syntax tree interpreted as a tape of numpy operations (:func:`host.host_function`: about 0.6 of
-TorchScript's microseconds per op, no TorchScript compile, and no Python evaluation of any text): its arithmetic is
-numpy's, correctly rounded like torch's, and its functions torch's own, so the numbers are the
-same bit for bit.
-
-``torch.compile`` (Inductor, CPU, torch 2.13) was measured on the same printed programs (value,
-gradient and Hessian pairs; one thread): it fuses a program into one loop, and gave the same
-numbers as the program on every input tried. Per call, basketball's 30 programs (192 instances
-each) took 1.7 ms against the host tapes' 5.8 ms run one by one, the arm's 9 took 0.35 against
-0.61; one of basketball's effort terms took 0.08, 0.15 and 0.54 ms at 192, 1920 and 9600
-instances against 0.27, 1.2 and 6.9 (the core's symengine functions of the same term, which the
-scipy backend runs: 0.03, 0.20 and 1.06). But compiling costs 10-40 s per program (197 s for
-basketball's, one shape each; a shape-generic compile of that effort term 18 s), and with
-Inductor's disk cache warm still 4.4 s for the arm's: more than any bundled session's whole
-solve, and the first `iterate` is to take under a second. Not adopted: it would pay only on
-windows of thousands of instances solved for many iterations.
+``torch.compile`` (Inductor) fused such programs into one loop but took 10-40 s to compile each
+(basketball's: 197 s), more than any bundled session's whole solve.
 """
 
 from __future__ import annotations
@@ -50,258 +28,127 @@ import numpy as np
 import symengine as se
 import sympy as sp
 import torch
-from sympy.printing.pytorch import TorchPrinter
 
 from stw_tui.sym.compiler import (CompiledTerm, LocalVar, _to_symengine, cached_entry, sign_as_piecewise,
                                   store_entry)
 from stw_tui.sym.symbols import TIME, split_dof_symbol
 
-from .host import host_function, tape_of
+_FUNCTIONS = {name: name for name in (
+    "sin", "cos", "tan", "asin", "acos", "atan", "sinh", "cosh", "tanh", "asinh", "acosh",
+    "atanh", "log", "exp", "sqrt", "floor", "erf")} | {"Abs": "abs", "ceiling": "ceil"}
+_RELATIONS = {"StrictLessThan": "lt", "LessThan": "le", "Equality": "eq", "Unequality": "ne",
+              "StrictGreaterThan": "gt", "GreaterThan": "ge"}
+_FLIPPED = {"lt": "gt", "le": "ge", "eq": "eq", "ne": "ne", "gt": "lt", "ge": "le"}
+_BOOLEAN = {*_RELATIONS.values(), "logical_and", "logical_or", "logical_not"}
+# What gives each number the same bits on a (rows, n) block as on an (n,) row: correctly rounded
+# or exact. torch's other functions (sin, exp, general powers, ...) run vectorized in chunks and
+# element by element at a row's end, which may differ in the last bit: one row each.
+_EXACT = {"add", "sub", "mul", "div", "neg", "reciprocal", "sqrt", "abs", "floor", "ceil", "where", *_BOOLEAN}
 
 
-class _Printer(TorchPrinter):
-    """sympy's torch printer, with every float printed exactly (repr round-trips a double)."""
+class _Graph:
+    """The operations of symengine expressions: node i is (op, attr, operands, depth), an
+    operand a node's index or a float; nodes 0..inputs-1 are the program's inputs. Equal
+    subexpressions and equal operations are one node."""
 
-    def _print_Float(self, expr):
-        return repr(float(expr))
+    def __init__(self, names: list[str]):
+        self.nodes: list[tuple] = [("input", None, (), 0)] * len(names)
+        self.index: dict = {se.Symbol(n): i for i, n in enumerate(names)}   # expression -> node
+        self.operations: dict = {}                                           # (op, attr, operands) -> node
+        self.inputs = len(names)
 
-    def _print_atan2(self, expr):
-        return _atan2_filled(expr.args, self._print, lambda a: repr(float(a)))
+    def add(self, op: str, *operands, attr=None):
+        if op == "div" and not isinstance(operands[0], int):   # a number over a tensor: as
+            return self.add("mul", self.add("reciprocal", operands[1]), operands[0])   # TorchScript
+        key = (op, attr, operands)
+        found = self.operations.get(key)
+        if found is None:
+            depth = 1 + max((self.nodes[o][3] for o in operands if isinstance(o, int)), default=0)
+            found = self.operations[key] = len(self.nodes)
+            self.nodes.append((op, attr, operands, depth))
+        return found
 
+    def of(self, e):
+        """The operand of expression ``e``: a node, or the float a number is.
 
-def _fold_numbers(expr: sp.Expr) -> sp.Expr:
-    """Replace function calls of numbers (``sin(2)``, ``sqrt(2)``) by floats."""
-    def numeric_call(e) -> bool:
-        return (isinstance(e, (sp.Function, sp.Pow)) and not e.free_symbols and e.is_number
-                and not e.is_Atom)
+        Raises:
+            KeyError: a function the programs do not know.
+        """
+        if not e.free_symbols:
+            return float(e)
+        found = self.index.get(e)
+        if found is None:
+            found = self.index[e] = self._of(e)
+        return found
 
-    return expr.replace(numeric_call, lambda e: sp.Float(e.evalf(20), 20))
+    def _of(self, e):
+        name, args = type(e).__name__, e.args
+        if name == "Add":              # a - b rather than a + (-1)*b: one op, not two
+            out = None
+            for term in args:
+                negative, x = self._signed(term)
+                if out is None:
+                    out = x if not negative else -x if isinstance(x, float) else self.add("neg", x)
+                else:
+                    out = self.add("sub" if negative else "add", out, x)
+            return out
+        if name == "Mul":
+            return self._product(args)
+        if name == "Pow":
+            base, exponent = args
+            if not base.free_symbols and float(base) == math.e:
+                return self.add("exp", self.of(exponent))
+            if exponent == se.Rational(1, 2):
+                return self.add("sqrt", self.of(base))
+            if not exponent.free_symbols:
+                return self.add("pow", self.of(base), attr=int(exponent) if exponent.is_Integer else float(exponent))
+            return self.add("pow", self.of(base), self.of(exponent))
+        if name == "Piecewise":        # (value, condition) pairs, the last condition True
+            pairs = list(zip(args[0::2], args[1::2]))
+            out = self.of(pairs[-1][0])
+            for value, condition in reversed(pairs[:-1]):
+                out = self.add("where", self.of(condition), self.of(value), out)
+            return out
+        if name in ("And", "Or"):
+            out = self.of(args[0])
+            for a in args[1:]:
+                out = self.add(f"logical_{name.lower()}", out, self.of(a))
+            return out
+        if name in _RELATIONS and not args[0].free_symbols:   # torch compares a tensor with a number
+            return self.add(_FLIPPED[_RELATIONS[name]], self.of(args[1]), self.of(args[0]))
+        op = _RELATIONS.get(name) or {"Not": "logical_not", "atan2": "atan2"}.get(name) or _FUNCTIONS[name]
+        return self.add(op, *map(self.of, args))
 
-
-@dataclass(eq=False)
-class Program:
-    """A compiled straight-line torch program of n-long inputs with ``rows`` outputs; outputs
-    that are numbers are not computed but filled in (``constants``: row -> value).
-
-    A program from TorchScript source may run on the host instead (:meth:`host`, CPU only):
-    the same source's tape run over numpy arrays (:func:`host.host_function`)."""
-
-    fn: object               # the torch function (None: a program for the host only)
-    rows: int
-    constants: dict
-    host_fn: object = None   # the same program over numpy arrays (None: through ``fn``)
-    # The constant rows as tensors, by (row, n, dtype, device): filling them anew was a sixth of
-    # cat_mouse's program calls. Shared between calls: every consumer concatenates or stacks
-    # the rows it gets, none writes into them.
-    filled: dict = field(default_factory=dict, repr=False)
-
-    def __call__(self, inputs: list[torch.Tensor], like: torch.Tensor) -> list[torch.Tensor]:
-        """The rows, each (n,) like ``like``. Run inside :func:`unoptimized` (once for many calls)."""
-        n = like.shape[0]
-        computed = iter(self.fn(*inputs))
-        out = []
-        for row in range(self.rows):
-            value = self.constants.get(row)
-            if value is not None:
-                out.append(self._filled(row, value, n, like))
-                continue
-            value = next(computed)
-            if not isinstance(value, torch.Tensor):
-                value = torch.full((n,), float(value), dtype=like.dtype, device=like.device)
-            elif value.dtype != like.dtype:
-                value = value.to(like.dtype)
-            out.append(value.expand(n) if value.shape != (n,) else value)
+    def _product(self, factors):
+        """A product left to right, its factors of negative integer powers as divisors after it
+        (a/b: one op, not two)."""
+        above = [f for f in factors if not _divisor(f)]
+        out = self.of(above[0]) if above else 1.0
+        for f in above[1:]:
+            out = self.add("mul", out, self.of(f))
+        for f in factors:
+            if _divisor(f):
+                out = self.add("div", out, self.of(f.args[0] ** -int(f.args[1])))
         return out
 
-    def host(self, inputs: list[np.ndarray], times: np.ndarray) -> list[np.ndarray]:
-        """:meth:`__call__` on numpy arrays (``times``: the (n,) times, for the rows' length),
-        the same numbers as numpy arrays; through the torch function where there is no host one."""
-        if self.host_fn is None:
-            with unoptimized():
-                return [r.numpy() for r in self([torch.from_numpy(a) for a in inputs], torch.from_numpy(times))]
-        with np.errstate(all="ignore"):   # inf and nan come out silently, as from TorchScript
-            out = self.host_fn(*inputs)
-        return self.finish(out, times.shape[0])
-
-    def finish(self, out: list, n: int, loose: tuple | None = None) -> list[np.ndarray]:
-        """The rows of :meth:`host` from the host function's outputs ``out`` on n instances: the
-        constant rows filled in, and every row an (n,) float64 array. ``loose``: the positions
-        in ``out`` that may be anything else (the rest are known to be rows, host_levels'
-        LevelPlan.loose); None: any of them."""
-        for i in range(len(out)) if loose is None else loose:
-            out[i] = as_row(out[i], n)
-        if self.constants:
-            computed = iter(out)
-            out = [self._filled(row, self.constants[row], n, None) if row in self.constants else next(computed)
-                   for row in range(self.rows)]
-        return out
-
-    def _filled(self, row: int, value, n: int, like: torch.Tensor | None):
-        """Row ``row``, the number ``value`` n times: a tensor like ``like``, or (None) an array."""
-        key = (row, n, like.dtype, like.device) if like is not None else (row, n)
-        tensor = self.filled.get(key)
-        if tensor is None:
-            if len(self.filled) >= FILLED_KEPT:   # sizes come and go (windows, batches)
-                self.filled.clear()
-            tensor = self.filled[key] = (
-                torch.full((n,), float(value), dtype=like.dtype, device=like.device) if like is not None
-                else np.full(n, float(value)))
-        return tensor
+    def _signed(self, term) -> tuple[bool, object]:
+        """(whether negative, the operand of the term without its sign) of one term of a sum."""
+        if not term.free_symbols:
+            value = float(term)
+            return value < 0, abs(value)
+        if type(term).__name__ == "Mul" and not term.args[0].free_symbols and float(term.args[0]) < 0:
+            coefficient, rest = -float(term.args[0]), term.args[1:]
+            return True, self._product(rest if coefficient == 1.0 else (se.RealDouble(coefficient), *rest))
+        return False, self.of(term)
 
 
-FILLED_KEPT = 64   # constant rows a program keeps filled
-
-
-def as_row(value, n: int) -> np.ndarray:
-    """A host program's output as an (n,) float64 array: a number or a 0-d array repeated, a
-    test's bools as 0/1 (as torch's ``.to()`` makes them); an (n,) float64 array as it is."""
-    if value.__class__ is not np.ndarray or value.shape != (n,) or value.dtype != np.float64:
-        value = np.asarray(value, dtype=np.float64)
-        return np.broadcast_to(value, (n,)) if value.shape != (n,) else value
-    return value
-
-
-_FUNCTIONS = {name: f"torch.{name}" for name in (
-    "sin", "cos", "tan", "asin", "acos", "atan", "atan2", "sinh", "cosh", "tanh", "asinh", "acosh",
-    "atanh", "log", "exp", "sqrt", "sign", "floor", "erf")} | {"Abs": "torch.abs", "ceiling": "torch.ceil"}
-_RELATIONS = {"StrictLessThan": ("<", ">"), "LessThan": ("<=", ">="), "Equality": ("==", "=="),
-              "Unequality": ("!=", "!="), "StrictGreaterThan": (">", "<"), "GreaterThan": (">=", "<=")}
-
-
-def _number(value: float) -> str:
-    text = repr(float(value))
-    return f"({text})" if text.startswith("-") else text
-
-
-def _print(e) -> str:
-    """torch source of a symengine expression (printed directly: sympy's printer took 0.8 s of
-    acrobat's 0.9 s lowering). Raises KeyError on a construct it does not know."""
-    if e.is_Symbol:
-        return e.name
-    if not e.free_symbols:
-        return _number(float(e))          # numbers, constants and functions of them
-    name = type(e).__name__
-    args = e.args
-    if name == "Add":                    # a - b rather than a + (-1)*b: one op, not two
-        terms = [_signed(a) for a in args]
-        out = terms[0][1] if terms[0][0] == "+" else f"-{terms[0][1]}"
-        return "(" + out + "".join(f" {sign} {text}" for sign, text in terms[1:]) + ")"
-    if name == "Mul":
-        return _product(args)
-    if name == "Pow":
-        base, exponent = args
-        if not base.free_symbols and float(base) == math.e:
-            return f"torch.exp({_print(exponent)})"
-        if exponent == se.Rational(1, 2):
-            return f"torch.sqrt({_print(base)})"
-        power = str(int(exponent)) if exponent.is_Integer else _print(exponent)
-        return f"torch.pow({_print(base)}, {power})"
-    if name == "Piecewise":              # (value, condition) pairs, the last condition True
-        pairs = list(zip(args[0::2], args[1::2]))
-        out, number = _print(pairs[-1][0]), not pairs[-1][0].free_symbols
-        for value, condition in reversed(pairs[:-1]):
-            test, chosen = _print(condition), _print(value)
-            if number and not value.free_symbols:    # where() of two floats is float32
-                chosen = f"torch.full_like({test}, {chosen}, dtype=torch.float64)"
-            out, number = f"torch.where({test}, {chosen}, {out})", False
-        return out
-    if name in _RELATIONS:               # a number on the left would need a reflected operator
-        left, right = args
-        op, flipped = _RELATIONS[name]
-        if not left.free_symbols:
-            return f"({_print(right)} {flipped} {_print(left)})"
-        return f"({_print(left)} {op} {_print(right)})"
-    if name in ("And", "Or"):
-        out = _print(args[0])
-        for a in args[1:]:
-            out = f"torch.logical_{name.lower()}({out}, {_print(a)})"
-        return out
-    if name == "Not":
-        return f"torch.logical_not({_print(args[0])})"
-    if name == "atan2":
-        return _atan2_filled(args, _print, lambda a: _number(float(a)))
-    return f"{_FUNCTIONS[name]}({', '.join(_print(a) for a in args)})"
-
-
-def _atan2_filled(args, show, number) -> str:
-    """``torch.atan2`` of ``args`` printed by ``show``. torch.atan2 takes tensors only, so a
-    number (printed by ``number``) is filled like the other argument: the same elementwise
-    atan2 as of the number itself. Both printers (ours, and sympy's for the fallback) use it."""
-    like = next((show(a) for a in args if a.free_symbols), None)
-    return "torch.atan2(" + ", ".join(
-        show(a) if a.free_symbols else f"torch.full_like({like}, {number(a)}, dtype=torch.float64)"
-        for a in args) + ")"
-
-
-def _signed(term) -> tuple[str, str]:
-    """("+" or "-", the term's torch source without its sign) of one term of a sum."""
-    if not term.free_symbols:
-        value = float(term)
-        return ("-" if value < 0 else "+"), repr(abs(value))
-    if type(term).__name__ == "Mul" and not term.args[0].free_symbols and float(term.args[0]) < 0:
-        rest = term.args[1:]
-        coefficient = -float(term.args[0])
-        return "-", _product(rest if coefficient == 1.0 else (se.RealDouble(coefficient), *rest))
-    return "+", _print(term)
-
-
-def _product(factors) -> str:
-    """A product, its factors of negative integer powers as divisors (a/b: one op, not two)."""
-    above, below = [], []
-    for f in factors:
-        if type(f).__name__ == "Pow" and f.args[1].is_Integer and int(f.args[1]) < 0:
-            exponent = -int(f.args[1])
-            below.append(_print(f.args[0]) if exponent == 1 else f"torch.pow({_print(f.args[0])}, {exponent})")
-        else:
-            above.append(_print(f))
-    out = "*".join(above) if above else "1.0"
-    return "(" + out + "".join(f"/{b}" for b in below) + ")"
-
-
-def _constant(e) -> float | None:
-    try:
-        return float(e) if not e.free_symbols else None
-    except (RuntimeError, TypeError, ValueError):
-        return None
-
-
-def _script(source: str):
-    """The TorchScript function ``program`` of ``source``."""
-    with warnings.catch_warnings():
-        warnings.simplefilter("ignore")          # TorchScript's deprecation notices
-        return torch.jit.CompilationUnit(source).program
-
-
-# What the printed programs may call as ``torch.…`` when run on the host (host.host_function)
-_HOST_NAMES = (*(f.removeprefix("torch.") for f in _FUNCTIONS.values()),
-               "where", "full_like", "logical_and", "logical_or", "logical_not")
-
-
-def _compile(names: list[str], outputs: list) -> tuple[Program, str | None]:
-    """The program of symengine ``outputs`` in the variables ``names``, common subexpressions
-    shared, and its TorchScript source (None: compiled as plain Python instead)."""
-    replacements, reduced = _numbers_inlined(*se.cse(outputs))
-    constants = {row: value for row, e in enumerate(reduced) if (value := _constant(e)) is not None}
-    computed = [e for row, e in enumerate(reduced) if row not in constants]
-    try:
-        source = (f"def program({', '.join(names)}):\n"
-                  + "".join(f"    {name} = {_print(sub)}\n" for name, sub in replacements)
-                  + f"    return [{', '.join(_print(e) for e in computed)}]\n")
-        fn = _script(source)
-    except Exception:  # noqa: BLE001 - a construct either does not take: sympy's printer, plain Python
-        shared = [(name._sympy_(), _fold_numbers(sub._sympy_())) for name, sub in replacements]
-        exprs = [_fold_numbers(e._sympy_()) for e in computed]
-        fn = sp.lambdify([sp.Symbol(name) for name in names], exprs, modules="torch",
-                         printer=_Printer, cse=lambda _exprs: (shared, exprs))
-        source = None
-    return Program(fn, len(reduced), constants), source
+def _divisor(f) -> bool:
+    return type(f).__name__ == "Pow" and f.args[1].is_Integer and int(f.args[1]) < 0
 
 
 def _numbers_inlined(replacements, reduced):
     """cse's output without its subexpressions that are numbers (tanh(1/3) shared by two
-    terms): each goes back where it was used, where the printer folds it into the float it
-    computes. As a name of its own it would reach a torch function as a float (torch.asin(x1)),
-    which TorchScript turns into a tensor and torch itself refuses."""
+    terms): each goes back where it was used, and becomes the float it computes there."""
     numbers, kept = {}, []
     for name, sub in replacements:
         sub = sub.xreplace(numbers) if numbers else sub
@@ -312,27 +159,169 @@ def _numbers_inlined(replacements, reduced):
     return kept, [e.xreplace(numbers) for e in reduced] if numbers else reduced
 
 
-# The version of the printed programs in the disk cache: raise it when printing changes what a
-# term's program computes (a cached program is then printed afresh).
-PRINTING = 3
-TAPES = 1      # the version of host.tape_of's tapes in the disk cache
+_OPERATORS = {"add": "+", "sub": "-", "mul": "*", "div": "/"}
+
+
+def _render(op: str, attr, args: list[str]) -> str:
+    if op in _OPERATORS:
+        return f"({args[0]} {_OPERATORS[op]} {args[1]})"
+    return f"torch.{op}({', '.join([*args, *([repr(attr)] if attr is not None else [])])})"
+
+
+class _Source:
+    """A program's source lines and the arrays it reads (its argument A)."""
+
+    def __init__(self):
+        self.lines: list[str] = []
+        self.arrays: list[np.ndarray] = []
+
+    def array(self, values, dtype=np.float64) -> str:
+        self.arrays.append(np.asarray(values, dtype=dtype))
+        return f"A[{len(self.arrays) - 1}]"
+
+    def number(self, values: list[float], op: str, first: bool = False, column: bool = False) -> str:
+        """Numbers as an operand: a float, or a (1, 1) or (rows, 1) tensor where they differ
+        or torch takes tensors only (where, atan2; ``first``: the first operand of an op with
+        ``out=``, which has no form with a number there, but for pow)."""
+        if len(set(values)) == 1 and op not in ("where", "atan2") and (not first or op == "pow"):
+            return repr(float(values[0]))
+        return self.array(np.reshape(values if len(set(values)) > 1 else values[:1], (-1, 1) if column else (-1,)))
+
+
+def _straight(graph: _Graph, roots: list, k: int, params: int) -> tuple[_Source, int]:
+    """The straight-line program of ``roots`` and the torch ops it runs."""
+    src = _Source()
+    name = [f"x{i}" for i in range(len(graph.nodes))]
+    name[k] = "t"
+    for i in range(graph.inputs, len(graph.nodes)):
+        op, attr, operands, _ = graph.nodes[i]
+        # a number beside atan2's tensor is filled like it, as the programs before these did
+        args = [name[o] if isinstance(o, int) else src.number([o], op) if op != "atan2" else
+                f"torch.full_like({name[next(a for a in operands if isinstance(a, int))]}, {o!r})"
+                for o in operands]
+        src.lines.append(f"    x{i} = {_render(op, attr, args)}")
+    out = [name[o] if isinstance(o, int) else f"torch.full_like(t, {o!r})" for o in roots]
+    src.lines.insert(0, f"    {''.join(f'x{i}, ' for i in range(k))}= X.unbind(0)")
+    if params:     # rows of the parameters: every operation's result is an (n,) row
+        src.lines.insert(1, f"    {''.join(f'x{k + 1 + j}, ' for j in range(params))}= "
+                            f"p.unsqueeze(1).expand({params}, t.shape[0]).unbind(0)")
+    src.lines.append(f"    return torch.stack([{', '.join(out)}])")
+    return src, len(graph.nodes) - graph.inputs + 2 + sum(not isinstance(o, int) for o in roots)
+
+
+def _levelled(graph: _Graph, roots: list, k: int, params: int) -> tuple[_Source, int]:
+    """The levelled program of ``roots`` and the torch ops it runs (results written by ``out=``:
+    not one autograd goes back through)."""
+    src = _Source()
+    nodes = graph.nodes
+    boolean = [n[0] in _BOOLEAN for n in nodes]
+    row = {i: i for i in range(graph.inputs)}
+    used = {False: graph.inputs, True: 0}          # rows of R (floats) and Q (booleans) given out
+    numbers = [o for o in roots if not isinstance(o, int)]
+    if numbers:
+        src.lines.append(f"    R[{used[False]}:{used[False] + len(numbers)}] = {src.array(np.reshape(numbers, (-1, 1)))}")
+        number_rows = iter(range(used[False], used[False] + len(numbers)))
+        used[False] += len(numbers)
+    ops = 6
+    levels: dict[tuple, list[int]] = {}
+    for i in range(graph.inputs, len(nodes)):
+        op, attr, operands, depth = nodes[i]
+        kinds = tuple(boolean[o] if isinstance(o, int) else None for o in operands)
+        exact = op in _EXACT or (op == "pow" and attr in (2, 3))   # else one op per row (see _EXACT)
+        levels.setdefault((depth, op, repr(attr), kinds, None if exact else i), []).append(i)
+    for (_, op, _, kinds, _), members in sorted(levels.items(), key=lambda item: item[0][0]):
+        members.sort(key=lambda i: [row[o] if isinstance(o, int) else -1 for o in nodes[i][2]])
+        args = []
+        for j, kind in enumerate(kinds):
+            column = [nodes[i][2][j] for i in members]
+            if kind is None:
+                args.append(src.number(column, op, first=j == 0, column=True))
+                ops += 1
+                continue
+            matrix, rows = "Q" if kind else "R", [row[o] for o in column]
+            if len(set(rows)) == 1 or rows == list(range(rows[0], rows[0] + len(rows))):   # a slice
+                args.append(f"{matrix}[{rows[0]}:{rows[0] + len(set(rows))}]")
+            else:
+                args.append(f"torch.index_select({matrix}, 0, {src.array(rows, np.int64)})")
+                ops += 1
+            ops += 1
+        flag = boolean[members[0]]
+        start = used[flag]
+        row.update((i, start + m) for m, i in enumerate(members))
+        used[flag] += len(members)
+        target = f"{'Q' if flag else 'R'}[{start}:{start + len(members)}]"
+        attr = nodes[members[0]][1]
+        src.lines.append(f"    torch.{op}({', '.join([*args, *([repr(attr)] if attr is not None else [])])}, out={target})")
+        ops += 3
+    out = [row[o] if isinstance(o, int) else next(number_rows) for o in roots]
+    src.lines.append(f"    return torch.index_select(R, 0, {src.array(out, np.int64)})")
+    head = [f"    R = torch.empty([{used[False]}, t.shape[0]], dtype=X.dtype, device=X.device)",
+            f"    R[0:{k}] = X", f"    R[{k}] = t"]
+    if used[True]:
+        head.append(f"    Q = torch.empty([{used[True]}, t.shape[0]], dtype=torch.bool, device=X.device)")
+    if params:
+        head.append(f"    R[{k + 1}:{k + 1 + params}] = p.unsqueeze(1)")
+    src.lines[:0] = head
+    return src, ops
+
+
+def _script(source: str):
+    """The TorchScript function ``program`` of ``source``."""
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")          # TorchScript's deprecation notices
+        return torch.jit.CompilationUnit(source).program
+
+
+def _compile(names: list[str], k: int, outputs: list, levelled: bool = True) -> tuple[str, list]:
+    """The source of ``program(X, t, p, A)`` computing symengine ``outputs`` in ``names``
+    (k variables, time, parameters) and its arrays A: X (k, n), t (n,), p (P,) give the
+    (len(outputs), n) rows. The cheaper of its two forms (straight-line only: not ``levelled``)."""
+    graph = _Graph(names)
+    replacements, reduced = _numbers_inlined(*se.cse(outputs))
+    for symbol, sub in replacements:     # common subexpressions as symengine shares them: the
+        graph.index[symbol] = graph.of(sub)   # same association, so the same numbers, as before
+    roots = [graph.of(e) for e in reduced]
+    params = len(names) - k - 1
+    forms = [_straight(graph, roots, k, params), *([_levelled(graph, roots, k, params)] if levelled else [])]
+    src, _ = min(forms, key=lambda pair: pair[1])
+    head = "def program(X: torch.Tensor, t: torch.Tensor, p: torch.Tensor, A: List[torch.Tensor]):\n"
+    return head + "".join(line + "\n" for line in src.lines), src.arrays
+
+
+@dataclass(eq=False)
+class Program:
+    """A compiled program of (k, n) variable values, (n,) times and (P,) parameters, giving
+    ``rows`` rows (n,); its arrays copied to each device it runs on."""
+
+    fn: object
+    arrays: list
+    on: dict = field(default_factory=dict)   # device -> the arrays there
+
+    def arrays_on(self, device: torch.device) -> list[torch.Tensor]:
+        """Its arrays as tensors on ``device`` (made once)."""
+        if device not in self.on:
+            self.on[device] = [torch.as_tensor(a, device=device) for a in self.arrays]
+        return self.on[device]
+
+    def __call__(self, X: torch.Tensor, times: torch.Tensor, params: torch.Tensor) -> torch.Tensor:
+        """The (rows, n) outputs. Run inside :func:`unoptimized` (once for many calls)."""
+        return self.fn(X, times, params, self.arrays_on(X.device))
+
+
+# The version of the programs in the disk cache: raise it when what a program computes, or how
+# it is written, changes (a cached program is then written afresh).
+PRINTING = 5
 
 
 @dataclass(eq=False)
 class LoweredTerm:
-    """A term as torch programs of (k, n) variable values, (n,) times and parameter scalars.
-
-    Each program's TorchScript source is kept in the terms' disk cache under the term's
-    ``cache_key`` (stw_tui.sym.compiler.cached_entry): a new process compiles it from there,
-    without taking derivatives, sharing subexpressions and printing again (basketball: 0.5 s of
-    its first torch iterate), and without ``expr`` at all.
-    """
+    """A term as torch programs of (k, n) variable values, (n,) times and (P,) parameters, kept
+    in the terms' disk cache under its ``cache_key``: a new process compiles them from there,
+    without derivatives (basketball: 0.5 s of its first torch iterate) and without ``expr``."""
 
     term: CompiledTerm
     names: tuple             # the renamed symbols: variables, time, parameters
-    # (kind, host) -> Program, each built on first use: kind "value" (the value alone), "first"
-    # (value and gradient) or "full" (value, gradient and Hessian pairs); host: run on numpy
-    programs: dict = field(default_factory=dict)
+    programs: dict = field(default_factory=dict)   # kind ("value", "first", "full") -> Program
     _expr: object = None
 
     @property
@@ -342,98 +331,49 @@ class LoweredTerm:
             self._expr = _renamed(self.term, self.names)
         return self._expr
 
-    def program(self, kind: str, host: bool = False) -> Program:
-        """The program ``kind`` ("value", "first" or "full"), for tensors or (``host``) numpy."""
-        found = self.programs.get((kind, host))
+    @property
+    def k(self) -> int:
+        """How many variables (values and derivatives) the term takes per instance."""
+        return self.term.k
+
+    def program(self, kind: str) -> Program:
+        """The program ``kind`` ("value", "first" or "full"), from the disk cache where it is kept."""
+        found = self.programs.get(kind)
         if found is None:
-            found = self.programs[(kind, host)] = self._program(kind, host)
+            name = f"full{self.term.hessian_pairs}" if kind == "full" else kind
+            key = f"{PRINTING}|{torch.__version__}|{name}|{self.term.cache_key}" if self.term.cache_key else ""
+            entry = cached_entry("torch", key)
+            if entry is None:
+                # straight-line values: derivatives=autograd differentiates them
+                entry = _compile(list(self.names), self.k, self._outputs(kind), levelled=kind != "value")
+                store_entry("torch", key, entry)
+            found = self.programs[kind] = Program(_script(entry[0]), entry[1])
         return found
 
     def _outputs(self, kind: str) -> list:
         """The symengine expressions that program ``kind`` computes."""
         if kind == "value":
             return [self.expr]
-        variables = [se.Symbol(name) for name in self.names[:self.term.k]]
+        variables = [se.Symbol(name) for name in self.names[:self.k]]
         grad = [self.expr.diff(v) for v in variables]
         if kind == "first":
             return [self.expr, *grad]
         return [self.expr, *grad, *(grad[a].diff(variables[b]) for a, b in self.term.hessian_pairs)]
 
-    def _program(self, kind: str, host: bool) -> Program:
-        """Program ``kind`` from the disk cache where its source is kept, else compiled (and
-        kept). A host program is the source's tape (:func:`host.tape_of`) run on numpy arrays,
-        with no TorchScript compile at all."""
-        name = f"full{self.term.hessian_pairs}" if kind == "full" else kind
-        key = f"{PRINTING}|{torch.__version__}|{name}|{self.term.cache_key}" if self.term.cache_key else ""
-        entry = cached_entry("torch", key)
-        if entry is not None:
-            source, rows, constants = entry
-            tape = self._tape(key, source) if host else None
-            if tape is not None:
-                return Program(None, rows, constants, host_function(tape, _HOST_NAMES))
-            try:
-                return Program(_script(source), rows, constants)
-            except Exception:  # noqa: BLE001 - a source this torch no longer takes: print it afresh
-                pass
-        program, source = _compile(list(self.names), self._outputs(kind))
-        if source is not None:
-            store_entry("torch", key, (source, program.rows, program.constants))
-            tape = self._tape(key, source) if host else None
-            if tape is not None:
-                program.host_fn = host_function(tape, _HOST_NAMES)
-        return program
+    def rows(self, kind: str, X: torch.Tensor, times: torch.Tensor, params: torch.Tensor) -> torch.Tensor:
+        """(rows, n): program ``kind``'s rows at n instances: the values, then (but for
+        "value") the k first derivatives, then (for "full") the second derivatives of
+        ``term.hessian_pairs`` in their order."""
+        with unoptimized():
+            return self.program(kind)(X, times, params)
 
-    @staticmethod
-    def _tape(key: str, source: str) -> tuple | None:
-        """The host tape of ``source`` (host.tape_of), kept in the disk cache beside it: a new
-        process reads it without parsing (basketball: 0.24 s of parsing 129 sources)."""
-        key = f"{TAPES}|{key}" if key else ""
-        tape = cached_entry("torch-tape", key)
-        if tape is None:
-            tape = tape_of(source, _HOST_NAMES)
-            if tape is not None:
-                store_entry("torch-tape", key, tape)
-        return tape
-
-    @property
-    def k(self) -> int:
-        """How many variables (values and derivatives) the term takes per instance."""
-        return self.term.k
-
-    def __call__(self, X: torch.Tensor, times: torch.Tensor, params: list[torch.Tensor]) -> torch.Tensor:
+    def __call__(self, X: torch.Tensor, times: torch.Tensor, params: torch.Tensor) -> torch.Tensor:
         """(n,): the term's values at n instances."""
-        with unoptimized():
-            return self.values(X, times, params)
-
-    def values(self, X: torch.Tensor, times: torch.Tensor, params: list[torch.Tensor]) -> torch.Tensor:
-        """(n,): the term's values at n instances. Run inside :func:`unoptimized`."""
-        return self.program("value")([*X.unbind(0), times, *params], times)[0]
-
-    def first_rows(self, X: torch.Tensor, times: torch.Tensor, params: list[torch.Tensor]) -> list[torch.Tensor]:
-        """1 + k rows (n,): the values and the k first derivatives at each of the n instances.
-        Run inside :func:`unoptimized`."""
-        return self.program("first")([*X.unbind(0), times, *params], times)
-
-    def rows(self, X: torch.Tensor, times: torch.Tensor, params: list[torch.Tensor]) -> list[torch.Tensor]:
-        """1 + k + pairs rows (n,): the values, the k first derivatives and the second
-        derivatives of ``term.hessian_pairs`` (in their order) at each of the n instances.
-        Run inside :func:`unoptimized`."""
-        return self.program("full")([*X.unbind(0), times, *params], times)
-
-    def host_rows(self, kind: str, X: np.ndarray, times: np.ndarray, params: list[np.ndarray]) -> list[np.ndarray]:
-        """The rows of program ``kind`` (:meth:`values`, :meth:`first_rows`, :meth:`rows`) on
-        numpy arrays, the same numbers as numpy (CPU only): X (k, n), params 0-d arrays."""
-        return self.program(kind, host=True).host([*X, times, *params], times)
-
-    def full(self, X: torch.Tensor, times: torch.Tensor, params: list[torch.Tensor]) -> torch.Tensor:
-        """(1 + k + pairs, n): :meth:`rows` stacked."""
-        with unoptimized():
-            return torch.stack(self.rows(X, times, params))
+        return self.rows("value", X, times, params)[0]
 
 
 def unoptimized():
-    """Programs run without the TorchScript graph executor's optimization passes: its profiling
-    runs and guards cost more than they save on straight-line programs of small tensors."""
+    """Programs run without TorchScript's optimizing: its profiling runs cost more than they save."""
     return torch.jit.optimized_execution(False)
 
 
@@ -443,6 +383,12 @@ _CACHE: dict[int, LoweredTerm] = {}
 def _names(term: CompiledTerm) -> tuple[str, ...]:
     """The programs' argument names: variables ``_v0``…, time ``_t``, parameters ``_p0``…"""
     return (*(f"_v{i}" for i in range(term.k)), "_t", *(f"_p{i}" for i in range(len(term.parameters))))
+
+
+def _fold_numbers(expr: sp.Expr) -> sp.Expr:
+    """Replace function calls of numbers (``sin(2)``, ``sqrt(2)``) by floats."""
+    return expr.replace(lambda e: isinstance(e, (sp.Function, sp.Pow)) and not e.free_symbols and e.is_number
+                        and not e.is_Atom, lambda e: sp.Float(e.evalf(20), 20))
 
 
 def _renamed(term: CompiledTerm, names: tuple[str, ...]):
@@ -464,7 +410,7 @@ def _renamed(term: CompiledTerm, names: tuple[str, ...]):
             rename[symbol] = sp.Symbol(params[name])
         else:  # compile_term guarantees this never happens
             raise ValueError(f"symbol {symbol} of term {term.expr} is neither variable nor constant")
-    return sign_as_piecewise(_to_symengine(_fold_numbers(term.expr.xreplace(rename))))   # a sympy object
+    return sign_as_piecewise(_to_symengine(_fold_numbers(term.expr.xreplace(rename))))
 
 
 def lower(term: CompiledTerm) -> LoweredTerm:

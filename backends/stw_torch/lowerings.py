@@ -9,18 +9,41 @@ problem anew from the scene, and while nothing but the curves changed, the lower
 
 from __future__ import annotations
 
+import hashlib
 import threading
 
+import numpy as np
 import torch
 
-from .batch_evaluate import problem_key
 from .evaluate import TorchProblem
 
 
-# The lowerings kept: a user's `iterate`s of one window in a row find theirs (basketball: 2 s of
-# lowering and patterns once, not at every solve), and so do the rounds of an adaptive `iterate`,
-# each a structure of its own (point_mass_2d's 4: with 2 kept, every `iterate` lowered them
-# again, 17.8 against 10.6 ms), and the starts of a survey.
+def problem_key(problem, device: torch.device, host_linear: bool) -> str:
+    """A digest of everything of a window problem but its control points: problems with equal
+    keys share one lowering (:meth:`TorchProblem.with_problem`) and batch together. Compiled terms
+    are named by identity (the core caches them, so the starts of a survey share them; printing
+    an arm's torque expressions to hash them took 0.3 s)."""
+    h = hashlib.sha256(repr((str(device), host_linear, type(problem.Pf).__name__, problem.Pf.shape,
+                             sorted(problem.row_counts.items()))).encode())
+    Pf = problem.Pf
+    for array in (Pf.indptr, Pf.indices, Pf.data) if hasattr(Pf, "indptr") else (Pf.toarray(),):
+        h.update(np.ascontiguousarray(array).tobytes())
+    h.update(np.asarray(problem.free, np.int64).tobytes())
+    h.update(np.ascontiguousarray(problem.damping, float).tobytes())
+    for g in problem.groups:
+        leaves = [(str(node), id(term), offset, tuple(problem.term_parameters(term)))
+                  for node, term, offset in g.condition.leaves] if g.condition is not None else []
+        h.update(repr((g.label, str(g.kind), g.n, g.slot_offset, g.row_offset, id(g.term),
+                       tuple(float(p) for p in g.params),
+                       str(g.condition.tree) if g.condition is not None else "", leaves)).encode())
+        h.update(np.ascontiguousarray(g.times, float).tobytes())
+        h.update(np.ascontiguousarray(g.weights, float).tobytes())
+    return h.hexdigest()
+
+
+# The lowerings kept: a user's `iterate`s of one window in a row find theirs, and so do the rounds
+# of an adaptive `iterate`, each a structure of its own (point_mass_2d's 4: with 2 kept, every
+# `iterate` lowered them again, 17.8 against 10.6 ms), and the starts of a survey.
 KEPT = 8
 # What the kept lowerings may hold together, in stored entries of their Jacobian and Hessian
 # patterns (values and indices: about 12 bytes each): basketball's is 4.7 million, the other

@@ -1,10 +1,6 @@
 """A fixed sparse matrix applied to torch tensors: torch's sparse CSR product on a CUDA device,
-scipy's on the CPU.
-
-On the CPU the tensors share their memory with numpy arrays, and scipy's product of a window
-problem's matrices (a few hundred rows) cost ~0.02 ms where torch's sparse CSR product cost
-~0.25 ms (2 cores; five products an evaluation). Both sum each row's products in order.
-"""
+scipy's on the CPU, on the tensors' memory (a window's matrices: ~0.02 ms where torch's sparse
+CSR product cost ~0.25). Both sum each row's products in order."""
 
 from __future__ import annotations
 
@@ -36,13 +32,17 @@ class SparseMatrix:
                     torch.as_tensor(m.data, dtype=torch.float64, device=device), size=m.shape,
                     check_invariants=False)
 
-    def __matmul__(self, x):
-        """``m @ x``: a tensor for a tensor, a numpy array for a numpy array (CPU only)."""
-        if isinstance(x, np.ndarray):
-            return np.asarray(matvec(self.host, x))
+    def __matmul__(self, x: torch.Tensor) -> torch.Tensor:
+        """``m @ x`` for x (n,) or (n, B)."""
         if self.host is not None:
             # scipy's kernel without its dispatch, bitwise (matvec takes ``@`` for what it can't)
             return torch.from_numpy(np.asarray(matvec(self.host, x.numpy())))
         if not self.shape[0]:
             return x.new_zeros((0, *x.shape[1:]))
         return self.tensor @ x
+
+    def rows(self, X: torch.Tensor) -> torch.Tensor:
+        """Each row of X (B, n) times the matrix: (B, m)."""
+        if X.shape[0] == 1:
+            return (self @ X[0]).unsqueeze(0)
+        return (self @ X.T.contiguous()).T

@@ -32,7 +32,8 @@ the machine's drift falls on both:
   agree within 1e-4 relative. ``pendulum: time / FDDP`` (``--anchors``, extra ``anchors``):
   the same against crocoddyl's FDDP (fddp_solve), counted on the same condition;
   ``pendulum N: time / IPOPT`` (``--anchors``, extra ``ipopt``): against CasADi's own IPOPT on
-  the identical B-spline at 20 and 80 spans (native_ipopt_pendulum, built once). Each reference
+  the identical B-spline at 20 and 80 spans (native_ipopt_pendulum, built once; stated by the
+  ipopt plugin, stw_ipopt.anchor). Each reference
   alternates with stw's runs of its own (a solve that follows FDDP's is slowed down).
 * ``window in 100 s / in 10 s``: the whole `iterate` of the same 1 s window in a 100 s and a 10 s
   animation of the same knot density, each building its window anew.
@@ -348,13 +349,18 @@ def pendulum_figures(repeat: int, anchors: bool) -> list[Figure]:
 
 
 def native_ipopt_pendulum(spans: int, quadrature: int, g: float, t1: float = 2.0):
-    """A timed solve, ``() -> (seconds, objective)``, of :func:`native_ipopt_nlp`'s swing-up from
+    """A timed solve, ``() -> (seconds, objective)``, of the ipopt plugin's own statement of the
+    swing-up (stw_ipopt.anchor.pendulum_nlp: CasADi and scipy's B-spline, nothing of stw's) from
     zero control points, built once (the build is not timed, as stw's compile is not).
 
     Raises:
-        ImportError: casadi is not installed (the ``ipopt`` extra).
+        ImportError: the ipopt backend (casadi, its extra) is not installed.
     """
-    solver, target = native_ipopt_nlp(spans, quadrature, g, t1)
+    try:    # casadi stays in the backends (tests/test_layering.py): the plugin states it
+        reference = load_backend("ipopt").pendulum_reference
+    except (StwError, AttributeError) as exc:
+        raise ImportError(str(exc)) from exc
+    solver, target = reference(spans, quadrature, g, t1)
 
     def solve() -> tuple[float, float]:
         started = time.perf_counter()
@@ -362,45 +368,6 @@ def native_ipopt_pendulum(spans: int, quadrature: int, g: float, t1: float = 2.0
         return time.perf_counter() - started, float(found["f"])
 
     return solve
-
-
-def native_ipopt_nlp(spans: int, quadrature: int, g: float, t1: float = 2.0):
-    """``(solver, target)``: the swing-up stated directly in CasADi as its users write it (nothing
-    of stw's): control points as one SX vector, the basis matrices from scipy's BSpline at the same
-    Gauss-Legendre nodes, ``Σ w (θ'' + g sin θ)²`` with the four boundary conditions
-    ``[θ(0), θ(t1), θ'(0), θ'(t1)] = target``, ``nlpsol`` with IPOPT's exact Hessian and MUMPS.
-
-    Raises:
-        ImportError: casadi is not installed (the ``ipopt`` extra).
-    """
-    import casadi
-    import scipy.sparse as sps
-    from scipy.interpolate import BSpline
-
-    knots = np.concatenate([[0.0] * 3, np.linspace(0.0, t1, spans + 1), [t1] * 3])
-    n = spans + 3
-    x, w = np.polynomial.legendre.leggauss(quadrature)
-    cuts = np.linspace(0.0, t1, spans + 1)
-    half = (cuts[1:] - cuts[:-1])[:, None] / 2
-    times = ((cuts[1:] + cuts[:-1])[:, None] / 2 + half * x[None, :]).ravel()
-    weights = (half * w[None, :]).ravel()
-
-    def basis(ts, order):   # column j: the j-th basis function's order-th derivative at ts
-        eye = np.eye(n)
-        m = sps.csc_matrix(np.column_stack([BSpline(knots, eye[j], 3).derivative(order)(ts)
-                                            if order else BSpline(knots, eye[j], 3)(ts) for j in range(n)]))
-        m.eliminate_zeros()
-        m.sort_indices()
-        return casadi.DM(casadi.Sparsity(m.shape[0], m.shape[1], m.indptr.tolist(), m.indices.tolist()), m.data)
-
-    s = casadi.SX.sym("s", n)
-    u = casadi.mtimes(basis(times, 2), s) + g * casadi.sin(casadi.mtimes(basis(times, 0), s))
-    ends = np.array([0.0, t1])
-    constraints = casadi.vertcat(casadi.mtimes(basis(ends, 0), s), casadi.mtimes(basis(ends, 1), s))
-    solver = casadi.nlpsol("pendulum", "ipopt", {"x": s, "f": casadi.dot(casadi.DM(weights), u * u),
-                                                 "g": constraints},
-                           {"ipopt": {"print_level": 0, "sb": "yes", "tol": 1e-8}, "print_time": False})
-    return solver, np.array([0.0, np.pi, 0.0, 0.0])
 
 
 FDDP_STEPS = 200        # RK4 steps of 0.01 s: FDDP's ∫u² is then within 1e-4 of stw's 20 spans

@@ -163,3 +163,25 @@ class LinearAlgebra(ABC):
     def jacobian(self, ev: Any, kind: str) -> Matrix:
         """The Jacobian of the equality ("eq") or inequality ("ge") rows of evaluation ``ev``."""
         return self.matrix(ev.J_eq if kind == "eq" else ev.J_ge)
+
+
+class DenseMatrices:
+    """The matrix products of a :class:`LinearAlgebra` on dense 2-D arrays that have ``@``,
+    ``.T`` and broadcasting: numpy's (stw_scipy.dense) and torch's (stw_torch.linalg) alike,
+    written once. Put it before the LinearAlgebra base of a dense algebra."""
+
+    def matvec(self, m: Matrix, x: Vector) -> Vector:
+        """m @ x."""
+        return m @ x
+
+    def rmatvec(self, m: Matrix, x: Vector) -> Vector:
+        """mᵀ @ x."""
+        return m.T @ x
+
+    def add(self, a: Matrix, b: Matrix) -> Matrix:
+        """a + b."""
+        return a + b
+
+    def gram(self, a: Matrix, w: Vector) -> Matrix:
+        """aᵀ diag(w) a, w scaling a's rows by broadcasting."""
+        return a.T @ (w[:, None] * a)
