@@ -555,15 +555,21 @@ def test_typing_in_a_panel_or_plot_goes_to_the_console():
 
 
 def test_the_focused_area_is_marked():
-    from textual.widgets import Tab
+    from stw_tui.app.deck import TabStrip
 
     app = create_app()
 
+    def active_tab(group: str):
+        """The drawn style of the active tab's label and of its underline."""
+        strip = app.query_one(f"#{group}").query_one(TabStrip)
+        labels, bar = strip.render().renderables
+        start, _ = strip.spans()[strip.active]
+        return str([span.style for span in labels.spans if span.start <= start + 1 < span.end]), \
+            str(bar.highlight_style)
+
     def marks():
         console = app.repl.styles.border_top[1]
-        tabs = {group: app.query_one(f"#{group}").query_one("Tab.-active", Tab).styles.background
-                for group in ("panels", "plots")}
-        return console, tabs["panels"], tabs["plots"]
+        return console, active_tab("panels"), active_tab("plots")
 
     async def scenario(pilot):
         at_console = marks()

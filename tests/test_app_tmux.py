@@ -118,7 +118,7 @@ def test_autosave_survives_kill_9_and_resume_reopens_it_without_solving(tmp_path
 
     state = tmp_path / "state"
     name = f"stw-test-{uuid.uuid4().hex[:8]}"
-    base = start(name, f"env XDG_STATE_HOME={state} {STW} sessions/particle_jet.stw")
+    base = start(name, f"env PYTHONPATH={ROOT} XDG_STATE_HOME={state} {STW} sessions/particle_jet.stw")
     try:
         screen = wait_for(base, name, "end of particle_jet.stw")
         assert "end of particle_jet.stw" in screen, screen
@@ -137,11 +137,12 @@ def test_autosave_survives_kill_9_and_resume_reopens_it_without_solving(tmp_path
     uninterrupted.run_file(ROOT / "sessions" / "particle_jet.stw")
     assert (resumed.scene.coefficient_vector() == uninterrupted.scene.coefficient_vector()).all()
     name = f"stw-test-{uuid.uuid4().hex[:8]}"
-    base = start(name, f"env XDG_STATE_HOME={state} {STW} --resume")
+    base = start(name, f"env PYTHONPATH={ROOT} XDG_STATE_HOME={state} {STW} --resume")
     try:
         # what it restored, inside the TUI (not on the shell's hidden screen), and Up recalls
-        # the resumed session's last command
-        screen = wait_for(base, name, "resumed ")
+        # the resumed session's last command. ("resumed" alone: the journal's long path wraps
+        # onto the next line, and waiting for "resumed " ran into the 60 s timeout every time.)
+        screen = wait_for(base, name, "restored from")
         assert "stw>" in screen and "backend scipy" in screen, screen
         assert "solve(s) restored from checkpoints" in " ".join(screen.split()), screen
         tmux(*base, "send-keys", "-t", name, "Up")
@@ -224,5 +225,73 @@ def test_resizing_below_80x24_asks_for_80x24_and_resizing_back_restores_the_layo
         tmux(*base, "send-keys", "-t", name, "print x @ 0.5", "Enter")   # the console still answers
         screen = wait_for(base, name, "x @ 0.5 = ")
         assert "x @ 0.5 = " in screen, screen
+    finally:
+        tmux(*base, "kill-server")
+
+
+def test_the_new_window_dialog_shows_its_bracketed_title_literally_and_the_app_lives_on(tmp_path):
+    """Issue 52's crash: on the Win panel, `n` opened a dialog whose title
+    `New window: NAME [dofs=a,b|all] [[A, B]]` was read as Textual markup (MarkupError, the app
+    gone and ~420 lines of traceback over the shell). In a real terminal: it shows literally,
+    Esc closes it, the app still answers and its journal holds what was replayed."""
+    state = tmp_path / "state"
+    name = f"stw-test-{uuid.uuid4().hex[:8]}"
+    base = start(name, f"env PYTHONPATH={ROOT} XDG_STATE_HOME={state} {STW} sessions/particle_jet.stw")
+    try:
+        assert "end of particle_jet.stw" in wait_for(base, name, "end of particle_jet.stw")
+        for _ in range(4):                                   # the panels, then Eqns, Const, Win
+            tmux(*base, "send-keys", "-t", name, "F2")
+            time.sleep(0.3)
+        assert "window DOF interval" in wait_for(base, name, "window DOF interval"), "not on the Win panel"
+        tmux(*base, "send-keys", "-t", name, "n")
+        screen = wait_for(base, name, "New window: ")        # (the key hints say "n New window")
+        assert "New window: NAME [dofs=a,b|all] [[A, B]]" in screen, screen
+        assert "Traceback" not in screen and "MarkupError" not in screen, screen
+        tmux(*base, "send-keys", "-t", name, "Escape")
+        time.sleep(0.5)
+        tmux(*base, "send-keys", "-t", name, "Escape")       # back to the console
+        time.sleep(0.3)
+        tmux(*base, "send-keys", "-t", name, "print x @ 0.5", "Enter")
+        screen = wait_for(base, name, "x @ 0.5 = ")
+        assert "x @ 0.5 = " in screen and "New window: " not in screen, screen
+    finally:
+        tmux(*base, "kill-server")
+    journals = list((state / "stw").glob("particle_jet-*.stw"))
+    assert len(journals) == 1, journals
+    text = journals[0].read_text(encoding="utf-8")
+    assert "iterate 20" in text and "print x @ 0.5" in text, text
+
+
+def test_commands_typed_during_a_replay_wait_for_its_end_and_a_query_answers_after_the_solve(tmp_path):
+    """Issue 52 item 4 in a real terminal: while a session file replays (here: its solve runs,
+    never converging), a typed command that changes the scene waits for the file's end and a
+    query answers when the solve ends; F4 stops the solve and halts the replay, F7 runs the rest
+    of the file (its own check sees the file's scene), then the typed command."""
+    jet = (ROOT / "sessions" / "particle_jet.stw").read_text().split("iterate")[0]
+    script = tmp_path / "typed.stw"
+    script.write_text(jet + "const k = 1\n" + ENDLESS + "iterate 1000000\nprint k @ 0\n", encoding="utf-8")
+    name = f"stw-test-{uuid.uuid4().hex[:8]}"
+    base = start(name, f"env PYTHONPATH={ROOT} {STW} {script}")
+    try:
+        assert "solving" in wait_for(base, name, "solving"), "the file's solve did not start"
+        tmux(*base, "send-keys", "-t", name, "const k = 5", "Enter")
+        assert "queued until the replay ends: const k = 5" in wait_for(base, name, "queued until the replay")
+        tmux(*base, "send-keys", "-t", name, "print x @ 0.5", "Enter")
+        screen = wait_for(base, name, "answers when the running solve ends")
+        assert "answers when the running solve ends: print x @ 0.5" in screen, screen
+        assert "x @ 0.5 = " not in screen, screen
+        tmux(*base, "send-keys", "-t", name, "F4")
+        screen = wait_for(base, name, "x @ 0.5 = ")
+        joined = " ".join(screen.split())
+        assert "replay halted" in joined and "x @ 0.5 = " in screen, screen
+        assert "k @ 0 = " not in screen, screen               # the file's rest waits for F7
+        tmux(*base, "send-keys", "-t", name, "F7")
+        screen = wait_for(base, name, "running the 1 command(s) typed")
+        joined = " ".join(screen.split())
+        assert "k @ 0 = 1" in joined, screen                  # the file's check: its own k
+        assert joined.index("end of typed.stw") < joined.index("running the 1 command(s) typed"), screen
+        tmux(*base, "send-keys", "-t", name, "print k @ 0", "Enter")
+        screen = wait_for(base, name, "k @ 0 = 5")
+        assert "k @ 0 = 5" in screen, screen                  # the typed const ran after the file
     finally:
         tmux(*base, "kill-server")

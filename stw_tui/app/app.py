@@ -21,9 +21,9 @@ from textual.containers import Horizontal
 from textual.reactive import Reactive
 from textual.screen import Screen
 from textual.widget import Widget
-from textual.widgets import TabbedContent, TabPane, Tabs
 
 from stw_tui.app.console import Console
+from stw_tui.app.deck import Deck
 from stw_tui.app.dialogs import CompareScreen, TooSmallScreen, too_small
 from stw_tui.app.gallery import GalleryScreen, OptimumChosen
 from stw_tui.app.help_screen import HelpScreen, help_sections
@@ -151,14 +151,10 @@ class StwApp(App[int]):
 
     def compose(self) -> ComposeResult:
         with Horizontal(id="main"):
-            with TabbedContent(id="panels"):
-                for title, cls in PANELS:
-                    with TabPane(title, id=f"tab-{title.lower()}"):
-                        yield cls(id=f"{title.lower()}-panel", classes="scene-view")
-            with TabbedContent(id="plots"):
-                for title, cls in PLOTS:
-                    with TabPane(title, id=f"tab-{title.lower()}"):
-                        yield cls(id=f"{title.lower()}-plot", classes="scene-view")
+            yield Deck([(title, cls(id=f"{title.lower()}-panel", classes="scene-view")) for title, cls in PANELS],
+                       prepare=self._bring_up_to_date, id="panels")
+            yield Deck([(title, cls(id=f"{title.lower()}-plot", classes="scene-view")) for title, cls in PLOTS],
+                       prepare=self._bring_up_to_date, id="plots")
         yield Console(lambda: self.scene, self._backend_names, blink=self.blink, id="console")
         yield StatusLine(show_timing=self.show_timing, id="status")
         yield KeyHints([(binding.key, binding.action) for binding in self.BINDINGS], id="keys")
@@ -384,14 +380,13 @@ class StwApp(App[int]):
         if self._shown is None:
             return
         self._coefficients = coefficients
-        tabs = self.query_one("#plots", TabbedContent)
-        for pane in tabs.query(TabPane):
-            for widget in pane.query(".scene-view"):
-                if isinstance(widget, self.LIVE_PLOTS):
-                    if pane.id == tabs.active:
-                        widget.set_scene(self._shown, coefficients=coefficients)
-                    else:
-                        self._stale.add(widget.id)
+        plots = self.query_one("#plots", Deck)
+        for widget in plots.views.values():
+            if isinstance(widget, self.LIVE_PLOTS):
+                if widget is plots.current:
+                    widget.set_scene(self._shown, coefficients=coefficients)
+                else:
+                    self._stale.add(widget.id)
 
     # --- surveys -----------------------------------------------------------------------------
     def on_survey_progressed(self, event: SurveyProgressed) -> None:
@@ -429,7 +424,7 @@ class StwApp(App[int]):
         figure = self.query_one(FigurePlot)
         self._stale.discard(figure.id)   # showing its tab must not put the scene back over the preview
         self._plot_chosen = True
-        self.query_one("#plots", TabbedContent).active = "tab-figure"
+        self.query_one("#plots", Deck).active = "tab-figure"
         preview = preview_scene(self._shown, best)
         figure.set_scene(preview)
         figure.t = preview.t0
@@ -533,30 +528,30 @@ class StwApp(App[int]):
             return
         if drawable:
             self._plot_chosen = True
-            self.query_one("#plots", TabbedContent).active = "tab-figure"
+            self.query_one("#plots", Deck).active = "tab-figure"
 
     def _show_views(self) -> None:
         scene = self._shown
         self._open_on_figure(scene)
-        for tabs in self.query(TabbedContent):
-            for pane in tabs.query(TabPane):
-                # Hidden tabs are brought up to date when shown: rebuilding them all costs layout.
-                for widget in pane.query(".scene-view"):
-                    if pane.id == tabs.active:
-                        self._stale.discard(widget.id)
-                        widget.set_scene(scene, self._info)
-                    else:
-                        self._stale.add(widget.id)
+        for deck in self.query(Deck):
+            for widget in deck.views.values():
+                # Hidden views are brought up to date when shown (_bring_up_to_date).
+                if widget is deck.current:
+                    self._stale.discard(widget.id)
+                    widget.set_scene(scene, self._info)
+                else:
+                    self._stale.add(widget.id)
         self.status_line.show(backend=scene.backend, window=scene.active_window)
 
-    def on_tabbed_content_tab_activated(self, event: TabbedContent.TabActivated) -> None:
-        for widget in event.pane.query(".scene-view"):
-            if widget.id in self._stale and self._shown is not None:
-                self._stale.discard(widget.id)
-                if isinstance(widget, self.LIVE_PLOTS):
-                    widget.set_scene(self._shown, self._info, coefficients=self._coefficients)
-                else:
-                    widget.set_scene(self._shown, self._info)
+    def _bring_up_to_date(self, widget: Widget) -> None:
+        """A view about to be shown (Deck.prepare): show it the scene if it missed a refresh, while
+        still hidden, so the switch draws it once, as it will stay."""
+        if widget.id in self._stale and self._shown is not None:
+            self._stale.discard(widget.id)
+            if isinstance(widget, self.LIVE_PLOTS):
+                widget.set_scene(self._shown, self._info, coefficients=self._coefficients)
+            else:
+                widget.set_scene(self._shown, self._info)
 
     def on_item_chosen(self, event: ItemChosen) -> None:
         if event.kind == "dof":
@@ -566,7 +561,7 @@ class StwApp(App[int]):
             plot, tab = self.query_one(ExpressionPlot), "tab-expr"
             plot.name_shown = event.name
         self._plot_chosen = True
-        self.query_one("#plots", TabbedContent).active = tab
+        self.query_one("#plots", Deck).active = tab
         plot.request_data()
 
     # --- focus and keys ----------------------------------------------------------------------
@@ -574,9 +569,8 @@ class StwApp(App[int]):
         """Mark the tab bar of the tab group that holds the focus (see app.tcss)."""
         if len(self.screen_stack) == 1:
             focused = self.focused
-            for tabs in self.query(TabbedContent):
-                bar = tabs.query_one(Tabs)   # the ContentTabs
-                bar.set_class(focused is not None and tabs in focused.ancestors, "-has-focus")
+            for deck in self.query(Deck):
+                deck.mark(focused is not None and deck in focused.ancestors)
 
     async def on_event(self, event: events.Event) -> None:
         """A printable key that nothing binds, typed while a panel or plot has the focus, is
@@ -606,29 +600,26 @@ class StwApp(App[int]):
             return self.session is not None and self.session.survey is not None
         return True
 
-    def _cycle_tabs(self, tabs_id: str, kind: type[Widget]) -> None:
-        """Focus the tab group's active view; when it already has the focus, go to the next tab.
+    def _cycle_tabs(self, deck_id: str) -> None:
+        """Focus the deck's shown view; when it already has the focus, show the next one.
         Only on the main screen: pressed on the help screen, F2 and F3 moved its focus to a panel
         behind it, and Esc then no longer closed it (found by the key sweep). (Not disabled in
         check_action: the palette lists what that allows, and it is open when it asks.)"""
         if self.screen is not self.screen_stack[0]:
             return
-        tabs = self.query_one(f"#{tabs_id}", TabbedContent)
-        if self.focused is not None and tabs in self.focused.ancestors:
-            ids = [pane.id for pane in tabs.query(TabPane)]
-            tabs.active = ids[(ids.index(tabs.active) + 1) % len(ids)]
+        deck = self.query_one(f"#{deck_id}", Deck)
+        if self.focused is not None and deck in self.focused.ancestors:
+            deck.active = deck.next_tab()
         # set_focus now, not focus() (deferred): a second key press may arrive before a redraw.
-        self.screen.set_focus(tabs.get_pane(tabs.active).query_one(kind))
+        self.screen.set_focus(deck.current)
 
     def action_panels(self) -> None:
-        from stw_tui.app.panel_base import ScenePanel
-
-        self._cycle_tabs("panels", ScenePanel)
+        self._cycle_tabs("panels")
 
     def action_plots(self) -> None:
         if self.screen is self.screen_stack[0]:
             self._plot_chosen = True
-        self._cycle_tabs("plots", ScenePlot)
+        self._cycle_tabs("plots")
 
     def action_help(self) -> None:
         """F1: the full-screen help (tutorial, keys, commands)."""
@@ -691,7 +682,7 @@ class StwApp(App[int]):
 
     def action_play(self) -> None:
         self._plot_chosen = True
-        self.query_one("#plots", TabbedContent).active = "tab-figure"
+        self.query_one("#plots", Deck).active = "tab-figure"
         self.query_one(FigurePlot).action_play()
 
     def action_stop(self) -> None:

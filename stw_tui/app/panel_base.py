@@ -83,6 +83,7 @@ class ScenePanel(DataTable):
         super().__init__(cursor_type="row", zebra_stripes=True, cell_padding=0, **kwargs)
         self.scene: "Scene | None" = None
         self.info = SceneInfo()
+        self._rows: list[tuple[str, tuple]] | None = None   # what the table shows
 
     def on_mount(self) -> None:
         self._widths: list[int] = []
@@ -92,6 +93,7 @@ class ScenePanel(DataTable):
         # Explicit widths: DataTable's own auto widths are measured on idle, and a table refilled
         # just as its tab is shown sometimes kept the header widths (flaky snapshots, cut names).
         self.clear(columns=True)
+        self._rows = None
         last = len(self.COLUMNS) - 1
         for i, (label, width) in enumerate(zip(self.COLUMNS, widths)):
             self.add_column(label, width=width + (GAP if i < last else 0), key=label or "_")
@@ -99,8 +101,12 @@ class ScenePanel(DataTable):
 
     def _room(self, rows: int) -> int | None:
         """The columns the table has for its cells when it shows ``rows`` rows, less a vertical
-        scrollbar when they do not fit its height (None before it is laid out)."""
+        scrollbar when they do not fit its height (None before it is laid out). A hidden panel
+        (in a Deck) takes its deck's size: brought up to date just before it is shown, it is drawn
+        once, with the columns it keeps (not refitted once laid out: a second draw)."""
         width, height = self.size
+        if width <= 0 and self.parent is not None and not self.display:
+            width, height = self.parent.size
         if width <= 0:
             return None
         if rows + self.show_header > height:
@@ -125,6 +131,9 @@ class ScenePanel(DataTable):
         rows = list(self.table_rows(scene, self.info))
         widths = column_widths(self.COLUMNS, [cells for _, cells in rows], self._room(len(rows)),
                                self.KEEP_IN_VIEW)
+        if widths == self._widths and rows == self._rows:
+            return    # nothing changed: not cleared and drawn again
+        self._rows = rows
         if widths != self._widths:
             self._set_columns(widths)
         else:

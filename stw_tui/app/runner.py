@@ -151,6 +151,8 @@ class Runner:
         if not self.solving:
             return False
         self.stop_requested.set()
+        if self.solver is not None:   # now, not at the waiting side's next look (up to POLL_S later)
+            self.solver.cancel()
         return True
 
     def abandon(self, grace: float = QUIT_GRACE) -> None:

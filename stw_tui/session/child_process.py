@@ -210,6 +210,14 @@ class SolverProcess:
         if isinstance(error, HungBackend):
             self.close()
 
+    def cancel(self) -> None:
+        """Ask the running solve to stop now (any thread): the child reads the flag inside its
+        iterations (stw_tui/sos/stopping.py). The waiting side also sets it from ``cancelled()``,
+        within POLL_S, so a stop asked for before the command reached the child is not lost."""
+        flag = self._cancel
+        if flag is not None:
+            flag.value = True
+
     def _execute(self, payload: bytes, text: str, line: int | None, on_report: Callable, cancelled: Callable[[], bool]):
         process, conn, cancel = self._ensure_started()
         cancel.value = False

@@ -22,6 +22,7 @@ from typing import Any, Callable, ClassVar
 
 import numpy as np
 
+from stw_tui.sos.stopping import StepStopped
 from stw_tui.sym.errors import SolveError, StwError
 from stw_tui.sym.kinds import Capability, TermKind
 
@@ -362,7 +363,11 @@ class _Loop:
             if self._given_up:
                 break
             self.where = f"iteration {k}"
-            inner, report = backend.step(problem, inner, k)
+            try:
+                inner, report = backend.step(problem, inner, k)
+            except StepStopped:   # a stop asked for during the step (the shared SQP's, stopping.py)
+                status = Status.STOPPED
+                break
             state = backend.state(inner)
             _check_shapes(backend.name, problem, state, k)
             if not (np.isfinite(state.s).all() and np.isfinite(report.objective)

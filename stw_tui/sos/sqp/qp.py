@@ -26,6 +26,7 @@ import numpy as np
 
 from stw_tui.sos.sqp.algebra import KKTSystem, LinearAlgebra, Matrix, SingularSystem, Vector
 from stw_tui.sos.sqp.curvature import convex_on
+from stw_tui.sos.stopping import check as check_stop
 
 STEP_TO_BOUNDARY = 0.995   # fraction of the way to a bound an interior-point step may go
 KKT_EPS = 1e-10            # small negative (2,2) block: redundant (densely sampled) constraint rows get bounded multipliers
@@ -219,6 +220,7 @@ def _active_set(la, H, g, Ae, ce, Ai, ci, y0, z0, binding, convex=False, systems
     linear_its = fallbacks = 0
     limit = int(la.numpy(binding).sum())
     for _ in range(ACTIVE_SET_PASSES):
+        check_stop()
         trial = _working_set_trial(la, H, g, Ae, ce, Ai, ci, y0, z0, binding, systems, floor)
         if trial is None:
             return None
@@ -344,6 +346,7 @@ def _interior_point(la, H, g, Ae, ce, Ai, ci, y0, rho, tol, max_ipm,
     e_hard = KKT_EPS + la.zeros(me)           # a hard QP's (2,2) block: the same every iteration
     k, binding = 0, None
     for k in range(1, max_ipm + 1):
+        check_stop()
         last_binding = binding
         r_d = la.matvec(H, d) + g + la.rmatvec(Ae, y) - la.rmatvec(Ai, z)
         r_e = la.matvec(Ae, d) + ce - KKT_EPS * (y - y0)

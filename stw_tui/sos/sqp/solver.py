@@ -57,6 +57,8 @@ from stw_tui.sos.backend import Backend, BackendOption, Capability, SolverState,
 from stw_tui.sos.sqp.algebra import LinearAlgebra, SingularSystem
 from stw_tui.sos.sqp.curvature import convexify
 from stw_tui.sos.sqp.qp import FOOTPRINT_FLOOR, INFEASIBLE_MULTIPLIER, KKT_EPS, QPResult, solve_qp
+from stw_tui.sos.stopping import check as check_stop
+from stw_tui.sos.stopping import stoppable
 from stw_tui.sos.sqp.termination import is_converged, kkt_residual
 from stw_tui.sym.errors import StwError
 
@@ -205,6 +207,15 @@ class SQPBackend(Backend):
 
     # --- one iteration -----------------------------------------------------------------------
     def step(self, problem, inner: SQPInner, iteration: int) -> tuple[SQPInner, StepReport]:
+        """One SQP iteration. After the first, a stop asked for meanwhile (the driver's
+        ``settings[CANCELLED]``) ends it early with StepStopped (stopping.py); the first always
+        completes, so a stopped solve has at least one iteration to keep (`iterate K`, K >= 1)."""
+        from stw_tui.sos.backend import CANCELLED
+
+        with stoppable(inner.settings.get(CANCELLED) if iteration > 1 else None):
+            return self._step(problem, inner, iteration)
+
+    def _step(self, problem, inner: SQPInner, iteration: int) -> tuple[SQPInner, StepReport]:
         ms: dict[str, float] = {"assemble": 0.0, "solve": 0.0, "line_search": 0.0}
         la, st, ev, settings = inner.algebra, inner.state, inner.ev, inner.settings
         counts = _Counts()
@@ -233,6 +244,7 @@ class SQPBackend(Backend):
         exact_refused = None   # whether the exact Hessian's step was refused (None: not tried)
         speculate = inner.speculate   # for the first trial only
         for attempt, (mode, prox, backtrack) in enumerate(attempts):
+            check_stop()
             clock = time.perf_counter()
             if mode not in models:
                 models[mode] = la.matrix(
@@ -468,6 +480,7 @@ class SQPBackend(Backend):
         n = ev.s.size
         reg, qp, Hr = 0.0, None, H
         for _attempt in range(8):
+            check_stop()
             Hr = la.add(H, la.diagonal_matrix(np.full(n, reg))) if reg else H
             try:
                 qp = solve_qp(la, Hr, lin.g, lin.Ae, lin.ce, lin.Ai, lin.ci, y0=lin.y0, elastic=elastic,
@@ -619,6 +632,7 @@ class SQPBackend(Backend):
                     return _Trial(1.0, corrected, ratio, values)
         alpha = 0.5
         while backtrack and alpha >= MIN_STEP:
+            check_stop()
             values = evaluator.merit_values(ev.s + alpha * d)
             good, ratio = ok(values, alpha)
             if good:
