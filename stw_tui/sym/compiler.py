@@ -131,10 +131,13 @@ def _convert(expr: sp.Basic, memo: dict | None = None):
         elif isinstance(expr, sp.sign):
             done = _sign_piecewise(args[0])
         elif isinstance(expr, (sp.Max, sp.Min)):
+            # where either is not a real number (NaN) neither comparison holds, and the sum
+            # passes the NaN on (a final `arg` made min(sqrt(x), -x) read -x for x < 0)
             done = args[0]
             for arg in args[1:]:
                 keep = done >= arg if isinstance(expr, sp.Max) else done <= arg
-                done = se.Piecewise((done, keep), (arg, True))
+                take = done < arg if isinstance(expr, sp.Max) else done > arg
+                done = se.Piecewise((done, keep), (arg, take), (done + arg, True))
         elif isinstance(expr, sp.Add):
             done = sum(args[1:], args[0])
         elif isinstance(expr, sp.Mul):
@@ -147,6 +150,11 @@ def _convert(expr: sp.Basic, memo: dict | None = None):
             done = _LOGIC[type(expr)](*args)
         else:
             done = getattr(se, expr.func.__name__)(*args)  # sin, cos, atan2, exp, log, …
+            if isinstance(expr, sp.atan2) and not isinstance(done, se.atan2):
+                # symengine writes atan2(u, u) as pi/4 + pi/2 (sign(u) - 1), which reads -pi/4
+                # at u = 0 (and atan2(-u, u) +pi/4); atan2(0, 0) is 0 there as in C and mpmath
+                zero = se.And(se.Eq(args[0], 0), se.Eq(args[1], 0))
+                done = se.Piecewise((0, zero), (done, True))
     memo[expr] = done
     return done
 
@@ -706,9 +714,10 @@ def _store(path: Path, key: bytes, entry) -> None:
 # The layout of a compiled term's disk entry, in its name: an entry of another layout (an older
 # stw's, without ``affine``) is another name, so neither version reads the other's.
 TERM_ENTRY = "|entry 2: pairs, affine, value, full"
-# How abs, sign, min and max are lowered (_convert): a key read off the sympy tree does not see
-# it, so a change there must be a change of name (sign once made NaN a 0 in stored code).
-LOWERING = "|lowering 2: sign passes NaN on"
+# How abs, sign, min, max and atan2(u, ±u) are lowered (_convert): a key read off the sympy tree
+# does not see it, so a change there must be a change of name (sign once made NaN a 0 in stored
+# code, min and max dropped a NaN first argument, and atan2(u, u) read -pi/4 at u = 0).
+LOWERING = "|lowering 3: sign, min and max pass NaN on; atan2(u, u) is 0 at u = 0"
 
 
 def _build(expr: sp.Expr, variables: tuple[LocalVar, ...], parameters: tuple[str, ...]) -> CompiledTerm:
