@@ -3,6 +3,7 @@ item 9): just inside, on and just outside each boundary, in a literal (`print f(
 parser computes in sympy), on constants and on a DOF's curve (compiled code). Where mpmath's value
 is real and finite, stw prints it to 1e-12; where it is not a real number, stw refuses it as
 "not a real number" naming the expression; where it is infinite or undefined, stw refuses it.
+The same holds of a constant expression (`const u = f(c0)`, a time, a weight: Scene.numeric).
 A function of a value that is not a real number is not a real number either, whatever mpmath
 makes of it (abs(log(-1)) is pi there): stw's numbers are real at every step.
 
@@ -154,6 +155,35 @@ def test_constants_agree_with_mpmath(session, name, args):
     check(session, f"print {expr}", expr, name, verdict, expected)
 
 
+@pytest.mark.parametrize("name, args", CASES, ids=[f"{n}{a}" for n, a in CASES])
+def test_a_constant_expression_agrees_with_mpmath(session, name, args):
+    """`const u = f(c0)`: what times, weights and constants are computed by (Scene.numeric)."""
+    verdict, expected = reference(name, args)
+    for i, a in enumerate(args):
+        session.execute(f"const c{i} = {number(a)}")
+    session.execute("const u = 0")
+    expr = call(name, [f"c{i}" for i in range(len(args))])
+    if verdict == "real":
+        session.execute(f"const u = {expr}")
+        assert close(session.scene.constants["u"], expected), f"{expr}: {session.scene.constants['u']!r}"
+        return
+    with pytest.raises(StwError, match="not a real number" if verdict == "nonreal" else "not a"):
+        session.execute(f"const u = {expr}")
+    assert session.scene.constants["u"] == 0
+
+
+@pytest.mark.parametrize("name", TABLE)
+def test_a_constant_expression_of_a_non_real_value_is_not_a_real_number(session, name):
+    """sympy folded abs(sqrt(-1.0)) to 1 and refused min(sqrt(-1.0), 1) with an internal error."""
+    session.execute("const c0 = -0.25")
+    session.execute("const u = 0")
+    arity = len(DOMAINS[name][1][0]) if name in DOMAINS else 2
+    expr = call(name, ["sqrt(c0)"] + ["0.5"] * (arity - 1))
+    with pytest.raises(StwError, match=r"is not a real number \((sqrt\(c0\)|c0\*\*)"):   # sqrt(sqrt(c0)) is c0**(1/4)
+        session.execute(f"const u = {expr}")
+    assert session.scene.constants["u"] == 0
+
+
 # A DOF that crosses the boundary: x runs over [LOW, HIGH] on the span, sampled at the print's 201
 # times; X and NEG_X stand for x and -x among a function's arguments.
 X, NEG_X = "x", "-x"
@@ -251,3 +281,15 @@ def test_a_literal_names_what_is_not_real(session):
                        ("print 2*asin(1.5)", "asin(1.5) is not a real number")):
         with pytest.raises(StwError, match=re.escape(text)):
             session.execute(line)
+
+
+@pytest.mark.parametrize("line", ["print (-2)^y", "print (-2)^(2^y)", "constraint c: 1 = (-2)^(y*y) on [0.5, 0.8]",
+                                  "constraint new: -1 = ((-2) ** 1e308 ** -y'') on [0.5, 0.8]"])   # fuzz, seed 4
+def test_a_negative_number_to_a_varying_power_is_not_a_real_number(line):
+    """Its derivative holds log(-2), complex: compiling it was an internal error (Not Implemented)."""
+    session = Session()
+    session.run_text("time 0 1 knots=4\ndof y = t\n")
+    with pytest.raises(StwError, match="not a real number") as info:
+        session.execute(line)
+    assert "internal error" not in str(info.value)
+    assert not session.scene.constraints

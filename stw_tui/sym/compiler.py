@@ -168,6 +168,10 @@ def _lambdify(args, outputs):
     try:
         return se.Lambdify(args, outputs, cse=True, backend="lambda")
     except RuntimeError as exc:   # e.g. 0^x: its derivative holds log(0), a complex infinity
+        if any(se.S(o).has(se.I) for o in outputs):   # (-2)^y: its derivative holds log(-2)
+            raise StwError("the expression or one of its derivatives is not a real number (such as "
+                           "log(-2) in the derivative of (-2)^x: a negative number to a varying "
+                           "power)") from None
         if "infinity" not in str(exc):
             raise
         raise StwError("the expression or one of its derivatives is infinite everywhere "
