@@ -293,3 +293,16 @@ def test_a_negative_number_to_a_varying_power_is_not_a_real_number(line):
         session.execute(line)
     assert "internal error" not in str(info.value)
     assert not session.scene.constraints
+
+
+def test_sympys_real_part_of_a_power_compiles_and_its_imaginary_part_is_refused():
+    """sympy writes abs(2^(T^x)) as 2^re(T^x): symengine has no re (an internal error, fuzz seed 5:
+    'objective w1: sin(abs(1e-400 ** T ** (x)))'); abs((-2)^(T^x)) holds im(T^x): not real."""
+    session = Session()
+    session.run_text("time 0 1 knots=4\nconst T = 0.5\ndof x = 2\n")
+    value = session.execute("print abs(2^(T^x)) @ 0.5").prints[0].value
+    assert close(value, float(mpmath.mpf(2) ** (mpmath.mpf(0.5) ** 2)))
+    assert "1 term" in session.execute("objective w1: sin(abs(1e-400 ** T ** (x))) weight=0.5 * (0.75)").message
+    with pytest.raises(StwError, match="not a real number") as info:
+        session.execute("print abs((-2)^(T^x))")
+    assert "internal error" not in str(info.value)

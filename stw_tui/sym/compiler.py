@@ -138,6 +138,13 @@ def _convert(expr: sp.Basic, memo: dict | None = None):
                 keep = done >= arg if isinstance(expr, sp.Max) else done <= arg
                 take = done < arg if isinstance(expr, sp.Max) else done > arg
                 done = se.Piecewise((done, keep), (arg, take), (done + arg, True))
+        elif isinstance(expr, (sp.re, sp.conjugate)):
+            # sympy writes abs(2^(T^x)) as 2^re(T^x); every value here is real (one that is not
+            # is NaN, refused), so re(u) is u (symengine has no re: an internal error)
+            done = args[0]
+        elif isinstance(expr, sp.im):   # abs((-2)^(T^x)) is 2^re(T^x)*exp(-pi*im(T^x)) in sympy
+            raise StwError(f"not a real number: the value holds {sp.sstr(expr)[:60]}, the imaginary "
+                           f"part of a power that is complex (a negative number to a varying power)")
         elif isinstance(expr, sp.Add):
             done = sum(args[1:], args[0])
         elif isinstance(expr, sp.Mul):
