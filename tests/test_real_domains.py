@@ -284,7 +284,9 @@ def test_a_literal_names_what_is_not_real(session):
 
 
 @pytest.mark.parametrize("line", ["print (-2)^y", "print (-2)^(2^y)", "constraint c: 1 = (-2)^(y*y) on [0.5, 0.8]",
-                                  "constraint new: -1 = ((-2) ** 1e308 ** -y'') on [0.5, 0.8]"])   # fuzz, seed 4
+                                  "constraint new: -1 = ((-2) ** 1e308 ** -y'') on [0.5, 0.8]",   # fuzz, seed 4
+                                  "print (-0.75)^y",   # a complex double, not I: fuzz, seed 6
+                                  "constraint d: (0.25 - abs(1)) ** y'' >= y on [0, 1] when sinh(-asin(abs(y'))) > 0.25"])
 def test_a_negative_number_to_a_varying_power_is_not_a_real_number(line):
     """Its derivative holds log(-2), complex: compiling it was an internal error (Not Implemented)."""
     session = Session()

@@ -166,6 +166,13 @@ def _convert(expr: sp.Basic, memo: dict | None = None):
     return done
 
 
+def _complex(e) -> bool:
+    """Whether the symengine expression holds a complex number: I (log(-2) = log(2) + I*pi) or a
+    complex double (log(-0.75))."""
+    e = se.S(e)
+    return e.has(se.I) or any(n.is_real is False for n in e.atoms(se.Number))
+
+
 def _lambdify(args, outputs):
     """Compile with LLVM when the symengine build has it, else the portable lambda backend."""
     try:
@@ -175,14 +182,14 @@ def _lambdify(args, outputs):
     try:
         return se.Lambdify(args, outputs, cse=True, backend="lambda")
     except RuntimeError as exc:   # e.g. 0^x: its derivative holds log(0), a complex infinity
-        if any(se.S(o).has(se.I) for o in outputs):   # (-2)^y: its derivative holds log(-2)
+        if "infinity" in str(exc):
+            raise StwError("the expression or one of its derivatives is infinite everywhere "
+                           "(such as log(0) in the derivative of 0^x): rewrite it") from None
+        if any(_complex(o) for o in outputs):   # (-2)^y: its derivative holds log(-2)
             raise StwError("the expression or one of its derivatives is not a real number (such as "
                            "log(-2) in the derivative of (-2)^x: a negative number to a varying "
                            "power)") from None
-        if "infinity" not in str(exc):
-            raise
-        raise StwError("the expression or one of its derivatives is infinite everywhere "
-                       "(such as log(0) in the derivative of 0^x): rewrite it") from None
+        raise
 
 
 @dataclass(frozen=True)
