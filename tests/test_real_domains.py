@@ -308,3 +308,30 @@ def test_sympys_real_part_of_a_power_compiles_and_its_imaginary_part_is_refused(
     with pytest.raises(StwError, match="not a real number") as info:
         session.execute("print abs((-2)^(T^x))")
     assert "internal error" not in str(info.value)
+
+
+def test_the_derivative_of_max_min_and_sign_compiles():
+    """sympy differentiates max(x, 0.1) into Heaviside and sign(x) into DiracDelta, which symengine
+    lacks: `print h'` was an internal error (fuzz, seed 7 with --batch 400: "print f' * --x ^ x")."""
+    session = Session()
+    session.run_text("time 0 1 knots=4\ndof x = 2*t - 1\nlet h = max(x, 0.1)\nlet m = min(x, -x)\nlet k = sign(x)\n")
+    assert session.execute("print h' @ 0.9").prints[0].value == pytest.approx(2.0)
+    assert session.execute("print h' @ 0.2").prints[0].value == 0
+    assert session.execute("print m' @ 0.9").prints[0].value == pytest.approx(-2.0)
+    assert session.execute("print k' @ 0.9").prints[0].value == 0
+    session.execute("const c = 0")
+    session.execute("let z = sign(c*x)")
+    with pytest.raises(StwError, match="infinite|not a real"):   # sign(u)' where u = 0: 2*inf*0
+        session.execute("print z' @ 0.9")
+
+
+def test_a_bound_violated_at_a_control_point_says_where():
+    """The dense check of a bound worst at a control point had no time: 'iterate 2' was an
+    internal error formatting it (TypeError; fuzz, seed 7 with --batch 400)."""
+    session = Session()
+    session.run_text("time 0 1 knots=8\nconst m = 1, g = 9.81, T = 0.5\ndof x, y = t\nlet f = m*x'' + m*g\n"
+                     "constraint floor: y >= 0 on [0, 1]\nobjective fuel: f\nset adaptive off\n"
+                     "refine x @ 1e-3 multiplicity=3\n"
+                     "constraint start: x = 0, y = 0.5, x' = 1, y' = -3 @ 0\niterate 60\ndof y lo=0.5\n")
+    message = session.execute("iterate 2").message
+    assert re.search(r"y\.bounds \S+ at t=\d", message), message

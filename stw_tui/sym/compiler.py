@@ -142,6 +142,15 @@ def _convert(expr: sp.Basic, memo: dict | None = None):
             # sympy writes abs(2^(T^x)) as 2^re(T^x); every value here is real (one that is not
             # is NaN, refused), so re(u) is u (symengine has no re: an internal error)
             done = args[0]
+        elif isinstance(expr, sp.Heaviside):
+            # the derivative of max(u, v), min and of a `when` (h' with let h = max(x, 0.1)):
+            # symengine has none (an internal error); sympy's value at 0 is 1/2 unless given
+            u, at_zero = args[0], (args[1] if len(args) > 1 else se.Rational(1, 2))
+            done = se.Piecewise((1, u > 0), (0, u < 0), (at_zero, se.Eq(u, 0)), (u, True))
+        elif isinstance(expr, sp.DiracDelta):
+            # the derivative of sign(u): 0 off u = 0, infinite at it (1/u: refused there), NaN passes on
+            u = args[0]
+            done = se.Piecewise((0, u > 0), (0, u < 0), (1 / u, True))
         elif isinstance(expr, sp.im):   # abs((-2)^(T^x)) is 2^re(T^x)*exp(-pi*im(T^x)) in sympy
             raise StwError(f"not a real number: the value holds {sp.sstr(expr)[:60]}, the imaginary "
                            f"part of a power that is complex (a negative number to a varying power)")
