@@ -258,6 +258,7 @@ class Findings:
     slow: list[tuple[float, str]] = field(default_factory=list)
     heavy: list[tuple[float, str]] = field(default_factory=list)     # (MB, line) over MEMORY_MB
     largest: list[tuple[float, str]] = field(default_factory=list)   # a heap of the largest lines
+    slowest: tuple[float, str] = (0.0, "")     # the slowest line of all, iterate included
     memory_exact: bool = True      # per-line peaks from the kernel (False: process-peak growth only)
     examples: dict[str, str] = field(default_factory=dict)
     traces: dict[str, str] = field(default_factory=dict)   # kind -> the scene's lines, the line, the traceback
@@ -285,7 +286,8 @@ class Findings:
                f"lines over {SLOW:g} s (iterate apart): {len(self.slow)}",
                f"lines over {MEMORY_MB:g} MB of their own: {len(self.heavy)}"
                + ("" if self.memory_exact else " (measured as growth of the process peak only)"),
-               f"peak memory: {peak:.0f} MB"]
+               f"peak memory: {peak:.0f} MB",
+               f"slowest line: {self.slowest[0]:.2f} s: {self.slowest[1][:120]!r}"]
         for kind, line in list(self.examples.items())[:show]:
             out.append(f"  {kind}: {line[:120]!r}")
         for seconds, line in sorted(self.slow, reverse=True)[:show]:
@@ -383,6 +385,7 @@ def _one(session: Session, line: str, found: Findings, memory: LineMemory | None
         _trace(found, f"escaped {type(exc).__name__}", session, line, exc)
         session.cancel_block()
     seconds = time.perf_counter() - start
+    found.slowest = max(found.slowest, (seconds, line))
     if memory is not None:
         found.measured(memory.used(baseline), line)
     if not ok and (session.scene is not before_scene or fingerprint(session) != before):

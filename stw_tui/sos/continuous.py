@@ -278,6 +278,9 @@ def _summarize(name: str, samples: list[_Samples], tol: float | None) -> Constra
         i = int(np.argmax(s.v_grid)) if s.v_grid.size else 0
         if s.v_grid.size and s.v_grid[i] > worst_dense:
             worst_dense, worst_t = float(s.v_grid[i]), float(s.t_grid[i])
+    if worst_inst > worst_dense:   # a bound worst at a control point: its time is the instance's
+        s = max((s for s in samples if s.v_inst.size), key=lambda s: s.v_inst.max())
+        worst_t = float(s.t_inst[int(np.argmax(s.v_inst))])
     return ConstraintCheck(name, worst_inst, max(worst_dense, worst_inst), worst_t, tol)
 
 

@@ -131,6 +131,35 @@ class Window:
     interval: tuple[float, float] | None = None
 
 
+def _real_value(expr: sp.Basic, values: dict, what: str) -> sp.Basic:
+    """``expr`` with the constants' ``values`` put in, node by node, refused as not a real number
+    where any node is not: sympy would fold abs(sqrt(-1.0)) to 1 and refuse min(sqrt(-1.0), 1) as
+    not comparable (issue 54, item 9). atan2(0, 0) is 0, as in a literal and on the curves."""
+    memo: dict = {}
+
+    def walk(node):
+        if node in values:
+            return values[node]
+        if not node.args:
+            return node
+        done = memo.get(node)
+        if done is None:
+            args = [walk(a) for a in node.args]
+            if isinstance(node, sp.atan2) and all(a.is_zero for a in args):
+                done = sp.Integer(0)
+            else:
+                try:
+                    done = node.func(*args)
+                except (TypeError, ValueError):   # Min and Max compare: a non-real one cannot
+                    raise StwError(f"{what} is not a real number ({sp.sstr(node)[:60]})") from None
+            if done.has(sp.I) or (done.is_number and done.is_extended_real is False):
+                raise StwError(f"{what} is not a real number ({sp.sstr(node)[:60]})")
+            memo[node] = done
+        return done
+
+    return walk(expr)
+
+
 @dataclass
 class Scene:
     """Everything a session has defined (DOF, constraints, objectives...) as plain data."""
@@ -298,7 +327,7 @@ class Scene:
         if not double_finite(expr, {s.name: self.constants[s.name] for s in used}):
             # before sympy evaluates anything: exp(exp(exp(T))) would compute digits for ever
             raise StwError(f"{what} is not a finite number (beyond what a double holds)")
-        value = expr.xreplace({s: sp.Float(self.constants[s.name]) for s in used})   # a bare constant stays sympy
+        value = _real_value(expr, {s: sp.Float(self.constants[s.name]) for s in used}, what)
         try:
             result = float(value.evalf())
         except TypeError:   # log(T)^3.25 with T = 0.5: complex once the constant's value is known

@@ -131,10 +131,29 @@ def _convert(expr: sp.Basic, memo: dict | None = None):
         elif isinstance(expr, sp.sign):
             done = _sign_piecewise(args[0])
         elif isinstance(expr, (sp.Max, sp.Min)):
+            # where either is not a real number (NaN) neither comparison holds, and the sum
+            # passes the NaN on (a final `arg` made min(sqrt(x), -x) read -x for x < 0)
             done = args[0]
             for arg in args[1:]:
                 keep = done >= arg if isinstance(expr, sp.Max) else done <= arg
-                done = se.Piecewise((done, keep), (arg, True))
+                take = done < arg if isinstance(expr, sp.Max) else done > arg
+                done = se.Piecewise((done, keep), (arg, take), (done + arg, True))
+        elif isinstance(expr, (sp.re, sp.conjugate)):
+            # sympy writes abs(2^(T^x)) as 2^re(T^x); every value here is real (one that is not
+            # is NaN, refused), so re(u) is u (symengine has no re: an internal error)
+            done = args[0]
+        elif isinstance(expr, sp.Heaviside):
+            # the derivative of max(u, v), min and of a `when` (h' with let h = max(x, 0.1)):
+            # symengine has none (an internal error); sympy's value at 0 is 1/2 unless given
+            u, at_zero = args[0], (args[1] if len(args) > 1 else se.Rational(1, 2))
+            done = se.Piecewise((1, u > 0), (0, u < 0), (at_zero, se.Eq(u, 0)), (u, True))
+        elif isinstance(expr, sp.DiracDelta):
+            # the derivative of sign(u): 0 off u = 0, infinite at it (1/u: refused there), NaN passes on
+            u = args[0]
+            done = se.Piecewise((0, u > 0), (0, u < 0), (1 / u, True))
+        elif isinstance(expr, sp.im):   # abs((-2)^(T^x)) is 2^re(T^x)*exp(-pi*im(T^x)) in sympy
+            raise StwError(f"not a real number: the value holds {sp.sstr(expr)[:60]}, the imaginary "
+                           f"part of a power that is complex (a negative number to a varying power)")
         elif isinstance(expr, sp.Add):
             done = sum(args[1:], args[0])
         elif isinstance(expr, sp.Mul):
@@ -147,8 +166,20 @@ def _convert(expr: sp.Basic, memo: dict | None = None):
             done = _LOGIC[type(expr)](*args)
         else:
             done = getattr(se, expr.func.__name__)(*args)  # sin, cos, atan2, exp, log, …
+            if isinstance(expr, sp.atan2) and not isinstance(done, se.atan2):
+                # symengine writes atan2(u, u) as pi/4 + pi/2 (sign(u) - 1), which reads -pi/4
+                # at u = 0 (and atan2(-u, u) +pi/4); atan2(0, 0) is 0 there as in C and mpmath
+                zero = se.And(se.Eq(args[0], 0), se.Eq(args[1], 0))
+                done = se.Piecewise((0, zero), (done, True))
     memo[expr] = done
     return done
+
+
+def _complex(e) -> bool:
+    """Whether the symengine expression holds a complex number: I (log(-2) = log(2) + I*pi) or a
+    complex double (log(-0.75))."""
+    e = se.S(e)
+    return e.has(se.I) or any(n.is_real is False for n in e.atoms(se.Number))
 
 
 def _lambdify(args, outputs):
@@ -160,10 +191,14 @@ def _lambdify(args, outputs):
     try:
         return se.Lambdify(args, outputs, cse=True, backend="lambda")
     except RuntimeError as exc:   # e.g. 0^x: its derivative holds log(0), a complex infinity
-        if "infinity" not in str(exc):
-            raise
-        raise StwError("the expression or one of its derivatives is infinite everywhere "
-                       "(such as log(0) in the derivative of 0^x): rewrite it") from None
+        if "infinity" in str(exc):
+            raise StwError("the expression or one of its derivatives is infinite everywhere "
+                           "(such as log(0) in the derivative of 0^x): rewrite it") from None
+        if any(_complex(o) for o in outputs):   # (-2)^y: its derivative holds log(-2)
+            raise StwError("the expression or one of its derivatives is not a real number (such as "
+                           "log(-2) in the derivative of (-2)^x: a negative number to a varying "
+                           "power)") from None
+        raise
 
 
 @dataclass(frozen=True)
@@ -706,9 +741,10 @@ def _store(path: Path, key: bytes, entry) -> None:
 # The layout of a compiled term's disk entry, in its name: an entry of another layout (an older
 # stw's, without ``affine``) is another name, so neither version reads the other's.
 TERM_ENTRY = "|entry 2: pairs, affine, value, full"
-# How abs, sign, min and max are lowered (_convert): a key read off the sympy tree does not see
-# it, so a change there must be a change of name (sign once made NaN a 0 in stored code).
-LOWERING = "|lowering 2: sign passes NaN on"
+# How abs, sign, min, max and atan2(u, ±u) are lowered (_convert): a key read off the sympy tree
+# does not see it, so a change there must be a change of name (sign once made NaN a 0 in stored
+# code, min and max dropped a NaN first argument, and atan2(u, u) read -pi/4 at u = 0).
+LOWERING = "|lowering 3: sign, min and max pass NaN on; atan2(u, u) is 0 at u = 0"
 
 
 def _build(expr: sp.Expr, variables: tuple[LocalVar, ...], parameters: tuple[str, ...]) -> CompiledTerm:

@@ -191,8 +191,20 @@ class ExpressionParser:
         finally:
             self.depth -= 1
 
-    def _checked(self, value: sp.Expr, token: Token) -> sp.Expr:
-        """``value`` unless it is undefined/infinite or an exact number too large to handle."""
+    def _text_since(self, start: int) -> str:
+        """The source of the tokens from index ``start`` up to the last one consumed (for messages:
+        ``log(-2) is not a real number``), spaced as typed."""
+        text, end = "", None
+        for token in self.tokens[start:self.pos]:
+            if end is not None and token.column > end:
+                text += " "
+            text += token.text
+            end = token.column + len(token.text)
+        return text
+
+    def _checked(self, value: sp.Expr, token: Token, start: int | None = None) -> sp.Expr:
+        """``value`` unless it is undefined/infinite or an exact number too large to handle;
+        ``start``, the index of its first token, names it in the message of a non-real value."""
         if value.has(*_UNDEFINED):
             raise self.error("the value is undefined or infinite here (division by zero?)", token,
                              expected="a finite expression")
@@ -202,7 +214,8 @@ class ExpressionParser:
                              expected="a value a double can hold, below 1e308")
         if value.has(sp.I) or (value.is_number and value.is_extended_real is False):
             # sqrt(-1), log(-2), acos(2), (-8)^(1/3): stw's curves and values are real
-            raise self.error("the value is not a real number", token, expected="a real expression")
+            what = "the value" if start is None else self._text_since(start)[:60]
+            raise self.error(f"{what} is not a real number", token, expected="a real expression")
         bits = limits.value("number_bits")
         if value.is_Rational and max(abs(value.p), value.q).bit_length() > bits:
             raise self.error("number too large", token, expected=f"numbers below 2^{bits} (limit number_bits)")
@@ -226,6 +239,7 @@ class ExpressionParser:
         return left
 
     def _product(self) -> sp.Expr:
+        start = self.pos
         left = self._unary()
         while self.token.is_op("*", "/"):
             op = self.advance()
@@ -235,7 +249,7 @@ class ExpressionParser:
             except ZeroDivisionError:   # a float zero (1e-400 underflows) divides in mpmath
                 raise self.error("the value is undefined or infinite here (division by zero?)", op,
                                  expected="a finite expression") from None
-            left = self._checked(value, op)
+            left = self._checked(value, op, start)
         return left
 
     def _unary(self) -> sp.Expr:
@@ -247,6 +261,7 @@ class ExpressionParser:
         return self._power()
 
     def _power(self) -> sp.Expr:
+        start = self.pos
         base = self._atom()
         if self.token.is_op("^", "**"):
             op = self.advance()
@@ -263,7 +278,7 @@ class ExpressionParser:
                 raise self.error("exponent too large", op,
                                  expected=f"an exponent of magnitude at most {limits.value('exponent')} "
                                           f"(limit exponent)")
-            return self._checked(sp.Pow(base, exponent), op)
+            return self._checked(sp.Pow(base, exponent), op, start)
         return base
 
     def _atom(self) -> sp.Expr:
@@ -352,6 +367,7 @@ class ExpressionParser:
 
     def _call(self, token: Token) -> sp.Expr:
         name = token.text
+        start = self.pos - 1
         if name not in FUNCTIONS:
             close = difflib.get_close_matches(name, list(FUNCTIONS), n=3)
             hint = f" (did you mean {', '.join(repr(c) for c in close)}?)" if close else ""
@@ -368,10 +384,11 @@ class ExpressionParser:
             raise self.error(f"{name} takes {arities[0]} argument(s), not {len(args)}", token,
                              expected=f"{arities[0]} argument(s)")
         try:
-            value = constructor(*args)
+            # atan2(0, 0) is 0, as in C, mpmath and on the curves (sympy's is nan)
+            value = sp.Integer(0) if name == "atan2" and all(a.is_zero for a in args) else constructor(*args)
         except (TypeError, ValueError) as exc:   # e.g. min() of a non-real number
             raise self.error(f"{name}: {exc}", token, expected="real arguments") from None
-        return self._checked(value, token)
+        return self._checked(value, token, start)
 
     # --- conditions --------------------------------------------------------------------------
     def condition(self) -> sp.Basic:
