@@ -25,6 +25,7 @@ import numpy as np
 import pytest
 
 from conftest import ENDLESS
+from test_app_tmux import running  # a live process, not a zombie
 from stw_tui.session import midsolve, resume
 from stw_tui.session.autosave import Checkpoints
 from stw_tui.session.child_process import SolverProcess
@@ -40,15 +41,6 @@ NEVER = "1000"   # STW_CHECKPOINT_EVERY where no periodic checkpoint may fall du
 EVERY = "2"
 
 needs_proc = pytest.mark.skipif(not Path("/proc/self/stat").exists(), reason="reads process states in /proc")
-
-
-def running(pid: int) -> bool:
-    """Whether ``pid`` is a live process (a zombie, ended but not yet reaped, is not)."""
-    try:
-        stat = Path(f"/proc/{pid}/stat").read_text()
-    except OSError:
-        return False
-    return stat.rsplit(")", 1)[1].split()[0] != "Z"
 
 
 def wait_gone(pids, timeout: float) -> dict[int, float]:

@@ -149,20 +149,23 @@ def test_a_literal_agrees_with_mpmath(session, name, args):
 def test_constants_agree_with_mpmath(session, name, args):
     """The compiled code, exactly on the boundary (a constant's value is the number given)."""
     verdict, expected = reference(name, args)
+    expr = _on_constants(session, name, args)
+    check(session, f"print {expr}", expr, name, verdict, expected)
+
+
+def _on_constants(session, name, args) -> str:
+    """``name`` called on constants c0, c1, … set to ``args``."""
     for i, a in enumerate(args):
         session.execute(f"const c{i} = {number(a)}")
-    expr = call(name, [f"c{i}" for i in range(len(args))])
-    check(session, f"print {expr}", expr, name, verdict, expected)
+    return call(name, [f"c{i}" for i in range(len(args))])
 
 
 @pytest.mark.parametrize("name, args", CASES, ids=[f"{n}{a}" for n, a in CASES])
 def test_a_constant_expression_agrees_with_mpmath(session, name, args):
     """`const u = f(c0)`: what times, weights and constants are computed by (Scene.numeric)."""
     verdict, expected = reference(name, args)
-    for i, a in enumerate(args):
-        session.execute(f"const c{i} = {number(a)}")
+    expr = _on_constants(session, name, args)
     session.execute("const u = 0")
-    expr = call(name, [f"c{i}" for i in range(len(args))])
     if verdict == "real":
         session.execute(f"const u = {expr}")
         assert close(session.scene.constants["u"], expected), f"{expr}: {session.scene.constants['u']!r}"
