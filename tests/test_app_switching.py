@@ -5,8 +5,7 @@ then filled, then refitted: three draws)."""
 
 from __future__ import annotations
 
-import asyncio
-
+import test_app
 import test_app_support as support
 from stw_tui.app import create_app
 from stw_tui.app.deck import Deck, TabStrip
@@ -20,12 +19,8 @@ PLOTS = ["tab-curves", "tab-expr", "tab-figure", "tab-conv"]
 
 
 def run(scenario, app, size=(80, 24)):
-    async def main():
-        async with app.run_test(size=size) as pilot:
-            await support.settle(pilot)
-            await scenario(pilot)
-
-    asyncio.run(main())
+    """test_app's runner, at 80x24 (the size these switches are measured at)."""
+    test_app.run(scenario, app, size=size)
 
 
 def shown(app, deck_id: str) -> list[str]:
