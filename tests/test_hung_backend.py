@@ -448,18 +448,19 @@ def test_ctrl_q_ends_the_tui_process_while_a_backend_hangs(tmp_path):
         pytest.skip("needs tmux")
     env = _install_hanging(tmp_path)
     name = f"stw-hang-{uuid.uuid4().hex[:8]}"
-    # the grace the in-process tests patch in (GRACE), set by the plugin: the real 5 s was half
-    # of this test's time
+    # a grace of 2 s (the real 5 s was half of this test's time): longer than the 1 s after which
+    # a process whose lock is held in C is ended, which this plugin, hung in Python, must not be
+    grace = 2.0
     command = f"env PYTHONPATH={env['PYTHONPATH']} STW_CACHE_DIR=off XDG_STATE_HOME={tmp_path / 'state'} " \
-              f"STW_TEST_STOP_GRACE={GRACE} {sys.executable} -m stw_tui.cli {tmp_path / 'hang.stw'}"
+              f"STW_TEST_STOP_GRACE={grace} {sys.executable} -m stw_tui.cli {tmp_path / 'hang.stw'}"
     base = term.start(name, command)
     try:
         screen = term.wait_for(base, name, "iter 1")       # the first iteration is done: the second hangs
         assert "solving" in screen, screen
         pid = int(term.tmux(*base, "display-message", "-p", "-t", name, "#{pane_pid}").strip())
         term.tmux(*base, "send-keys", "-t", name, "F4")
-        screen = term.wait_for(base, name, "hung", timeout=GRACE + 15)
-        assert f"ignored the stop for {GRACE:g} s" in " ".join(screen.split()), screen   # the grace set
+        screen = term.wait_for(base, name, "hung", timeout=grace + 15)
+        assert f"ignored the stop for {grace:g} s" in " ".join(screen.split()), screen   # the grace set
         term.tmux(*base, "send-keys", "-t", name, "iterate 100", "Enter")   # hangs again
         term.wait_for(base, name, "solving")
         pressed = time.monotonic()
@@ -475,9 +476,10 @@ def test_ctrl_q_ends_the_tui_process_while_a_backend_hangs(tmp_path):
 @pytest.mark.skipif(not Path("/proc/self/stat").exists(), reason="reads process states in /proc")
 def test_f4_ends_the_tuis_solver_process_when_its_backend_holds_the_interpreter_lock(tmp_path):
     """Issue 54 item 8 in the TUI: F4 on a plugin held in C (it cannot even be abandoned inside
-    its process) showed "stopping…" for ever; the solver process is now ended once it has not
-    answered the stop within the grace and a second, the solve reported hung, the scene as it
-    was, and nothing of it left running. The next solve starts a new process."""
+    its process) showed "stopping…" for ever; the solver process, whose beat stops while the
+    lock is held in C, is now ended 1 s after the stop (within the issue's 1 s, not after the 5 s
+    grace a plugin that still runs Python keeps), the solve reported hung, the scene as it was,
+    and nothing of it left running. The next solve starts a new process."""
     import shutil
 
     import psutil
@@ -489,7 +491,7 @@ def test_f4_ends_the_tuis_solver_process_when_its_backend_holds_the_interpreter_
     env = _install_hanging(tmp_path, LOCK_HOLDING_PLUGIN)
     name = f"stw-hang-{uuid.uuid4().hex[:8]}"
     command = f"env PYTHONPATH={env['PYTHONPATH']} STW_CACHE_DIR=off XDG_STATE_HOME={tmp_path / 'state'} " \
-              f"STW_TEST_STOP_GRACE={GRACE} {sys.executable} -m stw_tui.cli {tmp_path / 'hang.stw'}"
+              f"{sys.executable} -m stw_tui.cli {tmp_path / 'hang.stw'}"    # the default grace, 5 s
     base = term.start(name, command)
     try:
         screen = term.wait_for(base, name, "iter 1")       # the first iteration is done: the second holds the lock
@@ -501,13 +503,14 @@ def test_f4_ends_the_tuis_solver_process_when_its_backend_holds_the_interpreter_
         assert len(solver) == 1, solver
         pressed = time.monotonic()
         term.tmux(*base, "send-keys", "-t", name, "F4")
-        screen = term.wait_for(base, name, "process was ended", timeout=GRACE + 15)
+        screen = term.wait_for(base, name, "process was ended", timeout=15)
         took = time.monotonic() - pressed
         said = " ".join(screen.split())
-        assert f"ignored the stop for {GRACE:g} s during iteration 2 and its process was ended" in said, screen
+        assert "held the interpreter lock in C for 1 s after the stop, during iteration 2, and its " \
+               "process was ended" in said, screen
         assert not term.running(solver[0].pid)
-        print(f"F4 to the end of a solver process held in C: {took:.2f} s (grace {GRACE:g} s)")
-        assert took < GRACE + 4
+        print(f"F4 to the end of a solver process held in C: {took:.2f} s")
+        assert took < 4          # 1 s of silence, the polls, and tmux's redraw (the grace is 5 s)
         term.tmux(*base, "send-keys", "-t", name, "iterate 100", "Enter")   # a new process, held again
         assert "holding" not in term.wait_for(base, name, "solving")
         term.tmux(*base, "send-keys", "-t", name, "C-q")

@@ -35,6 +35,7 @@ import os
 import pickle
 import signal
 import sys
+import threading
 import time
 from typing import Callable
 
@@ -51,6 +52,10 @@ CHILD_NICENESS = 5
 # Seconds past backend_calls.STOP_GRACE (when the child abandons a backend that ignores a stop)
 # that the child has to answer a stop before it is ended: one held in C cannot even abandon it.
 ANSWER_MARGIN = 1.0
+# A backend that may hang (not the shared SQP, whose iterations read the stop themselves) and whose
+# process stops counting BEAT_S beats for HELD_S seconds after a stop holds the interpreter lock in
+# C: nothing in that process can answer any more, so it is ended then, not after STOP_GRACE.
+BEAT_S, HELD_S = 0.1, 1.0
 PR_SET_PDEATHSIG = 1   # <linux/prctl.h>: the signal a process gets when its parent ends
 PRELOAD = ["stw_tui.session.survey", "stw_tui.session.session", "stw_tui.session.interpreter", "stw_scipy"]
 
@@ -137,6 +142,29 @@ class _Unanswered(Exception):
     """The child did not answer a stop within STOP_GRACE + ANSWER_MARGIN seconds."""
 
 
+def _may_hang(session) -> bool:
+    """Whether the session's backend may hang (a plugin's calls; not the shared SQP's, which read
+    the stop inside their iterations and hold the lock in C only briefly)."""
+    from stw_tui.sos.backend import load_backend
+
+    try:
+        return not load_backend(session.scene.backend).bounded_calls
+    except (StwError, AttributeError):
+        return True
+
+
+class _HeldInC(Exception):
+    """The child's beat stopped for HELD_S seconds after a stop: its interpreter lock is held in C."""
+
+
+def _keep_beating(beat) -> None:
+    """Count ``beat`` up every BEAT_S seconds, for ever (a daemon thread of the child): the count
+    stops only while the interpreter lock is held in C."""
+    while True:
+        beat.value += 1
+        time.sleep(BEAT_S)
+
+
 class NotPortable(Exception):
     """The session does not pickle, so it cannot be sent to the solver process."""
 
@@ -156,6 +184,7 @@ class SolverProcess:
         self._conn = None
         self._cancel = None
         self._progress = None
+        self._beat = None
 
     @property
     def pid(self) -> int | None:
@@ -185,7 +214,7 @@ class SolverProcess:
         except Exception as exc:   # e.g. a plugin's object that does not pickle
             raise NotPortable(str(exc)) from exc
         try:
-            return self._execute(payload, text, line, on_report, cancelled)
+            return self._execute(payload, text, line, on_report, cancelled, _may_hang(session))
         except KeyboardInterrupt:   # wherever in the wait it lands
             # the child's own count, not the reports read here: Ctrl+C may land between a
             # report's arrival and its reading
@@ -203,6 +232,16 @@ class SolverProcess:
             raise HungBackend(f"backend {backend} hung: it ignored the stop for {backend_calls.STOP_GRACE:g} s "
                               f"during iteration {done + 1} and its process was ended; "
                               "the scene is unchanged") from None
+        except _HeldInC:
+            done = self._progress.value if self._progress is not None else 0
+            self.close()
+            checkpoints = getattr(session, "checkpoints", None)
+            if checkpoints is not None:
+                checkpoints.midsolve.ended(force=True)
+            backend = getattr(getattr(session, "scene", None), "backend", "?")
+            raise HungBackend(f"backend {backend} hung: it held the interpreter lock in C for {HELD_S:g} s "
+                              f"after the stop, during iteration {done + 1}, and its process was ended; "
+                              "the scene is unchanged") from None
 
     def _ended_if_hung(self, error) -> None:
         """A backend the child abandoned as hung may go on running in a thread there (busy for
@@ -218,11 +257,12 @@ class SolverProcess:
         if flag is not None:
             flag.value = True
 
-    def _execute(self, payload: bytes, text: str, line: int | None, on_report: Callable, cancelled: Callable[[], bool]):
+    def _execute(self, payload: bytes, text: str, line: int | None, on_report: Callable, cancelled: Callable[[], bool],
+                 may_hang: bool = False):
         process, conn, cancel = self._ensure_started()
         cancel.value = False
         self._progress.value = 0
-        stop_asked = None
+        stop_asked = heard = beats = None
         try:
             conn.send_bytes(pickle.dumps((payload, text, line), protocol=pickle.HIGHEST_PROTOCOL))
             while True:
@@ -230,8 +270,13 @@ class SolverProcess:
                     if cancelled():
                         cancel.value = True
                     if cancel.value:
-                        stop_asked = stop_asked or time.monotonic()
-                        if time.monotonic() - stop_asked > backend_calls.STOP_GRACE + ANSWER_MARGIN:
+                        now = time.monotonic()
+                        stop_asked = stop_asked or now
+                        if beats != self._beat.value:
+                            beats, heard = self._beat.value, now
+                        if may_hang and now - max(heard, stop_asked) > HELD_S:
+                            raise _HeldInC
+                        if now - stop_asked > backend_calls.STOP_GRACE + ANSWER_MARGIN:
                             raise _Unanswered
                     if not process.is_alive():
                         raise EOFError
@@ -260,11 +305,12 @@ class SolverProcess:
         # os._exit with which the TUI quits, and the resource tracker warns about them after it.
         self._cancel = context.RawValue(ctypes.c_bool, False)
         self._progress = context.RawValue(ctypes.c_long, 0)   # the last iteration the child reported
+        self._beat = context.RawValue(ctypes.c_long, 0)       # counted up while the child runs Python
         # From the fork server (single-threaded) the child may ask to die with its parent; a
         # spawned one's parent is the thread that started it, which ends with its job.
         orphan_kill = context.get_start_method() == "forkserver"
         self._process = context.Process(target=serve, args=(theirs, self._cancel, self.quiet, self._progress,
-                                                            orphan_kill),
+                                                            orphan_kill, self._beat),
                                         name="stw-solver", daemon=True)
         self._process.start()
         theirs.close()
@@ -289,7 +335,7 @@ class SolverProcess:
         return process.exitcode
 
 
-def serve(conn, cancel, quiet: bool = True, progress=None, orphan_kill: bool = False) -> None:
+def serve(conn, cancel, quiet: bool = True, progress=None, orphan_kill: bool = False, beat=None) -> None:
     """The child: execute each (session, command) it is sent, streaming the reports, until the
     pipe closes. Ctrl+C is its parent's to act on (it ends this process). ``progress``: shared
     memory the child sets to each report's iteration before sending it, which the parent reads
@@ -300,6 +346,8 @@ def serve(conn, cancel, quiet: bool = True, progress=None, orphan_kill: bool = F
     if quiet:
         quiet_child()
     parent = os.getppid()
+    if beat is not None:
+        threading.Thread(target=_keep_beating, args=(beat,), name="stw-beat", daemon=True).start()
     try:   # where cores are scarce, the keys come first: the TUI process wins the CPU over the solve
         os.nice(CHILD_NICENESS)
     except OSError:
