@@ -34,7 +34,10 @@ from stw_tui.sym.errors import StwError
 
 ROOT = Path(__file__).resolve().parent.parent
 PROMISE_S = 3.0    # the README: a kill loses at most 3 s of a running solve
-GONE_S = 5.0       # seconds within which every process stw started must have ended
+# Seconds within which every process stw started must have ended. They end in 0.2-0.7 s (printed
+# with -s), also beside three busy loops; 5 s failed once with two whole test suites running beside
+# (the terminal-closed case): the test is that nothing is left, its timing is what it prints.
+GONE_S = 15.0
 NEVER = "1000"   # STW_CHECKPOINT_EVERY where no periodic checkpoint may fall due
 # ... in a real terminal: the one the solver process writes when its parent goes is newer, but a
 # niced process on a loaded machine may be killed (PR_SET_PDEATHSIG) before it gets to it
