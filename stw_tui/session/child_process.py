@@ -222,25 +222,17 @@ class SolverProcess:
             self.close()
             backend = getattr(getattr(session, "scene", None), "backend", "?")
             raise interrupted(backend, f"iteration {done + 1}") from None
-        except _Unanswered:
+        except (_Unanswered, _HeldInC) as exc:
             done = self._progress.value if self._progress is not None else 0
             self.close()
             checkpoints = getattr(session, "checkpoints", None)
             if checkpoints is not None:   # the abandoned solve's, which a resume must not bring back
                 checkpoints.midsolve.ended(force=True)
             backend = getattr(getattr(session, "scene", None), "backend", "?")
-            raise HungBackend(f"backend {backend} hung: it ignored the stop for {backend_calls.STOP_GRACE:g} s "
-                              f"during iteration {done + 1} and its process was ended; "
-                              "the scene is unchanged") from None
-        except _HeldInC:
-            done = self._progress.value if self._progress is not None else 0
-            self.close()
-            checkpoints = getattr(session, "checkpoints", None)
-            if checkpoints is not None:
-                checkpoints.midsolve.ended(force=True)
-            backend = getattr(getattr(session, "scene", None), "backend", "?")
-            raise HungBackend(f"backend {backend} hung: it held the interpreter lock in C for {HELD_S:g} s "
-                              f"after the stop, during iteration {done + 1}, and its process was ended; "
+            how = (f"held the interpreter lock in C for {HELD_S:g} s after the stop, during iteration {done + 1},"
+                   if isinstance(exc, _HeldInC) else
+                   f"ignored the stop for {backend_calls.STOP_GRACE:g} s during iteration {done + 1}")
+            raise HungBackend(f"backend {backend} hung: it {how} and its process was ended; "
                               "the scene is unchanged") from None
 
     def _ended_if_hung(self, error) -> None:
