@@ -20,6 +20,7 @@ from stw_tui.sos.backend import (RunResult, SolverState, Status, WarmStart, crea
                                  run_iterations)
 from stw_tui.sos.batch import joined_backend
 from stw_tui.sos import refinement
+from stw_tui.sos.attachments import pieces
 from stw_tui.sos.continuous import DenseReport, check_scene, survey_failures
 from stw_tui.sos.instances import dofs_used
 from stw_tui.sos.scene import DEFAULT_SETTINGS, Constraint, Dof, Objective, Relation, Scene, Window
@@ -337,14 +338,16 @@ def _constraint(scene: Scene, cmd) -> str:
     if cmd.name in scene.objectives:
         raise StwError(f"'{cmd.name}' is already an objective; choose another name")
     relations = []
+    at = _time_in_span(scene, scene.numeric(cmd.at, "time"), "time") if cmd.at is not None else None
+    interval = _interval(scene, cmd.interval, "interval") if cmd.interval is not None else None
     for rel in cmd.relations:
         if not _uses_dof(scene, rel.expr):
             raise StwError(f"a relation of '{cmd.name}' does not depend on any DOF")
         expr = -rel.expr if rel.kind == "le" else rel.expr
         relations.append(Relation(expr, TermKind.EQ if rel.kind == "eq" else TermKind.GE))
-        compile_term(scene.expand(expr), set(scene.dofs), set(scene.constants))
-    at = _time_in_span(scene, scene.numeric(cmd.at, "time"), "time") if cmd.at is not None else None
-    interval = _interval(scene, cmd.interval, "interval") if cmd.interval is not None else None
+        # compiled as the window will read it (an attached DOF's one branch there, not both)
+        compile_term(scene.expand(expr, (at, at) if at is not None else interval), set(scene.dofs),
+                     set(scene.constants))
     if cmd.samples is not None and cmd.samples < 1:
         raise StwError("samples must be at least 1")
     dense_tol = _option(scene, cmd.dense_tol, "dense_tol")
@@ -363,13 +366,16 @@ def _objective(scene: Scene, cmd) -> str:
     _check_new_name(scene, cmd.name, ("equation",))
     if cmd.name in scene.constraints:
         raise StwError(f"'{cmd.name}' is already a constraint; choose another name")
-    for expr in cmd.exprs:
-        if not _uses_dof(scene, expr):
-            raise StwError(f"a term of objective '{cmd.name}' does not depend on any DOF")
-        compile_term(scene.expand(expr), set(scene.dofs), set(scene.constants))
     interval = _interval(scene, cmd.interval, "interval") if cmd.interval is not None else None
     at = _time_in_span(scene, scene.numeric(cmd.at, "objective time"), "objective time") \
         if cmd.at is not None else None
+    # compiled as the window will read it: at its instant, or piece by piece between attachments
+    scopes = [(at, at)] if at is not None else pieces(scene, *(interval or (scene.t0, scene.t1)))
+    for expr in cmd.exprs:
+        if not _uses_dof(scene, expr):
+            raise StwError(f"a term of objective '{cmd.name}' does not depend on any DOF")
+        for scope in scopes:
+            compile_term(scene.expand(expr, scope), set(scene.dofs), set(scene.constants))
     previous = scene.objectives.get(cmd.name)
     scene.objectives[cmd.name] = Objective(cmd.name, tuple(cmd.exprs), interval,
                                            _weight_value(scene, cmd.weight, True), cmd.text, at, cmd.sense)
@@ -839,7 +845,7 @@ def _verb(scene: Scene, cmd) -> str:
         group, lines, parts = verbs.contact_lines(
             scene, cmd.point, _option(scene, cmd.height, "ground height") or 0.0, a, b,
             _option(scene, cmd.friction, "friction coefficient"), _option(scene, cmd.x, "x"),
-            _option(scene, cmd.dense_tol, "dense_tol"), support)
+            _option(scene, cmd.dense_tol, "dense_tol"), support, cmd.force, _option(scene, cmd.angle, "angle"))
     elif isinstance(cmd, lang.AvoidCmd):
         group, lines = verbs.avoid_lines(scene, cmd.first, cmd.second, a, b, _option(scene, cmd.by, "by"),
                                          _option(scene, cmd.height, "ground height"),
@@ -856,9 +862,10 @@ def _verb(scene: Scene, cmd) -> str:
     scene.verbs[group] = (cmd.text, tuple(members))
     if parts:
         scene.attachments[group] = parts
-        lines = [p.describe() for p in parts if not p.adds] + lines
+        lines = list(dict.fromkeys(p.describe() for p in parts if not p.adds)) + lines
         if any(p.adds for p in parts):
-            lines.append(f"its mass loads {', '.join(p.target for p in parts if p.adds)}")
+            whose = "the ground's force on it" if isinstance(cmd, lang.ContactCmd) else "its mass"
+            lines.append(f"{whose} loads {', '.join(p.target for p in parts if p.adds)}")
     return f"{lang.classify_line(cmd.text).verb} {group}: " + "; ".join(lines) + note
 
 

@@ -149,7 +149,7 @@ def _linkage_dofs(spec) -> list[str]:
 def _show_verb(scene: Scene, name: str) -> list[str]:
     line, members = scene.verbs[name]
     parts = scene.attachments.get(name, ())
-    lines = [line] + [f"  {p.describe()}" for p in parts if not p.adds]
+    lines = [line] + [f"  {d}" for d in dict.fromkeys(p.describe() for p in parts if not p.adds)]
     loads = [p.target for p in parts if p.adds]
     if loads:
         lines.append(f"  its mass loads {', '.join(loads)} there")

@@ -190,8 +190,8 @@ def physical_scale(scene, spec) -> tuple[float, float]:
 
 def contact_lines(scene, point: str, height: float, a: float, b: float,
                   friction: float | None, x: float | None, dense_tol: float | None = None,
-                  support: tuple[float, float] | None = None
-                  ) -> tuple[str, list[str], tuple]:
+                  support: tuple[float, float] | None = None, force: str | None = None,
+                  angle: float | None = None) -> tuple[str, list[str], tuple]:
     """(group name, command lines, attachments) of ``contact``: the point is planted by
     construction (the creature hangs from it: its base is attached to where the point stays),
     it meets the ground at rest and leaves it at rest (its own curves match position and
@@ -215,20 +215,30 @@ def contact_lines(scene, point: str, height: float, a: float, b: float,
                        f"and it has none: give it one, e.g. `base=tx:X,ty:Y`")
     if "tz" in axes:
         raise StwError(f"contact plants a point of a planar creature; linkage {spec.name} moves along z")
-    if "tx" in axes and x is None:
-        raise StwError(f"x=X0 says where {point} is planted: give it, e.g. `x=0` (it is planted "
-                       f"there exactly, the creature hanging from it)")
     friction = 1.0 if friction is None else friction
     if not friction >= 0:
         raise StwError(f"friction coefficient {friction:g} must be at least 0")
+    weight, size = physical_scale(scene, spec)
+    force_tol = dense_tol if dense_tol is not None else 0.01 * weight
+    moment_tol = (dense_tol if dense_tol is not None else 0.01 * weight) * size
+    if point != f"{spec.name}.{spec.joints[0].name}" or force is not None:
+        # not where the creature hangs from: a second foot, planted through its branch's joints
+        from stw_tui.session.planted_branch import branch_contact_lines
+
+        return branch_contact_lines(scene, spec, point, height, a, b, friction, x, force, angle, support,
+                                    force_tol, moment_tol, _tol)
+    if angle is not None:
+        raise StwError(f"angle= sets a second foot's angle; {point}, where {spec.name} hangs from, keeps "
+                       f"whatever angle its curves give (constrain it, e.g. `constraint flat: "
+                       f"{spec.joints[0].name} = 2.7 on [{a:g}, {b:g}]`)")
+    if "tx" in axes and x is None:
+        raise StwError(f"x=X0 says where {point} is planted: give it, e.g. `x=0` (it is planted "
+                       f"there exactly, the creature hanging from it)")
     for part in all_attachments(scene):
         if part.target == axes["ty"] or part.target in spec.com:
             if part.a < b and a < part.b:
                 raise StwError(f"linkage {spec.name} is already planted on [{part.a:g}, {part.b:g}], "
                                f"which overlaps [{a:g}, {b:g}]")
-    weight, size = physical_scale(scene, spec)
-    force_tol = dense_tol if dense_tol is not None else 0.01 * weight
-    moment_tol = (dense_tol if dense_tol is not None else 0.01 * weight) * size
     # The DOF that carry the base along x and y: the centroidal ones with com=, else the base's.
     carriers = dict(zip([ax.axis for ax in spec.base], spec.com or [ax.dof for ax in spec.base]))
     closed = {"closed_a": a <= scene.t0, "closed_b": b >= scene.t1}

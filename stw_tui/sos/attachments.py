@@ -43,6 +43,7 @@ class Attachment:
     closed_a: bool = False
     closed_b: bool = False
     adds: bool = False
+    note: str = ""       # what `describe` says instead of the expression (a long one)
 
     @property
     def condition(self) -> sp.Basic:
@@ -53,7 +54,8 @@ class Attachment:
 
     def describe(self) -> str:
         """What it does, as `hold` and `show` print it: ``BX is arm.tip.x on [0, 0.55]``."""
-        return f"{self.target} is {sp.sstr(self.expr)} on [{self.a:g}, {self.b:g}]"
+        what = self.note or f"{self.target} is {sp.sstr(self.expr)}"
+        return f"{what} on [{self.a:g}, {self.b:g}]"
 
 
 def all_attachments(scene) -> tuple[Attachment, ...]:
@@ -83,6 +85,14 @@ def _load(part: Attachment) -> sp.Piecewise:
     return sp.Piecewise((part.expr, part.condition), (0, True))
 
 
+def pieces(scene, a: float, b: float) -> list[tuple[float, float]]:
+    """[a, b] cut where an attachment starts or ends: an objective is integrated piece by piece
+    (a held ball's mass loads the torques only while held), each piece's term read there alone,
+    one branch of the Piecewise instead of both, its quadrature not straddling the jump."""
+    cuts = sorted({a, b, *(t for p in all_attachments(scene) for t in (p.a, p.b) if a < t < b)})
+    return list(zip(cuts[:-1], cuts[1:]))
+
+
 def replace_attached(scene, expr: sp.Basic) -> sp.Basic:
     """``expr`` (expanded: DOF, t and constants) with each attached DOF, and its first and second
     derivatives, read as the attachment's expression where it applies."""
@@ -102,9 +112,17 @@ def replace_attached(scene, expr: sp.Basic) -> sp.Basic:
 
 
 def _held(scene, expr: sp.Expr, order: int) -> sp.Expr:
-    """The attachment's expression (expanded) differentiated ``order`` times in time."""
-    expanded = scene.expand(expr)
-    return scene.time_derivative(expanded, str(expr), order) if order else expanded
+    """The attachment's expression (expanded) differentiated ``order`` times in time.
+
+    Differentiated before the DOF it reads are themselves read as their attachments (a second
+    foot's joints follow the hip, whose base hangs from the first foot): the derivatives of the
+    plain expression go through symengine, and the attached DOF's derivatives are then read as
+    theirs, which the chain rule makes the same (those of a Piecewise went through sympy, 5 s of
+    a hip's second derivative)."""
+    expanded = scene.expand_unattached(expr)
+    if order:
+        expanded = scene.time_derivative(expanded, str(expr), order)
+    return replace_attached(scene, expanded)
 
 
 def restrict(expr: sp.Basic, lo: float, hi: float) -> sp.Basic:

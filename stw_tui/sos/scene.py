@@ -13,7 +13,7 @@ from dataclasses import dataclass, field, replace
 import numpy as np
 import sympy as sp
 
-from stw_tui.sos.attachments import added_terms, attached_dofs, replace_attached, restrict
+from stw_tui.sos.attachments import added_terms, all_attachments, attached_dofs, replace_attached, restrict
 from stw_tui.sos.spline import DofCurve, SharedTimes
 from stw_tui.sym.compiler import free_symbols, xreplace
 from stw_tui.sym.errors import LimitError, StwError
@@ -261,6 +261,10 @@ class Scene:
                 del _EXPANDED[next(iter(_EXPANDED))]
         return result
 
+    def expand_unattached(self, expr: sp.Basic) -> sp.Basic:
+        """:meth:`expand` with every DOF read as its own curve (loads are added as usual)."""
+        return self._expand(expr)
+
     def _expand(self, expr: sp.Basic) -> sp.Basic:
         definitions = added_terms(self, {named_symbol(n): e for n, e in {**self.derived, **self.lets}.items()})
         self._check_size(expr, definitions)
@@ -362,10 +366,33 @@ class Scene:
         """Values of an expression (DOF and their derivatives, t, constants, subexpressions) on
         the scene's curves at ``times``: what `print`, the plots, figures and the dense check show.
 
+        With attachments, each stretch between the times one starts or ends is read with its own
+        term (each DOF one branch there, as the window reads it) and each such time alone: one
+        term holding every branch of a Piecewise is far larger to compile (a planted second
+        foot's joints are inverse kinematics over its stance).
+
         Raises:
             StwError: the expression names something the scene no longer defines.
         """
-        return self.evaluator(expr)(times)
+        parts = all_attachments(self)
+        if not parts:
+            return self.evaluator(expr)(times)
+        times = np.asarray(times, dtype=float)
+        flat = times.reshape(-1)
+        out = np.empty(flat.shape)
+        done = np.zeros(flat.shape, dtype=bool)
+        cuts = sorted({self.t0, self.t1, *(t for p in parts for t in (p.a, p.b) if self.t0 < t < self.t1)})
+        for t in cuts:
+            at = flat == t
+            if at.any():
+                out[at], done[at] = self.evaluator(expr, scope=(t, t))(flat[at]), True
+        for lo, hi in zip(cuts[:-1], cuts[1:]):
+            inside = (flat > lo) & (flat < hi)
+            if inside.any():
+                out[inside], done[inside] = self.evaluator(expr, scope=(lo, hi))(flat[inside]), True
+        if not done.all():   # outside the animation's span
+            out[~done] = self.evaluator(expr)(flat[~done])
+        return out.reshape(times.shape)
 
     def evaluator(self, expr: sp.Basic, kept: dict | None = None,
                   scope: tuple[float, float] | None = None) -> ExpressionValues:

@@ -28,7 +28,7 @@ import scipy.sparse as sps
 import sympy as sp
 
 from stw_tui.sos.affine_rows import AffineRows
-from stw_tui.sos.attachments import all_attachments
+from stw_tui.sos.attachments import pieces
 from stw_tui.sos.compressed import add, csr, transpose
 from stw_tui.sos.instances import bound_extra_times, bound_times, kept_times, relation_instances, structure_key
 from stw_tui.sos.products import GRAM_PLAN_TERMS, GramPlan, ProductPlan
@@ -472,14 +472,9 @@ class WindowProblem:
                 a, b = max(a, o.interval[0]), min(b, o.interval[1])
             if b <= a:
                 continue
-            # Integrated piece by piece between the times an attachment starts or ends (a held
-            # ball's mass loads the torques only while held): each piece's term is read there
-            # alone, one branch of the Piecewise instead of both, and its quadrature does not
-            # straddle the jump.
-            cuts = np.unique([a, b, *(t for p in all_attachments(scene) for t in (p.a, p.b) if a < t < b)])
             for e_index, expr in enumerate(o.exprs):
                 label = o.name if len(o.exprs) == 1 else f"{o.name}[{e_index + 1}]"
-                for lo, hi in zip(cuts[:-1], cuts[1:]):
+                for lo, hi in pieces(scene, float(a), float(b)):
                     term = self._compile(expr, (float(lo), float(hi)))
                     if not term.dofs & self.free_dofs:
                         continue  # constant over this window

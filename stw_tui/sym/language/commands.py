@@ -244,6 +244,8 @@ class ContactCmd:
     text: str = ""
     dense_tol: sp.Expr | None = None   # the ground force's own continuous-time tolerance (N)
     support: Interval | None = None    # the foot's sole along the ground, about the point (None: [0, 0])
+    force: str | None = None           # a second foot's ground force: DOF FX, FY (FM)
+    angle: sp.Expr | None = None       # a second foot's angle while planted (None: at the touchdown)
 
 
 @dataclass(frozen=True)
@@ -410,8 +412,8 @@ class CommandParser(ExpressionParser):
             raise self.unexpected("end of line")
 
     def options(self, allowed: dict[str, str]) -> dict[str, object]:
-        """`key=value` options in any order; ``allowed`` maps key to "int", "seed", "expr" or
-        "interval" (``[A, B]``)."""
+        """`key=value` options in any order; ``allowed`` maps key to "int", "seed", "expr",
+        "interval" (``[A, B]``) or "name" (a new name, such as a force's DOF prefix)."""
         found: dict[str, object] = {}
         while self.token.kind == NAME and self.token.text in allowed:
             key = self.advance()
@@ -419,6 +421,9 @@ class CommandParser(ExpressionParser):
                 raise self.error(f"'{key.text}' given twice", key)
             self.expect_op("=", f"'=' after {key.text}")
             kind = allowed[key.text]
+            if kind == "name":
+                found[key.text] = self.name(f"a name after {key.text}=").text
+                continue
             found[key.text] = self.number_expr() if kind == "expr" else self.interval() if kind == "interval" else \
                 self.integer(f"a whole number for {key.text}", MAX_SEED if kind == "seed" else MAX_COUNT,
                              _COUNT_LIMITS.get(key.text) if kind == "int" else None)
@@ -717,7 +722,8 @@ class CommandParser(ExpressionParser):
         return BallisticCmd(point, self.interval(), self.text)
 
     def p_contact(self):
-        """`contact POINT on ground [y=H] on [A, B] [x=X0] [friction=MU] [support=[L, R]] [dense_tol=D]`."""
+        """`contact POINT on ground [y=H] on [A, B] [x=X0] [friction=MU] [support=[L, R]] [dense_tol=D]
+        [force=F] [angle=PHI]`."""
         point = self.name("a linkage point such as acro.FOOT").text
         for word, expected in (("on", "'on ground'"), ("ground", "'ground' (the surface y = H)")):
             if not self.token.is_word(word):
@@ -728,9 +734,10 @@ class CommandParser(ExpressionParser):
             raise self.unexpected("'on [A, B]'")
         self.advance()
         interval = self.interval()
-        opts = self.options({"friction": "expr", "x": "expr", "dense_tol": "expr", "support": "interval"})
+        opts = self.options({"friction": "expr", "x": "expr", "dense_tol": "expr", "support": "interval",
+                              "force": "name", "angle": "expr"})
         return ContactCmd(point, height, interval, opts.get("friction"), opts.get("x"), self.text,
-                          opts.get("dense_tol"), opts.get("support"))
+                          opts.get("dense_tol"), opts.get("support"), opts.get("force"), opts.get("angle"))
 
     def p_flight(self):
         """`flight LINKAGE on [A, B] [dense_tol=D]`."""

@@ -80,7 +80,8 @@ COMMAND_HELP: dict[str, CommandHelp] = {
                              "PX'' = 0, PY'' + g = 0 (PZ'' = 0), exact between the samples. "
                              "`delete P_flight` removes it.",
                              "ballistic B on [0.55, 1.5]"),
-    "contact": CommandHelp("contact POINT on ground [y=H] on [A, B] x=X0 [friction=MU] [support=[L, R]] [dense_tol=D]",
+    "contact": CommandHelp("contact POINT on ground [y=H] on [A, B] x=X0 [friction=MU] [support=[L, R]] [dense_tol=D] "
+                           "[force=F] [angle=PHI]",
                            "The linkage point (its first joint) is planted at (X0, H) by construction: over "
                            "the stance the creature hangs from it (its centre of mass, com=, is read as the "
                            "point plus the links' offset), so it cannot slide, sink or move; the flight's "
@@ -90,7 +91,14 @@ COMMAND_HELP: dict[str, CommandHelp] = {
                            "of pressure on the support [L, R] along the ground (POINT_pressure; a point "
                            "foot [0, 0] by default). These hold at their instances and between them to 1% "
                            "of the creature's weight (N; weight x size for the moment), or to dense_tol=D. "
-                           "One contact at a time per creature. "
+                           "A second foot at the end of a branch (fig.RFOOT.end, planar revolute links) "
+                           "takes force=F: the ground's force on it is DOF FX, FY (and FM, its moment "
+                           "about the point, with a sole), which you declare first and which load every "
+                           "tau_J; over the stance the leg's joints are what plants it (two-link inverse "
+                           "kinematics from the hip, the knee bent as at the touchdown, kept 0.05 rad from "
+                           "straight: POINT_reach), its sole keeping angle=PHI (default: as at the touchdown), e.g. "
+                           "`dof RX, RY, RM` then `contact fig.RFOOT.end on ground on [0, 0.6] x=0.3 "
+                           "support=[-0.2, 0] force=R`. "
                            "`delete POINT_contact` (FOOT_contact) removes all of it.",
                            "contact acro.FOOT on ground on [0, 0.5] friction=1 x=0"),
     "flight": CommandHelp("flight LINKAGE on [A, B] [dense_tol=D]",

@@ -13,9 +13,10 @@ from stw_tui.sym.linkage.kinematics import to_sympy
 from stw_tui.sym.symbols import TIME, dof_symbol
 
 # Node types symengine differentiates and kinematics.to_sympy brings back unchanged: a linkage's
-# positions (sums of products of sines and cosines). Anything else (abs, min, piecewise...) is
-# differentiated by sympy, whose forms the rest of stw expects for those.
-_PLAIN = (sp.Symbol, sp.Number, sp.NumberSymbol, sp.Add, sp.Mul, sp.Pow, sp.sin, sp.cos)
+# positions (sums of products of sines and cosines) and a planted branch's inverse kinematics
+# (atan2, acos, square roots). Anything else (abs, min, piecewise...) is differentiated by
+# sympy, whose forms the rest of stw expects for those.
+_PLAIN = (sp.Symbol, sp.Number, sp.NumberSymbol, sp.Add, sp.Mul, sp.Pow, sp.sin, sp.cos, sp.atan2, sp.acos)
 
 
 def time_derivative(expr: sp.Expr, dof_names: Iterable[str]) -> sp.Expr:

@@ -94,7 +94,7 @@ def to_sympy(expr, memo: dict | None = None) -> sp.Expr:
     return _to_sympy(expr, memo)
 
 
-_SE_FUNCS = {"sin": sp.sin, "cos": sp.cos}
+_SE_FUNCS = {"sin": sp.sin, "cos": sp.cos, "acos": sp.acos, "atan2": sp.atan2}
 
 
 def _to_sympy(e, memo):
@@ -118,7 +118,7 @@ def _to_sympy(e, memo):
         base, exponent = e.args
         out = sp.Pow(_to_sympy(base, memo), _to_sympy(exponent, memo), evaluate=False)
     elif type(e).__name__ in _SE_FUNCS:
-        out = _SE_FUNCS[type(e).__name__](_to_sympy(e.args[0], memo), evaluate=False)
+        out = _SE_FUNCS[type(e).__name__](*(_to_sympy(a, memo) for a in e.args), evaluate=False)
     else:  # pi and anything unforeseen: symengine's own conversion (numbers, constants)
         out = e._sympy_()
         out = out.xreplace({s: sp.Symbol(s.name, real=True) for s in out.free_symbols})

@@ -1,0 +1,147 @@
+"""Two feet on the ground (issue 53): a second foot planted through its leg's joints, with the
+ground's force on it as curves of its own (stw_tui.session.planted_branch).
+
+The physics is derived here from the DOF samples alone, with planar kinematics and Newton-Euler
+written apart from stw (rods between the joints, each link's angle the sum of the joint angles
+on its way from the first foot): both feet stay where they are planted, the ground does no work
+on either, each foot only pushes, inside its friction cone, and the body's angular momentum
+about its centre of mass changes by exactly the two feet's moments (point feet: the first foot
+passes no moment, the second none by construction). That last one is what ties the force curves
+to the equations of motion: a load with a wrong sign or a missing term breaks it.
+"""
+
+import math
+
+import numpy as np
+import pytest
+
+from stw_tui.session.session import Session
+from stw_tui.sym.errors import StwError
+from stw_tui.sym.symbols import named_symbol
+
+G = 9.81
+# (joint, parent, theta, length, mass): the stance's linkage
+ROWS = [("LSHIN", None, 0.0, 0.5, 4.0), ("LTHIGH", "LSHIN", 0.0, 0.5, 8.0), ("TRUNK", "LTHIGH", 0.0, 0.6, 30.0),
+        ("RTHIGH", "LTHIGH", math.pi, 0.5, 8.0), ("RSHIN", "RTHIGH", 0.0, 0.5, 4.0)]
+MASS = sum(r[4] for r in ROWS)
+SIZE = sum(r[3] for r in ROWS)
+RIGHT_X = -0.3
+
+STANCE = f"""
+time 0 1 knots=8
+const g = 9.81
+set limit expression_size 2000000
+linkage st base=tx:X,ty:Y
+  LSHIN  revolute a=0.5 mass=4
+  LTHIGH revolute a=0.5 mass=8
+  TRUNK  revolute a=0.6 mass=30
+  RTHIGH revolute a=0.5 mass=8 theta=pi parent=LTHIGH
+  RSHIN  revolute a=0.5 mass=4
+end
+dof LSHIN = 1.1
+dof LTHIGH = 1.0
+dof TRUNK = -0.5
+dof RTHIGH = -0.94
+dof RSHIN = 0.6
+dof FX, FY
+contact st.LSHIN on ground on [0, 1] x=0
+contact st.RSHIN.end on ground on [0, 1] x={RIGHT_X} force=F
+"""
+SQUAT = """
+constraint still: LSHIN' = 0, LTHIGH' = 0, TRUNK' = 0 @ 0
+constraint still2: LSHIN' = 0, LTHIGH' = 0, TRUNK' = 0 @ 1
+constraint low: st.TRUNK.y = 0.8 @ 0.5
+objective effort: tau_LTHIGH, tau_TRUNK, tau_RTHIGH, tau_RSHIN
+iterate 60
+"""
+
+
+@pytest.fixture(scope="module")
+def squat():
+    session = Session()
+    session.run_text(STANCE + SQUAT)
+    return session
+
+
+def physics(samples: dict) -> dict:
+    """Every link's ends, centre of mass and angle (with rates), the body's centre of mass, the
+    ground's total force (M (C'' + g y)) and the rate of angular momentum about the centre of
+    mass, from the samples."""
+    t = np.asarray(samples["X"]["t"])
+    q = {n: [np.asarray(samples[n][k]) for k in ("value", "velocity", "acceleration")] for n in samples}
+    base = [np.stack([q["X"][k], q["Y"][k]]) for k in range(3)]
+    angle, end, bodies = {}, {}, []
+    for name, parent, theta, length, mass in ROWS:
+        start = base if parent is None else end[parent]
+        th = [q[name][k] + (angle[parent][k] if parent else 0.0) + (theta if k == 0 else 0.0) for k in range(3)]
+        angle[name] = th
+        u = np.stack([np.cos(th[0]), np.sin(th[0])])
+        n = np.stack([-np.sin(th[0]), np.cos(th[0])])
+        tip = [start[0] + length * u, start[1] + length * th[1] * n,
+               start[2] + length * (th[2] * n - th[1] ** 2 * u)]
+        end[name] = tip
+        bodies.append((mass, mass * length ** 2 / 12, [(a + b) / 2 for a, b in zip(start, tip)], th))
+    com = [sum(m * c[k] for m, _, c, _ in bodies) / MASS for k in range(3)]
+    force = MASS * (com[2] + np.array([[0.0], [G]]))
+    spin = sum(m * ((c[0][0] - com[0][0]) * c[2][1] - (c[0][1] - com[0][1]) * c[2][0]) + inertia * th[2]
+               for m, inertia, c, th in bodies)
+    return {"t": t, "left": base, "right": end["RSHIN"], "com": com, "force": force, "spin": spin}
+
+
+def test_both_feet_stay_planted_and_the_ground_does_no_work(squat):
+    assert squat.runs[-1].converged
+    s = squat.sample(1001)                       # 1 ms
+    p = physics(s)
+    right_force = np.stack([np.asarray(s["FX"]["value"]), np.asarray(s["FY"]["value"])])
+    left_force = p["force"] - right_force
+    for (x0, (pos, vel, _)), force in ((0.0, p["left"]), left_force), ((RIGHT_X, p["right"]), right_force):
+        assert np.abs(pos[0] - x0).max() <= 1e-9 and np.abs(pos[1]).max() <= 1e-9   # measured ~1e-16 m
+        assert np.hypot(*vel).max() <= 1e-9                                         # measured ~1e-15 m/s
+        power = force[0] * vel[0] + force[1] * vel[1]
+        assert np.abs(np.trapezoid(power, p["t"])) <= 1e-9                          # J
+        # each foot only pushes, inside the cone (mu = 1), to the contacts' 1% of the weight
+        assert force[1].min() >= -0.01 * MASS * G
+        assert (np.abs(force[0]) - force[1]).max() <= 0.01 * MASS * G
+    # the two feet share the weight: neither carries it all
+    assert 0.2 < np.mean(right_force[1]) / (MASS * G) < 0.8
+
+
+def test_the_feet_forces_turn_the_body_as_newton_euler_says(squat):
+    s = squat.sample(1001)
+    p = physics(s)
+    right_force = np.stack([np.asarray(s["FX"]["value"]), np.asarray(s["FY"]["value"])])
+    left_force = p["force"] - right_force
+    (cx, cy), moments = p["com"][0], 0.0
+    for (pos, _, _), f in ((p["left"], left_force), (p["right"], right_force)):
+        moments = moments + (pos[0] - cx) * f[1] - (pos[1] - cy) * f[0]
+    # What is left is the moment the first foot passes: a point foot's is 0 at the contact's
+    # instances and, between them, within the contact's tolerance (1% of weight x size). It must
+    # be the torque stw reports at that joint, the ground's force on the second foot loaded.
+    left_moment = p["spin"] - moments
+    reported = squat.scene.evaluate(named_symbol("tau_LSHIN"), p["t"])
+    assert np.abs(left_moment - reported).max() <= 1e-6                 # N m; measured ~1e-9
+    assert np.abs(left_moment).max() <= 0.01 * MASS * G * SIZE           # measured 0.12 of 13.8
+    knots = np.isin(np.round(p["t"], 9), np.round(np.linspace(0, 1, 17), 9))
+    assert np.abs(left_moment[knots]).max() <= 1e-6                      # at the instances
+
+
+def test_the_body_squats(squat):
+    com = physics(squat.sample(101))["com"][0]
+    assert com[1][50] < com[1][0] - 0.04      # the centre of mass follows the hip down
+
+
+def test_a_second_foot_says_what_it_needs():
+    base = STANCE.split("contact st.RSHIN.end")[0]
+    for line, why in (
+            ("contact st.RSHIN.end on ground on [0, 1] x=-0.3", "force=F for DOF FX, FY"),
+            ("contact st.RSHIN.end on ground on [0, 1] x=-0.3 force=Q", "declare QX, QY first"),
+            ("contact st.RSHIN.end on ground on [0, 1] x=3 force=F", "out of reach of its two links"),
+            ("contact st.LSHIN.end on ground on [0, 1] x=0 force=F", "plant st.LSHIN, the first joint.*st has 1 link"),
+            ("contact st.RSHIN.end on ground on [0, 1] force=F", "x=X0 says where"),
+            ("contact st.RSHIN.end on ground on [0, 1] x=-0.3 force=F angle=1", "no sole")):
+        session = Session()
+        session.run_text(base)
+        before = dict(session.scene.constraints)
+        with pytest.raises(StwError, match=why):
+            session.run_text(line + "\n")
+        assert session.scene.constraints == before and not session.scene.attachments.get("RSHIN_contact")
