@@ -258,12 +258,26 @@ def test_expanded_size_is_the_size_of_the_substituted_tree():
     assert compiler.expanded_size(expr, definitions) == substituted(expr) == 28
 
 
+def _distinct(expr) -> int:
+    """Each distinct compound node of ``expr`` once, with the leaves under it (an independent
+    count: a recursive walk with a set)."""
+    seen = set()
+
+    def walk(e):
+        if e in seen:
+            return 0
+        seen.add(e)
+        return 1 + sum(walk(a) if a.args else 1 for a in e.args)
+    return walk(expr)
+
+
 def test_the_size_check_refuses_one_node_over_the_limit_and_passes_at_it():
     from stw_tui.sym import compiler, limits
     from stw_tui.sym.errors import LimitError
 
     expr = SIZED[2]
-    size = _nodes(expr)
+    size = _distinct(expr)
+    assert size < _nodes(expr)       # shared subtrees count once
     compiler._check_size(expr, size, 64)                   # at the limit: passes
     with pytest.raises(LimitError, match="expression_size"):
         compiler._check_size(expr, size - 1, 64)

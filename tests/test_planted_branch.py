@@ -63,7 +63,7 @@ def squat():
     return session
 
 
-def physics(samples: dict) -> dict:
+def physics(samples: dict, rows=ROWS) -> dict:
     """Every link's ends, centre of mass and angle (with rates), the body's centre of mass, the
     ground's total force (M (C'' + g y)) and the rate of angular momentum about the centre of
     mass, from the samples."""
@@ -71,7 +71,8 @@ def physics(samples: dict) -> dict:
     q = {n: [np.asarray(samples[n][k]) for k in ("value", "velocity", "acceleration")] for n in samples}
     base = [np.stack([q["X"][k], q["Y"][k]]) for k in range(3)]
     angle, end, bodies = {}, {}, []
-    for name, parent, theta, length, mass in ROWS:
+    total = sum(r[4] for r in rows)
+    for name, parent, theta, length, mass in rows:
         start = base if parent is None else end[parent]
         th = [q[name][k] + (angle[parent][k] if parent else 0.0) + (theta if k == 0 else 0.0) for k in range(3)]
         angle[name] = th
@@ -81,11 +82,11 @@ def physics(samples: dict) -> dict:
                start[2] + length * (th[2] * n - th[1] ** 2 * u)]
         end[name] = tip
         bodies.append((mass, mass * length ** 2 / 12, [(a + b) / 2 for a, b in zip(start, tip)], th))
-    com = [sum(m * c[k] for m, _, c, _ in bodies) / MASS for k in range(3)]
-    force = MASS * (com[2] + np.array([[0.0], [G]]))
+    com = [sum(m * c[k] for m, _, c, _ in bodies) / total for k in range(3)]
+    force = total * (com[2] + np.array([[0.0], [G]]))
     spin = sum(m * ((c[0][0] - com[0][0]) * c[2][1] - (c[0][1] - com[0][1]) * c[2][0]) + inertia * th[2]
                for m, inertia, c, th in bodies)
-    return {"t": t, "left": base, "right": end["RSHIN"], "com": com, "force": force, "spin": spin}
+    return {"t": t, "left": base, "right": end[rows[-1][0]], "com": com, "force": force, "spin": spin}
 
 
 def test_both_feet_stay_planted_and_the_ground_does_no_work(squat):
@@ -145,3 +146,74 @@ def test_a_second_foot_says_what_it_needs():
         with pytest.raises(StwError, match=why):
             session.run_text(line + "\n")
         assert session.scene.constraints == before and not session.scene.attachments.get("RSHIN_contact")
+
+
+# Soles: a first foot, one leg, a trunk, and a second leg of thigh, shin and foot whose sole is
+# planted 25 cm ahead and keeps its angle; the figure leans forward and back.
+SOLE_ROWS = [("LFOOT", None, 0.0, 0.15, 1.0), ("LLEG", "LFOOT", 0.0, 0.9, 10.0), ("TRUNK", "LLEG", 0.0, 0.6, 30.0),
+             ("RTHIGH", "LLEG", math.pi, 0.5, 7.0), ("RSHIN", "RTHIGH", 0.0, 0.5, 3.0),
+             ("RFOOT", "RSHIN", 0.0, 0.15, 1.0)]
+SOLE_MASS = sum(r[4] for r in SOLE_ROWS)
+SOLE = (-0.2, 0.0)
+LEAN = f"""
+time 0 1 knots=8
+const g = 9.81
+set limit expression_size 200000
+linkage so base=tx:X,ty:Y
+  LFOOT  revolute a=0.15 mass=1
+  LLEG   revolute a=0.9 mass=10
+  TRUNK  revolute a=0.6 mass=30
+  RTHIGH revolute a=0.5 mass=7 theta=pi parent=LLEG
+  RSHIN  revolute a=0.5 mass=3
+  RFOOT  revolute a=0.15 mass=1
+end
+dof LFOOT = 2.8
+dof LLEG = -1.35
+dof TRUNK = 0.12
+dof RTHIGH = 0.39
+dof RSHIN = -0.6
+dof RFOOT = 1.56
+dof FX, FY, FM
+contact so.LFOOT on ground on [0, 1] x=0 support=[{SOLE[0]}, {SOLE[1]}]
+constraint flat: LFOOT = 2.8 on [0, 1]
+contact so.RFOOT.end on ground on [0, 1] x=0.25 support=[{SOLE[0]}, {SOLE[1]}] force=F
+constraint still: LLEG' = 0, TRUNK' = 0 @ 0
+constraint still2: LLEG' = 0, TRUNK' = 0 @ 1
+constraint lean: so.TRUNK.x = 0.1 @ 0.5
+objective effort: tau_LLEG, tau_TRUNK, tau_RTHIGH, tau_RSHIN, tau_RFOOT
+iterate 60
+"""
+
+
+@pytest.fixture(scope="module")
+def lean():
+    session = Session()
+    session.run_text(LEAN)
+    return session
+
+
+def test_a_sole_stays_flat_where_it_is_planted_and_both_pressures_stay_on_the_soles(lean):
+    assert lean.runs[-1].converged
+    s = lean.sample(1001)
+    p = physics(s, SOLE_ROWS)
+    q = {n: np.asarray(s[n]["value"]) for n in s}
+    foot_angle = q["LFOOT"] + q["LLEG"] + math.pi + q["RTHIGH"] + q["RSHIN"] + q["RFOOT"]
+    assert np.ptp(foot_angle) <= 1e-9                                  # the second sole does not turn
+    ball = p["right"]
+    assert np.abs(ball[0][0] - 0.25).max() <= 1e-9 and np.abs(ball[0][1]).max() <= 1e-9
+    assert np.hypot(*ball[1]).max() <= 1e-9
+    right = np.stack([q["FX"], q["FY"]])
+    left = p["force"] - right
+    weight = SOLE_MASS * G
+    for force in (left, right):
+        assert force[1].min() >= -0.01 * weight and (np.abs(force[0]) - force[1]).max() <= 0.01 * weight
+    # the second sole's moment FM is its centre of pressure times its push, on the sole
+    assert (np.maximum(SOLE[0] * q["FY"] - q["FM"], q["FM"] - SOLE[1] * q["FY"])).max() <= 0.01 * weight * 2.8
+    # the first foot's moment from Newton-Euler, with the second's force and moment, is the
+    # torque stw reports at the first joint
+    (cx, cy) = p["com"][0]
+    moments = q["FM"].copy()
+    for pos, f in ((p["left"][0], left), (ball[0], right)):
+        moments += (pos[0] - cx) * f[1] - (pos[1] - cy) * f[0]
+    reported = lean.scene.evaluate(named_symbol("tau_LFOOT"), p["t"])
+    assert np.abs(p["spin"] - moments - reported).max() <= 1e-6

@@ -454,9 +454,12 @@ def check_size(expr: sp.Basic) -> None:
     """Refuse, before any work on it, an expression too large to compile in reasonable time, or
     with an integer exponent that compiled code would wrap (x^2147483648 evaluates to inf).
 
-    The size is that of the expression as a tree (what differentiation and code generation
-    walk), counted over its distinct nodes only, so a subexpression shared 2^30 times costs one
-    visit. An expression that passed under the same limits passes again without the walk.
+    The size is the number of its distinct nodes: what conversion, differentiation, common
+    subexpressions and code generation each walk once (a linkage's equations with a planted
+    leg's inverse kinematics in every link are millions of nodes as a tree, thousands distinct,
+    and compile in seconds). Trees that subexpressions make exponential are refused before they
+    are expanded (Scene.expand measures the substituted tree). An expression that passed under
+    the same limits passes again without the walk.
 
     Raises:
         StwError: naming the limit expression_size or exponent.
@@ -466,14 +469,14 @@ def check_size(expr: sp.Basic) -> None:
 
 @lru_cache(maxsize=4096)   # only passes are kept: lru_cache does not keep a raised error
 def _check_size(expr: sp.Basic, most: int, largest_exponent: int) -> None:
-    sizes: dict[sp.Basic, int] = {}
+    count = 0
     for node in _post_order(expr, atoms=False):   # a leaf counts 1 wherever it is
         if node.is_Pow and node.exp.is_Integer and abs(node.exp) > largest_exponent:
             raise LimitError(limits.over("exponent", node.exp, f"{_clip(node)}: exponent") +
                              "; compiled code cannot raise to such a power exactly")
-        sizes[node] = 1 + sum(sizes[a] if a.args else 1 for a in node.args)
-        if sizes[node] > most:
-            raise LimitError(limits.over("expression_size", f"{sizes[node]}+ nodes",
+        count += 1 + sum(1 for a in node.args if not a.args)
+        if count > most:
+            raise LimitError(limits.over("expression_size", f"{count}+ distinct nodes",
                                          "an expression (its subexpressions substituted) of") +
                              "; a long linkage's forces grow fast")
 

@@ -20,13 +20,15 @@ for the same sympy tree (the symengine text changed with the conversion by itsel
 
 from __future__ import annotations
 
+import hashlib
 from functools import lru_cache
 
 import sympy as sp
 from sympy.functions.elementary.piecewise import ExprCondPair
 from sympy.logic.boolalg import BooleanAtom
 
-REVISION = 1
+REVISION = 2
+_LONG = 200       # characters: a longer node text is named by its digest
 _COMMUTATIVE = (sp.Add, sp.Mul)
 _NAMED_ATOMS = (sp.NumberSymbol, BooleanAtom, type(sp.I), type(sp.oo), type(sp.S.NegativeInfinity),
                 type(sp.zoo), type(sp.nan))
@@ -80,5 +82,9 @@ def tree_text(expr: sp.Basic) -> str | None:
         parts = [texts[id(a)] for a in node.args]
         if isinstance(node, _COMMUTATIVE):
             parts.sort()
-        texts[id(node)] = f"{type(node).__name__}({','.join(parts)})"
+        text = f"{type(node).__name__}({','.join(parts)})"
+        # a long text by its digest: a text that held its subtrees' texts whole grew with the
+        # tree, not with its distinct nodes (a planted leg's inverse kinematics, shared through
+        # a linkage's equations, made keys of tens of megabytes)
+        texts[id(node)] = text if len(text) <= _LONG else f"#{hashlib.blake2b(text.encode(), digest_size=20).hexdigest()}"
     return f"r{REVISION}|sympy {sp.__version__}|{texts[id(expr)]}"
