@@ -86,7 +86,8 @@ def _within_reach(scene, hip: str, ankle, up_len: float, low_len: float, a: floa
     from stw_tui.sym.symbols import named_symbol
 
     times = np.linspace(a, b, 201)
-    hx, hy = (scene.evaluate(named_symbol(f"{hip}.{axis}"), times) for axis in "xy")
+    # read as inside the stance (a first foot's contact holds the base there, ends included)
+    hx, hy = (scene.evaluator(named_symbol(f"{hip}.{axis}"), scope=(a, b))(times) for axis in "xy")
     span = np.hypot(ankle[0] - hx, ankle[1] - hy)
     lo, hi = abs(up_len - low_len), up_len + low_len
     bad = np.flatnonzero((span <= lo) | (span >= hi))
@@ -102,7 +103,7 @@ def branch_contact_lines(scene, spec, point: str, height: float, a: float, b: fl
                          angle: float | None, support, force_tol: float, moment_tol: float,
                          text_tol) -> tuple[str, list[str], tuple]:
     """(group name, command lines, attachments) of ``contact`` on the end of a branch."""
-    from stw_tui.session.verbs import fresh_name, _t
+    from stw_tui.session.verb_text import fresh_name, number_text as _t
     from stw_tui.sos.attachments import Attachment, all_attachments
     from stw_tui.sym.linkage import dof_names
     from stw_tui.sym.linkage.spec import parent_indices
@@ -160,7 +161,7 @@ def branch_contact_lines(scene, spec, point: str, height: float, a: float, b: fl
     now = {spec.joints[i].name: float(scene.dof_values(spec.joints[i].name, [a])[0]) for i in path}
     numeric = lambda e: float(e.subs({dof_symbol(n): v for n, v in now.items()}))
     hip = f"{spec.name}.{spec.joints[upper].name}"
-    h = np.array([float(scene.evaluate(named_symbol(f"{hip}.{axis}"), [a])[0]) for axis in "xy"])
+    h = np.array([float(scene.evaluator(named_symbol(f"{hip}.{axis}"), scope=(a, b))([a])[0]) for axis in "xy"])
     parent_angle = _angle(spec, path[:path.index(upper)])
     up_len, low_len = spec.joints[upper].a, spec.joints[lower].a
     if sole:

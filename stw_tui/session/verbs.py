@@ -35,6 +35,7 @@ from __future__ import annotations
 
 import math
 
+from stw_tui.session.verb_text import fresh_name, number_text as _t, tolerance_text as _tol
 from stw_tui.sym.errors import StwError
 
 
@@ -75,26 +76,6 @@ def linkage_point(scene, at: str, axes: list[tuple[str, str]]) -> list[str]:
         points = sorted({n.rsplit(".", 1)[0] for n in scene.derived if n.count(".") == 2})
         raise StwError(f"'{at}' is not a linkage point (points: {', '.join(points) or 'none; add a linkage'})")
     return names
-
-
-def fresh_name(scene, base: str) -> str:
-    """``base``, or ``base2``, ``base3``… when taken."""
-    taken = set(scene.constraints) | set(scene.objectives) | set(scene.verbs)
-    if scene.kind_of(base) is None and base not in taken:
-        return base
-    k = 2
-    while scene.kind_of(f"{base}{k}") is not None or f"{base}{k}" in taken:
-        k += 1
-    return f"{base}{k}"
-
-
-def _t(value: float) -> str:
-    return repr(float(value))
-
-
-def _tol(dense_tol: float | None) -> str:
-    """A generated constraint's own continuous-time tolerance, as its line states it."""
-    return f" dense_tol={float(dense_tol):.6g}" if dense_tol is not None else ""
 
 
 def hold_lines(scene, point: str, at: str, a: float, b: float,
