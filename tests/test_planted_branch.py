@@ -217,3 +217,12 @@ def test_a_sole_stays_flat_where_it_is_planted_and_both_pressures_stay_on_the_so
         moments += (pos[0] - cx) * f[1] - (pos[1] - cy) * f[0]
     reported = lean.scene.evaluate(named_symbol("tau_LFOOT"), p["t"])
     assert np.abs(p["spin"] - moments - reported).max() <= 1e-6
+
+
+def test_a_planted_legs_joint_keeps_its_range_on_its_own_curve():
+    # the range holds on the joint's control points (its own curve, read outside the stance);
+    # the window built it from the inverse kinematics the joint is over the stance, and the
+    # build failed (a bound row of one variable, a term of six)
+    session = Session()
+    session.run_text(STANCE.replace("[0, 1] x=-0.3", "[0, 0.5] x=-0.3") + "limit RSHIN -3 3\niterate 2\n")
+    assert session.scene.dofs["RSHIN"].lo == -3 and session.runs[-1].reports

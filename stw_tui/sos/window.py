@@ -456,9 +456,12 @@ class WindowProblem:
             times, extra = bound_times(scene, name), inside(bound_extra_times(scene, name))
             for side, bound, expr in (("lo", dof.lo, x - (dof.lo or 0)), ("hi", dof.hi, (dof.hi or 0) - x)):
                 if bound is not None:
+                    # on the DOF's own curve, also where an attachment reads it as something else
+                    # (a planted leg's joint is inverse kinematics there: its range is its own)
+                    term = compile_term(expr, set(scene.dofs), set(scene.constants))
                     self._add_group(f"{name}.{side}", f"{name}.bounds", GE, expr, times, 1.0, None,
-                                    basis=[points])
-                    self._add_group(f"{name}.{side}+", f"{name}.bounds", GE, expr, extra, 1.0, None)
+                                    basis=[points], term=term)
+                    self._add_group(f"{name}.{side}+", f"{name}.bounds", GE, expr, extra, 1.0, None, term=term)
         quad = int(scene.settings["quadrature"])
         for o in scene.objectives.values():
             a, b = self.reach
