@@ -154,7 +154,7 @@ class StwApp(App[int]):
             yield Deck([(title, cls(id=f"{title.lower()}-panel", classes="scene-view")) for title, cls in PANELS],
                        prepare=self._bring_up_to_date, id="panels")
             yield Deck([(title, cls(id=f"{title.lower()}-plot", classes="scene-view")) for title, cls in PLOTS],
-                       prepare=self._bring_up_to_date, ahead=True, id="plots")
+                       prepare=self._prepare_plot, ahead=True, id="plots")
         yield Console(lambda: self.scene, self._backend_names, blink=self.blink, id="console")
         yield StatusLine(show_timing=self.show_timing, id="status")
         yield KeyHints([(binding.key, binding.action) for binding in self.BINDINGS], id="keys")
@@ -558,6 +558,16 @@ class StwApp(App[int]):
         during a solve doubled the TUI's CPU time on basketball at 80x24, and its event loop's
         stalls over 10 ms went from 1-2 to 19-26 in 20 s.)"""
         return (deck.current, deck.upcoming) if deck.ahead else (deck.current,)
+
+    def _prepare_plot(self, widget: Widget) -> None:
+        """A plot about to be shown, or to come next (Deck.prepare): brought up to date. Shown
+        while a solve runs, it holds the running solve's last redraw (the next plot follows every
+        one), and the next redraw is deferred to LIVE_INTERVAL from now: one sooner redrew it
+        within a fraction of a second of the switch, a second draw (the Conv plot's count, at
+        once in one F3 of two in tmux)."""
+        self._bring_up_to_date(widget)
+        if widget is self.query_one("#plots", Deck).current and self.runner.solving:
+            self._live.defer()
 
     def _bring_up_to_date(self, widget: Widget) -> None:
         """A view about to be shown (Deck.prepare): show it the scene if it missed a refresh, while
