@@ -391,15 +391,16 @@ def test_curves_are_redrawn_from_each_iteration_while_a_solve_runs():
     import numpy as np
 
     from stw_tui.app.messages import PlotDataComputed
+    from stw_tui.app.plot_data import DofPlotData
     from stw_tui.sos.spline import DofCurve
 
     session = endless_jet()
     before = session.scene.dofs["x"].curve
     app = create_app(session=session)
-    computed = []   # (data, solving) of each result the Curves plot received
+    computed = []   # (data, solving) of each result the Curves plot received (the others follow too)
 
     def hook(message):
-        if isinstance(message, PlotDataComputed) and message.data is not None:
+        if isinstance(message, PlotDataComputed) and isinstance(message.data, DofPlotData):
             computed.append((message.data, app.runner.solving))
 
     async def main():

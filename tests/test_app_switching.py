@@ -117,3 +117,55 @@ def test_a_hidden_panel_is_filled_once_before_it_shows_and_not_refitted_after():
         assert app.query_one("#panels", Deck).active == "tab-eqns" and rebuilt == [False]
 
     run(scenario, app)
+
+
+def frames_drawn(plot) -> list[str]:
+    """The text of every frame ``plot`` renders from now on (a list that grows)."""
+    drawn, render = [], plot.render
+
+    def recorded():
+        text = render()
+        drawn.append(str(text))
+        return text
+    plot.render = recorded
+    return drawn
+
+
+def test_a_plot_shown_during_a_solve_draws_the_newest_iterate_in_its_first_frame():
+    """While a solve runs, only the shown plot was redrawn with its iterates: F3 showed the next
+    plot with an old one, then drew it again once its data and text came back (issue 52 item 5,
+    F3 settled at p95 140 ms in tmux). The plot F3 shows next now follows the iterates too, in
+    the background, and after a switch the one after it catches up, so each switch draws the
+    plot once, with the newest (here Expr was next at the report, Figure only after the switch)."""
+    from stw_tui.app.messages import IterationReported
+    from stw_tui.app.plots import ExpressionPlot, FigurePlot
+    from stw_tui.sos.backend import StepReport
+
+    app = create_app(JET, show_timing=False, blink=False)
+
+    async def scenario(pilot):
+        plots = app.query_one("#plots", Deck)
+        frames = {cls: frames_drawn(app.query_one(cls)) for cls in (ExpressionPlot, FigurePlot)}
+        plots.active = "tab-curves"
+        await pilot.press("f3")                          # focuses the Curves plot
+        for _ in PLOTS:                                  # each shown once, back to Curves
+            await pilot.press("f3")
+            await support.settle(pilot)
+        assert plots.active == "tab-curves"
+        before = {cls: drawn[-1] for cls, drawn in frames.items()}   # as each was last shown
+        for drawn in frames.values():
+            drawn.clear()
+        moved = 1.5 * app._shown.coefficient_vector() + 0.25   # an iterate that moves every plot
+        app.post_message(IterationReported(StepReport(1, 1.0, 0.1, 0.1, 1.0, 1, 0, coefficients=moved)))
+        await support.settle(pilot)
+        assert frames == {ExpressionPlot: [], FigurePlot: []}   # hidden: not drawn
+        for cls in (ExpressionPlot, FigurePlot):
+            await pilot.press("f3")
+            await support.settle(pilot)
+            await pilot.pause(0.2)
+            assert plots.current is app.query_one(cls)
+            drawn = frames[cls]
+            assert drawn and drawn[0] != before[cls], f"{cls.__name__}: first drawn with the old iterate"
+            assert set(drawn) == {drawn[0]}, f"{cls.__name__}: drawn {len(set(drawn))} different ways"
+
+    run(scenario, app)

@@ -1,5 +1,7 @@
 """Throttle and ThrottledCall on a fake clock and a fake timer: no sleeping, nothing timed."""
 
+import pytest
+
 from stw_tui.session.throttle import Throttle, ThrottledCall
 
 
@@ -106,3 +108,28 @@ def test_cancel_drops_the_waiting_call_and_lets_the_next_run_at_once():
     assert calls == [100.0, 100.125]
     timers.advance(1.0)                # the stopped timer never fires
     assert calls == [100.0, 100.125]
+
+
+
+def test_a_deferred_call_comes_an_interval_after_the_deferral_but_never_past_twice_the_interval():
+    """The TUI defers its next live redraw when a plot is switched to during a solve."""
+    clock = FakeClock()
+    timers = FakeTimers(clock)
+    calls = []
+    call = ThrottledCall(lambda: calls.append(clock.now), 0.5, timers, clock)
+    call.request()                       # runs at once (100.0)
+    clock.now += 0.2
+    call.request()                       # due at 100.5
+    clock.now += 0.2
+    call.defer()                         # 100.4: now due at 100.9
+    timers.advance(0.4)
+    assert calls == [100.0] and call.pending
+    timers.advance(0.1)
+    assert calls == [100.0, 100.9] and not call.pending
+    for _ in range(3):                   # deferred again and again: not past 100.9 + 1.0
+        timers.advance(0.3)
+        call.request()
+        call.defer()
+    assert len(calls) == 2
+    timers.advance(0.2)
+    assert calls[2:] == [pytest.approx(101.9)]

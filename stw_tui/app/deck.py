@@ -105,6 +105,9 @@ class Deck(Vertical):
     Args:
         views: (title, widget) of each view, in tab order; each widget needs an id.
         prepare: called with a view just before it is shown (the app brings it up to date).
+        ahead: after each switch, once the screen is refreshed, also ``prepare`` the view that the
+            next switch shows (for views whose work runs in the background, as the plots': the
+            next F3 then finds it ready).
     """
 
     DEFAULT_CSS = """
@@ -114,13 +117,14 @@ class Deck(Vertical):
     """
 
     def __init__(self, views: Iterable[tuple[str, Widget]], prepare: Callable[[Widget], None] | None = None,
-                 **kwargs):
+                 ahead: bool = False, **kwargs):
         super().__init__(**kwargs)
         views = list(views)
         self._views = {tab_id(title): widget for title, widget in views}
         self._titles = [title for title, _ in views]
         self._active = next(iter(self._views))
         self.prepare = prepare
+        self.ahead = ahead
 
     def compose(self):
         yield TabStrip(self._titles)
@@ -167,7 +171,14 @@ class Deck(Vertical):
             self.prepare(widget)
         self.query_one(ContentSwitcher).current = widget.id
         self.query_one(TabStrip).show(index=self.tabs.index(tab))
+        if self.ahead and self.prepare is not None:   # after this switch's frame, not competing with it
+            self.call_after_refresh(self.prepare, self.upcoming)
         return widget
+
+    @property
+    def upcoming(self) -> Widget:
+        """The view the next switch (F2/F3) shows."""
+        return self._views[self.next_tab()]
 
     def next_tab(self, step: int = 1) -> str:
         """The id of the tab ``step`` after the active one (wrapping round)."""

@@ -34,9 +34,9 @@ class Throttle:
         """Seconds until the next act is due (0: due now)."""
         return max(0.0, self.interval - (self.clock() - self._last))
 
-    def mark(self) -> None:
-        """Acted now: the next act is due ``interval`` seconds from now."""
-        self._last = self.clock()
+    def mark(self, at: float | None = None) -> None:
+        """Acted now (or at ``at`` of the clock): the next act is due ``interval`` seconds later."""
+        self._last = self.clock() if at is None else at
 
     def reset(self) -> None:
         """Forget the last act: the next one is due at once."""
@@ -68,6 +68,7 @@ class ThrottledCall:
         self.throttle = Throttle(interval, clock)
         self._schedule = schedule
         self._timer = None
+        self._ran = -math.inf   # when the action last ran
 
     @property
     def pending(self) -> bool:
@@ -84,6 +85,16 @@ class ThrottledCall:
         else:
             self._timer = self._schedule(wait, self._run)
 
+    def defer(self) -> None:
+        """Count now as a call (the caller has just shown what the action would): the next one,
+        waiting or requested, comes ``interval`` seconds from now, but never later than twice the
+        interval after the last real call, however often it is deferred."""
+        now = self.throttle.clock()
+        self.throttle.mark(min(now, self._ran + self.throttle.interval))
+        if self._timer is not None:
+            self._timer.stop()
+            self._timer = self._schedule(self.throttle.wait(), self._run)
+
     def cancel(self) -> None:
         """Drop the waiting call, if any, and let the next request run at once."""
         if self._timer is not None:
@@ -94,4 +105,5 @@ class ThrottledCall:
     def _run(self) -> None:
         self._timer = None
         self.throttle.mark()
+        self._ran = self.throttle.clock()
         self.action()
