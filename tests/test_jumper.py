@@ -11,9 +11,9 @@ import numpy as np
 import pytest
 
 import catalogue
+from planar_tree import G, rebuild
 from stw_tui.session.session import Session
 
-G = 9.81
 # (joint, parent, length, mass): sessions/jumper.stw's linkage
 ROWS = [("FOOT", None, 0.17, 2.0), ("SHIN", "FOOT", 0.44, 6.6), ("THIGH", "SHIN", 0.44, 14.0),
         ("TRUNK", "THIGH", 0.52, 34.8), ("HEAD", "TRUNK", 0.33, 5.7), ("UARM", "TRUNK", 0.33, 4.0),
@@ -36,27 +36,10 @@ def jump():
 def physics(samples: dict) -> dict:
     """Root (the planted ball of the foot), every joint and link end, the centre of mass and the
     external force and moment (about the centre of mass), from the DOF samples."""
-    t = np.asarray(samples["X"]["t"])
-    q = {n: [np.asarray(samples[n][k]) for k in ("value", "velocity", "acceleration")] for n in samples}
-    base = [np.stack([q["X"][k], q["Y"][k]]) for k in range(3)]
-    angle, end, points, bodies = {}, {}, [base[0]], []
-    for name, parent, length, mass in ROWS:
-        start = base if parent is None else end[parent]
-        th = [q[name][k] + (angle[parent][k] if parent else 0.0) for k in range(3)]
-        angle[name] = th
-        u = np.stack([np.cos(th[0]), np.sin(th[0])])
-        n = np.stack([-np.sin(th[0]), np.cos(th[0])])
-        tip = [start[0] + length * u, start[1] + length * th[1] * n,
-               start[2] + length * (th[2] * n - th[1] ** 2 * u)]
-        end[name] = tip
-        points.append(tip[0])
-        bodies.append((mass, mass * length ** 2 / 12, [(a + b) / 2 for a, b in zip(start, tip)], th))
-    com = [sum(m * c[k] for m, _, c, _ in bodies) / MASS for k in range(3)]
-    force = MASS * (com[2] + np.array([[0.0], [G]]))
-    # d/dt of the angular momentum about the moving centre of mass: sum m (c - C) x c'' + I th''
-    spin = sum(m * ((c[0][0] - com[0][0]) * c[2][1] - (c[0][1] - com[0][1]) * c[2][0]) + inertia * th[2]
-               for m, inertia, c, th in bodies)
-    return {"t": t, "root": base, "com": com, "force": force, "spin": spin, "points": points}
+    body = rebuild(samples, [(name, parent, 0.0, length, mass) for name, parent, length, mass in ROWS])
+    points = [body["base"][0]] + [body["end"][name][0] for name, *_ in ROWS]
+    return {"t": body["t"], "root": body["base"], "com": body["com"], "force": body["force"],
+            "spin": body["spin"], "points": points}
 
 
 def test_the_jumper_jumps_on_planted_feet_inside_the_cone_and_flies_free(jump):

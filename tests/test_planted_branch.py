@@ -15,11 +15,11 @@ import math
 import numpy as np
 import pytest
 
+from planar_tree import G, rebuild
 from stw_tui.session.session import Session
 from stw_tui.sym.errors import StwError
 from stw_tui.sym.symbols import named_symbol
 
-G = 9.81
 # (joint, parent, theta, length, mass): the stance's linkage
 ROWS = [("LSHIN", None, 0.0, 0.5, 4.0), ("LTHIGH", "LSHIN", 0.0, 0.5, 8.0), ("TRUNK", "LTHIGH", 0.0, 0.6, 30.0),
         ("RTHIGH", "LTHIGH", math.pi, 0.5, 8.0), ("RSHIN", "RTHIGH", 0.0, 0.5, 4.0)]
@@ -64,29 +64,11 @@ def squat():
 
 
 def physics(samples: dict, rows=ROWS) -> dict:
-    """Every link's ends, centre of mass and angle (with rates), the body's centre of mass, the
-    ground's total force (M (C'' + g y)) and the rate of angular momentum about the centre of
-    mass, from the samples."""
-    t = np.asarray(samples["X"]["t"])
-    q = {n: [np.asarray(samples[n][k]) for k in ("value", "velocity", "acceleration")] for n in samples}
-    base = [np.stack([q["X"][k], q["Y"][k]]) for k in range(3)]
-    angle, end, bodies = {}, {}, []
-    total = sum(r[4] for r in rows)
-    for name, parent, theta, length, mass in rows:
-        start = base if parent is None else end[parent]
-        th = [q[name][k] + (angle[parent][k] if parent else 0.0) + (theta if k == 0 else 0.0) for k in range(3)]
-        angle[name] = th
-        u = np.stack([np.cos(th[0]), np.sin(th[0])])
-        n = np.stack([-np.sin(th[0]), np.cos(th[0])])
-        tip = [start[0] + length * u, start[1] + length * th[1] * n,
-               start[2] + length * (th[2] * n - th[1] ** 2 * u)]
-        end[name] = tip
-        bodies.append((mass, mass * length ** 2 / 12, [(a + b) / 2 for a, b in zip(start, tip)], th))
-    com = [sum(m * c[k] for m, _, c, _ in bodies) / total for k in range(3)]
-    force = total * (com[2] + np.array([[0.0], [G]]))
-    spin = sum(m * ((c[0][0] - com[0][0]) * c[2][1] - (c[0][1] - com[0][1]) * c[2][0]) + inertia * th[2]
-               for m, inertia, c, th in bodies)
-    return {"t": t, "left": base, "right": end[rows[-1][0]], "com": com, "force": force, "spin": spin}
+    """The first foot (the base point), the second (the last row's end), the centre of mass, the
+    ground's total force and the rate of angular momentum about the centre of mass."""
+    body = rebuild(samples, rows)
+    return {"t": body["t"], "left": body["base"], "right": body["end"][rows[-1][0]], "com": body["com"],
+            "force": body["force"], "spin": body["spin"]}
 
 
 def test_both_feet_stay_planted_and_the_ground_does_no_work(squat):
