@@ -208,3 +208,12 @@ def test_a_planted_legs_joint_keeps_its_range_on_its_own_curve():
     session = Session()
     session.run_text(STANCE.replace("[0, 1] x=-0.3", "[0, 0.5] x=-0.3") + "limit RSHIN -3 3\niterate 2\n")
     assert session.scene.dofs["RSHIN"].lo == -3 and session.runs[-1].reports
+
+
+def test_the_figure_player_draws_the_feet_not_the_force(squat):
+    from stw_tui.session.figure import player_figure, point_pairs
+
+    assert [label for label, *_ in point_pairs(squat.scene)] == ["•"]      # the base X, Y: the first foot
+    figure = player_figure(squat.scene, 0.5)
+    low = min(min(a[1], b[1]) for a, b in figure.segments)
+    assert abs(low) <= 1e-9 and max(abs(p[1][1]) for p in figure.points) <= 1e-9   # feet on the ground

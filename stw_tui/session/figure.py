@@ -60,6 +60,8 @@ def point_pairs(scene: Scene) -> list[tuple[str, str, str]]:
     """(label, x name, y name) for every name pair that looks like a planar point: DOF, or
     subexpressions that are positions (they use no velocity or acceleration)."""
     names = list(scene.dofs) + [n for n in scene.lets if not _uses_motion(scene, scene.lets[n], {n})]
+    forces = _force_dofs(scene)
+    names = [n for n in names if n not in forces]
     pairs = []
     for name in names:
         for xs, ys in (("x", "y"), ("X", "Y")):
@@ -68,6 +70,17 @@ def point_pairs(scene: Scene) -> list[tuple[str, str, str]]:
                 if partner in names:
                     pairs.append((name[:-1] or "•", name, partner))
     return pairs
+
+
+def _force_dofs(scene: Scene) -> set[str]:
+    """DOF that are forces, not places: a second foot's ground force (RX, RY: `contact … force=R`)
+    loads the generalized forces of its creature (a load attachment reads it)."""
+    from stw_tui.sos.attachments import all_attachments
+    from stw_tui.sym.linkage import dof_names
+
+    read = {s.name for p in all_attachments(scene) if p.adds for s in p.expr.free_symbols}
+    moved = {n for spec in scene.linkages.values() for n in dof_names(spec)}
+    return (read & set(scene.dofs)) - moved
 
 
 def scene_figure(scene: Scene, t: float) -> Figure:
