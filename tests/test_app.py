@@ -1074,3 +1074,17 @@ def test_a_replay_refreshes_the_views_twice_a_second_and_its_end_at_once(tmp_pat
         assert not app._views.pending
 
     run(scenario, app)
+
+
+def test_a_live_redraw_due_as_the_app_closes_is_dropped():
+    # a solve's report arriving just before Ctrl+Q (or a test's end) left a redraw due, which
+    # then found no status line: NoMatches at shutdown
+    app = create_app()
+
+    async def scenario(pilot):
+        pass
+
+    run(scenario, app)
+    app._latest_report = object()      # a report still due when the widgets are gone
+    app._show_latest_report()
+    assert app._latest_report is None

@@ -18,6 +18,7 @@ from textual import events
 from textual.app import App, ComposeResult
 from textual.binding import Binding
 from textual.containers import Horizontal
+from textual.css.query import NoMatches
 from textual.reactive import Reactive
 from textual.screen import Screen
 from textual.widget import Widget
@@ -228,7 +229,8 @@ class StwApp(App[int]):
 
     def on_unmount(self) -> None:
         """The app is shutting down (Ctrl+Q, or the end of a test's run): its solver process ends
-        with it rather than at the interpreter's exit."""
+        with it rather than at the interpreter's exit; no live redraw is left due."""
+        self._drop_live_report()
         self.runner.abandon()
 
     def on_mount(self) -> None:
@@ -359,8 +361,12 @@ class StwApp(App[int]):
         report, self._latest_report = self._latest_report, None
         if report is None:
             return
-        self.status_line.show(report=report)
-        self.query_one(ConvergencePlot).set_reports(self.runner.reports)
+        try:
+            status, convergence = self.status_line, self.query_one(ConvergencePlot)
+        except NoMatches:   # the app is closing (Ctrl+Q, a test's end) with a live redraw still due
+            return
+        status.show(report=report)
+        convergence.set_reports(self.runner.reports)
         if report.coefficients is not None and self.session is not None:
             self.show_iteration(report.coefficients)
 
