@@ -80,9 +80,10 @@ def _nearest(value: float, target: float) -> float:
     return 2 * math.pi * round((target - value) / (2 * math.pi))
 
 
-def _within_reach(scene, hip: str, ankle, up_len: float, low_len: float, a: float, b: float) -> None:
-    """Refuse a stance whose curves put the hip out of the two links' reach of the planted ankle:
-    the inverse kinematics has no answer there (the motion would be undefined, not just bad)."""
+def _within_reach(scene, hip: str, ankle, up_len: float, low_len: float, a: float, b: float) -> np.ndarray:
+    """The hip at the touchdown; or refuse a stance whose curves put the hip out of the two links'
+    reach of the planted ankle: the inverse kinematics has no answer there (the motion would be
+    undefined, not just bad)."""
     from stw_tui.sym.symbols import named_symbol
 
     times = np.linspace(a, b, 201)
@@ -96,6 +97,7 @@ def _within_reach(scene, hip: str, ankle, up_len: float, low_len: float, a: floa
         raise StwError(f"at t = {times[k]:.4g} the curves put {hip} {span[k]:.4g} m from where the ankle is "
                        f"planted, out of reach of its two links ({lo:.4g} to {hi:.4g} m): sketch the "
                        f"stance with the hip within reach (the knee bent) first")
+    return np.array([hx[0], hy[0]])
 
 
 def branch_contact_lines(scene, spec, point: str, height: float, a: float, b: float,
@@ -103,7 +105,7 @@ def branch_contact_lines(scene, spec, point: str, height: float, a: float, b: fl
                          angle: float | None, support, force_tol: float, moment_tol: float,
                          text_tol) -> tuple[str, list[str], tuple]:
     """(group name, command lines, attachments) of ``contact`` on the end of a branch."""
-    from stw_tui.session.verb_text import fresh_name, number_text as _t
+    from stw_tui.session.verb_text import fresh_name, friction_line, number_text as _t, pressure_line
     from stw_tui.sos.attachments import Attachment, all_attachments
     from stw_tui.sym.linkage import dof_names
     from stw_tui.sym.linkage.spec import parent_indices
@@ -161,7 +163,6 @@ def branch_contact_lines(scene, spec, point: str, height: float, a: float, b: fl
     now = {spec.joints[i].name: float(scene.dof_values(spec.joints[i].name, [a])[0]) for i in path}
     numeric = lambda e: float(e.subs({dof_symbol(n): v for n, v in now.items()}))
     hip = f"{spec.name}.{spec.joints[upper].name}"
-    h = np.array([float(scene.evaluator(named_symbol(f"{hip}.{axis}"), scope=(a, b))([a])[0]) for axis in "xy"])
     parent_angle = _angle(spec, path[:path.index(upper)])
     up_len, low_len = spec.joints[upper].a, spec.joints[lower].a
     if sole:
@@ -170,7 +171,7 @@ def branch_contact_lines(scene, spec, point: str, height: float, a: float, b: fl
         ankle = (x - foot.a * math.cos(phi), height - foot.a * math.sin(phi))
     else:
         phi, ankle = None, (x, height)
-    _within_reach(scene, hip, ankle, up_len, low_len, a, b)
+    h = _within_reach(scene, hip, ankle, up_len, low_len, a, b)
     ref = math.atan2(ankle[1] - h[1], ankle[0] - h[0])
     bend = _wrap(numeric(_angle(spec, path[:path.index(upper) + 1])) - numeric(_angle(spec, path[:path.index(lower) + 1])))
     side = 1.0 if bend >= 0 else -1.0
@@ -230,12 +231,7 @@ def branch_contact_lines(scene, spec, point: str, height: float, a: float, b: fl
                  f"{span} - {far!r} >= 0 {on}{text_tol(REACH_TOL)}")
     fxn, fyn = force + "X", force + "Y"
     lines.append(f"constraint {fresh_name(scene, f'{short}_push')}: {fyn} >= 0 {on}{text_tol(force_tol)}")
-    lines.append(f"constraint {fresh_name(scene, f'{short}_friction')}: {friction!r}*{fyn} - {fxn} >= 0, "
-                 f"{friction!r}*{fyn} + {fxn} >= 0 {on}{text_tol(force_tol)}")
+    lines.append(friction_line(scene, short, fyn, fxn, friction, on, force_tol))
     if sole and lo < hi:
-        fm = force + "M"
-        heel = f"{fm} + {-lo!r}*{fyn}" if lo < 0 else f"{fm} - {lo!r}*{fyn}" if lo > 0 else fm
-        toe = f"{hi!r}*{fyn} - {fm}" if hi != 0 else f"-{fm}"
-        lines.append(f"constraint {fresh_name(scene, f'{short}_pressure')}: {heel} >= 0, {toe} >= 0 "
-                     f"{on}{text_tol(moment_tol)}")
+        lines.append(pressure_line(scene, short, force + "M", fyn, lo, hi, on, moment_tol))
     return fresh_name(scene, f"{short}_contact"), lines, tuple(parts)

@@ -23,3 +23,17 @@ def number_text(value: float) -> str:
 def tolerance_text(dense_tol: float | None) -> str:
     """A generated constraint's own continuous-time tolerance, as its line states it."""
     return f" dense_tol={float(dense_tol):.6g}" if dense_tol is not None else ""
+
+
+def friction_line(scene, short: str, normal: str, tangent: str, friction: float, on: str, tol) -> str:
+    """A contact's friction cone, MU*N - T >= 0 and MU*N + T >= 0, as a constraint line."""
+    return (f"constraint {fresh_name(scene, f'{short}_friction')}: {friction!r}*{normal} - {tangent} >= 0, "
+            f"{friction!r}*{normal} + {tangent} >= 0 {on}{tolerance_text(tol)}")
+
+
+def pressure_line(scene, short: str, moment: str, normal: str, lo: float, hi: float, on: str, tol) -> str:
+    """A contact's centre of pressure on the sole [lo, hi] about its point, lo*N <= M <= hi*N, as
+    a constraint line (a term of 0*N left out: -M >= 0 reads better)."""
+    heel = f"{moment} + {-lo!r}*{normal}" if lo < 0 else f"{moment} - {lo!r}*{normal}" if lo > 0 else moment
+    toe = f"{hi!r}*{normal} - {moment}" if hi != 0 else f"-{moment}"
+    return f"constraint {fresh_name(scene, f'{short}_pressure')}: {heel} >= 0, {toe} >= 0 {on}{tolerance_text(tol)}"

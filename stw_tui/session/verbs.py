@@ -35,7 +35,8 @@ from __future__ import annotations
 
 import math
 
-from stw_tui.session.verb_text import fresh_name, number_text as _t, tolerance_text as _tol
+from stw_tui.session.verb_text import (fresh_name, friction_line, number_text as _t, pressure_line,
+                                      tolerance_text as _tol)
 from stw_tui.sym.errors import StwError
 
 
@@ -239,8 +240,7 @@ def contact_lines(scene, point: str, height: float, a: float, b: float,
     lines.append(f"constraint {fresh_name(scene, f'{short}_push')}: {normal} >= 0 {on}{_tol(force_tol)}")
     if "tx" in axes:
         tangent = f"tau_{axes['tx']}"
-        lines.append(f"constraint {fresh_name(scene, f'{short}_friction')}: {friction!r}*{normal} - {tangent} >= 0, "
-                     f"{friction!r}*{normal} + {tangent} >= 0 {on}{_tol(force_tol)}")
+        lines.append(friction_line(scene, short, normal, tangent, friction, on, force_tol))
     lines += _support_lines(scene, spec, point, short, normal, support or (0.0, 0.0), on, moment_tol)
     return fresh_name(scene, f"{short}_contact"), lines, parts
 
@@ -263,10 +263,7 @@ def _support_lines(scene, spec, point: str, short: str, normal: str, support, on
     ankle = " + ".join(f"tau_{r}" for r in base_children(spec))
     if " + " in ankle:
         ankle = f"({ankle})"
-    # c*Fy about the point, c at the sole's ends (a term of 0*Fy left out: -tau >= 0 reads better)
-    heel = f"{ankle} + {-lo!r}*{normal}" if lo < 0 else f"{ankle} - {lo!r}*{normal}" if lo > 0 else ankle
-    toe = f"{hi!r}*{normal} - {ankle}" if hi != 0 else f"-{ankle}"
-    return [f"constraint {fresh_name(scene, f'{short}_pressure')}: {heel} >= 0, {toe} >= 0 {on}{_tol(tol)}"]
+    return [pressure_line(scene, short, ankle, normal, lo, hi, on, tol)]
 
 
 AVOID_DISTANCE = 0.01     # m: how far apart `avoid` keeps two links unless by= says

@@ -13,7 +13,8 @@ from dataclasses import dataclass, field, replace
 import numpy as np
 import sympy as sp
 
-from stw_tui.sos.attachments import added_terms, all_attachments, attached_dofs, replace_attached, restrict
+from stw_tui.sos.attachments import (added_terms, all_attachments, attached_dofs, pieces, replace_attached,
+                                     restrict)
 from stw_tui.sos.spline import DofCurve, SharedTimes
 from stw_tui.sym.compiler import free_symbols, xreplace
 from stw_tui.sym.errors import LimitError, StwError
@@ -381,12 +382,12 @@ class Scene:
         flat = times.reshape(-1)
         out = np.empty(flat.shape)
         done = np.zeros(flat.shape, dtype=bool)
-        cuts = sorted({self.t0, self.t1, *(t for p in parts for t in (p.a, p.b) if self.t0 < t < self.t1)})
-        for t in cuts:
+        stretches = pieces(self, self.t0, self.t1)
+        for t in sorted({t for stretch in stretches for t in stretch}):
             at = flat == t
             if at.any():
                 out[at], done[at] = self.evaluator(expr, scope=(t, t))(flat[at]), True
-        for lo, hi in zip(cuts[:-1], cuts[1:]):
+        for lo, hi in stretches:
             inside = (flat > lo) & (flat < hi)
             if inside.any():
                 out[inside], done[inside] = self.evaluator(expr, scope=(lo, hi))(flat[inside]), True
