@@ -371,7 +371,9 @@ def test_a_bound_is_checked_on_the_curve_exactly_whether_or_not_its_control_poin
     worst = int(np.argmax(values))
     assert check.instances == pytest.approx(0.1, abs=1e-12)
     assert 0 < values[worst] - 1 < 0.1                         # the curve stays inside the hull
-    assert check.dense == pytest.approx(0.1, abs=1e-12)        # the control point's, the larger
+    # densely, the motion's own excursion (0.0833 here), not the control point's: a bound's
+    # instances are not points of the curve (measured: the 100k grid's to the last bit)
+    assert check.dense == pytest.approx(values[worst] - 1, abs=1e-9)
     assert check.worst_t == pytest.approx(FINE[worst], abs=1e-4)
 
 

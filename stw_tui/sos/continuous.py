@@ -33,7 +33,8 @@ class ConstraintCheck:
 
     name: str
     instances: float       # largest violation at the instance times
-    dense: float           # largest violation anywhere on the dense grid (instances included)
+    dense: float           # largest violation of the motion anywhere on the dense grid (instances included;
+                           # a bound's instances are its control points, which the curve stays within)
     worst_t: float | None  # where the dense violation is largest (None: it holds everywhere)
     tol: float | None = None   # the constraint's own dense_tol (None: the scene's)
 
@@ -74,11 +75,6 @@ class DenseReport:
         text = ", ".join(f"{c.name} {c.dense:.1e} at t={c.worst_t:.4g}"
                          + (f" (its dense_tol {c.tol:.3g})" if c.tol is not None else "") for c in bad[:limit])
         return text + (f" and {len(bad) - limit} more" if len(bad) > limit else "")
-
-
-def expression_values(scene, expr: sp.Basic, times: np.ndarray) -> np.ndarray:
-    """:meth:`Scene.evaluate <stw_tui.sos.scene.Scene.evaluate>`, under the name older callers use."""
-    return scene.evaluate(expr, times)
 
 
 def condition_holds(scene, when: sp.Basic | None, times: np.ndarray) -> np.ndarray:
@@ -271,17 +267,17 @@ def _bound_samplings(scene, dof, kept: dict) -> list[_Sampling | _Samples]:
     return out
 
 
-def _summarize(name: str, samples: list[_Samples], tol: float | None) -> ConstraintCheck:
+def _summarize(name: str, samples: list[_Samples], tol: float | None, bound: bool = False) -> ConstraintCheck:
     worst_inst = max((float(s.v_inst.max(initial=0.0)) for s in samples), default=0.0)
     worst_dense, worst_t = 0.0, None
     for s in samples:
         i = int(np.argmax(s.v_grid)) if s.v_grid.size else 0
         if s.v_grid.size and s.v_grid[i] > worst_dense:
             worst_dense, worst_t = float(s.v_grid[i]), float(s.t_grid[i])
-    if worst_inst > worst_dense:   # a bound worst at a control point: its time is the instance's
-        s = max((s for s in samples if s.v_inst.size), key=lambda s: s.v_inst.max())
-        worst_t = float(s.t_inst[int(np.argmax(s.v_inst))])
-    return ConstraintCheck(name, worst_inst, max(worst_dense, worst_inst), worst_t, tol)
+    # A relation's dense figure holds its instances (points of the motion, on its grid up to a
+    # nudge off a repeated knot). A bound's instances are control points, not points of the
+    # motion: its dense figure is the curve's own worst, which the convex hull keeps below theirs.
+    return ConstraintCheck(name, worst_inst, worst_dense if bound else max(worst_dense, worst_inst), worst_t, tol)
 
 
 def _all_samples(scene):
@@ -320,7 +316,7 @@ def survey_failures(scene, tol: float | None) -> tuple[DenseReport, dict[str, np
     (where adaptive refinement inserts knots; see stw_tui/sos/refinement.py)."""
     checks, wanted, failing = {}, {}, {}
     for name, samples, own_tol in _all_samples(scene):
-        checks[name] = _summarize(name, samples, own_tol)
+        checks[name] = _summarize(name, samples, own_tol, bound=name.endswith(".bounds"))
         if tol is not None:
             limit = own_tol if own_tol is not None else tol
             found = _refinement(scene, samples, limit)
