@@ -248,6 +248,11 @@ def test_keyframes_turn_the_toss_overhand():
     p_under, v_under = _hand(under.scene, 0.55)
     turning = lambda p, v: p[0] * v[1] - p[1] * v[0]
     assert turning(p, v) < 0 < turning(p_under, v_under)
+    # A survey names the two styles by the hand's height over the shoulder at release, against a
+    # quarter of the arm's reach (0.2 m): here 0.40 m above it and 0.49 m below it.
+    from stw_tui.session.survey_descriptors import release_style
+    assert p[1] > 0.2 and p_under[1] < -0.2
+    assert (release_style(s.scene), release_style(under.scene)) == ("overhand", "underhand")
     # The follow-through its comments describe: at rest at t = 1.5 past hanging (-pi/2), the hand
     # behind the shoulder and below it.
     joints = ("SHOULDER", "ELBOW", "WRIST")

@@ -6,11 +6,17 @@ mutation testing").
 
 from types import SimpleNamespace
 
+import pytest
+
 import numpy as np
+import sympy as sp
 
 from conftest import run_lines
 from stw_tui.session.session import Session
-from stw_tui.sos.instances import merge_times, uniform_times
+from scipy.interpolate import BSpline
+
+from stw_tui.sos.continuous import SNAP, ConstraintCheck, DenseReport, _snap, condition_holds
+from stw_tui.sos.instances import exact_times, merge_times, uniform_times
 from stw_tui.sos.window import WindowProblem
 
 
@@ -23,6 +29,11 @@ def test_uniform_samples_keep_the_scene_density_on_an_interval_away_from_zero():
     assert np.array_equal(uniform_times(scene, 0.5, 1.5), np.linspace(0.5, 1.5, 5))
     assert np.array_equal(uniform_times(scene, 1.5, 2.0), np.linspace(1.5, 2.0, 3))
     assert np.array_equal(uniform_times(scene, 1.0, 2.0, samples=6), np.linspace(1.0, 2.0, 4))
+    # an animation that starts at 1 s has the same density (mutant: its length read as t1 + t0)
+    later = SimpleNamespace(t0=1.0, t1=3.0, sample_count=8)
+    assert np.array_equal(uniform_times(later, 2.0, 3.0), np.linspace(2.0, 3.0, 5))
+    # an interval shorter than a step still has its two ends, and nothing between (mutant: three)
+    assert np.array_equal(uniform_times(scene, 1.9, 2.0), [1.9, 2.0])
 
 
 def test_instances_added_to_a_bound_are_rows_of_the_window_on_the_curve():
@@ -42,3 +53,67 @@ def test_merging_two_times_that_are_one_instance_keeps_one():
     assert np.array_equal(merge_times(np.array([0.5]), np.array([0.5 + 1e-12]), 1.0), [0.5])
     assert np.array_equal(merge_times(np.array([0.5]), np.array([0.25]), 1.0), [0.25, 0.5])
     assert np.array_equal(merge_times(np.array([0.5, 0.75]), np.array([0.5]), 1.0), [0.5, 0.75])
+    # the same distance is relative to the span: 1e-9 s apart is one instance of a 10 s animation
+    # (under 1e-8 s) and two of a 0.1 s one (over 1e-10 s) (mutant: the span divided, not multiplied)
+    assert merge_times(np.array([0.05]), np.array([0.05 + 1e-9]), 10.0).size == 1
+    assert merge_times(np.array([0.05]), np.array([0.05 + 1e-9]), 0.1).size == 2
+
+
+def test_a_condition_that_is_constant_holds_everywhere_or_nowhere():
+    # No condition, a literal true, a literal false: n booleans each, without evaluating a curve
+    # (mutants: `None or true` read as `and`, the n dropped, the filler dropped for false)
+    scene = run_lines(Session(), "time 0 2 knots=4\ndof x = t\n").scene
+    times = np.linspace(0.0, 2.0, 8)   # not t = 1, where x > 1 is a tie
+    for when, expected in ((None, True), (sp.true, True), (sp.false, False)):
+        held = condition_holds(scene, when, times)
+        assert held.dtype == bool and held.shape == (8,) and np.all(held == expected), when
+    x = sp.Symbol("x", real=True)
+    assert np.array_equal(condition_holds(scene, sp.Gt(x, 1), times), times > 1)
+
+
+@pytest.mark.parametrize("r", [0, 1, 2])
+@pytest.mark.parametrize("breaks", [[0.0, 1.0], [0.0, 0.4, 1.0], [0.0, 0.25, 0.5, 1.0], [0.0, 0.1, 0.3, 0.35, 0.8, 1.0]])
+def test_exact_instances_determine_the_piecewise_polynomial(breaks, r):
+    # A relation of degree 3 - r in time, C^(2 - r) at the knots, holds everywhere if it holds at
+    # exact_times: as many points as the space's dimension (pieces + 3 - r), all in [a, b], at
+    # which the space's collocation matrix is nonsingular (Schoenberg-Whitney). Built here with
+    # scipy's B-splines of degree 3 - r on simple interior knots, not with stw's code. (mutants:
+    # an interior point past the end of a single piece, two points made one, the single piece
+    # taken for several)
+    k = 3 - r
+    breaks = np.array(breaks)
+    times = exact_times(breaks, breaks[0], breaks[-1], r)
+    assert np.all((times >= breaks[0]) & (times <= breaks[-1])) and np.all(np.diff(times) > 0)
+    knots = np.r_[[breaks[0]] * k, breaks, [breaks[-1]] * k]
+    collocation = BSpline.design_matrix(times, knots, k).toarray()
+    assert collocation.shape == (breaks.size - 1 + k,) * 2
+    assert np.linalg.cond(collocation) < 1e3
+
+
+def test_added_instances_lie_on_the_animations_lattice_from_its_start():
+    # _snap rounds to the nearest multiple of 1/SNAP of the animation counted from t0, inside it
+    # (mutants: the length or the offset read with t0 added, which t0 = 0 hides)
+    scene = SimpleNamespace(t0=1.0, t1=3.0)
+    step = 2.0 / SNAP
+    for t in (1.0, 1.3, 2.0 + step / 3, 2.9999999, 3.0):
+        snapped = _snap(scene, t)
+        assert abs(snapped - t) <= step / 2 + 1e-15
+        assert abs((snapped - 1.0) / step - round((snapped - 1.0) / step)) < 1e-6
+        assert 1.0 <= snapped <= 3.0
+    assert _snap(scene, 0.5) == 1.0 and _snap(scene, 3.5) == 3.0
+
+
+def test_a_checks_json_and_the_failures_line_name_what_failed():
+    # what `stw run --json` and `iterate`'s dense line read (mutants: the dense_tol key renamed,
+    # given always or never; the list's separator, count and "and N more" tail)
+    assert ConstraintCheck("c", 0.1, 0.2, 0.5, tol=0.3).as_dict() == \
+        {"instances": 0.1, "dense": 0.2, "worst_t": 0.5, "dense_tol": 0.3}
+    assert ConstraintCheck("c", 0.1, 0.2, 0.5).as_dict() == {"instances": 0.1, "dense": 0.2, "worst_t": 0.5}
+    checks = {n: ConstraintCheck(n, 0.0, d, t, tol) for n, d, t, tol in
+              (("a", 0.5, 0.25, None), ("b", 2.0, 1.5, 0.1), ("c", 1e-9, 0.5, None), ("d", 1.0, 0.75, None),
+               ("e", 0.02, 1.0, 0.01))}
+    report = DenseReport(checks)
+    assert report.describe_failures(0.01) == \
+        "b 2.0e+00 at t=1.5 (its dense_tol 0.1), d 1.0e+00 at t=0.75, a 5.0e-01 at t=0.25 and 1 more"
+    assert report.describe_failures(0.01, limit=4) == \
+        "b 2.0e+00 at t=1.5 (its dense_tol 0.1), d 1.0e+00 at t=0.75, a 5.0e-01 at t=0.25, e 2.0e-02 at t=1 (its dense_tol 0.01)"

@@ -302,9 +302,8 @@ def test_contact_states_where_the_point_is_planted_and_one_stance_at_a_time():
 
 def _values(scene, expr_text, times):
     from stw_tui.session.session import SceneScope
-    from stw_tui.sos.continuous import expression_values
     from stw_tui.sym.language.commands import parse_command
-    return expression_values(scene, parse_command(f"print {expr_text}", SceneScope(scene)).expr, times)
+    return scene.evaluate(parse_command(f"print {expr_text}", SceneScope(scene)).expr, times)
 
 
 def test_a_planted_point_holds_by_construction_and_its_force_is_newton_for_the_whole_body():
@@ -328,18 +327,17 @@ flight acro on [0.5, 1]
     cyy = -0.375 * (np.sin(f) * df ** 2 - np.cos(f) * ddf) - 0.125 * (np.sin(w) * dw ** 2 - np.cos(w) * ddw)
     push, friction = (sc.constraints[n] for n in ("FOOT_push", "FOOT_friction"))
     from stw_tui.sos.attachments import restrict
-    from stw_tui.sos.continuous import expression_values
     from stw_tui.sym.symbols import named_symbol
     on = lambda e: restrict(sc.expand(e), 0.0, 0.5)
     for point, value in (("acro.FOOT.x", 0.25), ("acro.FOOT.y", 0.0), ("acro.FOOT.x'", 0.0), ("acro.FOOT.y'", 0.0)):
-        np.testing.assert_allclose(expression_values(sc, on(named_symbol(point)), t), value, atol=1e-12)
-    np.testing.assert_allclose(expression_values(sc, on(push.relations[0].expr), t), 2 * (cyy + 9.81), atol=1e-9)
-    np.testing.assert_allclose(expression_values(sc, on(friction.relations[0].expr), t),
+        np.testing.assert_allclose(sc.evaluate(on(named_symbol(point)), t), value, atol=1e-12)
+    np.testing.assert_allclose(sc.evaluate(on(push.relations[0].expr), t), 2 * (cyy + 9.81), atol=1e-9)
+    np.testing.assert_allclose(sc.evaluate(on(friction.relations[0].expr), t),
                                0.8 * 2 * (cyy + 9.81) - 2 * cxx, atol=1e-9)
     # In the air the centre of mass's own curve: force-free means C'' = -g y.
     t = np.linspace(0.51, 0.99, 9)
     flight = sc.constraints["acro_flight"].relations
-    np.testing.assert_allclose(expression_values(sc, flight[0].expr, t), 2 * sc.dofs["CX"].curve.evaluate(t, 2),
+    np.testing.assert_allclose(sc.evaluate(flight[0].expr, t), 2 * sc.dofs["CX"].curve.evaluate(t, 2),
                                atol=1e-9)
 
 

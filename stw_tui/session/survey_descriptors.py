@@ -46,7 +46,6 @@ def release_style(scene) -> str | None:
     linkage: where the point is at B relative to the linkage's first joint, in units of the
     arm's reach; None for a scene without a throw."""
     from stw_tui.session.interpreter import SceneScope
-    from stw_tui.sos.continuous import expression_values
     from stw_tui.sym import language as lang
     from stw_tui.sym.symbols import named_symbol
 
@@ -60,8 +59,8 @@ def release_style(scene) -> str | None:
             continue
         release = scene.numeric(command.interval[1], "release time")
         first = spec.joints[0].name
-        height = expression_values(scene, named_symbol(f"{command.at}.y") - named_symbol(f"{link}.{first}.y"),
-                                   np.array([release]))[0]
+        height = scene.evaluate(named_symbol(f"{command.at}.y") - named_symbol(f"{link}.{first}.y"),
+                                np.array([release]))[0]
         reach = sum(abs(j.a) for j in spec.joints) or 1.0
         if height > LEVEL_BAND * reach:
             return "overhand"
