@@ -15,8 +15,8 @@ from conftest import run_lines
 from stw_tui.session.session import Session
 from scipy.interpolate import BSpline
 
-from stw_tui.sos.continuous import SNAP, ConstraintCheck, DenseReport, _snap, condition_holds
-from stw_tui.sos.instances import exact_times, merge_times, uniform_times
+from stw_tui.sos.continuous import SNAP, ConstraintCheck, DenseReport, _snap, condition_holds, survey_failures
+from stw_tui.sos.instances import exact_times, extra_times, merge_times, uniform_times
 from stw_tui.sos.window import WindowProblem
 
 
@@ -95,6 +95,8 @@ def test_added_instances_lie_on_the_animations_lattice_from_its_start():
     # (mutants: the length or the offset read with t0 added, which t0 = 0 hides)
     scene = SimpleNamespace(t0=1.0, t1=3.0)
     step = 2.0 / SNAP
+    for k in (0, 1, 3, 12345):   # on the lattice: itself (mutant: a lattice twice as coarse)
+        assert _snap(scene, 1.0 + k * step) == 1.0 + k * step
     for t in (1.0, 1.3, 2.0 + step / 3, 2.9999999, 3.0):
         snapped = _snap(scene, t)
         assert abs(snapped - t) <= step / 2 + 1e-15
@@ -117,3 +119,54 @@ def test_a_checks_json_and_the_failures_line_name_what_failed():
         "b 2.0e+00 at t=1.5 (its dense_tol 0.1), d 1.0e+00 at t=0.75, a 5.0e-01 at t=0.25 and 1 more"
     assert report.describe_failures(0.01, limit=4) == \
         "b 2.0e+00 at t=1.5 (its dense_tol 0.1), d 1.0e+00 at t=0.75, a 5.0e-01 at t=0.25, e 2.0e-02 at t=1 (its dense_tol 0.01)"
+
+
+@pytest.mark.parametrize("r", [0, 1])
+def test_a_repeated_knot_frees_the_pieces_beside_it_and_its_midpoints_pin_them(r):
+    # A double knot lowers the continuity there by one, which adds one dimension to the space;
+    # the midpoints of the pieces on either side are added (one more than needed), at a double
+    # knot anywhere inside, the first and last included, and at none at the interval's ends. The
+    # points still determine the space: full column rank of its collocation matrix (scipy's
+    # B-splines on the knots with the double one). A cubic with every inside knot double has
+    # 10 dimensions, and the midpoints alone gave 9 points (this test found it: the relation
+    # then held at its instances without holding everywhere). (mutants: the first or the last
+    # inside knot skipped, an end taken, the wrong neighbours' midpoints)
+    k = 3 - r
+    breaks = np.array([0.0, 0.2, 0.45, 0.7, 1.0])
+    ends = [0.1, 0.85] if r == 0 else [0.1]          # the docstring's: midpoints of the first and last piece
+    for double in ([0.2], [0.7], [0.2, 0.45, 0.7]):
+        times = exact_times(breaks, 0.0, 1.0, r, np.array(double + [0.0, 1.0]))   # the ends: nothing
+        beside = [(breaks[i - 1] + breaks[i]) / 2 for i in range(1, breaks.size)
+                  if breaks[i] in double or breaks[i - 1] in double]
+        documented = np.unique(np.r_[breaks, ends, beside])
+        inner = np.sort(np.r_[breaks[1:-1], double])
+        knots = np.r_[[0.0] * (k + 1), inner, [1.0] * (k + 1)]
+        dimension = knots.size - k - 1
+        if documented.size >= dimension:   # those points, and no others
+            np.testing.assert_allclose(times, documented, rtol=0, atol=1e-15)
+        else:   # shared midpoints (every piece of a cubic beside a double knot): more are added
+            assert all(np.isclose(times, p).any() for p in documented)
+        collocation = BSpline.design_matrix(times, knots, k).toarray()
+        assert np.linalg.matrix_rank(collocation) == dimension
+
+
+def test_added_instances_are_those_inside_the_interval_ends_included():
+    # (mutants: or for and, an end left out)
+    scene = SimpleNamespace(extra_instances={"c": [0.1, 0.5, 0.75, 1.0, 1.5]})
+    assert np.array_equal(extra_times(scene, "c", 0.5, 1.0), [0.5, 0.75, 1.0])
+    none = extra_times(scene, "other", 0.0, 2.0)
+    assert none.size == 0 and none.dtype == float
+
+
+def test_a_broken_bound_asks_for_no_refinement():
+    # A bound's rows are its control points, which keep the curve inside it everywhere once they
+    # hold: adaptive refinement adds no instances for it however far a control point is past it,
+    # and reports no failing peaks to insert knots at; a relation on the same curve, sampled at
+    # instances, does get them. (mutants: the bound's samples marked not exact)
+    s = run_lines(Session(), "time 0 1 knots=10\ndof x lo=-1 hi=1\nconstraint low: x <= 0.5 on [0, 1] samples=4\n")
+    dof = s.scene.dofs["x"]
+    dof.curve = dof.curve.with_coef(1.5 * np.sin(np.linspace(0.0, 3 * np.pi, dof.curve.n_coef)))
+    report, wanted, failing = survey_failures(s.scene, 1e-3)
+    assert report.checks["x.bounds"].dense > 0.3
+    assert "x.bounds" not in wanted and "x.bounds" not in failing
+    assert wanted["low"].size and failing["low"].shape[0]

@@ -113,12 +113,18 @@ def exact_times(breakpoints: np.ndarray, a: float, b: float, r: int,
         extra = [(first, 0.5), (last, 0.5)]
     points = [lo + f * (hi - lo) for (lo, hi), f in extra]
     # A repeated knot inside (refine DOF @ T multiplicity=2) lowers the continuity there, which
-    # frees the pieces on either side: their midpoints pin them down again.
-    for knot in (repeated if repeated is not None else ()):
-        i = np.searchsorted(cuts, knot)
-        if 0 < i < cuts.size - 1 and cuts[i] == knot:
-            points += [(cuts[i - 1] + knot) / 2, (knot + cuts[i + 1]) / 2]
-    return np.unique(np.concatenate([cuts, points]))
+    # frees the pieces on either side (one more dimension): their midpoints pin them down again.
+    inside = [i for i in np.searchsorted(cuts, repeated if repeated is not None else ())
+              if 0 < i < cuts.size - 1 and cuts[i] in repeated]
+    beside = sorted({j for i in inside for j in (i - 1, i)})   # pieces, by their left cut
+    points += [(cuts[j] + cuts[j + 1]) / 2 for j in beside]
+    times = np.unique(np.concatenate([cuts, points]))
+    if times.size < cuts.size + 2 - r + len(inside):
+        # Midpoints shared (a piece between two repeated knots, or the first or last piece's own
+        # midpoint): thirds of the pieces beside, so that the points still determine the space.
+        times = np.unique(np.concatenate([times, [cuts[j] + f * (cuts[j + 1] - cuts[j])
+                                                  for j in beside for f in (1 / 3, 2 / 3)]]))
+    return times
 
 
 def relation_times(scene, constraint, expr: sp.Expr, kind: str) -> np.ndarray:
