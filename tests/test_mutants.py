@@ -16,7 +16,9 @@ from stw_tui.session.session import Session
 from scipy.interpolate import BSpline
 
 from stw_tui.sos.continuous import SNAP, ConstraintCheck, DenseReport, _snap, condition_holds, survey_failures
-from stw_tui.sos.instances import exact_times, extra_times, merge_times, uniform_times
+from stw_tui.sos.instances import exact_degree, exact_times, extra_times, merge_times, uniform_times
+from stw_tui.sym.kinds import TermKind
+from stw_tui.sym.symbols import dof_symbol
 from stw_tui.sos.window import WindowProblem
 
 
@@ -170,3 +172,21 @@ def test_a_broken_bound_asks_for_no_refinement():
     assert report.checks["x.bounds"].dense > 0.3
     assert "x.bounds" not in wanted and "x.bounds" not in failing
     assert wanted["low"].size and failing["low"].shape[0]
+
+
+def test_a_relation_on_a_released_object_is_exact_on_its_own_curve():
+    # After the release the ball is its own cubic curve: BX'' = 0 there is affine in it (exact
+    # instances, r = 2); inside the hold it is the hand, trigonometry of the shoulder (no finite
+    # set of instances makes it exact). (mutant: the relation read without its scope, both
+    # branches of the hold at once, so never exact)
+    s = run_lines(Session(), """time 0 1 knots=8
+const g = 9.81
+linkage arm base=fixed
+  SHOULDER revolute a=0.4 mass=1
+end
+dof SHOULDER = t
+dof BX, BY
+hold B at arm.tip on [0.25, 0.75]
+""")
+    assert exact_degree(s.scene, dof_symbol("BX", 2), TermKind.EQ, (0.75, 1.0)) == 2
+    assert exact_degree(s.scene, dof_symbol("BX", 2), TermKind.EQ, (0.25, 0.75)) is None

@@ -300,18 +300,12 @@ def check_scene(scene) -> DenseReport:
     Raises:
         StwError: a constraint that no longer compiles (e.g. it names a deleted definition).
     """
-    return survey(scene, None)[0]
-
-
-def survey(scene, tol: float | None) -> tuple[DenseReport, dict[str, np.ndarray]]:
-    """The dense check and, from the same samples, where new instances would help (see
-    :func:`_refinement`; nothing when ``tol`` is None)."""
-    report, wanted, _ = survey_failures(scene, tol)
-    return report, wanted
+    return survey_failures(scene, None)[0]
 
 
 def survey_failures(scene, tol: float | None) -> tuple[DenseReport, dict[str, np.ndarray], dict[str, np.ndarray]]:
-    """:func:`survey`, and where each check fails: the local maxima of its dense violation above
+    """The dense check; where new instances would help (see :func:`_refinement`; nothing when
+    ``tol`` is None); and where each check fails: the local maxima of its dense violation above
     its tolerance, as (time, violation) rows, on relations whose instances are not placed exactly
     (where adaptive refinement inserts knots; see stw_tui/sos/refinement.py)."""
     checks, wanted, failing = {}, {}, {}
