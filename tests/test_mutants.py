@@ -16,7 +16,8 @@ from stw_tui.session.session import Session
 from scipy.interpolate import BSpline
 
 from stw_tui.sos.continuous import SNAP, ConstraintCheck, DenseReport, _snap, condition_holds, survey_failures
-from stw_tui.sos.instances import exact_degree, exact_times, extra_times, merge_times, uniform_times
+from stw_tui.sos.instances import (dofs_used, exact_degree, exact_times, extra_times, interval_cuts, merge_times,
+                                   uniform_times)
 from stw_tui.sym.kinds import TermKind
 from stw_tui.sym.symbols import dof_symbol
 from stw_tui.sos.window import WindowProblem
@@ -172,6 +173,37 @@ def test_a_broken_bound_asks_for_no_refinement():
     assert report.checks["x.bounds"].dense > 0.3
     assert "x.bounds" not in wanted and "x.bounds" not in failing
     assert wanted["low"].size and failing["low"].shape[0]
+
+
+def test_a_breakpoint_within_rounding_of_an_end_is_that_end():
+    # "Within rounding" is 1e-9 of the interval's length, or of 1 s when it is shorter: a knot
+    # half of that inside an end is the end, one twice that is a piece of its own. (mutants: the
+    # length divided, read as b + a, or its floor made 2)
+    for a, b in ((0.0, 1.0), (0.0, 4.0), (3.0, 4.0), (0.0, 0.25)):
+        slack = 1e-9 * max(b - a, 1.0)
+        near = np.array([a, a + 0.5 * slack, (a + b) / 2, b - 0.5 * slack, b])
+        assert np.array_equal(interval_cuts(near, a, b), [a, (a + b) / 2, b]), (a, b)
+        far = np.array([a, a + 2 * slack, b - 2 * slack, b])
+        assert np.array_equal(interval_cuts(far, a, b), [a, a + 2 * slack, b - 2 * slack, b]), (a, b)
+
+
+def test_a_relations_dof_are_those_it_reads_where_it_holds():
+    # Inside the hold the ball is the hand (the shoulder's curve); after the release, its own.
+    # (mutants: the scope dropped, every DOF taken)
+    s = run_lines(Session(), """time 0 1 knots=8
+const g = 9.81
+linkage arm base=fixed
+  SHOULDER revolute a=0.4 mass=1
+end
+dof SHOULDER = t
+dof BX, BY
+hold B at arm.tip on [0.25, 0.75]
+""")
+    bx = dof_symbol("BX")
+    assert dofs_used(s.scene, [bx], (0.3, 0.7)) == ["SHOULDER"]
+    assert dofs_used(s.scene, [bx], (0.75, 1.0)) == ["BX"]
+    # over the whole animation, both: the hand while held, the ball's curve outside
+    assert dofs_used(s.scene, [dof_symbol("BY", 2) + 1], None) == ["SHOULDER", "BY"]
 
 
 def test_a_relation_on_a_released_object_is_exact_on_its_own_curve():
