@@ -994,3 +994,20 @@ def test_a_step_after_one_that_passed_first_time_evaluates_its_trial_whole_and_r
     assert made_again.count("merit_values") >= steps
     assert objectives == objectives_again
     assert np.array_equal(ahead, again)
+
+
+def test_the_newton_step_is_zero_along_control_points_nothing_reads():
+    # min x0² + 2 x2² with x0 + x2 = 1 (x1 read by nothing): on the row's null space (1, 0, -1)
+    # the Lagrangian gradient r = (1, 0, -3) gives the step -(r·n)/(nᵀHn) n = -4/6 (1, 0, -1);
+    # along x1 the system was singular (KKT inf), and the step there is 0. A gradient along x1
+    # (nothing curves or bounds it) has no Newton step: None.
+    import scipy.sparse as sps
+    from types import SimpleNamespace
+    from stw_tui.sos.sqp.termination import newton_step
+
+    ev = SimpleNamespace(lagrangian_hessian=lambda le, lg: sps.csr_array(np.diag([2.0, 0.0, 4.0])),
+                         J_eq=sps.csr_array(np.array([[1.0, 0.0, 1.0]])), J_ge=sps.csr_array((0, 3)),
+                         active_eq=np.array([True]), active_ge=np.zeros(0, bool))
+    p = newton_step(ev, np.zeros(1), np.zeros(0), np.array([1.0, 0.0, -3.0]))
+    np.testing.assert_allclose(p, [-2 / 3, 0.0, 2 / 3], atol=1e-9)   # to the (2,2) block ε = 1e-10
+    assert newton_step(ev, np.zeros(1), np.zeros(0), np.array([1.0, 0.5, -3.0])) is None

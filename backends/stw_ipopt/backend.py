@@ -58,7 +58,7 @@ import numpy as np
 import scipy.sparse as sps
 
 from stw_tui.sos.backend import CANCELLED, ITERATION_BUDGET, Backend, BackendOption, Capability, SolverState, StepReport
-from stw_tui.sos.sqp.termination import PROJECTION_EPS, is_converged, kkt_residual
+from stw_tui.sos.sqp.termination import PROJECTION_EPS, is_converged, kkt_residual, read_variables
 from stw_tui.sym.errors import StwError
 
 from .anchor import pendulum_nlp
@@ -224,16 +224,24 @@ def _dense_newton(ev, lam_eq: np.ndarray, lam_ge: np.ndarray):
         return None
 
     def newton(r: np.ndarray) -> np.ndarray | None:
-        K = np.zeros((n + m, n + m))
-        K[:n, :n] = ev.lagrangian_hessian(lam_eq * ev.active_eq, lam_ge * ev.active_ge).toarray()
+        H = ev.lagrangian_hessian(lam_eq * ev.active_eq, lam_ge * ev.active_ge).toarray()
+        A = np.vstack([J.toarray()[index] for J, index in rows]) if m else np.zeros((0, n))
+        read = read_variables(H, A)    # as newton_step: the step is zero where nothing reads
+        if r[~read].any():
+            return None
+        k = int(read.sum())
+        K = np.zeros((k + m, k + m))
+        K[:k, :k] = H[read][:, read]
         if m:
-            A = np.vstack([J.toarray()[index] for J, index in rows])
-            K[n:, :n], K[:n, n:] = A, A.T
-            K[n:, n:] = -PROJECTION_EPS * np.eye(m)
+            K[k:, :k], K[:k, k:] = A[:, read], A[:, read].T
+            K[k:, k:] = -PROJECTION_EPS * np.eye(m)
         try:
-            return np.linalg.solve(K, np.concatenate([-r, np.zeros(m)]))[:n]
+            x = np.linalg.solve(K, np.concatenate([-r[read], np.zeros(m)]))
         except np.linalg.LinAlgError:
             return None
+        p = np.zeros(n)
+        p[read] = x[:k]
+        return p
     return newton
 
 

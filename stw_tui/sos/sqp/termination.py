@@ -88,13 +88,26 @@ def newton_step(ev, lam_eq: np.ndarray, lam_ge: np.ndarray, r: np.ndarray) -> np
     if ev.J_ge.shape[0]:
         parts.append(sps.csr_array(ev.J_ge)[np.flatnonzero(ev.active_ge & (lam_ge < 0))])
     A = sps.vstack(parts, format="csr") if parts else sps.csr_array((0, r.size))
+    read = read_variables(H, A)
+    if r[~read].any():   # a direction nothing curves or bounds, along which ∇L is not zero
+        return None
+    H, A = H[read][:, read], A[:, read]
     m = A.shape[0]
     K = sps.block_array([[H, A.T], [A, -PROJECTION_EPS * sps.eye_array(m)]], format="csc") if m else sps.csc_array(H)
     try:
-        x = spla.splu(K).solve(np.concatenate([-r, np.zeros(m)]))
+        x = spla.splu(K).solve(np.concatenate([-r[read], np.zeros(m)]))
     except RuntimeError:
         return None
-    return x[:r.size]
+    p = np.zeros(r.size)
+    p[read] = x[:H.shape[0]]
+    return p
+
+
+def read_variables(H, A) -> np.ndarray:
+    """The free control points that the Lagrangian's Hessian or a row reads. The Newton system
+    is singular along the others (a held ball's control points inside its hold: arm_throw's
+    final point under IPOPT had 16), where the step is zero and leaves the decrement alone."""
+    return (np.asarray(abs(H).sum(axis=1)).ravel() > 0) | (np.asarray(abs(A).sum(axis=0)).ravel() > 0)
 
 
 def is_converged(violation: float, kkt: float, settings: dict, tiny_step: bool = False,
