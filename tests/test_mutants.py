@@ -17,7 +17,7 @@ from scipy.interpolate import BSpline
 
 from stw_tui.sos.continuous import SNAP, ConstraintCheck, DenseReport, _snap, condition_holds, survey_failures
 from stw_tui.sos.instances import (dofs_used, exact_degree, exact_times, extra_times, interval_cuts, merge_times,
-                                   uniform_times)
+                                   on_own_side, repeated_knots, uniform_times)
 from stw_tui.sym.kinds import TermKind
 from stw_tui.sym.symbols import dof_symbol
 from stw_tui.sos.window import WindowProblem
@@ -222,3 +222,43 @@ hold B at arm.tip on [0.25, 0.75]
 """)
     assert exact_degree(s.scene, dof_symbol("BX", 2), TermKind.EQ, (0.75, 1.0)) == 2
     assert exact_degree(s.scene, dof_symbol("BX", 2), TermKind.EQ, (0.25, 0.75)) is None
+
+
+def test_a_repeated_knot_within_rounding_of_an_end_is_that_end():
+    # "Within rounding" is 1e-9 of the larger of |a|, |b| and 1: a double knot that close to b
+    # sends the instances at b just before the knot (the interval's own side); one farther away
+    # is inside and moves nothing. (mutants: the scale divided, or read from one end only, or
+    # its floor dropped or made 2) No knots at all: nothing repeated (mutant: concatenate of none).
+    for a, b in ((0.0, 4.0), (-4.0, 1.0), (0.0, 0.5), (-0.25, 0.25)):
+        slack = 1e-9 * max(abs(a), abs(b), 1.0)
+        times = np.linspace(a, b, 5)
+        moved = on_own_side(times, a, b, np.array([b - 0.75 * slack]))
+        assert moved[-1] == np.nextafter(b - 0.75 * slack, -np.inf) and np.array_equal(moved[:-1], times[:-1]), (a, b)
+        assert np.array_equal(on_own_side(times, a, b, np.array([b - 1.5 * slack])), times), (a, b)
+        started = on_own_side(times, a, b, np.array([a + 0.75 * slack]))
+        assert started[0] == a + 0.75 * slack and np.array_equal(started[1:], times[1:]), (a, b)
+    assert repeated_knots([]).size == 0
+
+
+def test_refinement_asks_for_an_instance_at_each_interior_peak_over_the_limit_only():
+    # x <= 0 on [0, 2] at instances 0, 0.5, 1, 1.5, 2, with a bump of 0.5 at 0.75, one of 0.05 at
+    # 1.25 (under the limit 0.1) and a rise 0.5 (t/2)^8 to the end t = 2 (an instance already):
+    # refinement wants one instance, at 0.75; the failing peaks are 0.75 and the end. With the
+    # two ends as its only instances the relation is refined too. (mutants: points above the
+    # limit or falling points counted as peaks, rising ones, a relation of two instances skipped)
+    def scene(samples, end="0.5*(t/2)^8"):
+        return run_lines(Session(), f"""time 0 2 knots=60
+dof x = 0.5*exp(-((t - 0.75)/0.08)^2) + 0.05*exp(-((t - 1.25)/0.08)^2) + {end}
+constraint c: x <= 0 on [0, 2] samples={samples}
+""").scene
+    _, wanted, failing = survey_failures(scene(4), 0.1)
+    np.testing.assert_allclose(wanted["c"], [0.75], atol=2e-3)
+    # the peaks' rows, on the grid and its zoom (1/8 of a knot span, then finer): at 0.75 and 2 only
+    t, v = failing["c"][:, 0], failing["c"][:, 1]
+    near = np.minimum(np.abs(t - 0.75), np.abs(t - 2.0))
+    assert near.max() < 5e-3 and (np.abs(t - 0.75) < 5e-3).any() and (t == 2.0).any()
+    np.testing.assert_allclose(v, 0.5, atol=0.01)
+    # (one gap: its worst peak decides, and the rise to t = 2 would be it, at an instance already)
+    _, wanted, failing = survey_failures(scene(1, end="0"), 0.1)
+    np.testing.assert_allclose(wanted["c"], [0.75], atol=2e-3)
+    assert np.abs(failing["c"][:, 0] - 0.75).max() < 5e-3
