@@ -206,6 +206,26 @@ hold B at arm.tip on [0.25, 0.75]
     assert dofs_used(s.scene, [dof_symbol("BY", 2) + 1], None) == ["SHOULDER", "BY"]
 
 
+def test_an_exact_relation_after_a_release_asks_for_no_refinement():
+    # BX'' = 0 after the release is affine in the ball's own curve: its instances make it exact,
+    # and adaptive refinement adds none however far the curve breaks it between them (mutant:
+    # exactness decided without the relation's scope, where the hold's hand makes it curved).
+    s = run_lines(Session(), """time 0 1 knots=8
+const g = 9.81
+linkage arm base=fixed
+  SHOULDER revolute a=0.4 mass=1
+end
+dof SHOULDER = t
+dof BX, BY
+dof BX = sin(20*t)
+hold B at arm.tip on [0.25, 0.75]
+constraint fly: BX'' = 0 on [0.75, 1]
+""")
+    report, wanted, failing = survey_failures(s.scene, 1e-3)
+    assert report.checks["fly"].dense > 1.0
+    assert "fly" not in wanted and "fly" not in failing
+
+
 def test_a_relation_on_a_released_object_is_exact_on_its_own_curve():
     # After the release the ball is its own cubic curve: BX'' = 0 there is affine in it (exact
     # instances, r = 2); inside the hold it is the hand, trigonometry of the shoulder (no finite

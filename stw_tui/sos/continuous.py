@@ -267,7 +267,7 @@ def _bound_samplings(scene, dof, kept: dict) -> list[_Sampling | _Samples]:
     return out
 
 
-def _summarize(name: str, samples: list[_Samples], tol: float | None, bound: bool = False) -> ConstraintCheck:
+def _summarize(name: str, samples: list[_Samples], tol: float | None, bound: bool) -> ConstraintCheck:
     worst_inst = max((float(s.v_inst.max(initial=0.0)) for s in samples), default=0.0)
     worst_dense, worst_t = 0.0, None
     for s in samples:
