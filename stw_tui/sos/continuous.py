@@ -316,13 +316,13 @@ def survey_failures(scene, tol: float | None) -> tuple[DenseReport, dict[str, np
             found = _refinement(scene, samples, limit)
             if found.size:
                 wanted[name] = found
-            peaks = _failing_peaks(scene, samples, limit)
+            peaks = _failing_peaks(samples, limit)
             if peaks.shape[0]:
                 failing[name] = peaks
     return DenseReport(checks), wanted, failing
 
 
-def _failing_peaks(scene, samples: list[_Samples], limit: float) -> np.ndarray:
+def _failing_peaks(samples: list[_Samples], limit: float) -> np.ndarray:
     """The local maxima of one check's dense violation above ``limit``, as (time, violation)
     rows in time order, instances included; none on an instant or on exactly placed instances."""
     found = []
