@@ -17,7 +17,7 @@ from scipy.interpolate import BSpline
 
 from stw_tui.sos.continuous import SNAP, ConstraintCheck, DenseReport, _snap, condition_holds, survey_failures
 from stw_tui.sos.instances import (dofs_used, exact_degree, exact_times, extra_times, interval_cuts, merge_times,
-                                   on_own_side, repeated_knots, uniform_times)
+                                   on_own_side, relation_times, repeated_knots, uniform_times)
 from stw_tui.sym.kinds import TermKind
 from stw_tui.sym.symbols import dof_symbol
 from stw_tui.sos.window import WindowProblem
@@ -282,3 +282,32 @@ constraint c: x <= 0 on [0, 2] samples={samples}
     _, wanted, failing = survey_failures(scene(1, end="0"), 0.1)
     np.testing.assert_allclose(wanted["c"], [0.75], atol=2e-3)
     assert np.abs(failing["c"][:, 0] - 0.75).max() < 5e-3
+
+
+def test_each_relation_of_a_constraint_is_refined_after_an_exact_one():
+    # `y = 0` is exact (affine in y: nothing to refine), `x <= 0` after it is not: a violation
+    # falling from 0.5 at t = 0 (a failing peak at the first grid point, an instance already),
+    # and a bump of 0.5 at 0.77 (between instances) that refinement asks for an instance at.
+    # (mutants: the relations after an exact one skipped; the first grid point never a peak)
+    s = run_lines(Session(), """time 0 2 knots=60
+dof y = t
+dof x = 0.5*exp(-((t - 0.77)/0.08)^2) + 0.5*(1 - t/2)^8
+constraint c: y = 0, x <= 0 on [0, 2]
+""")
+    _, wanted, failing = survey_failures(s.scene, 0.1)
+    assert (np.abs(wanted["c"] - 0.77) < 5e-3).any()    # (the ramp's gaps too, between instances)
+    t = failing["c"][:, 0]
+    assert (t == 0.0).any() and (np.abs(t - 0.77) < 5e-3).any()
+
+
+def test_added_instances_merge_relative_to_the_animations_length_from_t0():
+    # On [1, 3] (2 s) two instances 3e-9 s apart are two (over 1e-9 x 2 s). (mutant: the
+    # length read as t1 + t0 = 4 s, which merges them)
+    s = run_lines(Session(), """time 1 3 knots=8
+dof x
+constraint c: x*x <= 1 on [1, 3] samples=4
+instances c add 1.500000003
+""")
+    c = s.scene.constraints["c"]
+    times = relation_times(s.scene, c, c.relations[0].expr, c.relations[0].kind)
+    assert np.isclose(times, 1.5, rtol=0, atol=1e-12).any() and np.isclose(times, 1.500000003, rtol=0, atol=1e-12).any()
