@@ -23,6 +23,18 @@ from stw_tui.sym.symbols import dof_symbol
 from stw_tui.sos.window import WindowProblem
 
 
+# A one-link arm that holds a ball over [0.25, 0.75]: inside the hold BX, BY are the hand's point.
+HELD = """time 0 1 knots=8
+const g = 9.81
+linkage arm base=fixed
+  SHOULDER revolute a=0.4 mass=1
+end
+dof SHOULDER = t
+dof BX, BY
+hold B at arm.tip on [0.25, 0.75]
+"""
+
+
 def test_uniform_samples_keep_the_scene_density_on_an_interval_away_from_zero():
     # 8 samples over an animation of 2 s is 4 per second, wherever the interval lies: [1, 2]
     # and [0.5, 1.5] get 4 steps each, [1.5, 2] two; samples=6 (per animation) gives [1, 2] 3.
@@ -190,15 +202,7 @@ def test_a_breakpoint_within_rounding_of_an_end_is_that_end():
 def test_a_relations_dof_are_those_it_reads_where_it_holds():
     # Inside the hold the ball is the hand (the shoulder's curve); after the release, its own.
     # (mutants: the scope dropped, every DOF taken)
-    s = run_lines(Session(), """time 0 1 knots=8
-const g = 9.81
-linkage arm base=fixed
-  SHOULDER revolute a=0.4 mass=1
-end
-dof SHOULDER = t
-dof BX, BY
-hold B at arm.tip on [0.25, 0.75]
-""")
+    s = run_lines(Session(), HELD)
     bx = dof_symbol("BX")
     assert dofs_used(s.scene, [bx], (0.3, 0.7)) == ["SHOULDER"]
     assert dofs_used(s.scene, [bx], (0.75, 1.0)) == ["BX"]
@@ -210,17 +214,7 @@ def test_an_exact_relation_after_a_release_asks_for_no_refinement():
     # BX'' = 0 after the release is affine in the ball's own curve: its instances make it exact,
     # and adaptive refinement adds none however far the curve breaks it between them (mutant:
     # exactness decided without the relation's scope, where the hold's hand makes it curved).
-    s = run_lines(Session(), """time 0 1 knots=8
-const g = 9.81
-linkage arm base=fixed
-  SHOULDER revolute a=0.4 mass=1
-end
-dof SHOULDER = t
-dof BX, BY
-dof BX = sin(20*t)
-hold B at arm.tip on [0.25, 0.75]
-constraint fly: BX'' = 0 on [0.75, 1]
-""")
+    s = run_lines(Session(), HELD + "dof BX = sin(20*t)\nconstraint fly: BX'' = 0 on [0.75, 1]\n")
     report, wanted, failing = survey_failures(s.scene, 1e-3)
     assert report.checks["fly"].dense > 1.0
     assert "fly" not in wanted and "fly" not in failing
@@ -231,15 +225,7 @@ def test_a_relation_on_a_released_object_is_exact_on_its_own_curve():
     # instances, r = 2); inside the hold it is the hand, trigonometry of the shoulder (no finite
     # set of instances makes it exact). (mutant: the relation read without its scope, both
     # branches of the hold at once, so never exact)
-    s = run_lines(Session(), """time 0 1 knots=8
-const g = 9.81
-linkage arm base=fixed
-  SHOULDER revolute a=0.4 mass=1
-end
-dof SHOULDER = t
-dof BX, BY
-hold B at arm.tip on [0.25, 0.75]
-""")
+    s = run_lines(Session(), HELD)
     assert exact_degree(s.scene, dof_symbol("BX", 2), TermKind.EQ, (0.75, 1.0)) == 2
     assert exact_degree(s.scene, dof_symbol("BX", 2), TermKind.EQ, (0.25, 0.75)) is None
 
