@@ -1,5 +1,7 @@
 import os
 import platform
+import signal
+import subprocess
 from importlib import metadata
 from pathlib import Path
 
@@ -32,6 +34,19 @@ SESSIONS = ROOT / "sessions"
 # (Uncapped, the solve reaches its optimum in one step and its rounding floor a few later, where a
 # step that no longer lowers the merit ends it as stalled.)
 ENDLESS = "set tol_violation 0\nset tol_kkt 0\nset tol_step 0\nbackend scipy max_step=1e-6\n"
+
+
+def popen_foreground(args: list[str], **kwargs) -> subprocess.Popen:
+    """``subprocess.Popen(args, **kwargs)`` with SIGINT at its default in the child, as a terminal's
+    foreground job has it, for tests that press Ctrl+C. An ignored signal stays ignored through
+    exec, and a background job of a non-interactive shell (`pytest &` in a script, `nohup … &`)
+    ignores SIGINT: Python then leaves it ignored and the child never sees Ctrl+C. A handled
+    signal is reset to its default by exec, so this process handles it while it starts the child."""
+    previous = signal.signal(signal.SIGINT, signal.default_int_handler)
+    try:
+        return subprocess.Popen(args, **kwargs)
+    finally:
+        signal.signal(signal.SIGINT, previous)
 
 
 @pytest.fixture

@@ -18,6 +18,7 @@ from pathlib import Path
 import pytest
 
 import test_app_support as support
+from conftest import popen_foreground
 from stw_tui.session.session import Session
 from stw_tui.sos import backend_calls
 from stw_tui.sos.backend_calls import HungBackend
@@ -353,16 +354,8 @@ def _why_still_running(process: subprocess.Popen) -> str:
 
 def test_headless_ctrl_c_ends_a_hung_solve_at_once_with_an_error(tmp_path):
     env = {**_install_hanging(tmp_path), "PYTHONFAULTHANDLER": "1"}
-    # As a terminal's foreground job has it: SIGINT at its default. An ignored signal stays ignored
-    # through exec, and a background job of a non-interactive shell (`pytest &` in a script)
-    # ignores SIGINT: Python then leaves it ignored and Ctrl+C never reaches stw. A handled
-    # signal is reset to its default by exec, so the parent handles it while it starts the child.
-    previous = signal.signal(signal.SIGINT, signal.default_int_handler)
-    try:
-        process = subprocess.Popen([sys.executable, "-m", "stw_tui.cli", "run", str(tmp_path / "hang.stw")],
-                                   env=env, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
-    finally:
-        signal.signal(signal.SIGINT, previous)
+    process = popen_foreground([sys.executable, "-m", "stw_tui.cli", "run", str(tmp_path / "hang.stw")],
+                               env=env, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
     try:
         for line in process.stdout:                          # `stw run` prints each line's result
             if line.strip() == "hanging now":
@@ -376,14 +369,9 @@ def test_headless_ctrl_c_ends_a_hung_solve_at_once_with_an_error(tmp_path):
 
 
 def _start_run(tmp_path, env: dict, *options: str) -> subprocess.Popen:
-    """`stw run hang.stw [OPTIONS]`, with SIGINT at its default as a terminal's foreground job has it (see
-    test_headless_ctrl_c_ends_a_hung_solve_at_once_with_an_error)."""
-    previous = signal.signal(signal.SIGINT, signal.default_int_handler)
-    try:
-        return subprocess.Popen([sys.executable, "-m", "stw_tui.cli", "run", str(tmp_path / "hang.stw"), *options],
-                                env=env, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
-    finally:
-        signal.signal(signal.SIGINT, previous)
+    """`stw run hang.stw [OPTIONS]`, with SIGINT at its default as a terminal's foreground job has it."""
+    return popen_foreground([sys.executable, "-m", "stw_tui.cli", "run", str(tmp_path / "hang.stw"), *options],
+                            env=env, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
 
 
 def _wait_for_line(process: subprocess.Popen, text: str, timeout: float) -> list[str]:

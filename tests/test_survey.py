@@ -18,7 +18,7 @@ import time
 import numpy as np
 import pytest
 import catalogue
-from conftest import ROOT
+from conftest import ROOT, popen_foreground
 
 from stw_tui.session.session import Session
 from stw_tui.session.survey import SurveyPlan, plan_tasks
@@ -304,7 +304,9 @@ def test_ctrl_c_ends_a_headless_survey_at_once(tmp_path):
     lines = len(PENDULUM.splitlines())
     env = {**os.environ, "PYTHONUNBUFFERED": "1",
            "PYTHONPATH": os.pathsep.join([str(ROOT), str(ROOT / "backends"), os.environ.get("PYTHONPATH", "")])}
-    child = subprocess.Popen([sys.executable, "-m", "stw_tui.cli.main", "run", str(path)], stdout=subprocess.PIPE,
+    # SIGINT at its default in the child: under a pytest that ignores it (a background job) the
+    # child ignored Ctrl+C and this test hung until its timeout.
+    child = popen_foreground([sys.executable, "-m", "stw_tui.cli.main", "run", str(path)], stdout=subprocess.PIPE,
                              stderr=subprocess.PIPE, text=True, env=env)
     try:
         for line in child.stdout:              # the scene is built: the survey starts
