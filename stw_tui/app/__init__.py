@@ -27,7 +27,8 @@ def settings_file() -> Path:
 def create_app(session_path: str | Path | None = None, step: bool = False, session: "Session | None" = None,
                *, show_timing: bool = True, blink: bool = True, settings_path: str | Path | None = None,
                solver_process: bool = True, journal: str | Path | None = None,
-               notes: "list[str] | None" = None, quit_on_hangup: bool = False) -> StwApp:
+               notes: "list[str] | None" = None, quit_on_hangup: bool = False,
+               settle_heap: bool = False) -> StwApp:
     """A ready-to-run app.
 
     Args:
@@ -44,10 +45,12 @@ def create_app(session_path: str | Path | None = None, step: bool = False, sessi
             thread once the app shows.
         notes: lines to show in the console when the app opens (what `stw --resume` restored).
         quit_on_hangup: SIGHUP quits as Ctrl+Q does (`stw` itself; a test's app leaves it alone).
+        settle_heap: collect and freeze the heap after each command (`stw` itself, see heap.py; a
+            test's app leaves the test runner's heap alone).
     """
     return StwApp(session=session, session_path=session_path, step=step, show_timing=show_timing, blink=blink,
                   settings_path=settings_path, solver_process=solver_process, journal=journal, notes=notes,
-                  quit_on_hangup=quit_on_hangup)
+                  quit_on_hangup=quit_on_hangup, settle_heap=settle_heap)
 
 
 # Seconds a thread may hold the interpreter lock while another waits for it (Python's default is
@@ -81,7 +84,7 @@ def run_app(session_path: str | Path | None = None, step: bool = False,
     # Its Runner starts multiprocessing's helpers here, before Textual replaces stderr
     # (child_process.start_helpers).
     app = create_app(session_path, step=step, session=session, settings_path=settings_file(), journal=journal,
-                     notes=notes, quit_on_hangup=True)
+                     notes=notes, quit_on_hangup=True, settle_heap=True)
     sys.setswitchinterval(SWITCH_INTERVAL)
     app.run()
     code = app.return_code or 0

@@ -118,7 +118,7 @@ class StwApp(App[int]):
                  step: bool = False, show_timing: bool = True, blink: bool = True,
                  settings_path: str | Path | None = None, solver_process: bool = True,
                  journal: str | Path | None = None, notes: "list[str] | None" = None,
-                 quit_on_hangup: bool = False):
+                 quit_on_hangup: bool = False, settle_heap: bool = False):
         super().__init__()
         self.notes = list(notes or ())
         self.quit_on_hangup = quit_on_hangup
@@ -129,7 +129,8 @@ class StwApp(App[int]):
             self.animation_level = "none"
         self.settings_path = Path(settings_path) if settings_path else None
         self.runner = Runner(self, session, solver_process=solver_process,
-                             journal=Path(journal) if journal is not None and session is None else None)
+                             journal=Path(journal) if journal is not None and session is None else None,
+                             settle_heap=settle_heap)
         self.session_path = Path(session_path) if session_path else None
         self.stepping = step
         self.show_timing = show_timing

@@ -22,6 +22,7 @@ from collections import deque
 from pathlib import Path
 from typing import TYPE_CHECKING
 
+from stw_tui.app.heap import HeapSettler
 from stw_tui.app.messages import (CommandFinished, CommandStarted, IterationReported, Job, Origin, SurveyProgressed,
                                   TaskFinished)
 from stw_tui.session.child_process import NotPortable, SolverProcess, runs_in_solver_process, start_helpers
@@ -102,8 +103,11 @@ class Runner:
     """The queue of jobs and the state of the one running in the worker."""
 
     def __init__(self, app: "App", session: "Session | None" = None, solver_process: bool = True,
-                 journal: Path | None = None):
+                 journal: Path | None = None, settle_heap: bool = False):
         self.app = app
+        # After each job the heap is collected and frozen (heap.py): stw's own process only, not a
+        # test's, whose heap is the test runner's.
+        self.heap = HeapSettler() if settle_heap else None
         self.session = session
         self.journal = journal   # the file a session made here journals to (None: not journalled)
         self.replay_folder: Path | None = None   # the opened session file's folder: its lines write only there
@@ -217,6 +221,11 @@ class Runner:
         # The views read this copy (in the UI thread and in their background computations)
         # while the next command changes the session's scene.
         self._post(CommandFinished(job, outcome, error, info, self.session.scene.copy()))
+        self._settle_heap()
+
+    def _settle_heap(self) -> None:
+        if self.heap is not None:
+            self.heap.settle()
 
     def _execute(self, job: Job, on_report):
         """Apply the job's line: a solve in the solver process, anything else here."""
@@ -241,6 +250,7 @@ class Runner:
         except Exception as exc:  # shown in the console, like a command's error
             error = exc
         self._post(TaskFinished(job, result, error))
+        self._settle_heap()
 
 
 def survey_snapshot(table):
