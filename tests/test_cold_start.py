@@ -91,3 +91,16 @@ def test_run_with_a_backend_that_is_not_there_says_so_and_runs_nothing(tmp_path,
     assert "Traceback" not in captured.err and captured.out == ""
     assert main(["run", str(path), "--backend", "scipy solver=bogus"]) == 2
     assert "option solver: 'bogus' is not one of" in capsys.readouterr().err
+
+
+def test_the_tui_lets_textual_draw_120_frames_a_second_unless_the_user_says_otherwise(tmp_path):
+    # A key's echo waits for the screen's next frame (cli/main.py TUI_FPS). The setting must be in
+    # the environment before the TUI's first import of Textual, which reads it then: `stw` on a
+    # missing file has imported the app when it refuses the file.
+    script = ("import sys; from stw_tui.cli.main import _launch_tui\n"
+              f"assert _launch_tui([{str(tmp_path / 'missing.stw')!r}]) == 2\n"
+              "import textual.constants; print(textual.constants.MAX_FPS)\n")
+    env = {k: v for k, v in os.environ.items() if k != "TEXTUAL_FPS"}
+    ran = [subprocess.run([sys.executable, "-c", script], capture_output=True, text=True, env=dict(env, **extra))
+           for extra in ({}, {"TEXTUAL_FPS": "30"})]
+    assert [r.stdout.strip() for r in ran] == ["120", "30"], [r.stderr for r in ran]

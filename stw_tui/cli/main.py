@@ -348,7 +348,22 @@ def _defer_unused_numpy() -> None:
         defer_unused_numpy_subpackages()
 
 
+# Frames a second Textual may draw (its default is 60). A key's echo waits for the screen's next
+# frame, and while a solve runs the status line keeps the frame timer going, so at 60 a typed
+# character appeared up to 17 ms late, more with the machine's own delays: console echo p95 36-51 ms
+# against 9-20 at 120 and 11 at 240 (tests/tmux_latency.py, endless basketball at 80x24, load
+# 0.8-1.2, one to three runs each). The screen is drawn only when something changed, so the rate
+# is a ceiling, not a cost.
+TUI_FPS = 120
+
+
+def _tui_environment() -> None:
+    """Settings Textual reads when it is imported, unless the user has set them (TEXTUAL_FPS)."""
+    os.environ.setdefault("TEXTUAL_FPS", str(TUI_FPS))
+
+
 def _launch_tui(argv: list[str]) -> int:
+    _tui_environment()   # before Textual's first import
     parser = argparse.ArgumentParser(prog="stw", description="Open the Spacetime Windows TUI.")
     parser.add_argument("session", nargs="?", type=Path, help="a .stw session to open and replay")
     parser.add_argument("--step", action="store_true", help="step through the session line by line")
