@@ -252,7 +252,9 @@ def timed_key(tui: Tui, keys: list[str], area, literal: bool = False) -> tuple[f
 SETTLE_QUIET = 0.3   # seconds an area must stay unchanged to count as settled
 
 
-KINDS = ("console echo", "F2 panel switch", "F3 plot switch", "] next DOF (Curves)", "→ scrub (Figure)")
+PLOT_TABS = ("Curves", "Expr", "Figure", "Conv")   # the plots' order (app.PLOTS)
+KINDS = ("console echo", "F2 panel switch", "F3 plot switch", *(f"  F3 onto {tab}" for tab in PLOT_TABS),
+         "] next DOF (Curves)", "→ scrub (Figure)")
 
 
 def key_round(tui: Tui, record) -> None:
@@ -264,8 +266,14 @@ def key_round(tui: Tui, record) -> None:
     for _ in range(2):
         record("F2 panel switch", timed_key(tui, ["F2"], lambda s: side(s, "panels")))
     tui.send("F3")                                   # focuses the plots
-    for _ in range(4):                               # back to the tab it started on
-        record("F3 plot switch", timed_key(tui, ["F3"], lambda s: side(s, "plots")))
+    # From Curves (where every round but perhaps the first starts) each switch is also recorded
+    # under the tab it shows: a tail that only one tab has is then seen as such.
+    onto = PLOT_TABS[1:] + PLOT_TABS[:1] if "value" in title(tui.screen()) else (None,) * 4
+    for tab in onto:                                 # back to the tab it started on
+        result = timed_key(tui, ["F3"], lambda s: side(s, "plots"))
+        record("F3 plot switch", result)
+        if tab is not None:
+            record(f"  F3 onto {tab}", result)
     if show_plot(tui, "value"):                      # the Curves plot's title
         for _ in range(2):
             record("] next DOF (Curves)", timed_key(tui, ["]"], title, literal=True))
