@@ -58,7 +58,7 @@ import numpy as np
 import scipy.sparse as sps
 
 from stw_tui.sos.backend import CANCELLED, ITERATION_BUDGET, Backend, BackendOption, Capability, SolverState, StepReport
-from stw_tui.sos.sqp.termination import PROJECTION_EPS, is_converged, kkt_residual, read_variables
+from stw_tui.sos.sqp.termination import PROJECTION_EPS, is_converged, kkt_residual, projected_newton
 from stw_tui.sym.errors import StwError
 
 from .anchor import pendulum_nlp
@@ -226,23 +226,23 @@ def _dense_newton(ev, lam_eq: np.ndarray, lam_ge: np.ndarray):
     def newton(r: np.ndarray) -> np.ndarray | None:
         H = ev.lagrangian_hessian(lam_eq * ev.active_eq, lam_ge * ev.active_ge).toarray()
         A = np.vstack([J.toarray()[index] for J, index in rows]) if m else np.zeros((0, n))
-        read = read_variables(H, A)    # as newton_step: the step is zero where nothing reads
-        if r[~read].any():
-            return None
-        k = int(read.sum())
-        K = np.zeros((k + m, k + m))
-        K[:k, :k] = H[read][:, read]
-        if m:
-            K[k:, :k], K[:k, k:] = A[:, read], A[:, read].T
-            K[k:, k:] = -PROJECTION_EPS * np.eye(m)
-        try:
-            x = np.linalg.solve(K, np.concatenate([-r[read], np.zeros(m)]))
-        except np.linalg.LinAlgError:
-            return None
-        p = np.zeros(n)
-        p[read] = x[:k]
-        return p
+        return projected_newton(H, A, r, _dense_kkt_solve)   # as newton_step, dense
+
     return newton
+
+
+def _dense_kkt_solve(H: np.ndarray, A: np.ndarray, g: np.ndarray) -> np.ndarray | None:
+    """termination._sparse_kkt_solve's system, dense (LAPACK); None when singular."""
+    k, m = H.shape[0], A.shape[0]
+    K = np.zeros((k + m, k + m))
+    K[:k, :k] = H
+    if m:
+        K[k:, :k], K[:k, k:] = A, A.T
+        K[k:, k:] = -PROJECTION_EPS * np.eye(m)
+    try:
+        return np.linalg.solve(K, np.concatenate([g, np.zeros(m)]))[:k]
+    except np.linalg.LinAlgError:
+        return None
 
 
 class _Watch(casadi.Callback):

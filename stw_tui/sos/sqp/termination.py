@@ -88,18 +88,32 @@ def newton_step(ev, lam_eq: np.ndarray, lam_ge: np.ndarray, r: np.ndarray) -> np
     if ev.J_ge.shape[0]:
         parts.append(sps.csr_array(ev.J_ge)[np.flatnonzero(ev.active_ge & (lam_ge < 0))])
     A = sps.vstack(parts, format="csr") if parts else sps.csr_array((0, r.size))
-    read = read_variables(H, A)
-    if r[~read].any():   # a direction nothing curves or bounds, along which ∇L is not zero
-        return None
-    H, A = H[read][:, read], A[:, read]
+    return projected_newton(H, A, r, _sparse_kkt_solve)
+
+
+def _sparse_kkt_solve(H, A, g: np.ndarray) -> np.ndarray | None:
+    """x of [[H, Aᵀ], [A, -PROJECTION_EPS·I]] [x; y] = [g; 0] by one sparse LU (None: singular)."""
     m = A.shape[0]
     K = sps.block_array([[H, A.T], [A, -PROJECTION_EPS * sps.eye_array(m)]], format="csc") if m else sps.csc_array(H)
     try:
-        x = spla.splu(K).solve(np.concatenate([-r[read], np.zeros(m)]))
+        return spla.splu(K).solve(np.concatenate([g, np.zeros(m)]))[:H.shape[0]]
     except RuntimeError:
         return None
+
+
+def projected_newton(H, A, r: np.ndarray, solve) -> np.ndarray | None:
+    """The step -H⁻¹r on the null space of the rows A, on the variables that H or A reads
+    (:func:`read_variables`; zero along the others), by ``solve(H, A, g)``, which gives x of
+    [[H, Aᵀ], [A, -PROJECTION_EPS·I]] [x; y] = [g; 0] on those variables, or None when singular.
+    H and A are sparse or dense alike. None as well when r is not zero along an unread variable."""
+    read = read_variables(H, A)
+    if r[~read].any():   # a direction nothing curves or bounds, along which ∇L is not zero
+        return None
+    x = solve(H[read][:, read], A[:, read], -r[read])
+    if x is None:
+        return None
     p = np.zeros(r.size)
-    p[read] = x[:H.shape[0]]
+    p[read] = x
     return p
 
 
