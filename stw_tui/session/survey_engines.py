@@ -28,6 +28,7 @@ import os
 import socket
 import struct
 import time
+import traceback
 from concurrent.futures import FIRST_COMPLETED, ProcessPoolExecutor, wait
 from concurrent.futures.process import BrokenProcessPool
 from typing import Callable
@@ -216,6 +217,7 @@ class DaskEngine:
             from distributed import Client, LocalCluster
         except ImportError:
             raise StwError("Dask is not installed: pip install 'stw-tui[survey]'") from None
+        _quiet_interrupted_sync()
         if self.address:
             security = tls_security(self.address)
             check_scheduler(self.address, security)
@@ -296,6 +298,27 @@ class DaskEngine:
         for address in sorted(set(known) - set(now)):
             on_note(f"Dask worker {address} was lost; its starts go to the remaining workers")
         return now
+
+
+class _InterruptedSyncRace(logging.Filter):
+    """Drops tornado's report of a race inside distributed's ``sync``: Ctrl+C in a client call
+    schedules a cancel that can read the call's future before it is set (``NameError: cannot
+    access free variable 'future'``, distributed 2025), logged as a callback error over stw's own
+    "survey interrupted" line. The survey ends there anyway; nothing else is filtered."""
+
+    def filter(self, record: logging.LogRecord) -> bool:
+        exc = record.exc_info[1] if record.exc_info else None
+        return not (isinstance(exc, NameError) and "'future'" in str(exc)
+                    and exc.__traceback__ is not None
+                    and any(frame.f_code.co_filename.endswith(os.path.join("distributed", "utils.py"))
+                            for frame, _ in traceback.walk_tb(exc.__traceback__)))
+
+
+_SYNC_RACE_FILTER = _InterruptedSyncRace()
+
+
+def _quiet_interrupted_sync() -> None:
+    logging.getLogger("tornado.application").addFilter(_SYNC_RACE_FILTER)   # once: filters are a set
 
 
 def tls_security(address: str):
